@@ -1,1 +1,90 @@
-fn main() {}
+//! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
+
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const HELP: &str = "\
+cargo xtask <task>
+
+tasks:
+  ci      what CI runs: cargo fmt --check, clippy -D warnings, the release test suite
+  bench   the shooting benchmark (criterion), then a table of its medians in Mrays/s
+";
+
+fn main() -> Result<()> {
+    let task = std::env::args().nth(1);
+    match task.as_deref() {
+        Some("ci") => ci(),
+        Some("bench") => bench(),
+        Some("help" | "-h" | "--help") | None => {
+            print!("{HELP}");
+            Ok(())
+        }
+        Some(other) => bail!("unknown task '{other}'\n\n{HELP}"),
+    }
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask lives in the workspace").to_path_buf()
+}
+
+fn cargo(args: &[&str]) -> Result<()> {
+    eprintln!("$ cargo {}", args.join(" "));
+    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+        .args(args)
+        .current_dir(root())
+        .status()
+        .context("could not run cargo")?;
+    if !status.success() {
+        bail!("cargo {} failed ({status})", args.join(" "));
+    }
+    Ok(())
+}
+
+fn ci() -> Result<()> {
+    cargo(&["fmt", "--all", "--", "--check"])?;
+    cargo(&["clippy", "--workspace", "--all-targets", "--release", "--", "-D", "warnings"])?;
+    cargo(&["test", "--workspace", "--release"])
+}
+
+/// Runs the shooting benchmark and prints, per scene, each variant's median throughput and the
+/// solver's ratio to the bare obvhs loop.
+fn bench() -> Result<()> {
+    cargo(&["bench", "-p", "mcrad-mc-radiosity", "--bench", "shooting"])?;
+    let dir = root().join("target/criterion");
+    let mut groups: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("no criterion results in {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("shoot").is_dir())
+        .collect();
+    groups.sort();
+    println!("| scene | shoot Mrays/s | mcrad Bvh Mrays/s | bare obvhs Mrays/s | shoot / bare |");
+    println!("|---|---|---|---|---|");
+    for g in groups {
+        let rate = |f: &str| throughput(&g.join(f));
+        let (shoot, mine, bare) = (rate("shoot")?, rate("mcrad_bvh")?, rate("bare_obvhs")?);
+        println!(
+            "| {} | {shoot:.2} | {mine:.2} | {bare:.2} | {:.2} |",
+            g.file_name().unwrap_or_default().to_string_lossy(),
+            shoot / bare
+        );
+    }
+    Ok(())
+}
+
+/// Median throughput of one criterion benchmark in million elements per second.
+fn throughput(bench: &Path) -> Result<f64> {
+    let read = |name: &str| -> Result<serde_json::Value> {
+        let p = bench.join("new").join(name);
+        let text = std::fs::read_to_string(&p).with_context(|| format!("could not read {}", p.display()))?;
+        Ok(serde_json::from_str(&text)?)
+    };
+    let median_ns = read("estimates.json")?["median"]["point_estimate"]
+        .as_f64()
+        .context("estimates.json has no median")?;
+    let elements = read("benchmark.json")?["throughput"]["Elements"]
+        .as_f64()
+        .context("benchmark.json has no element throughput")?;
+    Ok(elements / median_ns * 1e3)
+}

@@ -1,1 +1,33 @@
-//! placeholder
+//! Results out of mcrad: per-patch CSV and run statistics as JSON (the formats of the command
+//! line contract in `ARCHITECTURE.md`).
+//!
+//! Writers take any [`std::io::Write`] and never print; the caller owns files and messages.
+
+mod patches;
+mod stats;
+
+pub use patches::{PatchRow, write_patch_csv};
+pub use stats::RunStats;
+
+/// Why writing a result failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The output could not be written.
+    #[error("could not write {what}: {source}")]
+    Io {
+        /// What was being written.
+        what: &'static str,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// Serialising to JSON failed.
+    #[error("could not encode {what} as JSON: {source}")]
+    Json {
+        /// What was being written.
+        what: &'static str,
+        /// The underlying error.
+        #[source]
+        source: serde_json::Error,
+    },
+}

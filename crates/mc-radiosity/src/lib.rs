@@ -1,1 +1,23 @@
-//! placeholder
+//! Monte Carlo radiosity estimators.
+//!
+//! Radiosity `B_i` (exitance, W/m²) solves `B_i = E_i + rho_i sum_j F_ij B_j`, where the form
+//! factor `F_ij` is the probability that a cosine-distributed ray leaving a uniform point of patch
+//! `i` first hits patch `j`. The estimators here never compute `F_ij`; they cast such rays through
+//! a [`RayCaster`](mcrad_raycast::RayCaster) and return a
+//! [`combine::Estimate`](mcrad_combine::Estimate).
+//!
+//! - [`shoot`]: stochastic shooting with Feda and Purgathofer's constant energy per ray (Balog,
+//!   section 1.3): unshot power `dB_i A_i` leaves patch `i` on `n_i` rays of `dB_i A_i / n_i`
+//!   each, `n_i` proportional to it.
+//!
+//! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`rng::Stream`]) and every
+//! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
+//! This crate does no I/O.
+
+pub mod rng;
+pub mod sampling;
+mod shoot;
+mod surface;
+
+pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
+pub use surface::SurfaceSampler;

@@ -1,1 +1,22 @@
-//! placeholder
+//! Faces to patches: the radiosity mesh.
+//!
+//! A [`Mesh`] holds the patches `P_i` the radiosity system is solved over — each a planar convex
+//! polygon with area `A_i`, unit normal, centroid, reflectance `rho_i` and emitted radiosity `E_i`
+//! — plus the triangles that make them up (for ray casting and uniform point sampling) and shared
+//! vertices (so radiosity can later be reconstructed at vertices).
+//!
+//! With [`Subdivision::None`] there is one patch per input face, in face order. With
+//! [`Subdivision::MaxEdge`] every face is cut uniformly — triangles into `n²` similar triangles,
+//! quads into an `n_u × n_v` bilinear grid, other polygons fanned into triangles first — until no
+//! patch edge is longer than the limit. Sub-patches tile their face exactly, so each face's area
+//! is preserved to rounding. Points on a face edge are shared with the neighbouring face whenever
+//! both cut that edge into the same number of pieces (always true for the walls of boxes); where
+//! they do not, the mesh has T-junctions, which patch radiosity does not mind.
+
+mod build;
+mod subdivide;
+
+pub use build::{Mesh, MeshError, Patch, Subdivision};
+
+#[cfg(test)]
+mod tests;

@@ -1,1 +1,224 @@
-//! placeholder (helper implements)
+//! Ray casting against tagged triangles: closest hit and point-to-point visibility.
+//!
+//! This crate knows nothing of radiosity. It holds triangles, each tagged with a caller's `u32`
+//! id (many triangles may share one id: a polygonal patch made of several coplanar triangles),
+//! and answers two questions through the [`RayCaster`] trait: *what does this ray hit first?*
+//! and *is anything between these two surface points?* [`Bvh`] answers them fast (an obvhs
+//! compressed wide BVH); [`BruteForce`] answers them slowly in `f64` and is the test oracle.
+//!
+//! Distances, points and bounds are always in **scene units** (whatever the input uses), and a
+//! ray's `t` is a Euclidean distance: directions are normalised by the caster.
+//!
+//! # The canonical frame
+//!
+//! obvhs 0.4 has two unit-dependent behaviours (measured in `/work/shared/bench/raycast`):
+//!
+//! * its CWBVH node test clamps the entry distance to `t >= 1e-4` whatever the ray's `tmin`,
+//!   so a hit closer than `1e-4` *units* is lost: a Cornell box modelled in metres at
+//!   millimetre scale loses hits, one modelled in kilometres does not;
+//! * a ray starting on its own triangle with `tmin = 0` hits that triangle again 35-79% of the
+//!   time, and any fixed origin offset is either too large for a small scene or too small for a
+//!   big one.
+//!
+//! So [`Bvh::build`] maps the scene into a *canonical frame*: it translates by the centre of the
+//! bounding box and scales by a power of two `s` so that the largest side lies in `[512, 1024)`.
+//! A power-of-two scale is exact in floating point and the map is evaluated in `f64` with a
+//! single rounding to `f32`, so the same world point always lands on the same canonical point
+//! (shared vertices stay shared, coplanar points stay coplanar as far as `f32` allows). Queries
+//! move their origin into the frame (the unit direction is unchanged; canonical `t` =
+//! `distance * s`), and hits come back in world units. A scene in millimetres and the same
+//! scene in kilometres, near the origin or far from it, see the same canonical numbers, and
+//! the obvhs cut-off is about `1e-7` of the scene size.
+//!
+//! # Surface offsets
+//!
+//! A ray built by [`Ray::from_surface`] (and each end of an [`RayCaster::occluded`] query) is
+//! lifted off its surface along the given normal by
+//! `max(CANONICAL_EPSILON, 2^-21 * max|p_i| * s)` canonical units, where `p` is the world point,
+//! and hits closer than [`CANONICAL_EPSILON`] to the lifted origin are ignored. The primitive
+//! id of the origin is never reported (it is skipped inside the traversal), so a ray cannot hit
+//! its own patch whatever the geometry of that patch.
+//!
+//! [`CANONICAL_EPSILON`] is `2^-10` canonical units, about `1e-6` of the scene size:
+//! * it is 16 ulps of the largest canonical coordinate (an `f32` ulp at 512 is `2^-14`), well
+//!   above the rounding noise of the plane test in the intersection (a few ulps), so a lifted
+//!   origin is on the right side of its own plane and of coplanar neighbours;
+//! * it is about 10 times the obvhs node cut-off `1e-4`, so a lifted ray never starts inside the
+//!   blind zone of a node it must enter;
+//! * obvhs replaces a direction component `|d| <= f32::EPSILON` by `±1/f32::EPSILON` in its box
+//!   test, which can cull a box the ray runs along if the origin is closer than
+//!   `1774 * f32::EPSILON = 2.1e-4` canonical units to its face (1774 is the canonical
+//!   diagonal); the lift keeps grazing rays farther than that from the surface they leave;
+//! * it is small: patches of `1e-6` of the scene's area (side `1e-3` of its extent, about one
+//!   canonical unit) are a thousand times larger than the offset.
+//!
+//! The second term only matters far from the world origin: a point given in world `f32` is only
+//! known to half an ulp of its largest coordinate (for a scene `1e4` extents away that is about
+//! `6e-4` of the extent, far more than `CANONICAL_EPSILON`). The caster cannot recover what the
+//! input lost, but the lift (4 such ulps) keeps such origins above their surface, so rays from
+//! a finely subdivided floor do not hit the coplanar neighbours of their patch. Near the origin
+//! (within about two extents) the lift is exactly `CANONICAL_EPSILON`.
+//!
+//! # Watertightness is counted, not promised
+//!
+//! obvhs intersects with Möller-Trumbore, which is not watertight: a ray can slip through the
+//! shared edge of two triangles. Measured: about one ray in three million inside a closed,
+//! tessellated room escapes (the test suite checks a bound of `1e-5`). Callers that need a hit
+//! (radiosity in a closed scene) must treat a miss as a rare event, not as a bug.
+//!
+//! # Other caveats
+//!
+//! * Degenerate (zero-area) triangles are accepted and never hit.
+//! * A ray with a zero or non-finite direction or origin hits nothing; a segment with
+//!   coincident or non-finite end points is not occluded.
+//! * obvhs keeps its traversal stack in a fixed array of 32 entries; a pathologically deep BVH
+//!   (millions of triangles piled in one spot) could overflow it and lose hits (no panic).
+//!
+//! # Example
+//!
+//! ```
+//! use glam::Vec3;
+//! use mcrad_raycast::{Bvh, Ray, RayCaster, SurfacePoint};
+//!
+//! // a unit square on the floor (id 7, facing +Y) and one at height 1 facing down (id 8)
+//! let (a, b, c, d) = (Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, 1.0), Vec3::Z);
+//! let up = Vec3::Y;
+//! let tris = [[a, d, c], [a, c, b], [a + up, b + up, c + up], [a + up, c + up, d + up]];
+//! let bvh = Bvh::build(&tris, &[7, 7, 8, 8]).unwrap();
+//!
+//! let ray = Ray::from_surface(Vec3::new(0.5, 0.0, 0.5), Vec3::Y, Vec3::Y, 7);
+//! let hit = bvh.closest_hit(&ray).unwrap();
+//! assert_eq!(hit.id, 8);
+//! assert!(hit.front && (hit.distance - 1.0).abs() < 1e-5);
+//!
+//! let p = SurfacePoint::new(Vec3::new(0.2, 0.0, 0.2), Vec3::Y, 7);
+//! let q = SurfacePoint::new(Vec3::new(0.8, 1.0, 0.8), -Vec3::Y, 8);
+//! assert!(!bvh.occluded(&p, &q));
+//! ```
+#![deny(missing_docs)]
+
+mod brute;
+mod bvh;
+mod exact;
+mod error;
+mod frame;
+
+use glam::Vec3;
+
+pub use brute::BruteForce;
+pub use bvh::{Bvh, BvhPreset};
+pub use error::BuildError;
+
+/// The "no primitive" id: rays that exclude nothing, points on no surface. No triangle may carry
+/// it ([`BuildError::ReservedId`]).
+pub const NO_ID: u32 = u32::MAX;
+
+/// The basic surface offset of ray origins, in canonical units (`2^-10`, about `1e-6`
+/// of the scene's largest extent). See the crate documentation for why this value.
+pub const CANONICAL_EPSILON: f32 = 1.0 / 1024.0;
+
+/// Hits closer than this to a ray's (offset) origin are ignored, in canonical units (`2^-13`,
+/// about `1e-7` of the scene's largest extent); the same margin is kept at both ends of a
+/// visibility segment. See the crate documentation for why this value.
+pub const CANONICAL_MIN_DISTANCE: f32 = 1.0 / 8192.0;
+
+/// A ray; distances along it are in scene units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Start point (scene units). For a surface ray: the point on the surface, not yet offset.
+    pub origin: Vec3,
+    /// Direction; should be a unit vector (the casters normalise it anyway, so hit distances are
+    /// Euclidean). A zero or non-finite direction hits nothing.
+    pub dir: Vec3,
+    /// Unit geometric normal of the surface the ray leaves, or `Vec3::ZERO` for a free point.
+    /// A non-zero normal makes the caster lift the origin along it (see the crate documentation).
+    pub origin_normal: Vec3,
+    /// Primitive id never reported as the hit ([`NO_ID`]: none).
+    pub exclude: u32,
+}
+
+impl Ray {
+    /// A ray from a free point (a camera): `origin_normal = ZERO`, `exclude = NO_ID`.
+    pub fn new(origin: Vec3, dir: Vec3) -> Ray {
+        Ray { origin, dir, origin_normal: Vec3::ZERO, exclude: NO_ID }
+    }
+
+    /// A ray leaving the surface of primitive `id` at `point` (scene units), where `normal` is
+    /// the unit geometric normal of that surface (`dir · normal > 0` expected). The caster
+    /// offsets the origin along `normal` by its own epsilon and never reports `id` as the hit.
+    pub fn from_surface(point: Vec3, normal: Vec3, dir: Vec3, id: u32) -> Ray {
+        Ray { origin: point, dir, origin_normal: normal, exclude: id }
+    }
+}
+
+/// A surface point for visibility queries.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfacePoint {
+    /// Position (scene units).
+    pub point: Vec3,
+    /// Unit geometric normal of the surface on the side the segment leaves (or arrives)
+    /// from, or `Vec3::ZERO` for a free point (no offset).
+    pub normal: Vec3,
+    /// Primitive id of the surface ([`NO_ID`] for a free point); never counts as a blocker.
+    pub id: u32,
+}
+
+impl SurfacePoint {
+    /// A point on the surface of primitive `id` with unit geometric normal `normal`.
+    pub fn new(point: Vec3, normal: Vec3, id: u32) -> SurfacePoint {
+        SurfacePoint { point, normal, id }
+    }
+
+    /// A point on no surface (a light or eye position): no offset, no excluded id.
+    pub fn free(point: Vec3) -> SurfacePoint {
+        SurfacePoint { point, normal: Vec3::ZERO, id: NO_ID }
+    }
+}
+
+/// The closest hit of a ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Primitive id of the triangle hit.
+    pub id: u32,
+    /// Distance from the ray's (offset) origin to the hit, in scene units. For a surface ray
+    /// this differs from the distance to [`Ray::origin`] by at most the offset (about `1e-6` of
+    /// the scene's extent).
+    pub distance: f32,
+    /// The hit point, in scene units.
+    pub point: Vec3,
+    /// `true` when the ray arrives on the front side: `dir · n < 0`, with `n` the triangle's
+    /// geometric normal `(v1 - v0) × (v2 - v0)` (counter-clockwise vertices seen from the
+    /// front). Back-face hits are reported too; what to do with them is the caller's business.
+    pub front: bool,
+}
+
+/// The small visibility interface estimators use (implemented by [`Bvh`] and [`BruteForce`]).
+///
+/// Both methods take `&self` and the implementors are `Sync`: share one caster across threads.
+pub trait RayCaster: Sync {
+    /// The closest hit along the ray, whichever side it arrives on, or `None` when it escapes
+    /// (or is degenerate: zero or non-finite direction or origin). Never reports `ray.exclude`.
+    fn closest_hit(&self, ray: &Ray) -> Option<Hit>;
+
+    /// `true` when something blocks the segment between `a` and `b` (neither `a.id` nor `b.id`
+    /// counts as a blocker; both ends are offset like surface-ray origins). Coincident or
+    /// non-finite end points are not occluded. Orientation is not checked: a segment that
+    /// leaves `a` below its surface is blocked only if another primitive is in the way.
+    fn occluded(&self, a: &SurfacePoint, b: &SurfacePoint) -> bool;
+
+    /// [`RayCaster::closest_hit`] for each ray, written to `hits` (`hits[i]` for `rays[i]`;
+    /// only the first `min(rays.len(), hits.len())` pairs are processed).
+    fn closest_hit_batch(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        for (ray, hit) in rays.iter().zip(hits) {
+            *hit = self.closest_hit(ray);
+        }
+    }
+
+    /// [`RayCaster::occluded`] for each pair, written to `out` (only the first
+    /// `min(pairs.len(), out.len())` pairs are processed).
+    fn occluded_batch(&self, pairs: &[(SurfacePoint, SurfacePoint)], out: &mut [bool]) {
+        for ((a, b), o) in pairs.iter().zip(out) {
+            *o = self.occluded(a, b);
+        }
+    }
+}

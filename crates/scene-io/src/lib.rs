@@ -10,16 +10,46 @@
 //!   `E = pi * L`.
 //! - a face is front-facing on the side from which its vertices run counter-clockwise.
 //!
-//! Loading never prints: repairs (dropped degenerate faces, defaulted materials) are returned as
-//! [`Warning`]s next to the scene, and bad input is a typed [`SceneError`].
+//! Every loader ends in [`Scene::new`], the one validation path: it rejects bad content (no
+//! faces, non-finite positions, reflectance outside `[0, 1)`, negative emission, no emitter,
+//! ...), drops degenerate faces and splits non-planar or non-convex ones into triangles, so
+//! every face of a [`Scene`] is planar, has non-zero area and can be fanned from its first
+//! vertex. Faces keep their input number ([`Face::source`]) through drops and splits.
+//!
+//! Loading never prints and never panics on bad input: repairs (dropped or split faces,
+//! defaulted materials, skipped primitives) are returned as counted [`Warning`]s next to the
+//! scene, and bad input is a typed [`SceneError`] whose message names the file, the line (OBJ,
+//! MTL) or node/mesh/primitive (glTF), and the offending value. Faces without a material get
+//! [`Material::builtin_default`] (0.5 grey, no emission).
+//!
+//! ```
+//! use mcrad_scene_io::load;
+//!
+//! let dir = tempfile::tempdir()?;
+//! std::fs::write(dir.path().join("lamp.mtl"), "newmtl lamp\nKd 0.5 0.5 0.5\nKe 10 10 10\n")?;
+//! std::fs::write(
+//!     dir.path().join("lamp.obj"),
+//!     "mtllib lamp.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl lamp\nf 1 2 3 4\n",
+//! )?;
+//! let loaded = load(&dir.path().join("lamp.obj"))?;
+//! assert!(loaded.warnings.is_empty());
+//! let scene = &loaded.scene;
+//! let quad = &scene.faces()[0];
+//! assert_eq!(quad.vertices.len(), 4); // OBJ polygons are not triangulated
+//! assert_eq!(scene.face_area(quad), 1.0); // units²
+//! assert_eq!(scene.materials()[quad.material as usize].emission.x, 10.0); // Ke = E, W/m²
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 mod error;
 mod gltf_load;
 mod obj;
+mod obj_text;
+mod polygon;
 mod scene;
 
-pub use error::{SceneError, Warning};
-pub use scene::{Face, Material, Scene};
+pub use error::{Location, SceneError, Warning};
+pub use scene::{Bounds, Face, Material, Scene};
 
 use std::path::Path;
 

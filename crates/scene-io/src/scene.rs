@@ -1,7 +1,8 @@
 //! The validated scene: positions, polygon faces and materials.
 
 use crate::error::{SceneError, Warning};
-use glam::Vec3;
+use crate::polygon::{self, Shape};
+use glam::{DVec3, Vec3};
 
 /// A diffuse material.
 #[derive(Debug, Clone, PartialEq)]
@@ -14,6 +15,30 @@ pub struct Material {
     pub emission: Vec3,
 }
 
+impl Material {
+    /// Name of the built-in material given to faces that have none (OBJ faces before any or
+    /// with an unknown `usemtl`, glTF primitives without `material`).
+    pub const DEFAULT_NAME: &'static str = "default";
+    /// Reflectance (each channel) of the built-in default material, and of MTL materials
+    /// without `Kd`: a neutral 0.5 grey.
+    pub const DEFAULT_REFLECTANCE: f32 = 0.5;
+
+    /// The built-in default material: named [`Material::DEFAULT_NAME`], reflectance 0.5 grey,
+    /// no emission. (glTF's own default is white; 0.5 keeps OBJ and glTF alike.)
+    pub fn builtin_default() -> Material {
+        Material {
+            name: Self::DEFAULT_NAME.to_string(),
+            reflectance: Vec3::splat(Self::DEFAULT_REFLECTANCE),
+            emission: Vec3::ZERO,
+        }
+    }
+
+    /// True if the material emits: some channel of [`Material::emission`] is `> 0`.
+    pub fn is_emitter(&self) -> bool {
+        self.emission.max_element() > 0.0
+    }
+}
+
 /// One planar polygon face of the input, vertices counter-clockwise seen from its front side.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Face {
@@ -22,13 +47,32 @@ pub struct Face {
     /// Index into [`Scene::materials`].
     pub material: u32,
     /// The face's number in the input: OBJ faces in file order over all objects, glTF triangles
-    /// over primitives in document order. Kept when degenerate faces before it are dropped.
+    /// over primitives in scene traversal order (depth-first, children in order). Kept when
+    /// degenerate faces before it are dropped; shared by the triangles of a split face.
     pub source: u32,
+}
+
+/// An axis-aligned bounding box in scene units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bounds {
+    /// The smallest coordinate per axis.
+    pub min: Vec3,
+    /// The largest coordinate per axis.
+    pub max: Vec3,
+}
+
+impl Bounds {
+    /// Length of the box's diagonal, in scene units (computed in f64).
+    pub fn diagonal(&self) -> f64 {
+        (self.max.as_dvec3() - self.min.as_dvec3()).length()
+    }
 }
 
 /// A validated scene. Invariants (checked by [`Scene::new`]): at least one face; every position
 /// finite; every face has >= 3 in-range vertex indices and a non-zero area; every material index
 /// in range; every reflectance in `[0,1)`; every emission finite and `>= 0`; some face emits.
+/// In addition every face is planar (within `1e-2` of its longest edge) and can be fanned from
+/// its first vertex: each triangle `(v0, vi, vi+1)` faces the polygon's front side.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
     positions: Vec<Vec3>,
@@ -37,15 +81,116 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Validates and builds a scene. Zero-area faces are dropped and reported in the returned
-    /// warnings (counted); every other violation of the invariants is an error.
+    /// Validates and builds a scene. This is the one validation path of every loader.
+    ///
+    /// Errors (see [`SceneError`]; faces are named by their `source` number, materials by
+    /// name): no faces, a non-finite position, a face with fewer than 3 vertices, a vertex or
+    /// material index out of range, a reflectance channel outside `[0, 1)` or non-finite, an
+    /// emission channel negative or non-finite, and no emitting face left after the repairs.
+    ///
+    /// Repairs, each reported by one counted [`Warning`]:
+    /// - **Degenerate faces are dropped** ([`Warning::DegenerateFacesDropped`]): a face whose
+    ///   area (`|sum of fan cross products| / 2`, in f64) is `<= 1e-12 * d²` with `d` the
+    ///   diagonal of the bounding box of the vertices the faces use, or exactly zero.
+    /// - **Non-planar or non-convex faces are split into triangles** ([`Warning::FacesSplit`]),
+    ///   each keeping the face's `source` and material. A face is kept whole if it is planar
+    ///   (no vertex farther than `1e-2 *` its longest edge from the plane through its centroid
+    ///   with its Newell normal) and some vertex fans it: every fan triangle from it has at least
+    ///   `1e-7` of the face's area on the front side. Otherwise it is ear-clipped in its Newell
+    ///   plane; (nearly) collinear vertices and back-facing parts of self-intersecting outlines
+    ///   are left out, so the triangles' total area matches the face's up to those slivers.
+    ///
+    /// Silent, shape-preserving normalisations: consecutive vertices at the same position
+    /// (same index or equal coordinates, including last = first) are merged into one, and a
+    /// face's vertex list may be rotated so that the fan from its first vertex is valid (for
+    /// example when vertex 0 is a T-junction on a straight edge). Faces keep their input order;
+    /// `positions` and `materials` are kept as given (unused entries included).
     pub fn new(
         positions: Vec<Vec3>,
         faces: Vec<Face>,
         materials: Vec<Material>,
     ) -> Result<(Scene, Vec<Warning>), SceneError> {
-        todo!("helper implements")
+        if faces.is_empty() {
+            return Err(SceneError::NoFaces { dropped: 0 });
+        }
+        check_positions(&positions)?;
+        check_materials(&materials)?;
+        check_faces(&faces, positions.len(), materials.len())?;
+
+        let bounds = used_bounds(&positions, &faces);
+        let diagonal = bounds.map_or(0.0, |b| b.diagonal());
+        let degenerate_area = 1e-12 * diagonal * diagonal;
+
+        let mut kept = Vec::with_capacity(faces.len());
+        let mut dropped = Tally::default();
+        let mut split = Tally::default();
+        for face in faces {
+            let ring = merge_repeated(&face.vertices, &positions);
+            let pts: Vec<DVec3> = ring
+                .iter()
+                .map(|&v| positions[v as usize].as_dvec3())
+                .collect();
+            match polygon::classify(&pts, degenerate_area) {
+                Shape::Degenerate => dropped.add(face.source),
+                Shape::Fan { apex } => {
+                    let mut vertices = ring;
+                    vertices.rotate_left(apex);
+                    kept.push(Face { vertices, ..face });
+                }
+                Shape::Split(tris) => {
+                    let before = kept.len();
+                    for t in tris {
+                        let tri = [pts[t[0]], pts[t[1]], pts[t[2]]];
+                        if polygon::vector_area2(&tri).length() / 2.0 > degenerate_area {
+                            kept.push(Face {
+                                vertices: vec![ring[t[0]], ring[t[1]], ring[t[2]]],
+                                material: face.material,
+                                source: face.source,
+                            });
+                        }
+                    }
+                    if kept.len() > before {
+                        split.add(face.source);
+                    } else {
+                        dropped.add(face.source);
+                    }
+                }
+            }
+        }
+
+        if kept.is_empty() {
+            return Err(SceneError::NoFaces {
+                dropped: dropped.count,
+            });
+        }
+        if !kept
+            .iter()
+            .any(|f| materials[f.material as usize].is_emitter())
+        {
+            return Err(SceneError::NoEmitter);
+        }
+
+        let mut warnings = Vec::new();
+        if let Some(first_source) = dropped.first {
+            warnings.push(Warning::DegenerateFacesDropped {
+                count: dropped.count,
+                first_source,
+            });
+        }
+        if let Some(first_source) = split.first {
+            warnings.push(Warning::FacesSplit {
+                count: split.count,
+                first_source,
+            });
+        }
+        let scene = Scene {
+            positions,
+            faces: kept,
+            materials,
+        };
+        Ok((scene, warnings))
     }
+
     /// Vertex positions in scene units.
     pub fn positions(&self) -> &[Vec3] {
         &self.positions
@@ -57,5 +202,370 @@ impl Scene {
     /// The materials.
     pub fn materials(&self) -> &[Material] {
         &self.materials
+    }
+
+    /// Area of `face` in scene units², `|sum of fan cross products| / 2` computed in f64.
+    ///
+    /// # Panics
+    /// If `face` refers to vertices this scene does not have (it is not one of its faces).
+    pub fn face_area(&self, face: &Face) -> f64 {
+        self.vector_area2(face).length() / 2.0
+    }
+
+    /// Unit normal of `face` on its front side (the Newell normal, computed in f64).
+    ///
+    /// # Panics
+    /// If `face` refers to vertices this scene does not have (it is not one of its faces).
+    pub fn face_normal(&self, face: &Face) -> Vec3 {
+        self.vector_area2(face).normalize().as_vec3()
+    }
+
+    /// Bounding box of the vertices used by the faces, in scene units.
+    pub fn bounds(&self) -> Bounds {
+        // A scene has at least one face, so the box is never empty.
+        used_bounds(&self.positions, &self.faces).unwrap_or(Bounds {
+            min: Vec3::ZERO,
+            max: Vec3::ZERO,
+        })
+    }
+
+    fn vector_area2(&self, face: &Face) -> DVec3 {
+        let pts: Vec<DVec3> = face
+            .vertices
+            .iter()
+            .map(|&v| self.positions[v as usize].as_dvec3())
+            .collect();
+        polygon::vector_area2(&pts)
+    }
+}
+
+/// Counts faces and remembers the first one's source.
+#[derive(Default)]
+struct Tally {
+    count: usize,
+    first: Option<u32>,
+}
+
+impl Tally {
+    fn add(&mut self, source: u32) {
+        self.count += 1;
+        self.first.get_or_insert(source);
+    }
+}
+
+fn check_positions(positions: &[Vec3]) -> Result<(), SceneError> {
+    match positions.iter().position(|p| !p.is_finite()) {
+        Some(vertex) => Err(SceneError::NonFinitePosition {
+            vertex,
+            position: positions[vertex],
+        }),
+        None => Ok(()),
+    }
+}
+
+fn check_materials(materials: &[Material]) -> Result<(), SceneError> {
+    for m in materials {
+        let r = m.reflectance;
+        // `!(x >= 0)` is also true for NaN.
+        if !(r.is_finite() && r.min_element() >= 0.0 && r.max_element() < 1.0) {
+            return Err(SceneError::BadReflectance {
+                material: m.name.clone(),
+                reflectance: r,
+            });
+        }
+        let e = m.emission;
+        if !(e.is_finite() && e.min_element() >= 0.0) {
+            return Err(SceneError::BadEmission {
+                material: m.name.clone(),
+                emission: e,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn check_faces(faces: &[Face], positions: usize, materials: usize) -> Result<(), SceneError> {
+    for f in faces {
+        if f.vertices.len() < 3 {
+            return Err(SceneError::TooFewVertices {
+                face: f.source,
+                count: f.vertices.len(),
+            });
+        }
+        if let Some(&vertex) = f.vertices.iter().find(|&&v| v as usize >= positions) {
+            return Err(SceneError::VertexOutOfRange {
+                face: f.source,
+                vertex,
+                count: positions,
+            });
+        }
+        if f.material as usize >= materials {
+            return Err(SceneError::MaterialOutOfRange {
+                face: f.source,
+                material: f.material,
+                count: materials,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Bounding box of the positions the faces use; `None` if they use none. Indices must be valid.
+fn used_bounds(positions: &[Vec3], faces: &[Face]) -> Option<Bounds> {
+    let mut used = faces
+        .iter()
+        .flat_map(|f| f.vertices.iter())
+        .map(|&v| positions[v as usize]);
+    let first = used.next()?;
+    Some(used.fold(
+        Bounds {
+            min: first,
+            max: first,
+        },
+        |b, p| Bounds {
+            min: b.min.min(p),
+            max: b.max.max(p),
+        },
+    ))
+}
+
+/// The face's vertex ring with consecutive vertices at equal positions merged (cyclically).
+fn merge_repeated(vertices: &[u32], positions: &[Vec3]) -> Vec<u32> {
+    let at = |v: u32| positions[v as usize];
+    let mut ring: Vec<u32> = Vec::with_capacity(vertices.len());
+    for &v in vertices {
+        if ring.last().is_none_or(|&last| at(last) != at(v)) {
+            ring.push(v);
+        }
+    }
+    while ring.len() > 1 && at(ring[0]) == at(ring[ring.len() - 1]) {
+        ring.pop();
+    }
+    ring
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mat(name: &str, rho: f32, e: f32) -> Material {
+        Material {
+            name: name.to_string(),
+            reflectance: Vec3::splat(rho),
+            emission: Vec3::splat(e),
+        }
+    }
+
+    fn face(vertices: &[u32], material: u32, source: u32) -> Face {
+        Face {
+            vertices: vertices.to_vec(),
+            material,
+            source,
+        }
+    }
+
+    /// A unit square (emitting) and a square at z = 1 (material 1), 8 positions.
+    fn two_squares() -> (Vec<Vec3>, Vec<Face>, Vec<Material>) {
+        let mut p = Vec::new();
+        for z in [0.0, 1.0] {
+            p.extend([
+                Vec3::new(0., 0., z),
+                Vec3::new(1., 0., z),
+                Vec3::new(1., 1., z),
+                Vec3::new(0., 1., z),
+            ]);
+        }
+        let faces = vec![face(&[0, 1, 2, 3], 0, 0), face(&[7, 6, 5, 4], 1, 1)];
+        (p, faces, vec![mat("lamp", 0.5, 1.0), mat("grey", 0.5, 0.0)])
+    }
+
+    #[test]
+    fn valid_scene_is_kept_as_given() {
+        let (p, f, m) = two_squares();
+        let (scene, warnings) = Scene::new(p.clone(), f.clone(), m.clone()).unwrap();
+        assert!(warnings.is_empty());
+        assert_eq!(scene.faces(), &f[..]);
+        assert_eq!(scene.positions(), &p[..]);
+        assert_eq!(scene.face_area(&scene.faces()[0]), 1.0);
+        assert_eq!(scene.face_normal(&scene.faces()[0]), Vec3::Z);
+        assert_eq!(scene.face_normal(&scene.faces()[1]), -Vec3::Z);
+        assert_eq!(scene.bounds().max, Vec3::ONE);
+        assert!((scene.bounds().diagonal() - 3f64.sqrt()).abs() < 1e-12);
+    }
+
+    fn err(p: Vec<Vec3>, f: Vec<Face>, m: Vec<Material>) -> String {
+        Scene::new(p, f, m).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn each_invariant_violation_is_a_specific_error() {
+        let (p, f, m) = two_squares();
+        assert_eq!(err(p.clone(), vec![], m.clone()), "the scene has no faces");
+
+        let mut q = p.clone();
+        q[5] = Vec3::new(f32::NAN, 0., 1.);
+        assert_eq!(
+            err(q, f.clone(), m.clone()),
+            "vertex 5 has a non-finite coordinate (NaN, 0, 1)"
+        );
+
+        let mut g = f.clone();
+        g[1].vertices = vec![4, 5];
+        assert_eq!(
+            err(p.clone(), g, m.clone()),
+            "face 1 has 2 vertices; a face needs at least 3"
+        );
+
+        let mut g = f.clone();
+        g[1].vertices[2] = 40;
+        assert_eq!(
+            err(p.clone(), g, m.clone()),
+            "face 1 uses vertex 40 but there are only 8"
+        );
+
+        let mut g = f.clone();
+        g[0].material = 5;
+        assert_eq!(
+            err(p.clone(), g, m.clone()),
+            "face 0 uses material 5 but there are only 2"
+        );
+
+        let mut n = m.clone();
+        n[1] = Material {
+            name: "red".into(),
+            reflectance: Vec3::new(1.2, 0.1, 0.1),
+            emission: Vec3::ZERO,
+        };
+        assert_eq!(
+            err(p.clone(), f.clone(), n),
+            "material 'red' has reflectance (1.2, 0.1, 0.1): each channel must be in [0, 1)"
+        );
+        let mut n = m.clone();
+        n[1].reflectance.y = 1.0;
+        assert!(err(p.clone(), f.clone(), n).contains("(0.5, 1, 0.5)"));
+
+        let mut n = m.clone();
+        n[0].emission = Vec3::new(-1., 0., 0.);
+        assert_eq!(
+            err(p.clone(), f.clone(), n),
+            "material 'lamp' has negative emission (-1, 0, 0): each channel must be finite and \
+             >= 0 W/m²"
+        );
+        let mut n = m.clone();
+        n[0].emission.z = f32::INFINITY;
+        assert!(err(p.clone(), f.clone(), n).contains("non-finite emission (1, 1, inf)"));
+
+        let mut n = m.clone();
+        n[0].emission = Vec3::ZERO;
+        assert_eq!(
+            err(p.clone(), f.clone(), n),
+            "the scene has no emitting face (no material with emission > 0 is used by any face)"
+        );
+    }
+
+    #[test]
+    fn degenerate_faces_are_dropped_counted_and_sources_kept() {
+        let (mut p, mut f, m) = two_squares();
+        p.push(Vec3::new(2., 0., 0.)); // 8: collinear with 0 and 1
+        p.push(Vec3::new(0.5, 0.5, 0.5 + 1e-7)); // 9: a sliver
+        f.insert(0, face(&[0, 1, 8], 1, 10)); // zero area
+        f.insert(2, face(&[4, 4, 5], 1, 11)); // repeated vertex
+        f.push(face(&[0, 1, 1, 1, 0], 1, 12)); // collapses to 2 vertices
+        f.push(face(&[9, 9, 9], 1, 13));
+        let (scene, warnings) = Scene::new(p, f, m).unwrap();
+        let sources: Vec<u32> = scene.faces().iter().map(|f| f.source).collect();
+        assert_eq!(sources, vec![0, 1]);
+        assert_eq!(
+            warnings,
+            vec![Warning::DegenerateFacesDropped {
+                count: 4,
+                first_source: 10
+            }]
+        );
+    }
+
+    #[test]
+    fn dropping_can_leave_no_emitter_or_no_faces() {
+        let (mut p, mut f, m) = two_squares();
+        p[2] = Vec3::new(2., 0., 0.);
+        p[3] = Vec3::new(3., 0., 0.);
+        assert_eq!(
+            Scene::new(p.clone(), f.clone(), m.clone())
+                .unwrap_err()
+                .to_string(),
+            "the scene has no emitting face (no material with emission > 0 is used by any face)"
+        );
+        f.truncate(1);
+        assert_eq!(
+            Scene::new(p, f, m).unwrap_err().to_string(),
+            "the scene has no faces left: all 1 were degenerate (zero area) and dropped"
+        );
+    }
+
+    #[test]
+    fn tiny_faces_are_degenerate_relative_to_the_scene() {
+        let (mut p, mut f, m) = two_squares();
+        let base = p.len() as u32;
+        p.extend([
+            Vec3::new(0.5, 0.5, 0.5),
+            Vec3::new(0.5 + 1e-7, 0.5, 0.5),
+            Vec3::new(0.5, 0.5 + 1e-7, 0.5),
+        ]);
+        f.push(face(&[base, base + 1, base + 2], 1, 2));
+        let (scene, w) = Scene::new(p, f, m).unwrap();
+        assert_eq!(scene.faces().len(), 2);
+        assert_eq!(w.len(), 1);
+    }
+
+    #[test]
+    fn non_planar_and_concave_faces_are_split_with_their_source() {
+        let (mut p, mut f, m) = two_squares();
+        p[2].z = 0.25; // the emitting square is no longer planar
+        let base = p.len() as u32;
+        // A concave outline that no vertex can fan (area 5).
+        p.extend(
+            [[0., 0.], [3., 0.], [3., 3.], [2., 1.], [1., 1.], [0., 3.]]
+                .map(|[x, y]| Vec3::new(x, y, 2.)),
+        );
+        f.push(face(&(base..base + 6).collect::<Vec<_>>(), 1, 7));
+        let (scene, warnings) = Scene::new(p, f, m).unwrap();
+        assert_eq!(
+            warnings,
+            vec![Warning::FacesSplit {
+                count: 2,
+                first_source: 0
+            }]
+        );
+        let sources: Vec<u32> = scene.faces().iter().map(|f| f.source).collect();
+        assert_eq!(sources, vec![0, 0, 1, 7, 7, 7, 7]);
+        assert!(
+            scene
+                .faces()
+                .iter()
+                .all(|f| f.source != 0 || f.material == 0)
+        );
+        let area7: f64 = scene
+            .faces()
+            .iter()
+            .filter(|f| f.source == 7)
+            .map(|f| scene.face_area(f))
+            .sum();
+        assert!((area7 - 5.0).abs() < 1e-9);
+        for f in scene.faces().iter().filter(|f| f.source == 7) {
+            assert!(scene.face_normal(f).z > 0.99);
+        }
+    }
+
+    #[test]
+    fn t_junction_face_is_rotated_not_split() {
+        let (mut p, mut f, m) = two_squares();
+        p.push(Vec3::new(0.5, 0., 0.)); // 8: on the edge 0-1
+        f[0].vertices = vec![0, 8, 1, 2, 3]; // fanning from 0 makes (0, 8, 1): zero area
+        let (scene, warnings) = Scene::new(p, f, m).unwrap();
+        assert!(warnings.is_empty());
+        let v = &scene.faces()[0].vertices;
+        assert_eq!(v.len(), 5);
+        assert_ne!(v[0], 0);
+        assert!((scene.face_area(&scene.faces()[0]) - 1.0).abs() < 1e-12);
     }
 }

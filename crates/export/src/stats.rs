@@ -1,0 +1,74 @@
+//! Run statistics as JSON.
+
+use crate::ExportError;
+use serde::Serialize;
+use std::io::Write;
+
+/// Statistics of one solver run, written by `--stats F.json`. The first eight fields are the
+/// command-line contract; the rest extend it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunStats {
+    /// The method that ran (`shoot`, ...).
+    pub method: String,
+    /// Number of patches solved for.
+    pub patches: usize,
+    /// Rays cast.
+    pub rays: u64,
+    /// Wall-clock seconds of the solve (loading and meshing excluded).
+    pub seconds: f64,
+    /// `rays / seconds`.
+    pub rays_per_second: f64,
+    /// Iterations of the method (shooting: waves).
+    pub iterations: u32,
+    /// The run's seed.
+    pub seed: u64,
+    /// Worker threads used.
+    pub threads: usize,
+    /// Rays that hit nothing.
+    pub escaped_rays: u64,
+    /// Unshot power left at the end as a fraction of the emitted power (channels summed).
+    pub unshot_fraction: f64,
+    /// Why the run ended (`converged`, `budget`, `stopped`).
+    pub stop: String,
+    /// Seconds spent loading the scene, meshing and building the BVH.
+    pub setup_seconds: f64,
+}
+
+impl RunStats {
+    /// Writes the statistics as one pretty-printed JSON object.
+    pub fn write_json<W: Write>(&self, mut out: W) -> Result<(), ExportError> {
+        serde_json::to_writer_pretty(&mut out, self).map_err(|source| ExportError::Json { what: "the run statistics", source })?;
+        writeln!(out).and_then(|_| out.flush()).map_err(|source| ExportError::Io { what: "the run statistics", source })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contract_fields_are_present() {
+        let s = RunStats {
+            method: "shoot".into(),
+            patches: 32,
+            rays: 1000,
+            seconds: 0.5,
+            rays_per_second: 2000.0,
+            iterations: 7,
+            seed: 3,
+            threads: 2,
+            escaped_rays: 0,
+            unshot_fraction: 0.01,
+            stop: "converged".into(),
+            setup_seconds: 0.1,
+        };
+        let mut buf = Vec::new();
+        s.write_json(&mut buf).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&buf).unwrap();
+        for key in ["method", "patches", "rays", "seconds", "rays_per_second", "iterations", "seed", "threads"] {
+            assert!(v.get(key).is_some(), "missing {key}");
+        }
+        assert_eq!(v["method"], "shoot");
+        assert_eq!(v["rays"], 1000);
+    }
+}

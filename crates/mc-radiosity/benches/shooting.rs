@@ -1,0 +1,118 @@
+//! Rays per second of the shooting loop on the Cornell box, next to a bare obvhs closest-hit loop
+//! over the very same rays, so the cost of the solver's bookkeeping (sampling, random streams,
+//! hit records, the power fold) is the difference.
+//!
+//! `cargo bench -p mcrad-mc-radiosity --bench shooting` (or `cargo xtask bench`). Each group
+//! casts the same number of rays, so criterion's element throughput compares directly:
+//! - `shoot`: the whole solver, `threshold = 0` so it spends exactly its budget;
+//! - `mcrad_bvh`: `mcrad_raycast::Bvh::closest_hit` over the rays the solver cast (recorded);
+//! - `bare_obvhs`: obvhs's CWBVH `ray_traverse` over the same rays, no canonical frame, no id
+//!   filter, origins offset by 1e-4 along the normal: the floor the solver cannot beat.
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use glam::{Vec3, Vec3A};
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_mc_radiosity::{ShootConfig, shoot};
+use mcrad_raycast::{Bvh, Hit, Ray, RayCaster, SurfacePoint};
+use obvhs::{
+    BvhBuildParams,
+    cwbvh::{CwBvh, builder::build_cwbvh_from_tris},
+    ray::{Ray as ObRay, RayHit},
+    rt_triangle::RtTriangle,
+    triangle::Triangle,
+};
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+use std::path::Path;
+use std::sync::Mutex;
+
+const RAYS: u64 = 1_000_000;
+
+/// A caster that remembers every ray it is asked to trace.
+struct Recorder<'a> {
+    bvh: &'a Bvh,
+    rays: Mutex<Vec<Ray>>,
+}
+
+impl RayCaster for Recorder<'_> {
+    fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
+        self.rays.lock().unwrap().push(*ray);
+        self.bvh.closest_hit(ray)
+    }
+    fn occluded(&self, a: &SurfacePoint, b: &SurfacePoint) -> bool {
+        self.bvh.occluded(a, b)
+    }
+}
+
+struct Bare {
+    bvh: CwBvh,
+    tris: Vec<RtTriangle>,
+}
+
+impl Bare {
+    fn new(mesh: &Mesh) -> Bare {
+        let tris: Vec<Triangle> = mesh
+            .triangle_positions()
+            .iter()
+            .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
+            .collect();
+        let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default());
+        let tris = bvh.primitive_indices.iter().map(|&i| RtTriangle::from(&tris[i as usize])).collect();
+        Bare { bvh, tris }
+    }
+
+    fn closest(&self, o: Vec3, d: Vec3) -> u32 {
+        let ray = ObRay::new(Vec3A::from(o), Vec3A::from(d), 0.0, f32::INFINITY);
+        let mut hit = RayHit::none();
+        if self.bvh.ray_traverse(ray, &mut hit, |r, id| self.tris[id].intersect(r)) {
+            hit.primitive_id
+        } else {
+            u32::MAX
+        }
+    }
+}
+
+fn cornell(subdivision: Subdivision) -> Mesh {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell-box.obj");
+    let scene = mcrad_scene_io::load(&path).expect("the bundled Cornell box loads").scene;
+    Mesh::build(&scene, subdivision).unwrap()
+}
+
+fn bench(c: &mut Criterion) {
+    for (name, subdivision) in [("cornell_faces", Subdivision::None), ("cornell_100k", Subdivision::MaxEdge(0.0044))] {
+        let mesh = cornell(subdivision);
+        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+        let config = ShootConfig { rays: RAYS, unshot_threshold: 0.0, seed: 1 };
+        let recorder = Recorder { bvh: &bvh, rays: Mutex::new(Vec::new()) };
+        let run = shoot(&mesh, &recorder, &config, &mut |_| ControlFlow::Continue(())).unwrap();
+        let mut rays = recorder.rays.into_inner().unwrap();
+        // Rays in a deterministic order (the recording order depends on the threads).
+        rays.sort_by(|a, b| a.exclude.cmp(&b.exclude));
+        let bare = Bare::new(&mesh);
+
+        let mut group = c.benchmark_group(format!("{name}_{}patches", mesh.patches().len()));
+        group.sample_size(10);
+        group.throughput(Throughput::Elements(run.stats.rays));
+        group.bench_function("shoot", |b| {
+            b.iter(|| shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap().stats.rays)
+        });
+        group.bench_function("mcrad_bvh", |b| {
+            b.iter(|| {
+                rays.par_chunks(4096)
+                    .map(|rs| rs.iter().filter(|r| bvh.closest_hit(r).is_some()).count())
+                    .sum::<usize>()
+            })
+        });
+        group.bench_function("bare_obvhs", |b| {
+            b.iter(|| {
+                rays.par_chunks(4096)
+                    .map(|rs| rs.iter().filter(|r| bare.closest(r.origin + r.origin_normal * 1e-4, r.dir) != u32::MAX).count())
+                    .sum::<usize>()
+            })
+        });
+        group.finish();
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,340 @@
+//! Stochastic shooting radiosity with constant energy per ray (Balog, section 1.3; Feda and
+//! Purgathofer 1993).
+//!
+//! The solver runs in waves. In wave `k` every patch `i` holding unshot power `U_i = dB_i A_i`
+//! (W, per RGB channel) is given `n_i = round_stochastic(|U_i| / phi_k)` rays, where `|.|` sums
+//! the channels and `phi_k` is the wave's energy per ray. Each ray leaves a uniform point of the
+//! patch in a cosine-distributed direction carrying `U_i / n_i`, so the power a patch sends is
+//! exactly its unshot power whatever `n_i` is, and the expected power reaching patch `j` is
+//! `U_i F_ij`: the estimate is unbiased for any `n_i >= 1`. The front face of the first patch hit
+//! keeps `rho_j` of it, adding `rho_j U_i / n_i` to both its radiosity and its unshot power; the
+//! rest is absorbed. A back-face hit is absorbed whole; a ray that hits nothing escapes.
+//! A patch given no ray keeps its unshot power for a later wave.
+//!
+//! `phi_k = |U| / ((1 - rho_avg) R_k)` spreads the `R_k` rays still in the budget over the power
+//! still to come (`|U| / (1 - rho_avg)` by the geometric series of reflections, `rho_avg` the
+//! area-weighted mean reflectance), so the energy per ray stays nearly constant over the run.
+//! The run stops when the unshot power falls below a fraction of the emitted power, when the
+//! budget is spent, or when the observer says so.
+//!
+//! Power is conserved exactly in every realisation (to floating-point rounding):
+//! `emitted = absorbed + escaped + unshot`.
+
+use crate::rng::Stream;
+use crate::sampling::stochastic_round;
+use crate::surface::SurfaceSampler;
+use glam::DVec3;
+use mcrad_combine::Estimate;
+use mcrad_meshing::Mesh;
+use mcrad_raycast::RayCaster;
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+
+/// Settings of a shooting run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShootConfig {
+    /// The ray budget: at most this many rays are cast (`>= 1`).
+    pub rays: u64,
+    /// Stop once the unshot power (summed over patches and channels) is at most this fraction
+    /// of the emitted power; in `[0, 1]`. `0` runs until the budget is spent.
+    pub unshot_threshold: f64,
+    /// Seed of every random stream of the run.
+    pub seed: u64,
+}
+
+impl Default for ShootConfig {
+    /// One million rays, stop at 1% unshot, seed 0.
+    fn default() -> Self {
+        ShootConfig { rays: 1_000_000, unshot_threshold: 0.01, seed: 0 }
+    }
+}
+
+/// Why a shooting run is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ShootError {
+    /// Nothing in the mesh emits.
+    #[error("no patch emits light: there is nothing to shoot")]
+    NoEmission,
+    /// The ray budget is zero.
+    #[error("the ray budget must be at least 1")]
+    NoRays,
+    /// The threshold is not a fraction.
+    #[error("the unshot threshold must be in [0, 1], got {0}")]
+    BadThreshold(f64),
+    /// The mesh has more patches than hit records can name.
+    #[error("{0} patches are more than the shooter can address (2^31)")]
+    TooManyPatches(usize),
+}
+
+/// Why a run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// The unshot power fell below the threshold.
+    Converged,
+    /// The ray budget was spent.
+    BudgetSpent,
+    /// The observer asked to stop.
+    Stopped,
+}
+
+/// What the observer sees after each wave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShootProgress {
+    /// Waves done.
+    pub waves: u32,
+    /// Rays cast so far.
+    pub rays: u64,
+    /// The budget.
+    pub budget: u64,
+    /// Unshot power left as a fraction of the emitted power (channels summed).
+    pub unshot_fraction: f64,
+}
+
+/// Counters and power balance of a run. Powers are in W per RGB channel (scene units² × W/m²).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShootStats {
+    /// Rays cast.
+    pub rays: u64,
+    /// Waves run.
+    pub waves: u32,
+    /// Rays that hit nothing (in a closed scene: rays that slipped through an edge).
+    pub escaped_rays: u64,
+    /// Rays whose first hit was a back face (absorbed there).
+    pub back_face_hits: u64,
+    /// Emitted power `sum_i E_i A_i`.
+    pub emitted: DVec3,
+    /// Power absorbed by surfaces.
+    pub absorbed: DVec3,
+    /// Power carried away by escaped rays.
+    pub escaped: DVec3,
+    /// Power left unshot at the end (`sum_i U_i`).
+    pub unshot: DVec3,
+    /// Why the run ended.
+    pub stop: StopReason,
+}
+
+/// The result of a shooting run.
+#[derive(Debug, Clone)]
+pub struct Shooting {
+    /// Radiosity `B_i = E_i + (received and reflected power)_i / A_i` (W/m²) with its variance:
+    /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
+    /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
+    pub estimate: Estimate,
+    /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
+    pub unshot: Vec<DVec3>,
+    /// Counters and the power balance.
+    pub stats: ShootStats,
+}
+
+/// Rays traced per job: the unit of parallel work and of random streams.
+const JOB_RAYS: u64 = 4096;
+/// Rays traced before their hits are folded in, bounding the memory of hit records.
+const BATCH_RAYS: u64 = 1 << 22;
+/// Hit record of a ray that hit nothing.
+const MISS: u32 = u32::MAX;
+/// Flag of a hit record whose hit was a back face.
+const BACK: u32 = 1 << 31;
+/// Sub-stream of a patch's ray-count draw (job streams use `1 + chunk`).
+const ALLOCATE: u64 = 0;
+
+/// One job: `rays` rays from `patch`, chunk `chunk` of its rays in the wave.
+#[derive(Debug, Clone, Copy)]
+struct Job {
+    patch: u32,
+    chunk: u32,
+    rays: u32,
+}
+
+#[inline]
+fn total(x: DVec3) -> f64 {
+    x.x + x.y + x.z
+}
+
+/// Solves radiosity on `mesh` by shooting, casting rays through `caster`. `observer` sees the
+/// progress after each wave and may stop the run, which then returns the solution so far.
+pub fn shoot<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ShootConfig,
+    observer: &mut dyn FnMut(&ShootProgress) -> ControlFlow<()>,
+) -> Result<Shooting, ShootError> {
+    if config.rays == 0 {
+        return Err(ShootError::NoRays);
+    }
+    if !(0.0..=1.0).contains(&config.unshot_threshold) {
+        return Err(ShootError::BadThreshold(config.unshot_threshold));
+    }
+    let patches = mesh.patches();
+    if patches.len() >= BACK as usize {
+        return Err(ShootError::TooManyPatches(patches.len()));
+    }
+    let area: Vec<f64> = patches.iter().map(|p| p.area).collect();
+    let rho: Vec<DVec3> = patches.iter().map(|p| p.reflectance.as_dvec3()).collect();
+    let mut unshot: Vec<DVec3> = patches.iter().map(|p| p.emission.as_dvec3() * p.area).collect();
+    let emitted: DVec3 = unshot.iter().sum();
+    if total(emitted) <= 0.0 {
+        return Err(ShootError::NoEmission);
+    }
+    let total_area: f64 = area.iter().sum();
+    let rho_avg = (rho.iter().zip(&area).map(|(r, a)| total(*r) / 3.0 * a).sum::<f64>() / total_area).min(0.999);
+    let sampler = SurfaceSampler::new(mesh);
+
+    let mut reflected = vec![DVec3::ZERO; patches.len()];
+    let mut squares = vec![DVec3::ZERO; patches.len()];
+    let mut stats = ShootStats {
+        rays: 0,
+        waves: 0,
+        escaped_rays: 0,
+        back_face_hits: 0,
+        emitted,
+        absorbed: DVec3::ZERO,
+        escaped: DVec3::ZERO,
+        unshot: emitted,
+        stop: StopReason::BudgetSpent,
+    };
+    let mut per_ray = vec![DVec3::ZERO; patches.len()];
+    loop {
+        let left = total(unshot.iter().sum::<DVec3>());
+        if left <= config.unshot_threshold * total(emitted) {
+            stats.stop = StopReason::Converged;
+            break;
+        }
+        let budget_left = config.rays - stats.rays;
+        if budget_left == 0 {
+            stats.stop = StopReason::BudgetSpent;
+            break;
+        }
+        let wave = stats.waves as u64;
+        let counts = allocate(&unshot, left / ((1.0 - rho_avg) * budget_left as f64), budget_left, config.seed, wave);
+        let mut jobs = Vec::new();
+        for (i, &n) in counts.iter().enumerate() {
+            if n == 0 {
+                continue;
+            }
+            per_ray[i] = unshot[i] / n as f64;
+            unshot[i] = DVec3::ZERO;
+            for chunk in 0..n.div_ceil(JOB_RAYS) {
+                let rays = (n - chunk * JOB_RAYS).min(JOB_RAYS) as u32;
+                jobs.push(Job { patch: i as u32, chunk: chunk as u32, rays });
+            }
+        }
+        for batch in batches(&jobs) {
+            let hits: Vec<Vec<u32>> = batch
+                .par_iter()
+                .map(|job| trace(job, &sampler, caster, config.seed, wave))
+                .collect();
+            // Fold in job order: the sums do not depend on the thread count.
+            for (job, hits) in batch.iter().zip(&hits) {
+                let p = per_ray[job.patch as usize];
+                let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
+                for &h in hits {
+                    if h == MISS {
+                        escaped += 1;
+                    } else if h & BACK != 0 {
+                        absorbed += p;
+                        stats.back_face_hits += 1;
+                    } else {
+                        let j = h as usize;
+                        let kept = rho[j] * p;
+                        reflected[j] += kept;
+                        unshot[j] += kept;
+                        squares[j] += kept * kept;
+                        absorbed += p - kept;
+                    }
+                }
+                stats.absorbed += absorbed;
+                stats.escaped += p * escaped as f64;
+                stats.escaped_rays += escaped;
+                stats.rays += hits.len() as u64;
+            }
+        }
+        stats.waves += 1;
+        let progress = ShootProgress {
+            waves: stats.waves,
+            rays: stats.rays,
+            budget: config.rays,
+            unshot_fraction: total(unshot.iter().sum::<DVec3>()) / total(emitted),
+        };
+        if observer(&progress).is_break() {
+            stats.stop = StopReason::Stopped;
+            break;
+        }
+    }
+    stats.unshot = unshot.iter().sum();
+    let radiosity = patches
+        .iter()
+        .zip(&reflected)
+        .map(|(p, r)| p.emission.as_dvec3() + *r / p.area)
+        .collect();
+    let variance = squares.iter().zip(&area).map(|(s, a)| *s / (a * a)).collect();
+    let estimate = Estimate::new(radiosity, Some(variance), stats.rays).expect("shooting sums stay finite");
+    Ok(Shooting { estimate, unshot, stats })
+}
+
+/// Ray counts of one wave: `n_i = round_stochastic(|U_i| / phi)`, at most `budget` in all, and
+/// at least one ray somewhere while power is left. Each patch's draw comes from its own stream.
+fn allocate(unshot: &[DVec3], mut phi: f64, budget: u64, seed: u64, wave: u64) -> Vec<u64> {
+    let draws: Vec<f64> = (0..unshot.len())
+        .map(|i| Stream::new(seed, wave, i as u64, ALLOCATE).uniform_f64())
+        .collect();
+    loop {
+        let counts: Vec<u64> = unshot
+            .iter()
+            .zip(&draws)
+            .map(|(u, &d)| stochastic_round(total(*u) / phi, d))
+            .collect();
+        let sum: u64 = counts.iter().sum();
+        if sum > budget {
+            // Rare: the draws overshot the budget. Raise the energy per ray and draw again.
+            phi *= sum as f64 / budget as f64 * (1.0 + 1e-9);
+            continue;
+        }
+        if sum == 0 {
+            // Power is left but every patch rounded down: the largest holder shoots one ray.
+            let mut counts = vec![0; unshot.len()];
+            let best = (0..unshot.len())
+                .max_by(|&a, &b| total(unshot[a]).total_cmp(&total(unshot[b])))
+                .expect("a mesh has patches");
+            counts[best] = 1;
+            return counts;
+        }
+        return counts;
+    }
+}
+
+/// Splits jobs into consecutive batches of about [`BATCH_RAYS`] rays.
+fn batches(jobs: &[Job]) -> impl Iterator<Item = &[Job]> {
+    let mut rest = jobs;
+    std::iter::from_fn(move || {
+        if rest.is_empty() {
+            return None;
+        }
+        let mut rays = 0u64;
+        let end = rest
+            .iter()
+            .position(|j| {
+                rays += j.rays as u64;
+                rays > BATCH_RAYS
+            })
+            .unwrap_or(rest.len())
+            .max(1);
+        let (head, tail) = rest.split_at(end);
+        rest = tail;
+        Some(head)
+    })
+}
+
+/// Traces one job's rays, returning one hit record per ray.
+fn trace<C: RayCaster>(job: &Job, sampler: &SurfaceSampler, caster: &C, seed: u64, wave: u64) -> Vec<u32> {
+    let mut rng = Stream::new(seed, wave, job.patch as u64, 1 + job.chunk as u64);
+    (0..job.rays)
+        .map(|_| {
+            let ray = sampler.ray(job.patch as usize, &mut rng);
+            match caster.closest_hit(&ray) {
+                None => MISS,
+                Some(hit) if hit.front => hit.id,
+                Some(hit) => hit.id | BACK,
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,160 @@
+//! Uniform points and cosine-distributed rays on patches.
+
+use crate::rng::Stream;
+use crate::sampling::{Frame, cosine_hemisphere, uniform_triangle};
+use glam::{Vec2, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::Ray;
+
+/// Per-patch tables for drawing uniform points (density `1/A_i` per unit area) and rays leaving
+/// patches with the cosine density `cos(theta)/pi` per steradian.
+#[derive(Debug, Clone)]
+pub struct SurfaceSampler {
+    /// Per triangle: first vertex, and the two edges from it (scene units).
+    v0: Vec<Vec3>,
+    e1: Vec<Vec3>,
+    e2: Vec<Vec3>,
+    /// Per triangle: the cumulative area fraction within its patch up to and including it.
+    cdf: Vec<f32>,
+    /// Per patch: first triangle and count.
+    first: Vec<u32>,
+    count: Vec<u32>,
+    /// Per patch: the tangent frame about its normal.
+    frames: Vec<Frame>,
+}
+
+impl SurfaceSampler {
+    /// Precomputes the tables for `mesh`.
+    pub fn new(mesh: &Mesh) -> SurfaceSampler {
+        let n = mesh.triangles().len();
+        let mut s = SurfaceSampler {
+            v0: Vec::with_capacity(n),
+            e1: Vec::with_capacity(n),
+            e2: Vec::with_capacity(n),
+            cdf: Vec::with_capacity(n),
+            first: Vec::with_capacity(mesh.patches().len()),
+            count: Vec::with_capacity(mesh.patches().len()),
+            frames: mesh.patches().iter().map(|p| Frame::from_normal(p.normal)).collect(),
+        };
+        let pos = mesh.positions();
+        for patch in mesh.patches() {
+            let tris = mesh.patch_triangles(patch);
+            s.first.push(s.v0.len() as u32);
+            s.count.push(tris.len() as u32);
+            let areas: Vec<f64> = tris
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| pos[i as usize].as_dvec3());
+                    (b - a).cross(c - a).length()
+                })
+                .collect();
+            let total: f64 = areas.iter().sum();
+            let mut acc = 0.0;
+            for (t, area) in tris.iter().zip(&areas) {
+                let [a, b, c] = t.map(|i| pos[i as usize]);
+                s.v0.push(a);
+                s.e1.push(b - a);
+                s.e2.push(c - a);
+                acc += area;
+                s.cdf.push((acc / total) as f32);
+            }
+            // Rounding must not leave a gap at the top.
+            *s.cdf.last_mut().expect("a patch has a triangle") = 1.0;
+        }
+        s
+    }
+
+    /// A uniform point of `patch` from three uniforms in `[0, 1)`: the first picks a triangle by
+    /// area, the other two a point in it.
+    #[inline]
+    pub fn point(&self, patch: usize, u: [f32; 3]) -> Vec3 {
+        let first = self.first[patch] as usize;
+        let count = self.count[patch] as usize;
+        let mut t = first;
+        while t + 1 < first + count && u[0] >= self.cdf[t] {
+            t += 1;
+        }
+        let b = uniform_triangle(Vec2::new(u[1], u[2]));
+        self.v0[t] + self.e1[t] * b.x + self.e2[t] * b.y
+    }
+
+    /// A ray leaving a uniform point of `patch` in a cosine-distributed direction about its
+    /// normal, drawing five uniforms from `rng`.
+    #[inline]
+    pub fn ray(&self, patch: usize, rng: &mut Stream) -> Ray {
+        let p = self.point(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let frame = &self.frames[patch];
+        let d = frame.to_world(cosine_hemisphere(Vec2::new(rng.uniform(), rng.uniform())));
+        Ray::from_surface(p, frame.normal, d.normalize(), patch as u32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::chi2;
+    use mcrad_meshing::Subdivision;
+    use mcrad_scene_io::{Face, Material, Scene};
+
+    #[test]
+    fn quad_points_are_uniform() {
+        // A trapezoid (not a parallelogram) split 1:2 by area between its two fan triangles.
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(3.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+        ];
+        let faces = vec![Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }];
+        let lamp = Material { name: "lamp".into(), reflectance: Vec3::ZERO, emission: Vec3::ONE };
+        let scene = Scene::new(positions.clone(), faces, vec![lamp]).unwrap().0;
+        let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+        let s = SurfaceSampler::new(&mesh);
+        let tris = mesh.patch_triangles(&mesh.patches()[0]);
+        let areas: Vec<f64> = tris
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| positions[i as usize].as_dvec3());
+                (b - a).cross(c - a).length() / 2.0
+            })
+            .collect();
+        let total: f64 = areas.iter().sum();
+        let n = 10;
+        let cells = 2 * n * n;
+        let mut obs = vec![0.0; tris.len() * cells];
+        let mut rng = Stream::new(11, 0, 0, 0);
+        let samples = 1_000_000;
+        for _ in 0..samples {
+            let p = s.point(0, [rng.uniform(), rng.uniform(), rng.uniform()]);
+            // Locate the fan triangle and barycentrics of p from the geometry, not the sampler.
+            let (k, b) = tris
+                .iter()
+                .enumerate()
+                .map(|(k, t)| {
+                    let [a, b, c] = t.map(|i| positions[i as usize]);
+                    (k, barycentric(p, a, b, c))
+                })
+                .find(|(_, b)| b.x >= -1e-5 && b.y >= -1e-5 && b.x + b.y <= 1.0 + 1e-5)
+                .expect("point inside the quad");
+            obs[k * cells + crate::sampling::tests_support::sub_triangle(b.clamp(Vec2::ZERO, Vec2::ONE), n)] += 1.0;
+        }
+        let exp: Vec<f64> = (0..obs.len())
+            .map(|idx| {
+                let (k, cell) = (idx / cells, idx % cells);
+                let (c, down) = (cell / 2, cell % 2);
+                let (i, j) = (c % n, c / n);
+                let inside = if down == 0 { i + j < n } else { i + j + 1 < n };
+                if inside { samples as f64 * areas[k] / total / (n * n) as f64 } else { 0.0 }
+            })
+            .collect();
+        chi2::test(&obs, &exp, 1e-4).unwrap();
+    }
+
+    fn barycentric(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec2 {
+        let (e1, e2, d) = ((b - a).as_dvec3(), (c - a).as_dvec3(), (p - a).as_dvec3());
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (d1, d2) = (d.dot(e1), d.dot(e2));
+        let det = d11 * d22 - d12 * d12;
+        Vec2::new(((d22 * d1 - d12 * d2) / det) as f32, ((d11 * d2 - d12 * d1) / det) as f32)
+    }
+}

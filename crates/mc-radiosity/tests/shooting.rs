@@ -1,0 +1,242 @@
+//! Statistical tests of the shooting estimator against exact answers.
+//!
+//! Each test runs `RUNS` independent seeds and compares the mean with the exact value using the
+//! standard error measured across the runs: `|mean - exact| <= K * s / sqrt(RUNS)`. With
+//! `RUNS = 16` the statistic is Student-t with 15 degrees of freedom, and `P(|t| > 4) = 1.2e-3`
+//! per compared value; each test states how many values it compares, so its false-failure rate
+//! is at most that many times 1.2e-3 (under 1% for every test here). The seeds are fixed, so a
+//! pass or a failure is reproducible.
+
+use glam::{DVec3, Vec3};
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
+use mcrad_raycast::Bvh;
+use mcrad_scene_io::{Face, Material, Scene};
+use std::ops::ControlFlow;
+
+const RUNS: u64 = 16;
+const K: f64 = 4.0;
+
+fn material(name: &str, rho: f32, e: f32) -> Material {
+    Material { name: name.into(), reflectance: Vec3::splat(rho), emission: Vec3::splat(e) }
+}
+
+/// The six inward-facing faces of an axis-aligned box `[0, s]³` (counter-clockwise seen from
+/// inside), each with the material index given.
+fn box_faces(s: f32, positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials: [u32; 6]) {
+    let base = positions.len() as u32;
+    for z in [0.0, s] {
+        for y in [0.0, s] {
+            for x in [0.0, s] {
+                positions.push(Vec3::new(x, y, z));
+            }
+        }
+    }
+    // Vertex (x, y, z) bits: index = x + 2y + 4z. Quads listed CCW seen from inside.
+    let quads = [
+        [1, 3, 2, 0], // z = 0, normal +z
+        [6, 7, 5, 4], // z = s, normal -z
+        [4, 5, 1, 0], // y = 0, normal +y
+        [3, 7, 6, 2], // y = s, normal -y
+        [2, 6, 4, 0], // x = 0, normal +x
+        [5, 7, 3, 1], // x = s, normal -x
+    ];
+    for (q, m) in quads.iter().zip(materials) {
+        let source = faces.len() as u32;
+        faces.push(Face { vertices: q.iter().map(|i| base + i).collect(), material: m, source });
+    }
+}
+
+fn furnace(rho: f32) -> Scene {
+    let (mut p, mut f) = (Vec::new(), Vec::new());
+    box_faces(1.0, &mut p, &mut f, [0; 6]);
+    Scene::new(p, f, vec![material("furnace", rho, 1.0)]).unwrap().0
+}
+
+/// Per-patch radiosity (red channel) of `RUNS` seeds.
+fn runs(mesh: &Mesh, config: ShootConfig) -> Vec<Vec<f64>> {
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    (0..RUNS)
+        .map(|seed| {
+            let r = shoot(mesh, &bvh, &ShootConfig { seed, ..config.clone() }, &mut |_| ControlFlow::Continue(()))
+                .unwrap();
+            r.estimate.radiosity().iter().map(|b| b.x).collect()
+        })
+        .collect()
+}
+
+/// Checks every patch's mean over runs against `exact[i]` within K standard errors.
+fn assert_within_k_se(samples: &[Vec<f64>], exact: &[f64], what: &str) {
+    let n = samples.len() as f64;
+    for (i, &x) in exact.iter().enumerate() {
+        let mean = samples.iter().map(|s| s[i]).sum::<f64>() / n;
+        let var = samples.iter().map(|s| (s[i] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        let se = (var / n).sqrt();
+        assert!(se > 0.0, "{what}: patch {i} has no spread: the estimator is not random?");
+        assert!(
+            (mean - x).abs() <= K * se,
+            "{what}: patch {i}: mean {mean:.6} vs exact {x:.6}, {:.2} standard errors ({se:.2e})",
+            (mean - x).abs() / se
+        );
+    }
+}
+
+#[test]
+fn closed_furnace_gives_e_over_one_minus_rho() {
+    // 2 reflectances x 24 patches = 48 compared values, so this test uses K = 4.5:
+    // P(|t_15| > 4.5) = 4.2e-4 per value, a false-failure rate of at most 2% for a fresh seed set.
+    for rho in [0.5f32, 0.9] {
+        let scene = furnace(rho);
+        let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap();
+        assert_eq!(mesh.patches().len(), 24);
+        let config = ShootConfig { rays: 100_000, unshot_threshold: 1e-6, seed: 0 };
+        let samples = runs(&mesh, config);
+        let exact = vec![1.0 / (1.0 - rho as f64); mesh.patches().len()];
+        let n = samples.len() as f64;
+        for (i, &x) in exact.iter().enumerate() {
+            let mean = samples.iter().map(|s| s[i]).sum::<f64>() / n;
+            let var = samples.iter().map(|s| (s[i] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            let se = (var / n).sqrt();
+            assert!(se > 0.0);
+            assert!((mean - x).abs() <= 4.5 * se, "rho {rho}: patch {i}: {mean} vs {x} ({se:.2e})");
+        }
+    }
+}
+
+#[test]
+fn parallel_unit_squares_exchange_the_analytic_form_factor() {
+    // An emitter (E = 1, rho = 0) facing a receiver (rho = 0.5) one unit away: the receiver's
+    // radiosity is rho * F * E with F = 0.199825 for parallel unit squares at unit distance.
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(0.0, 1.0, 1.0),
+    ];
+    let faces = vec![
+        Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }, // faces +z
+        Face { vertices: vec![4, 7, 6, 5], material: 1, source: 1 }, // faces -z
+    ];
+    let scene = Scene::new(positions, faces, vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)])
+        .unwrap()
+        .0;
+    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    let samples = runs(&mesh, ShootConfig { rays: 200_000, unshot_threshold: 0.0, seed: 0 });
+    let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
+    assert_within_k_se(&receiver, &[0.5 * 0.199825], "parallel squares"); // 1 value: 0.12%
+}
+
+#[test]
+fn perpendicular_unit_squares_exchange_the_analytic_form_factor() {
+    // Unit squares sharing an edge at a right angle: F = 0.200044.
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+    ];
+    let faces = vec![
+        Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }, // z = 0, faces +z
+        Face { vertices: vec![0, 4, 5, 1], material: 1, source: 1 }, // y = 0, faces +y
+    ];
+    let scene = Scene::new(positions, faces, vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)])
+        .unwrap()
+        .0;
+    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    assert!((mesh.patches()[1].normal - Vec3::Y).length() < 1e-6);
+    let samples = runs(&mesh, ShootConfig { rays: 200_000, unshot_threshold: 0.0, seed: 0 });
+    let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
+    assert_within_k_se(&receiver, &[0.5 * 0.200044], "perpendicular squares"); // 1 value: 0.12%
+}
+
+/// An open box (no lid, so rays escape) with an inner panel whose back faces the light.
+fn open_box() -> Scene {
+    let (mut p, mut f) = (Vec::new(), Vec::new());
+    box_faces(1.0, &mut p, &mut f, [1, 0, 0, 0, 0, 0]);
+    f.remove(3); // drop the y = s wall: an opening
+    let b = p.len() as u32;
+    p.extend([
+        Vec3::new(0.3, 0.2, 0.5),
+        Vec3::new(0.7, 0.2, 0.5),
+        Vec3::new(0.7, 0.6, 0.5),
+        Vec3::new(0.3, 0.6, 0.5),
+    ]);
+    f.push(Face { vertices: vec![b, b + 1, b + 2, b + 3], material: 0, source: 6 }); // faces +z
+    for (i, face) in f.iter_mut().enumerate() {
+        face.source = i as u32;
+    }
+    Scene::new(p, f, vec![material("white", 0.7, 0.0), material("lamp", 0.3, 2.0)]).unwrap().0
+}
+
+#[test]
+fn power_is_conserved_exactly_and_escapes_are_counted() {
+    let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.25)).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 300_000, unshot_threshold: 0.001, seed: 3 }, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    let s = &r.stats;
+    let balance = s.absorbed + s.escaped + s.unshot;
+    assert!((balance - s.emitted).abs().max_element() <= 1e-9 * s.emitted.max_element(), "{s:?}");
+    assert!(s.escaped_rays > 0 && s.escaped.min_element() > 0.0, "the open box must leak: {s:?}");
+    assert!(s.back_face_hits > 0, "the panel's back faces the lamp: {s:?}");
+    assert!(s.rays <= 300_000);
+    let unshot_sum: DVec3 = r.unshot.iter().sum();
+    assert!((unshot_sum - s.unshot).abs().max_element() < 1e-12);
+    assert_eq!(s.stop, StopReason::Converged);
+}
+
+#[test]
+fn same_seed_same_answer_with_one_or_two_threads() {
+    let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.2)).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let config = ShootConfig { rays: 200_000, unshot_threshold: 0.01, seed: 42 };
+    let solve = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap())
+    };
+    let (one, two) = (solve(1), solve(2));
+    assert_eq!(one.estimate, two.estimate);
+    assert_eq!(one.stats, two.stats);
+    let other_seed = shoot(&mesh, &bvh, &ShootConfig { seed: 43, ..config }, &mut |_| ControlFlow::Continue(())).unwrap();
+    assert_ne!(one.estimate, other_seed.estimate);
+}
+
+#[test]
+fn budget_and_observer_stop_the_run() {
+    let mesh = Mesh::build(&furnace(0.9), Subdivision::None).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 10_000, unshot_threshold: 0.0, seed: 1 }, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    assert_eq!(r.stats.stop, StopReason::BudgetSpent);
+    assert!(r.stats.rays <= 10_000 && r.stats.rays > 9_000, "{:?}", r.stats);
+    let mut seen = 0;
+    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 100_000, unshot_threshold: 0.0, seed: 1 }, &mut |p| {
+        seen += 1;
+        assert_eq!(p.waves, seen);
+        if p.waves == 2 { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+    })
+    .unwrap();
+    assert_eq!((r.stats.stop, r.stats.waves), (StopReason::Stopped, 2));
+}
+
+#[test]
+fn bad_configurations_are_errors() {
+    let mesh = Mesh::build(&furnace(0.5), Subdivision::None).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let go = |c: ShootConfig| shoot(&mesh, &bvh, &c, &mut |_| ControlFlow::Continue(())).map(|_| ()).unwrap_err().to_string();
+    assert!(go(ShootConfig { rays: 0, ..Default::default() }).contains("at least 1"));
+    assert!(go(ShootConfig { unshot_threshold: 1.5, ..Default::default() }).contains("[0, 1]"));
+}

@@ -1,0 +1,267 @@
+//! The mesh type and its construction from a scene.
+
+use crate::subdivide::Cutter;
+use glam::{DVec3, Vec3};
+use mcrad_scene_io::Scene;
+
+/// How faces become patches.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Subdivision {
+    /// One patch per input face, in face order (patch `i` is face `faces()[i]`).
+    None,
+    /// Cut every face uniformly until no patch edge is longer than this length (scene units,
+    /// finite and `> 0`).
+    MaxEdge(f32),
+}
+
+/// Why a mesh could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshError {
+    /// The maximum edge length is not a positive finite number.
+    #[error("--max-edge must be a positive length in scene units, got {0}")]
+    BadMaxEdge(f32),
+    /// Subdivision would create more patches than the limit.
+    #[error(
+        "subdividing to edges of at most {max_edge} would make about {estimate} patches (limit {limit}); choose a larger --max-edge"
+    )]
+    TooManyPatches {
+        /// The requested maximum edge length (scene units).
+        max_edge: f32,
+        /// Estimated patch count.
+        estimate: u64,
+        /// The limit.
+        limit: u64,
+    },
+}
+
+/// The most patches a mesh may have (indices stay below `2^31`, and memory in reach).
+pub const MAX_PATCHES: u64 = 1 << 28;
+
+/// One patch: a planar convex polygon.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Patch {
+    /// Area `A_i` in scene units², computed in f64, `> 0`.
+    pub area: f64,
+    /// Unit geometric normal on the front side (vertices counter-clockwise seen from it).
+    pub normal: Vec3,
+    /// Area centroid (scene units).
+    pub centroid: Vec3,
+    /// Diffuse reflectance `rho_i` per RGB channel, each in `[0, 1)`.
+    pub reflectance: Vec3,
+    /// Emitted radiosity `E_i` per RGB channel, W/m², `>= 0`.
+    pub emission: Vec3,
+    /// The input face number this patch comes from ([`mcrad_scene_io::Face::source`]).
+    pub face: u32,
+    /// The material index in the scene.
+    pub material: u32,
+    first_corner: u32,
+    corner_count: u32,
+    first_triangle: u32,
+    triangle_count: u32,
+}
+
+/// The radiosity mesh. Invariants (see [`Mesh::validate`]): every patch has >= 3 corners and >= 1
+/// triangle, positive finite area, unit normal; triangle `t` belongs to patch
+/// `triangle_patch()[t]`; each patch's triangles are contiguous and in patch order.
+#[derive(Debug, Clone)]
+pub struct Mesh {
+    positions: Vec<Vec3>,
+    corners: Vec<u32>,
+    triangles: Vec<[u32; 3]>,
+    triangle_patch: Vec<u32>,
+    patches: Vec<Patch>,
+}
+
+impl Mesh {
+    /// Builds the mesh of `scene` with the given subdivision.
+    pub fn build(scene: &Scene, subdivision: Subdivision) -> Result<Mesh, MeshError> {
+        let max_edge = match subdivision {
+            Subdivision::None => None,
+            Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => Some(l),
+            Subdivision::MaxEdge(l) => return Err(MeshError::BadMaxEdge(l)),
+        };
+        if let Some(l) = max_edge {
+            let estimate = estimate_patches(scene, l);
+            if estimate > MAX_PATCHES {
+                return Err(MeshError::TooManyPatches {
+                    max_edge: l,
+                    estimate,
+                    limit: MAX_PATCHES,
+                });
+            }
+        }
+        let mut mesh = Mesh {
+            positions: scene.positions().to_vec(),
+            corners: Vec::new(),
+            triangles: Vec::new(),
+            triangle_patch: Vec::new(),
+            patches: Vec::new(),
+        };
+        let mut cutter = Cutter::default();
+        for face in scene.faces() {
+            let material = &scene.materials()[face.material as usize];
+            let template = PatchTemplate {
+                reflectance: material.reflectance,
+                emission: material.emission,
+                face: face.source,
+                material: face.material,
+            };
+            match max_edge {
+                None => mesh.push_patch(&face.vertices, &template),
+                Some(l) => cutter.cut_face(&mut mesh, &face.vertices, l, &template),
+            }
+        }
+        Ok(mesh)
+    }
+
+    /// Appends a vertex and returns its index.
+    pub(crate) fn push_position(&mut self, p: Vec3) -> u32 {
+        self.positions.push(p);
+        (self.positions.len() - 1) as u32
+    }
+
+    /// Position of vertex `i`.
+    pub(crate) fn position(&self, i: u32) -> Vec3 {
+        self.positions[i as usize]
+    }
+
+    /// Appends a convex planar polygon patch with the given corner indices (counter-clockwise).
+    pub(crate) fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate) {
+        let id = self.patches.len() as u32;
+        let first_corner = self.corners.len() as u32;
+        let first_triangle = self.triangles.len() as u32;
+        self.corners.extend_from_slice(corners);
+        let p0 = self.positions[corners[0] as usize].as_dvec3();
+        let mut area2 = DVec3::ZERO; // twice the vector area
+        let mut moment = DVec3::ZERO; // sum of (twice triangle area) * triangle centroid
+        let mut doubled_areas = 0.0;
+        for w in corners[1..].windows(2) {
+            let (p1, p2) = (
+                self.positions[w[0] as usize].as_dvec3(),
+                self.positions[w[1] as usize].as_dvec3(),
+            );
+            let c = (p1 - p0).cross(p2 - p0);
+            area2 += c;
+            doubled_areas += c.length();
+            moment += c.length() * (p0 + p1 + p2) / 3.0;
+            self.triangles.push([corners[0], w[0], w[1]]);
+            self.triangle_patch.push(id);
+        }
+        let normal = area2.normalize_or_zero();
+        self.patches.push(Patch {
+            area: area2.length() / 2.0,
+            normal: normal.as_vec3(),
+            centroid: if doubled_areas > 0.0 {
+                (moment / doubled_areas).as_vec3()
+            } else {
+                p0.as_vec3()
+            },
+            reflectance: t.reflectance,
+            emission: t.emission,
+            face: t.face,
+            material: t.material,
+            first_corner,
+            corner_count: corners.len() as u32,
+            first_triangle,
+            triangle_count: (corners.len() - 2) as u32,
+        });
+    }
+
+    /// The patches, in mesh order.
+    pub fn patches(&self) -> &[Patch] {
+        &self.patches
+    }
+
+    /// Vertex positions (scene units); the input's vertices first, then those subdivision made.
+    pub fn positions(&self) -> &[Vec3] {
+        &self.positions
+    }
+
+    /// Corner vertex indices of `patch`, counter-clockwise seen from its front.
+    pub fn corners(&self, patch: &Patch) -> &[u32] {
+        let s = patch.first_corner as usize;
+        &self.corners[s..s + patch.corner_count as usize]
+    }
+
+    /// All triangles (vertex indices), grouped by patch in patch order; counter-clockwise from
+    /// the front.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// The triangles of `patch` (a fan over its corners).
+    pub fn patch_triangles(&self, patch: &Patch) -> &[[u32; 3]] {
+        let s = patch.first_triangle as usize;
+        &self.triangles[s..s + patch.triangle_count as usize]
+    }
+
+    /// For each triangle of [`Mesh::triangles`], the index of its patch.
+    pub fn triangle_patch(&self) -> &[u32] {
+        &self.triangle_patch
+    }
+
+    /// The triangles as vertex positions, in [`Mesh::triangles`] order (for building a BVH).
+    pub fn triangle_positions(&self) -> Vec<[Vec3; 3]> {
+        self.triangles
+            .iter()
+            .map(|t| t.map(|i| self.positions[i as usize]))
+            .collect()
+    }
+
+    /// Total area of all patches (scene units²), summed in f64.
+    pub fn total_area(&self) -> f64 {
+        self.patches.iter().map(|p| p.area).sum()
+    }
+
+    /// Checks the invariants; returns a description of the first violation.
+    pub fn validate(&self) -> Result<(), String> {
+        for (i, p) in self.patches.iter().enumerate() {
+            if p.corner_count < 3 || p.triangle_count < 1 {
+                return Err(format!("patch {i} has {} corners", p.corner_count));
+            }
+            if !(p.area.is_finite() && p.area > 0.0) {
+                return Err(format!("patch {i} has area {}", p.area));
+            }
+            if (p.normal.length() - 1.0).abs() > 1e-4 {
+                return Err(format!("patch {i} has normal {}", p.normal));
+            }
+            if self.patch_triangles(p).len() != p.triangle_count as usize
+                || self.triangle_patch[p.first_triangle as usize] != i as u32
+            {
+                return Err(format!("patch {i} triangles are not its own"));
+            }
+        }
+        if self.triangle_patch.len() != self.triangles.len() {
+            return Err("triangle_patch length differs from triangles".into());
+        }
+        Ok(())
+    }
+}
+
+/// What every patch cut from one face shares.
+pub(crate) struct PatchTemplate {
+    pub reflectance: Vec3,
+    pub emission: Vec3,
+    pub face: u32,
+    pub material: u32,
+}
+
+/// An upper estimate of the patch count a subdivision makes (to refuse absurd requests early).
+fn estimate_patches(scene: &Scene, max_edge: f32) -> u64 {
+    let l = max_edge as f64;
+    let p = scene.positions();
+    scene
+        .faces()
+        .iter()
+        .map(|f| {
+            let longest = f
+                .vertices
+                .iter()
+                .zip(f.vertices.iter().cycle().skip(1))
+                .map(|(&a, &b)| p[a as usize].distance(p[b as usize]) as f64)
+                .fold(0.0, f64::max);
+            let n = (longest / l).ceil().max(1.0);
+            ((f.vertices.len() - 2) as f64 * n * n).min(u64::MAX as f64 / 2.0) as u64
+        })
+        .fold(0u64, |a, b| a.saturating_add(b))
+}

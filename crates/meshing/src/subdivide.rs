@@ -1,0 +1,141 @@
+//! Uniform subdivision of faces into patches that share their edge points.
+
+use crate::build::{Mesh, PatchTemplate};
+use glam::DVec3;
+use std::collections::HashMap;
+
+/// Cuts faces into patches, remembering the points it made on face edges so that a neighbouring
+/// face cutting the same edge into the same number of pieces reuses them.
+#[derive(Default)]
+pub(crate) struct Cutter {
+    /// `(lower vertex, higher vertex, step from the lower one, steps)` -> vertex index.
+    edge_points: HashMap<(u32, u32, u32, u32), u32>,
+}
+
+/// Number of pieces an edge of `length` is cut into so no piece is longer than `max_edge`.
+fn pieces(length: f64, max_edge: f32) -> u32 {
+    ((length / max_edge as f64).ceil() as u32).max(1)
+}
+
+impl Cutter {
+    /// Cuts one face (corner indices counter-clockwise) into patches of `mesh`.
+    pub fn cut_face(&mut self, mesh: &mut Mesh, corners: &[u32], max_edge: f32, t: &PatchTemplate) {
+        let pos: Vec<DVec3> = corners.iter().map(|&i| mesh.position(i).as_dvec3()).collect();
+        if corners.len() == 4 && is_convex(&pos) {
+            self.cut_quad(mesh, [corners[0], corners[1], corners[2], corners[3]], max_edge, t);
+        } else {
+            for w in corners[1..].windows(2) {
+                self.cut_triangle(mesh, [corners[0], w[0], w[1]], max_edge, t);
+            }
+        }
+    }
+
+    /// The point `k/n` of the way from vertex `a` to vertex `b`, computed the same way from
+    /// either end so both faces of an edge get the same vertex.
+    fn edge_point(&mut self, mesh: &mut Mesh, a: u32, b: u32, k: u32, n: u32) -> u32 {
+        if k == 0 {
+            return a;
+        }
+        if k == n {
+            return b;
+        }
+        let (lo, hi, k) = if a < b { (a, b, k) } else { (b, a, n - k) };
+        if let Some(&v) = self.edge_points.get(&(lo, hi, k, n)) {
+            return v;
+        }
+        let p = mesh.position(lo).as_dvec3().lerp(mesh.position(hi).as_dvec3(), k as f64 / n as f64);
+        let v = mesh.push_position(p.as_vec3());
+        self.edge_points.insert((lo, hi, k, n), v);
+        v
+    }
+
+    /// Cuts triangle `abc` into `n²` similar triangles, `n` set by its longest edge.
+    fn cut_triangle(&mut self, mesh: &mut Mesh, [a, b, c]: [u32; 3], max_edge: f32, t: &PatchTemplate) {
+        let (pa, pb, pc) = (
+            mesh.position(a).as_dvec3(),
+            mesh.position(b).as_dvec3(),
+            mesh.position(c).as_dvec3(),
+        );
+        let longest = pa.distance(pb).max(pb.distance(pc)).max(pc.distance(pa));
+        let n = pieces(longest, max_edge);
+        // Grid point (i, j) = a + (b - a) i/n + (c - a) j/n for i + j <= n, row-major in j.
+        let mut grid = vec![0u32; ((n + 1) * (n + 2) / 2) as usize];
+        // Rows j = 0..=n hold n+1, n, ..., 1 points.
+        let row_start: Vec<usize> = (0..=n)
+            .scan(0usize, |s, j| {
+                let r = *s;
+                *s += (n + 1 - j) as usize;
+                Some(r)
+            })
+            .collect();
+        for j in 0..=n {
+            for i in 0..=(n - j) {
+                let v = if j == 0 {
+                    self.edge_point(mesh, a, b, i, n)
+                } else if i == 0 {
+                    self.edge_point(mesh, a, c, j, n)
+                } else if i + j == n {
+                    self.edge_point(mesh, b, c, j, n)
+                } else {
+                    let p = pa + (pb - pa) * (i as f64 / n as f64) + (pc - pa) * (j as f64 / n as f64);
+                    mesh.push_position(p.as_vec3())
+                };
+                grid[row_start[j as usize] + i as usize] = v;
+            }
+        }
+        let g = |i: u32, j: u32| grid[row_start[j as usize] + i as usize];
+        for j in 0..n {
+            for i in 0..(n - j) {
+                mesh.push_patch(&[g(i, j), g(i + 1, j), g(i, j + 1)], t);
+                if i + j + 1 < n {
+                    mesh.push_patch(&[g(i + 1, j), g(i + 1, j + 1), g(i, j + 1)], t);
+                }
+            }
+        }
+    }
+
+    /// Cuts a convex quad `v0 v1 v2 v3` into an `n_u × n_v` bilinear grid of quads.
+    fn cut_quad(&mut self, mesh: &mut Mesh, v: [u32; 4], max_edge: f32, t: &PatchTemplate) {
+        let p = v.map(|i| mesh.position(i).as_dvec3());
+        let nu = pieces(p[0].distance(p[1]).max(p[3].distance(p[2])), max_edge);
+        let nv = pieces(p[0].distance(p[3]).max(p[1].distance(p[2])), max_edge);
+        let mut grid = vec![0u32; ((nu + 1) * (nv + 1)) as usize];
+        for j in 0..=nv {
+            for i in 0..=nu {
+                let id = if j == 0 {
+                    self.edge_point(mesh, v[0], v[1], i, nu)
+                } else if j == nv {
+                    self.edge_point(mesh, v[3], v[2], i, nu)
+                } else if i == 0 {
+                    self.edge_point(mesh, v[0], v[3], j, nv)
+                } else if i == nu {
+                    self.edge_point(mesh, v[1], v[2], j, nv)
+                } else {
+                    let (s, tt) = (i as f64 / nu as f64, j as f64 / nv as f64);
+                    let q = p[0] * ((1.0 - s) * (1.0 - tt))
+                        + p[1] * (s * (1.0 - tt))
+                        + p[2] * (s * tt)
+                        + p[3] * ((1.0 - s) * tt);
+                    mesh.push_position(q.as_vec3())
+                };
+                grid[(j * (nu + 1) + i) as usize] = id;
+            }
+        }
+        let g = |i: u32, j: u32| grid[(j * (nu + 1) + i) as usize];
+        for j in 0..nv {
+            for i in 0..nu {
+                mesh.push_patch(&[g(i, j), g(i + 1, j), g(i + 1, j + 1), g(i, j + 1)], t);
+            }
+        }
+    }
+}
+
+/// True when the polygon turns the same way at every corner (strictly convex, any winding).
+fn is_convex(p: &[DVec3]) -> bool {
+    let n = p.len();
+    let normal: DVec3 = (0..n).map(|i| p[i].cross(p[(i + 1) % n])).sum();
+    (0..n).all(|i| {
+        let (a, b, c) = (p[i], p[(i + 1) % n], p[(i + 2) % n]);
+        (b - a).cross(c - b).dot(normal) > 0.0
+    })
+}

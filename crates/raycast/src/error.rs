@@ -1,0 +1,39 @@
+//! Errors of [`Bvh::build`](crate::Bvh::build) and [`BruteForce::build`](crate::BruteForce::build).
+
+use glam::Vec3;
+
+/// Why a triangle list could not be turned into a ray caster.
+///
+/// Every variant is the caller's responsibility (bad input), and carries the offending indices
+/// and numbers so the message can point at the face.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BuildError {
+    /// The triangle list is empty: there is nothing to intersect.
+    #[error("no triangles to build a ray caster from")]
+    Empty,
+    /// `triangles` and `ids` must have one entry per triangle.
+    #[error("{triangles} triangles but {ids} ids: need one id per triangle")]
+    LengthMismatch {
+        /// Number of triangles passed.
+        triangles: usize,
+        /// Number of ids passed.
+        ids: usize,
+    },
+    /// A vertex has a NaN or infinite coordinate (obvhs would panic or build garbage).
+    #[error("triangle {triangle}, vertex {vertex} is not finite: {value}")]
+    NonFiniteVertex {
+        /// Index of the triangle in the input list.
+        triangle: usize,
+        /// Which of its three vertices (0, 1 or 2).
+        vertex: usize,
+        /// The offending position (scene units).
+        value: Vec3,
+    },
+    /// A triangle carries the reserved id [`NO_ID`](crate::NO_ID), which means "no primitive"
+    /// in rays and surface points.
+    #[error("triangle {triangle} has the reserved id NO_ID (u32::MAX)")]
+    ReservedId {
+        /// Index of the triangle in the input list.
+        triangle: usize,
+    },
+}

@@ -1,0 +1,308 @@
+//! The canonical frame: input validation, the world <-> canonical map, and the surface offsets.
+//!
+//! Shared by [`Bvh`](crate::Bvh) (which works in canonical `f32`) and
+//! [`BruteForce`](crate::BruteForce) (which works in world `f64` but must offset ray origins
+//! by the same amounts to be a fair oracle).
+
+use glam::{DVec3, Vec3, Vec3A};
+
+use crate::{BuildError, CANONICAL_EPSILON, CANONICAL_MIN_DISTANCE, NO_ID, Ray, SurfacePoint};
+
+/// Lower end of the canonical extent: the largest bounding-box side lies in `[512, 1024)`.
+const CANONICAL_EXTENT_MIN: f64 = 512.0;
+
+/// Origin lift per canonical unit of world-coordinate magnitude: `2^-21`, i.e. 4 ulps of an `f32`
+/// coordinate (an `f32` ulp is at most `2^-23` of the value). A point given in world `f32` is only
+/// known to about half an ulp of its largest coordinate; far from the world origin that
+/// uncertainty, not `CANONICAL_EPSILON`, decides whether the origin sits above its surface.
+const LIFT_PER_MAGNITUDE: f64 = 1.0 / (1u64 << 21) as f64;
+
+/// Checks the input of a build and returns the bounds (min, max) of all vertices.
+pub(crate) fn validate(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<(Vec3, Vec3), BuildError> {
+    if triangles.len() != ids.len() {
+        return Err(BuildError::LengthMismatch { triangles: triangles.len(), ids: ids.len() });
+    }
+    if triangles.is_empty() {
+        return Err(BuildError::Empty);
+    }
+    let mut min = Vec3::INFINITY;
+    let mut max = Vec3::NEG_INFINITY;
+    for (triangle, (tri, &id)) in triangles.iter().zip(ids).enumerate() {
+        for (vertex, &value) in tri.iter().enumerate() {
+            if !value.is_finite() {
+                return Err(BuildError::NonFiniteVertex { triangle, vertex, value });
+            }
+            min = min.min(value);
+            max = max.max(value);
+        }
+        if id == NO_ID {
+            return Err(BuildError::ReservedId { triangle });
+        }
+    }
+    Ok((min, max))
+}
+
+/// A ray prepared for the canonical frame: lifted origin, unit direction, `t` range start.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CanonicalRay {
+    pub origin: Vec3A,
+    pub dir: Vec3A,
+    pub tmin: f32,
+}
+
+/// A visibility segment in the canonical frame: blockers count for `t` in `[tmin, tmax]`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CanonicalSegment {
+    pub origin: Vec3A,
+    pub dir: Vec3A,
+    pub tmin: f32,
+    pub tmax: f32,
+}
+
+/// A ray prepared for world-space `f64` intersection (the brute-force oracle).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct WorldRay {
+    pub origin: DVec3,
+    pub dir: DVec3,
+    pub tmin: f64,
+    pub tmax: f64,
+}
+
+/// The map `canonical = (world - center) * scale`, `scale` a power of two.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Frame {
+    center: DVec3,
+    scale: f64,
+    inv_scale: f64,
+}
+
+impl Frame {
+    /// The frame of a scene with these (finite) bounds.
+    pub(crate) fn new(min: Vec3, max: Vec3) -> Frame {
+        let (min, max) = (min.as_dvec3(), max.as_dvec3());
+        let center = (min + max) * 0.5;
+        let extent = (max - min).max_element();
+        let mut exp: i32 = 0;
+        if extent > 0.0 {
+            // f64 holds every finite f32 extent and its power-of-two rescaling exactly, so the
+            // loops below are exact; log2 only gives the starting guess.
+            exp = 9 - extent.log2().floor() as i32;
+            while extent * pow2(exp) >= 2.0 * CANONICAL_EXTENT_MIN {
+                exp -= 1;
+            }
+            while extent * pow2(exp) < CANONICAL_EXTENT_MIN {
+                exp += 1;
+            }
+        }
+        let scale = pow2(exp);
+        Frame { center, scale, inv_scale: pow2(-exp) }
+    }
+
+    /// Canonical units per scene unit (a power of two).
+    pub(crate) fn scale(&self) -> f64 {
+        self.scale
+    }
+
+    /// Scene units per canonical unit.
+    pub(crate) fn inv_scale(&self) -> f64 {
+        self.inv_scale
+    }
+
+    /// World point -> canonical `f32` point (one rounding).
+    pub(crate) fn to_canonical(&self, p: Vec3) -> Vec3 {
+        ((p.as_dvec3() - self.center) * self.scale).as_vec3()
+    }
+
+    /// Canonical point -> world point.
+    pub(crate) fn to_world(&self, p: DVec3) -> Vec3 {
+        (self.center + p * self.inv_scale).as_vec3()
+    }
+
+    /// How far (canonical units) a ray origin at world point `p` is lifted off its surface:
+    /// `max(CANONICAL_EPSILON, 2^-21 * max|p_i| * scale)`.
+    fn lift(&self, p: Vec3) -> f64 {
+        let magnitude = p.abs().max_element() as f64 * self.scale;
+        (magnitude * LIFT_PER_MAGNITUDE).max(CANONICAL_EPSILON as f64)
+    }
+
+    /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero).
+    fn lifted(&self, p: Vec3, normal: Vec3) -> DVec3 {
+        let c = (p.as_dvec3() - self.center) * self.scale;
+        if normal == Vec3::ZERO { c } else { c + normal.as_dvec3() * self.lift(p) }
+    }
+
+    /// `None` for rays that cannot hit anything (zero or non-finite direction or origin).
+    pub(crate) fn canonical_ray(&self, ray: &Ray) -> Option<CanonicalRay> {
+        let dir = ray.dir.normalize_or_zero();
+        if dir == Vec3::ZERO || !ray.origin.is_finite() {
+            return None;
+        }
+        let normal = ray.origin_normal.normalize_or_zero();
+        let origin = self.lifted(ray.origin, normal).as_vec3();
+        if !origin.is_finite() {
+            return None;
+        }
+        Some(CanonicalRay { origin: origin.into(), dir: dir.into(), tmin: CANONICAL_MIN_DISTANCE })
+    }
+
+    /// `None` when there is no segment to block (coincident or non-finite end points).
+    pub(crate) fn canonical_segment(
+        &self,
+        a: &SurfacePoint,
+        b: &SurfacePoint,
+    ) -> Option<CanonicalSegment> {
+        if !(a.point.is_finite() && b.point.is_finite()) {
+            return None;
+        }
+        let na = a.normal.normalize_or_zero();
+        let nb = b.normal.normalize_or_zero();
+        let pa = self.lifted(a.point, na);
+        let pb = self.lifted(b.point, nb);
+        let delta = pb - pa;
+        let len = delta.length();
+        let origin = pa.as_vec3();
+        if !(len > 0.0 && len.is_finite() && origin.is_finite()) {
+            return None;
+        }
+        let tmin = CANONICAL_MIN_DISTANCE;
+        let tmax = len as f32 - CANONICAL_MIN_DISTANCE;
+        if tmax <= tmin {
+            return None;
+        }
+        let dir = (delta / len).as_vec3();
+        Some(CanonicalSegment { origin: origin.into(), dir: dir.into(), tmin, tmax })
+    }
+
+    /// The same ray as [`Frame::canonical_ray`], in world `f64` (`t` in scene units).
+    pub(crate) fn world_ray(&self, ray: &Ray) -> Option<WorldRay> {
+        let dir = ray.dir.as_dvec3().normalize_or_zero();
+        if dir == DVec3::ZERO || !ray.origin.is_finite() {
+            return None;
+        }
+        let normal = ray.origin_normal.normalize_or_zero();
+        let origin = self.world_lifted(ray.origin, normal);
+        Some(WorldRay { origin, dir, tmin: self.world_min_distance(), tmax: f64::INFINITY })
+    }
+
+    /// The same segment as [`Frame::canonical_segment`], in world `f64`.
+    pub(crate) fn world_segment(&self, a: &SurfacePoint, b: &SurfacePoint) -> Option<WorldRay> {
+        if !(a.point.is_finite() && b.point.is_finite()) {
+            return None;
+        }
+        let na = a.normal.normalize_or_zero();
+        let nb = b.normal.normalize_or_zero();
+        let pa = self.world_lifted(a.point, na);
+        let pb = self.world_lifted(b.point, nb);
+        let delta = pb - pa;
+        let len = delta.length();
+        if !(len > 0.0 && len.is_finite()) {
+            return None;
+        }
+        let tmin = self.world_min_distance();
+        let tmax = len - tmin;
+        if tmax <= tmin {
+            return None;
+        }
+        Some(WorldRay { origin: pa, dir: delta / len, tmin, tmax })
+    }
+
+    /// `CANONICAL_EPSILON` in scene units.
+    pub(crate) fn world_epsilon(&self) -> f64 {
+        CANONICAL_EPSILON as f64 * self.inv_scale
+    }
+
+    /// `CANONICAL_MIN_DISTANCE` in scene units.
+    pub(crate) fn world_min_distance(&self) -> f64 {
+        CANONICAL_MIN_DISTANCE as f64 * self.inv_scale
+    }
+
+    fn world_lifted(&self, p: Vec3, normal: Vec3) -> DVec3 {
+        if normal == Vec3::ZERO {
+            p.as_dvec3()
+        } else {
+            p.as_dvec3() + normal.as_dvec3() * (self.lift(p) * self.inv_scale)
+        }
+    }
+}
+
+/// `2^exp`, exact for the exponents used here (|exp| < 1000).
+fn pow2(exp: i32) -> f64 {
+    2f64.powi(exp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn extent_in_canonical(min: Vec3, max: Vec3) -> f64 {
+        let f = Frame::new(min, max);
+        (max.as_dvec3() - min.as_dvec3()).max_element() * f.scale()
+    }
+
+    #[test]
+    fn canonical_extent_is_in_512_1024_at_every_scale() {
+        for e in [-140i32, -60, -20, -3, 0, 1, 9, 10, 11, 40, 120] {
+            for m in [1.0f32, 1.3, 1.999_999, 1.5] {
+                let size = m * 2f32.powi(e);
+                for offset in [0.0f32, -3.0 * size, 1e4 * size] {
+                    let min = Vec3::new(offset, offset, offset);
+                    let max = min + Vec3::new(size, 0.5 * size, 0.0);
+                    if !(min.is_finite() && max.is_finite()) {
+                        continue;
+                    }
+                    let canon = extent_in_canonical(min, max);
+                    let size = (max.x as f64) - (min.x as f64);
+                    if size > 0.0 {
+                        assert!((512.0..1024.0).contains(&canon), "size {size}: {canon}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn huge_and_degenerate_bounds_give_finite_frames() {
+        let f = Frame::new(Vec3::splat(-f32::MAX), Vec3::splat(f32::MAX));
+        let corner = f.to_canonical(Vec3::splat(f32::MAX));
+        assert!(corner.is_finite() && corner.x > 256.0 && corner.x <= 512.0, "{corner}");
+        let f = Frame::new(Vec3::ONE, Vec3::ONE);
+        assert_eq!(f.scale(), 1.0);
+        assert_eq!(f.to_canonical(Vec3::ONE), Vec3::ZERO);
+    }
+
+    #[test]
+    fn scale_is_a_power_of_two_and_round_trips() {
+        let f = Frame::new(Vec3::new(-3.0, 1.0, 2.0), Vec3::new(7.0, 4.0, 2.5));
+        let s = f.scale();
+        assert_eq!(s.log2().fract(), 0.0);
+        assert_eq!(s * f.inv_scale(), 1.0);
+        let p = Vec3::new(0.3, 2.2, 2.1);
+        let back = f.to_world(f.to_canonical(p).as_dvec3());
+        assert!((back - p).abs().max_element() < 1e-6);
+    }
+
+    #[test]
+    fn lift_grows_only_far_from_the_origin() {
+        let f = Frame::new(Vec3::ZERO, Vec3::ONE);
+        assert_eq!(f.lift(Vec3::ONE), CANONICAL_EPSILON as f64);
+        let far = Frame::new(Vec3::splat(1e4), Vec3::splat(1e4 + 1.0));
+        let lift = far.lift(Vec3::splat(1e4));
+        // half an f32 ulp of 1e4 is 2^-11 scene units; the lift must be several times that
+        let half_ulp = 2f64.powi(-11) * far.scale();
+        assert!(lift > 4.0 * half_ulp && lift < 16.0 * half_ulp, "{lift} vs {half_ulp}");
+    }
+
+    #[test]
+    fn degenerate_queries_give_none() {
+        let f = Frame::new(Vec3::ZERO, Vec3::ONE);
+        assert!(f.canonical_ray(&Ray::new(Vec3::ZERO, Vec3::ZERO)).is_none());
+        assert!(f.canonical_ray(&Ray::new(Vec3::NAN, Vec3::X)).is_none());
+        assert!(f.canonical_ray(&Ray::new(Vec3::ZERO, Vec3::INFINITY)).is_none());
+        assert!(f.canonical_ray(&Ray::new(Vec3::splat(1e38), Vec3::X)).is_none());
+        let p = SurfacePoint::new(Vec3::ZERO, Vec3::Y, 1);
+        assert!(f.canonical_segment(&p, &p).is_none());
+        assert!(f.world_segment(&p, &p).is_none());
+        let q = SurfacePoint::new(Vec3::NAN, Vec3::Y, 1);
+        assert!(f.canonical_segment(&p, &q).is_none());
+    }
+}

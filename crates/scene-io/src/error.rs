@@ -1,0 +1,392 @@
+//! What can go wrong while loading a scene ([`SceneError`]) and what was repaired ([`Warning`]).
+
+use glam::Vec3;
+use std::fmt;
+use std::path::PathBuf;
+
+/// Formats a vector as `(x, y, z)` with Rust's shortest round-trip float format, so `NaN`, `inf`
+/// and the exact offending values show.
+pub(crate) fn fmt_vec3(v: Vec3) -> String {
+    format!("({}, {}, {})", v.x, v.y, v.z)
+}
+
+/// Where in a file an error was found; shown after the file name.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Location {
+    /// The file as a whole (or a place the message itself names).
+    File,
+    /// A 1-based line of a text file (OBJ or MTL).
+    Line(usize),
+    /// A glTF mesh primitive, reached through a node of the scene graph.
+    Primitive {
+        /// Index of the node in the document's `nodes` array.
+        node: usize,
+        /// The node's name, if it has one.
+        node_name: Option<String>,
+        /// Index of the mesh in the document's `meshes` array.
+        mesh: usize,
+        /// The mesh's name, if it has one.
+        mesh_name: Option<String>,
+        /// Index of the primitive within its mesh.
+        primitive: usize,
+    },
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fn named(
+            f: &mut fmt::Formatter<'_>,
+            what: &str,
+            i: usize,
+            name: &Option<String>,
+        ) -> fmt::Result {
+            match name {
+                Some(n) => write!(f, "{what} {i} '{n}'"),
+                None => write!(f, "{what} {i}"),
+            }
+        }
+        match self {
+            Location::File => Ok(()),
+            Location::Line(line) => write!(f, " line {line}"),
+            Location::Primitive {
+                node,
+                node_name,
+                mesh,
+                mesh_name,
+                primitive,
+            } => {
+                f.write_str(" (")?;
+                named(f, "node", *node, node_name)?;
+                f.write_str(", ")?;
+                named(f, "mesh", *mesh, mesh_name)?;
+                write!(f, ", primitive {primitive})")
+            }
+        }
+    }
+}
+
+/// Why a scene could not be loaded. Grouped by who is responsible: the file system, the file's
+/// syntax, and the scene's content (checked by [`Scene::new`](crate::Scene::new), for every
+/// loader alike).
+///
+/// Errors found in a file come wrapped in [`SceneError::InFile`], which names the file and the
+/// line or glTF primitive; [`SceneError::innermost`] gives the wrapped error. Every message
+/// (`Display`) is complete on its own: it includes the message of its `source`, so print the
+/// error with `{}` rather than walking the `source()` chain (which would repeat it).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneError {
+    /// A file could not be read. Example: `cannot read scenes/box.obj: No such file or directory
+    /// (os error 2)`.
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// The file extension is none of `.obj`, `.gltf`, `.glb`. Example: `scene.ply: unsupported
+    /// scene format (expected .obj, .gltf or .glb)`.
+    #[error("{}: unsupported scene format (expected .obj, .gltf or .glb)", path.display())]
+    UnsupportedFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// An OBJ file names (by `mtllib`) a material library that cannot be read. Example:
+    /// `box.obj line 2: cannot read material library dir/box.mtl named by mtllib: No such file
+    /// or directory (os error 2)`.
+    #[error("{} line {line}: cannot read material library {} named by mtllib: {source}",
+        obj.display(), mtl.display())]
+    MissingMtl {
+        /// The OBJ file.
+        obj: PathBuf,
+        /// The 1-based line of the `mtllib` statement.
+        line: usize,
+        /// The MTL path as the OBJ resolves it (relative to the OBJ's directory).
+        mtl: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// An error found in a file, with the file and the place in it. Example: `box.obj line 57:
+    /// face uses vertex 99 but only 36 vertices are defined in total`.
+    #[error("{}{location}: {source}", path.display())]
+    InFile {
+        /// The file (OBJ, MTL, glTF or GLB).
+        path: PathBuf,
+        /// Where in the file.
+        location: Location,
+        /// What is wrong there.
+        source: Box<SceneError>,
+    },
+    /// The file is malformed: the message says how. Example (wrapped): `box.obj line 4: vertex
+    /// needs 3 numbers, found 'v 1 2'`.
+    #[error("{message}")]
+    Parse {
+        /// What is malformed, quoting the input.
+        message: String,
+    },
+    /// The file uses a feature this reader does not support. Example (wrapped):
+    /// `unsupported: sparse accessor 3 for POSITION`.
+    #[error("unsupported: {what}")]
+    Unsupported {
+        /// The feature.
+        what: String,
+    },
+    /// An OBJ face refers to a vertex that does not exist. Examples (wrapped): `face uses vertex
+    /// 99 but only 36 vertices are defined in total`, `face uses vertex -40 (relative) but only 36
+    /// vertices are defined so far`, `face uses vertex 0, but OBJ vertex numbers start at 1`.
+    #[error("{}", obj_index_message(*index, *available))]
+    ObjFaceVertex {
+        /// The index as written: 1-based, or negative for relative to the last vertex so far.
+        index: i64,
+        /// Vertices available to it: in total for positive indices, so far for negative ones.
+        available: usize,
+    },
+    /// A glTF primitive's index refers past its vertices. Example (wrapped): `vertex index 40 is
+    /// out of range: the primitive has 36 vertices`.
+    #[error("vertex index {index} is out of range: the primitive has {count} vertices")]
+    IndexOutOfRange {
+        /// The offending index (0-based).
+        index: u32,
+        /// The number of vertices of the primitive.
+        count: usize,
+    },
+    /// The scene has no faces, or none left after dropping degenerate ones. Examples: `the scene
+    /// has no faces`, `the scene has no faces left: all 4 were degenerate (zero area) and
+    /// dropped`.
+    #[error("{}", no_faces_message(*dropped))]
+    NoFaces {
+        /// Degenerate faces dropped (0 when the input had no faces at all).
+        dropped: usize,
+    },
+    /// A position has a NaN or infinite coordinate. Example: `vertex 12 has a non-finite
+    /// coordinate (NaN, 0, 1)`.
+    #[error("vertex {vertex} has a non-finite coordinate {}", fmt_vec3(*position))]
+    NonFinitePosition {
+        /// The vertex: 0-based index into the positions for [`Scene::new`](crate::Scene::new)
+        /// and within the primitive for glTF; the 1-based OBJ vertex number in OBJ files.
+        vertex: usize,
+        /// The position as read.
+        position: Vec3,
+    },
+    /// A face has fewer than 3 vertices. Example: `face 7 has 2 vertices; a face needs at least
+    /// 3`.
+    #[error("face {face} has {count} vertices; a face needs at least 3")]
+    TooFewVertices {
+        /// The face's [`source`](crate::Face::source) number.
+        face: u32,
+        /// Its number of vertices.
+        count: usize,
+    },
+    /// A face refers to a vertex past the end of the positions. Example: `face 7 uses vertex 40
+    /// but there are only 36`.
+    #[error("face {face} uses vertex {vertex} but there are only {count}")]
+    VertexOutOfRange {
+        /// The face's [`source`](crate::Face::source) number.
+        face: u32,
+        /// The offending 0-based vertex index.
+        vertex: u32,
+        /// The number of positions.
+        count: usize,
+    },
+    /// A face refers to a material past the end of the materials. Example: `face 7 uses material
+    /// 5 but there are only 2`.
+    #[error("face {face} uses material {material} but there are only {count}")]
+    MaterialOutOfRange {
+        /// The face's [`source`](crate::Face::source) number.
+        face: u32,
+        /// The offending 0-based material index.
+        material: u32,
+        /// The number of materials.
+        count: usize,
+    },
+    /// A reflectance channel is outside `[0, 1)` or not finite. Example: `material 'red' has
+    /// reflectance (1.2, 0.1, 0.1): each channel must be in [0, 1)`.
+    #[error("material '{material}' has reflectance {}: each channel must be in [0, 1)",
+        fmt_vec3(*reflectance))]
+    BadReflectance {
+        /// The material's name.
+        material: String,
+        /// The reflectance as read (after any clamping of exact 1.0 in glTF).
+        reflectance: Vec3,
+    },
+    /// An emission channel is negative or not finite. Example: `material 'lamp' has negative
+    /// emission (-1, 0, 0): each channel must be finite and >= 0 W/m²`.
+    #[error("material '{material}' has {} emission {}: each channel must be finite and >= 0 W/m²",
+        if emission.is_finite() { "negative" } else { "non-finite" }, fmt_vec3(*emission))]
+    BadEmission {
+        /// The material's name.
+        material: String,
+        /// The emitted radiosity `E` in W/m² as computed from the file.
+        emission: Vec3,
+    },
+    /// No face emits. Example: `the scene has no emitting face (no material with emission > 0 is
+    /// used by any face)`.
+    #[error("the scene has no emitting face (no material with emission > 0 is used by any face)")]
+    NoEmitter,
+}
+
+fn obj_index_message(index: i64, available: usize) -> String {
+    match index {
+        0 => "face uses vertex 0, but OBJ vertex numbers start at 1".to_string(),
+        i if i < 0 => format!(
+            "face uses vertex {i} (relative) but only {available} vertices are defined so far"
+        ),
+        i => format!("face uses vertex {i} but only {available} vertices are defined in total"),
+    }
+}
+
+fn no_faces_message(dropped: usize) -> String {
+    if dropped == 0 {
+        "the scene has no faces".to_string()
+    } else {
+        format!(
+            "the scene has no faces left: all {dropped} were degenerate (zero area) and dropped"
+        )
+    }
+}
+
+impl SceneError {
+    /// The error inside any [`SceneError::InFile`] wrappers: what is wrong, without where.
+    pub fn innermost(&self) -> &SceneError {
+        match self {
+            SceneError::InFile { source, .. } => source.innermost(),
+            other => other,
+        }
+    }
+
+    /// Wraps `self` with the file and place it was found in.
+    pub(crate) fn in_file(self, path: impl Into<PathBuf>, location: Location) -> SceneError {
+        SceneError::InFile {
+            path: path.into(),
+            location,
+            source: Box::new(self),
+        }
+    }
+
+    /// A [`SceneError::Parse`] with `message`.
+    pub(crate) fn parse(message: impl Into<String>) -> SceneError {
+        SceneError::Parse {
+            message: message.into(),
+        }
+    }
+}
+
+/// A repair made while loading, counted: the scene is usable, but differs from the file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Warning {
+    /// Faces of zero or near-zero area (`<= 1e-12 * diagonal²` of the scene's bounding box, or
+    /// fewer than 3 distinct consecutive vertices) were removed. Example: `dropped 3 degenerate
+    /// faces (zero or near-zero area); the first is face 7`.
+    DegenerateFacesDropped {
+        /// How many faces were dropped.
+        count: usize,
+        /// [`source`](crate::Face::source) of the first one dropped.
+        first_source: u32,
+    },
+    /// Non-planar or non-convex polygons were split into triangles that keep the polygon's
+    /// `source`. Example: `split 2 non-planar or non-convex faces into triangles; the first is
+    /// face 4`.
+    FacesSplit {
+        /// How many input faces were split.
+        count: usize,
+        /// [`source`](crate::Face::source) of the first one split.
+        first_source: u32,
+    },
+    /// A material lacked a property and got a default. Example: `material 'wall': no Kd;
+    /// reflectance set to 0.5 grey`.
+    MaterialDefaulted {
+        /// The material's name.
+        name: String,
+        /// What was missing and what it was set to.
+        what: String,
+    },
+    /// Faces with no material got the built-in material
+    /// [`Material::DEFAULT_NAME`](crate::Material::DEFAULT_NAME) (reflectance 0.5 grey, no
+    /// emission). Example: `12 faces have no material and use the built-in 'default' (reflectance
+    /// 0.5, no emission)`.
+    DefaultMaterial {
+        /// How many faces (as read, before any split or drop).
+        faces: usize,
+    },
+    /// An OBJ `usemtl` names a material that no MTL file defines; its faces use the built-in
+    /// default material (and count in [`Warning::DefaultMaterial`]). Example: `usemtl 'gold' on
+    /// line 12 names no material of the MTL files`.
+    UnknownMaterial {
+        /// The name given to `usemtl`.
+        name: String,
+        /// The 1-based line of the first such `usemtl`.
+        line: usize,
+    },
+    /// glTF primitives without a surface (points, lines, or no `POSITION`) were skipped. Example:
+    /// `skipped 2 glTF primitives without a surface (points, lines or no POSITION)`.
+    PrimitivesSkipped {
+        /// How many primitives (per node instance).
+        count: usize,
+    },
+    /// glTF reflectance channels of exactly 1.0 were set to 0.999, the largest value the solver
+    /// accepts with margin. Example: `material 'white': 3 reflectance channels of exactly 1.0
+    /// clamped to 0.999`.
+    ReflectanceClamped {
+        /// The material's name.
+        material: String,
+        /// How many channels were clamped (1 to 3).
+        count: usize,
+    },
+    /// Textures were ignored: only `baseColorFactor` and `emissiveFactor` are used. Example:
+    /// `textures on 2 materials ignored (only baseColorFactor and emissiveFactor are used)`.
+    TexturesIgnored {
+        /// How many materials have a base-colour or emissive texture.
+        materials: usize,
+    },
+}
+
+impl fmt::Display for Warning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::DegenerateFacesDropped {
+                count,
+                first_source,
+            } => write!(
+                f,
+                "dropped {count} degenerate faces (zero or near-zero area); the first is face \
+                 {first_source}"
+            ),
+            Warning::FacesSplit {
+                count,
+                first_source,
+            } => write!(
+                f,
+                "split {count} non-planar or non-convex faces into triangles; the first is face \
+                 {first_source}"
+            ),
+            Warning::MaterialDefaulted { name, what } => write!(f, "material '{name}': {what}"),
+            Warning::DefaultMaterial { faces } => write!(
+                f,
+                "{faces} faces have no material and use the built-in '{}' (reflectance 0.5, no \
+                 emission)",
+                crate::Material::DEFAULT_NAME
+            ),
+            Warning::UnknownMaterial { name, line } => write!(
+                f,
+                "usemtl '{name}' on line {line} names no material of the MTL files"
+            ),
+            Warning::PrimitivesSkipped { count } => write!(
+                f,
+                "skipped {count} glTF primitives without a surface (points, lines or no POSITION)"
+            ),
+            Warning::ReflectanceClamped { material, count } => write!(
+                f,
+                "material '{material}': {count} reflectance channels of exactly 1.0 clamped to \
+                 0.999"
+            ),
+            Warning::TexturesIgnored { materials } => write!(
+                f,
+                "textures on {materials} materials ignored (only baseColorFactor and \
+                 emissiveFactor are used)"
+            ),
+        }
+    }
+}

@@ -1,0 +1,497 @@
+//! glTF 2.0 / GLB reader (through `gltf`): triangles of the default scene's meshes, placed by
+//! their node transforms; `baseColorFactor` as the reflectance and
+//! `emissiveFactor * KHR_materials_emissive_strength` as the emitted radiance `L`, so `E = pi L`.
+
+use crate::error::{Location, SceneError, Warning};
+use crate::{Face, Loaded, Material, Scene};
+use glam::{Mat4, Vec3};
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::{Mode, Semantic};
+use std::fs;
+use std::path::Path;
+
+/// What a reflectance channel of exactly 1.0 becomes (the solver needs `rho < 1`).
+const CLAMPED_REFLECTANCE: f32 = 0.999;
+
+/// Loads a `.gltf` (with its external or embedded buffers) or `.glb` file.
+///
+/// Walks the default scene (else the first scene, else every root node) depth-first, children
+/// in order, placing each mesh by its node's world transform (`parent * local`); under a
+/// mirroring transform (negative determinant) triangle winding is reversed so fronts stay
+/// fronts. Primitives of mode `TRIANGLES`, `TRIANGLE_STRIP` and `TRIANGLE_FAN` give triangle
+/// faces, numbered (`source`) over primitives in that traversal order (a mesh used by two nodes
+/// counts twice); points, lines and primitives without `POSITION` are skipped
+/// ([`Warning::PrimitivesSkipped`]). Vertices are not shared between primitives.
+///
+/// Materials are the document's, in order (unnamed ones are called `material<i>`):
+/// reflectance = `baseColorFactor` rgb (alpha ignored; channels of exactly 1.0 become 0.999,
+/// [`Warning::ReflectanceClamped`]; above 1 is an error), emission
+/// `E = pi * emissiveFactor * emissiveStrength` in W/m². Textures are ignored
+/// ([`Warning::TexturesIgnored`]). Primitives without a material get
+/// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
+/// ([`Warning::DefaultMaterial`]). Skins, morph targets and cameras are ignored.
+///
+/// Errors name the file and, for geometry, the node, mesh and primitive.
+pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
+    let bytes = fs::read(path).map_err(|source| SceneError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let in_file = |e: SceneError| e.in_file(path, Location::File);
+    let invalid = |e: gltf::Error| in_file(SceneError::parse(format!("not valid glTF: {e}")));
+    // Validation in `gltf-json` 1.4 panics on a POSITION accessor index out of range: parse,
+    // check that, then validate.
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(&bytes).map_err(invalid)?;
+    let json = document.into_json();
+    check_position_indices(&json).map_err(in_file)?;
+    let document = gltf::Document::from_json(json).map_err(invalid)?;
+    let buffers = load_buffers(&document, path, blob).map_err(in_file)?;
+
+    let mut warnings = Vec::new();
+    let mut materials = convert_materials(&document, &mut warnings);
+    let mut geometry = Geometry {
+        buffers: &buffers,
+        default_material: u32::try_from(materials.len()).map_err(|_| {
+            in_file(SceneError::Unsupported {
+                what: "more than 2^32 materials".into(),
+            })
+        })?,
+        positions: Vec::new(),
+        faces: Vec::new(),
+        defaulted: 0,
+        skipped: 0,
+    };
+    walk_scene(&document, |node, world| {
+        let Some(mesh) = node.mesh() else {
+            return Ok(());
+        };
+        for primitive in mesh.primitives() {
+            let location = Location::Primitive {
+                node: node.index(),
+                node_name: node.name().map(str::to_string),
+                mesh: mesh.index(),
+                mesh_name: mesh.name().map(str::to_string),
+                primitive: primitive.index(),
+            };
+            geometry
+                .add_primitive(&primitive, world)
+                .map_err(|e| e.in_file(path, location))?;
+        }
+        Ok(())
+    })
+    .map_err(|e| match e {
+        e @ SceneError::InFile { .. } => e,
+        e => in_file(e),
+    })?;
+
+    if geometry.skipped > 0 {
+        warnings.push(Warning::PrimitivesSkipped {
+            count: geometry.skipped,
+        });
+    }
+    if geometry.defaulted > 0 {
+        materials.push(Material::builtin_default());
+        warnings.push(Warning::DefaultMaterial {
+            faces: geometry.defaulted,
+        });
+    }
+    let (scene, more) =
+        Scene::new(geometry.positions, geometry.faces, materials).map_err(in_file)?;
+    warnings.extend(more);
+    Ok(Loaded { scene, warnings })
+}
+
+/// Checks that every primitive's `POSITION` names an existing accessor.
+fn check_position_indices(json: &gltf::json::Root) -> Result<(), SceneError> {
+    let positions = gltf::json::validation::Checked::Valid(Semantic::Positions);
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            if let Some(index) = primitive.attributes.get(&positions)
+                && index.value() >= json.accessors.len()
+            {
+                return Err(SceneError::parse(format!(
+                    "mesh {m} primitive {p}: POSITION is accessor {} but there are only {}",
+                    index.value(),
+                    json.accessors.len()
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads every buffer: embedded (`data:` URI), GLB binary chunk, or a file relative to the
+/// glTF's directory.
+fn load_buffers(
+    document: &gltf::Document,
+    path: &Path,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<gltf::buffer::Data>, SceneError> {
+    let base = path.parent().unwrap_or(Path::new(""));
+    let mut buffers = Vec::new();
+    for buffer in document.buffers() {
+        let i = buffer.index();
+        let mut file = None;
+        if let gltf::buffer::Source::Uri(uri) = buffer.source()
+            && !uri.starts_with("data:")
+        {
+            // `gltf` panics on a percent-encoding that is not UTF-8: check first.
+            let decoded = percent_decode(uri).ok_or_else(|| {
+                SceneError::parse(format!("buffer {i} has a URI that is not UTF-8: '{uri}'"))
+            })?;
+            file = Some(base.join(decoded));
+        }
+        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), Some(base), &mut blob)
+            .map_err(|e| match (e, &file) {
+                (gltf::Error::Io(source), Some(f)) => SceneError::Io {
+                    path: f.clone(),
+                    source,
+                },
+                (e, _) => SceneError::parse(format!("cannot read buffer {i}: {e}")),
+            })?;
+        if data.len() < buffer.length() {
+            return Err(SceneError::parse(format!(
+                "buffer {i} has {} bytes but its byteLength is {}",
+                data.len(),
+                buffer.length()
+            )));
+        }
+        buffers.push(data);
+    }
+    Ok(buffers)
+}
+
+/// Decodes `%XX` escapes as the `gltf` crate does; `None` if the result is not UTF-8.
+fn percent_decode(uri: &str) -> Option<String> {
+    let hex = |b: Option<&u8>| b.and_then(|b| (*b as char).to_digit(16));
+    let bytes = uri.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%'
+            && let (Some(h), Some(l)) = (hex(bytes.get(i + 1)), hex(bytes.get(i + 2)))
+        {
+            out.push((h * 16 + l) as u8);
+            i += 3;
+            continue;
+        }
+        out.push(bytes[i]);
+        i += 1;
+    }
+    String::from_utf8(out).ok()
+}
+
+fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> Vec<Material> {
+    let mut textured = 0;
+    let materials = document
+        .materials()
+        .enumerate()
+        .map(|(i, m)| {
+            let name = m
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("material{i}"));
+            let pbr = m.pbr_metallic_roughness();
+            let [r, g, b, _alpha] = pbr.base_color_factor();
+            let mut rgb = [r, g, b];
+            let clamped = rgb.iter_mut().filter(|c| **c == 1.0).fold(0, |n, c| {
+                *c = CLAMPED_REFLECTANCE;
+                n + 1
+            });
+            if clamped > 0 {
+                warnings.push(Warning::ReflectanceClamped {
+                    material: name.clone(),
+                    count: clamped,
+                });
+            }
+            if pbr.base_color_texture().is_some() || m.emissive_texture().is_some() {
+                textured += 1;
+            }
+            let radiance = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+            Material {
+                name,
+                reflectance: Vec3::from(rgb),
+                emission: std::f32::consts::PI * radiance,
+            }
+        })
+        .collect();
+    if textured > 0 {
+        warnings.push(Warning::TexturesIgnored {
+            materials: textured,
+        });
+    }
+    materials
+}
+
+/// Calls `visit` on every node of the default scene (else the first scene, else all root
+/// nodes), depth-first with children in order, with the node's world transform.
+fn walk_scene<'a>(
+    document: &'a gltf::Document,
+    mut visit: impl FnMut(&gltf::Node<'a>, Mat4) -> Result<(), SceneError>,
+) -> Result<(), SceneError> {
+    let roots: Vec<gltf::Node> = match document
+        .default_scene()
+        .or_else(|| document.scenes().next())
+    {
+        Some(scene) => scene.nodes().collect(),
+        None => {
+            let mut is_child = vec![false; document.nodes().len()];
+            for child in document.nodes().flat_map(|n| n.children()) {
+                is_child[child.index()] = true;
+            }
+            document.nodes().filter(|n| !is_child[n.index()]).collect()
+        }
+    };
+    // An explicit stack (deep hierarchies cannot overflow the call stack) and a visited mark
+    // (a node reached twice would mean a cycle or shared child, which glTF forbids).
+    let mut visited = vec![false; document.nodes().len()];
+    let mut stack: Vec<(gltf::Node, Mat4)> = roots
+        .into_iter()
+        .rev()
+        .map(|n| (n, Mat4::IDENTITY))
+        .collect();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut visited[node.index()], true) {
+            return Err(SceneError::parse(format!(
+                "node {} is reached twice: the node hierarchy is not a set of trees",
+                node.index()
+            )));
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        visit(&node, world)?;
+        let children: Vec<gltf::Node> = node.children().collect();
+        stack.extend(children.into_iter().rev().map(|c| (c, world)));
+    }
+    Ok(())
+}
+
+/// The scene's geometry as it is being collected.
+struct Geometry<'b> {
+    buffers: &'b [gltf::buffer::Data],
+    /// Material index given to primitives without a material.
+    default_material: u32,
+    positions: Vec<Vec3>,
+    faces: Vec<Face>,
+    /// Faces given the default material.
+    defaulted: usize,
+    /// Primitives skipped (no surface).
+    skipped: usize,
+}
+
+impl Geometry<'_> {
+    /// Adds the triangles of one primitive placed by `world`.
+    fn add_primitive(
+        &mut self,
+        primitive: &gltf::Primitive,
+        world: Mat4,
+    ) -> Result<(), SceneError> {
+        let mode = primitive.mode();
+        let surface = matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        );
+        let Some(accessor) = primitive.get(&Semantic::Positions).filter(|_| surface) else {
+            self.skipped += 1;
+            return Ok(());
+        };
+        check_accessor(
+            &accessor,
+            self.buffers,
+            "POSITION",
+            Dimensions::Vec3,
+            &[DataType::F32],
+        )?;
+        let buffers = self.buffers;
+        let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let unreadable = |what: &str| SceneError::parse(format!("cannot read the {what}"));
+        let local: Vec<Vec3> = reader
+            .read_positions()
+            .ok_or_else(|| unreadable("positions"))?
+            .map(Vec3::from)
+            .collect();
+        let count = local.len();
+        let indices: Vec<u32> = match primitive.indices() {
+            Some(accessor) => {
+                let types = [DataType::U8, DataType::U16, DataType::U32];
+                check_accessor(
+                    &accessor,
+                    self.buffers,
+                    "indices",
+                    Dimensions::Scalar,
+                    &types,
+                )?;
+                let read = reader.read_indices().ok_or_else(|| unreadable("indices"))?;
+                read.into_u32().collect()
+            }
+            None => (0..u32::try_from(count).unwrap_or(u32::MAX)).collect(),
+        };
+        if let Some(&index) = indices.iter().find(|&&i| i as usize >= count) {
+            return Err(SceneError::IndexOutOfRange { index, count });
+        }
+        let mut triangles = triangles(mode, &indices)?;
+        if world.determinant() < 0.0 {
+            for t in &mut triangles {
+                t.swap(1, 2);
+            }
+        }
+
+        let offset = u32::try_from(self.positions.len())
+            .ok()
+            .filter(|o| o.checked_add(count as u32).is_some())
+            .ok_or_else(|| SceneError::Unsupported {
+                what: "more than 2^32 vertices".into(),
+            })?;
+        for (vertex, p) in local.iter().enumerate() {
+            // The value in the file first; then the transform may still overflow.
+            for position in [*p, world.transform_point3(*p)] {
+                if !position.is_finite() {
+                    return Err(SceneError::NonFinitePosition { vertex, position });
+                }
+            }
+            self.positions.push(world.transform_point3(*p));
+        }
+        let material = match primitive.material().index() {
+            Some(i) => i as u32,
+            None => {
+                self.defaulted += triangles.len();
+                self.default_material
+            }
+        };
+        for t in triangles {
+            let source = u32::try_from(self.faces.len()).map_err(|_| SceneError::Unsupported {
+                what: "more than 2^32 faces".into(),
+            })?;
+            self.faces.push(Face {
+                vertices: t.iter().map(|&i| i + offset).collect(),
+                material,
+                source,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The triangles of a `TRIANGLES`, `TRIANGLE_STRIP` or `TRIANGLE_FAN` index list, as in the
+/// glTF specification (3.7.2.1), counter-clockwise from the front.
+fn triangles(mode: Mode, indices: &[u32]) -> Result<Vec<[u32; 3]>, SceneError> {
+    let n = indices.len();
+    let v = |i: usize| indices[i];
+    Ok(match mode {
+        Mode::Triangles => {
+            if !n.is_multiple_of(3) {
+                return Err(SceneError::parse(format!(
+                    "a TRIANGLES primitive has {n} vertex indices, not a multiple of 3"
+                )));
+            }
+            indices
+                .chunks_exact(3)
+                .map(|t| [t[0], t[1], t[2]])
+                .collect()
+        }
+        Mode::TriangleStrip => (0..n.saturating_sub(2))
+            .map(|i| [v(i), v(i + 1 + i % 2), v(i + 2 - i % 2)])
+            .collect(),
+        Mode::TriangleFan => (0..n.saturating_sub(2))
+            .map(|i| [v(i + 1), v(i + 2), v(0)])
+            .collect(),
+        _ => Vec::new(),
+    })
+}
+
+/// Checks what the `gltf` reader would trust: a dense accessor of the expected type whose
+/// elements lie inside its buffer view, which lies inside its buffer.
+fn check_accessor(
+    accessor: &gltf::Accessor,
+    buffers: &[gltf::buffer::Data],
+    what: &str,
+    dimensions: Dimensions,
+    types: &[DataType],
+) -> Result<(), SceneError> {
+    let i = accessor.index();
+    let bad = |problem: String| SceneError::parse(format!("accessor {i} ({what}) {problem}"));
+    if accessor.sparse().is_some() {
+        return Err(SceneError::Unsupported {
+            what: format!("sparse accessor {i} ({what})"),
+        });
+    }
+    if accessor.dimensions() != dimensions || !types.contains(&accessor.data_type()) {
+        return Err(SceneError::Unsupported {
+            what: format!(
+                "accessor {i} ({what}) of type {:?} {:?} (expected {dimensions:?} of {types:?})",
+                accessor.dimensions(),
+                accessor.data_type()
+            ),
+        });
+    }
+    let Some(view) = accessor.view() else {
+        return Err(bad("has no bufferView".into()));
+    };
+    let size = accessor.size();
+    let stride = view.stride().unwrap_or(size);
+    if stride < size {
+        return Err(bad(format!(
+            "has {size}-byte elements but buffer view {} has byteStride {stride}",
+            view.index()
+        )));
+    }
+    let count = accessor.count();
+    if count == 0 {
+        return Err(bad("has count 0".into()));
+    }
+    let end = (count - 1)
+        .checked_mul(stride)
+        .and_then(|x| x.checked_add(size))
+        .and_then(|x| x.checked_add(accessor.offset()));
+    if end.is_none_or(|end| end > view.length()) {
+        return Err(bad(format!(
+            "reads past the end of buffer view {} ({} bytes)",
+            view.index(),
+            view.length()
+        )));
+    }
+    let buffer = view.buffer().index();
+    let available = buffers.get(buffer).map_or(0, |d| d.len());
+    if view
+        .offset()
+        .checked_add(view.length())
+        .is_none_or(|end| end > available)
+    {
+        return Err(SceneError::parse(format!(
+            "buffer view {} reaches past the end of buffer {buffer} ({available} bytes)",
+            view.index()
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn strips_and_fans_follow_the_specification() {
+        let idx = [0, 1, 2, 3, 4];
+        assert_eq!(
+            triangles(Mode::TriangleStrip, &idx).unwrap(),
+            vec![[0, 1, 2], [1, 3, 2], [2, 3, 4]]
+        );
+        assert_eq!(
+            triangles(Mode::TriangleFan, &idx).unwrap(),
+            vec![[1, 2, 0], [2, 3, 0], [3, 4, 0]]
+        );
+        assert!(triangles(Mode::Triangles, &idx[..4]).is_err());
+        assert!(
+            triangles(Mode::TriangleStrip, &idx[..2])
+                .unwrap()
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn percent_decoding_rejects_non_utf8() {
+        assert_eq!(percent_decode("a%20b.bin").as_deref(), Some("a b.bin"));
+        assert_eq!(percent_decode("%zz%4").as_deref(), Some("%zz%4"));
+        assert_eq!(percent_decode("%FF.bin"), None);
+    }
+}

@@ -1,0 +1,312 @@
+//! A line-by-line pass over OBJ and MTL text before `tobj` sees it.
+//!
+//! `tobj` reports errors without a line, silently drops faces with fewer than 3 vertices,
+//! rejects valid input (1-component `vt`, mixed vertex colours, faces referring to vertices
+//! defined later in another object) and can panic on some malformed input (`Kd 0.5 0.5`). So the
+//! OBJ is checked here, with line numbers, and handed to `tobj` in a normal form: every `v` line
+//! first as `v x y z` (with `w` divided out, colours dropped), then the other statements in
+//! order, faces as `f a b c ...` with absolute 1-based position indices (texture and normal
+//! indices dropped: the scene does not use them). MTL colour statements are normalised the same
+//! way.
+
+use crate::error::SceneError;
+use glam::Vec3;
+
+/// An error with the 1-based line it was found on.
+pub(crate) type LineError = (usize, SceneError);
+
+/// An OBJ file checked and put in the normal form `tobj` reads.
+pub(crate) struct ObjText {
+    /// The normal form.
+    pub text: String,
+    /// The line of each face, in file order (index = the face's `source`).
+    pub face_lines: Vec<usize>,
+    /// The line of each `mtllib`, in file order.
+    pub mtllib_lines: Vec<usize>,
+    /// Each `usemtl` name with the line of its first use, in file order.
+    pub usemtl: Vec<(String, usize)>,
+}
+
+/// Checks an OBJ file and builds its normal form. Errors: unparsable or non-finite vertices,
+/// faces with fewer than 3 vertices, unparsable or out-of-range vertex indices, `usemtl` without
+/// a name.
+pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
+    let mut vertices = String::new();
+    let mut body = String::new();
+    let mut count = 0usize; // vertices defined so far
+    let mut forward: Vec<(usize, i64)> = Vec::new(); // positive indices past `count`, to check
+    let mut out = ObjText {
+        text: String::new(),
+        face_lines: Vec::new(),
+        mtllib_lines: Vec::new(),
+        usemtl: Vec::new(),
+    };
+    for (i, line) in text.lines().enumerate() {
+        let line_no = i + 1;
+        let statement = line.split('#').next().unwrap_or("");
+        let mut words = statement.split_whitespace();
+        let Some(keyword) = words.next() else {
+            continue;
+        };
+        let rest = || rest_after_keyword(line, keyword);
+        match keyword {
+            "v" => {
+                let p = parse_vertex(line, words.collect(), count + 1).map_err(|e| (line_no, e))?;
+                count += 1;
+                vertices.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+            }
+            "f" => {
+                let corners: Vec<&str> = words.collect();
+                if corners.len() < 3 {
+                    let message = format!(
+                        "a face needs at least 3 vertices, found {}: '{}'",
+                        corners.len(),
+                        line.trim()
+                    );
+                    return Err((line_no, SceneError::parse(message)));
+                }
+                body.push('f');
+                for corner in corners {
+                    let index = parse_face_index(corner, count).map_err(|e| (line_no, e))?;
+                    if index > count as i64 {
+                        forward.push((line_no, index));
+                    }
+                    body.push_str(&format!(" {index}"));
+                }
+                body.push('\n');
+                out.face_lines.push(line_no);
+            }
+            "mtllib" => {
+                out.mtllib_lines.push(line_no);
+                body.push_str(&format!("mtllib {}\n", rest()));
+            }
+            "usemtl" => {
+                let name = rest();
+                if name.is_empty() {
+                    return Err((line_no, SceneError::parse("usemtl needs a material name")));
+                }
+                if !out.usemtl.iter().any(|(n, _)| *n == name) {
+                    out.usemtl.push((name.to_string(), line_no));
+                }
+                body.push_str(&format!("usemtl {name}\n"));
+            }
+            "o" | "g" => body.push_str(&format!("{keyword} {}\n", rest())),
+            // vt, vn, l, p, s and the rest carry nothing the scene uses.
+            _ => {}
+        }
+    }
+    if let Some(&(line_no, index)) = forward.iter().find(|(_, index)| *index > count as i64) {
+        let e = SceneError::ObjFaceVertex {
+            index,
+            available: count,
+        };
+        return Err((line_no, e));
+    }
+    out.text = vertices + &body;
+    Ok(out)
+}
+
+/// The text after a statement's keyword, trimmed (names may contain spaces).
+fn rest_after_keyword<'a>(line: &'a str, keyword: &str) -> &'a str {
+    let start = line.trim_start();
+    start.get(keyword.len()..).unwrap_or("").trim()
+}
+
+/// Parses the numbers of a `v` line (`number` is its 1-based OBJ vertex number): `x y z`,
+/// `x y z w` or `x y z r g b`. The position must be finite.
+fn parse_vertex(line: &str, numbers: Vec<&str>, number: usize) -> Result<Vec3, SceneError> {
+    let mut values = Vec::with_capacity(numbers.len());
+    for n in &numbers {
+        match n.parse::<f32>() {
+            Ok(x) => values.push(x),
+            Err(_) => {
+                return Err(SceneError::parse(format!(
+                    "cannot parse vertex coordinate '{n}' in '{}'",
+                    line.trim()
+                )));
+            }
+        }
+    }
+    let p = match values[..] {
+        [x, y, z] | [x, y, z, _, _, _] => Vec3::new(x, y, z),
+        [x, y, z, w] => Vec3::new(x, y, z) / w,
+        _ => {
+            return Err(SceneError::parse(format!(
+                "a vertex needs 3 numbers (4 with w, 6 with a colour), found {}: '{}'",
+                values.len(),
+                line.trim()
+            )));
+        }
+    };
+    if !p.is_finite() {
+        return Err(SceneError::NonFinitePosition {
+            vertex: number,
+            position: p,
+        });
+    }
+    Ok(p)
+}
+
+/// Parses the position index of one face corner (`v`, `v/vt`, `v//vn` or `v/vt/vn`) as an
+/// absolute 1-based index; `count` vertices are defined so far. Positive indices past `count`
+/// are returned as they are (checked against the total at the end).
+fn parse_face_index(corner: &str, count: usize) -> Result<i64, SceneError> {
+    let v = corner.split('/').next().unwrap_or("");
+    let Ok(index) = v.parse::<i64>() else {
+        return Err(SceneError::parse(format!(
+            "cannot parse face vertex '{corner}'"
+        )));
+    };
+    let bad = SceneError::ObjFaceVertex {
+        index,
+        available: count,
+    };
+    match index {
+        0 => Err(bad),
+        i if i < 0 => {
+            let absolute = count as i64 + i + 1;
+            if absolute < 1 { Err(bad) } else { Ok(absolute) }
+        }
+        i => Ok(i),
+    }
+}
+
+/// An MTL file checked and normalised for `tobj`.
+pub(crate) struct MtlText {
+    /// The normal form (same lines as the input).
+    pub text: String,
+    /// The line of each `newmtl`, in file order.
+    pub newmtl_lines: Vec<usize>,
+}
+
+/// Normalises the colour statements `Ka`, `Kd`, `Ks`, `Ke` of an MTL file: a single number `r`
+/// means `r r r` (MTL specification); 2 numbers, none, or the `spectral` and `xyz` forms are
+/// errors. Line numbers are kept.
+pub(crate) fn scan_mtl(text: &str) -> Result<MtlText, LineError> {
+    let mut out = MtlText {
+        text: String::with_capacity(text.len()),
+        newmtl_lines: Vec::new(),
+    };
+    for (i, line) in text.lines().enumerate() {
+        let line_no = i + 1;
+        let mut words = line.split('#').next().unwrap_or("").split_whitespace();
+        match words.next() {
+            Some(k @ ("Ka" | "Kd" | "Ks" | "Ke")) => {
+                let numbers: Vec<&str> = words.collect();
+                match numbers[..] {
+                    [r] if r.parse::<f32>().is_ok() => {
+                        out.text.push_str(&format!("{k} {r} {r} {r}"));
+                    }
+                    [form, ..] if form == "spectral" || form == "xyz" => {
+                        let what = format!("'{k} {form}' colours (use '{k} r g b')");
+                        return Err((line_no, SceneError::Unsupported { what }));
+                    }
+                    [_, _, _] => out.text.push_str(line),
+                    _ => {
+                        let message = format!(
+                            "{k} needs 3 numbers (or 1 for grey), found {}: '{}'",
+                            numbers.len(),
+                            line.trim()
+                        );
+                        return Err((line_no, SceneError::parse(message)));
+                    }
+                }
+            }
+            Some("newmtl") => {
+                out.newmtl_lines.push(line_no);
+                out.text.push_str(line);
+            }
+            _ => out.text.push_str(line),
+        }
+        out.text.push('\n');
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_normal_form_hoists_vertices_and_resolves_indices() {
+        let text = "# c\nmtllib a b.mtl\no x\nv 0 0 0\nv 2 0 0 2\nvt 0.5\nusemtl red\n\
+                    f 1/1 2//3 -1 4\nv 0 1 0 1 0 0\nv 9 9 9\n  g  y \nf 1 2 3\n";
+        let t = scan_obj(text).unwrap();
+        assert_eq!(
+            t.text,
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 9 9 9\nmtllib a b.mtl\no x\nusemtl red\nf 1 2 2 4\n\
+             g y\nf 1 2 3\n"
+        );
+        assert_eq!(t.face_lines, vec![8, 12]);
+        assert_eq!(t.mtllib_lines, vec![2]);
+        assert_eq!(t.usemtl, vec![("red".to_string(), 7)]);
+    }
+
+    fn obj_err(text: &str) -> (usize, String) {
+        let (line, e) = scan_obj(text).err().unwrap();
+        (line, e.to_string())
+    }
+
+    #[test]
+    fn obj_errors_name_line_and_value() {
+        let v3 = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        assert_eq!(
+            obj_err(&format!("{v3}f 1 2 99\n")),
+            (
+                4,
+                "face uses vertex 99 but only 3 vertices are defined in total".into()
+            )
+        );
+        assert_eq!(
+            obj_err(&format!("{v3}f -1 -2 -4\n")),
+            (
+                4,
+                "face uses vertex -4 (relative) but only 3 vertices are defined so far".into()
+            )
+        );
+        assert_eq!(
+            obj_err(&format!("{v3}f 0 1 2\n")).1,
+            "face uses vertex 0, but OBJ vertex numbers start at 1"
+        );
+        assert_eq!(
+            obj_err(&format!("{v3}f 1 2\n")).1,
+            "a face needs at least 3 vertices, found 2: 'f 1 2'"
+        );
+        assert_eq!(
+            obj_err(&format!("{v3}f 1 x 2\n")).1,
+            "cannot parse face vertex 'x'"
+        );
+        assert_eq!(
+            obj_err("v 0 0 0\nv 1 nan 0\n"),
+            (2, "vertex 2 has a non-finite coordinate (1, NaN, 0)".into())
+        );
+        assert_eq!(
+            obj_err("v 1 1 1 0\n").1,
+            "vertex 1 has a non-finite coordinate (inf, inf, inf)"
+        );
+        assert_eq!(
+            obj_err("v 1 1\n").1,
+            "a vertex needs 3 numbers (4 with w, 6 with a colour), found 2: 'v 1 1'"
+        );
+        assert_eq!(
+            obj_err("v 1 a 1\n").1,
+            "cannot parse vertex coordinate 'a' in 'v 1 a 1'"
+        );
+        assert_eq!(obj_err("usemtl\n").1, "usemtl needs a material name");
+    }
+
+    #[test]
+    fn mtl_colours_are_normalised() {
+        let t = scan_mtl("newmtl a\nKd 0.5\nKe 1 2 3 # hot\n").unwrap();
+        assert_eq!(t.text, "newmtl a\nKd 0.5 0.5 0.5\nKe 1 2 3 # hot\n");
+        assert_eq!(t.newmtl_lines, vec![1]);
+        let (line, e) = scan_mtl("newmtl a\n\nKd 0.5 0.5\n").err().unwrap();
+        assert_eq!(line, 3);
+        assert_eq!(
+            e.to_string(),
+            "Kd needs 3 numbers (or 1 for grey), found 2: 'Kd 0.5 0.5'"
+        );
+        let (_, e) = scan_mtl("Kd spectral x.rfl\n").err().unwrap();
+        assert!(e.to_string().contains("unsupported: 'Kd spectral' colours"));
+    }
+}

@@ -1,0 +1,446 @@
+//! glTF / GLB loading through `mcrad_scene_io::load`, on documents assembled by the tests:
+//! node transforms, the emission mapping `E = pi * emissiveFactor * strength`, repairs, and bad
+//! input whose messages must name the file and the node, mesh and primitive.
+
+use glam::Vec3;
+use mcrad_scene_io::{Loaded, SceneError, Warning, load};
+use std::f32::consts::PI;
+use std::fs;
+use std::path::PathBuf;
+use tempfile::TempDir;
+
+/// Buffer, views and accessors of a glTF document being assembled.
+#[derive(Default)]
+struct Doc {
+    bin: Vec<u8>,
+    views: Vec<String>,
+    accessors: Vec<String>,
+}
+
+impl Doc {
+    fn view(&mut self, bytes: &[u8]) -> usize {
+        while !self.bin.len().is_multiple_of(4) {
+            self.bin.push(0);
+        }
+        self.views.push(format!(
+            r#"{{"buffer":0,"byteOffset":{},"byteLength":{}}}"#,
+            self.bin.len(),
+            bytes.len()
+        ));
+        self.bin.extend_from_slice(bytes);
+        self.views.len() - 1
+    }
+
+    /// A VEC3 float accessor; returns its index.
+    fn positions(&mut self, p: &[[f32; 3]]) -> usize {
+        let bytes: Vec<u8> = p.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        let view = self.view(&bytes);
+        let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+        for q in p {
+            for c in 0..3 {
+                lo[c] = lo[c].min(q[c]);
+                hi[c] = hi[c].max(q[c]);
+            }
+        }
+        self.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5126,"count":{},"type":"VEC3","min":{lo:?},"max":{hi:?}}}"#,
+            p.len()
+        ));
+        self.accessors.len() - 1
+    }
+
+    /// A SCALAR u16 accessor; returns its index.
+    fn indices(&mut self, i: &[u16]) -> usize {
+        let bytes: Vec<u8> = i.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let view = self.view(&bytes);
+        self.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5123,"count":{},"type":"SCALAR"}}"#,
+            i.len()
+        ));
+        self.accessors.len() - 1
+    }
+
+    /// The JSON with `rest` (scenes, nodes, meshes, materials) and the buffer given by `buffer`
+    /// (its `uri` field, or empty for the GLB binary chunk).
+    fn json(&self, rest: &str, buffer_uri: &str) -> String {
+        let uri = if buffer_uri.is_empty() {
+            String::new()
+        } else {
+            format!(r#","uri":"{buffer_uri}""#)
+        };
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"buffers":[{{"byteLength":{}{uri}}}],"bufferViews":[{}],"accessors":[{}],{rest}}}"#,
+            self.bin.len(),
+            self.views.join(","),
+            self.accessors.join(",")
+        )
+    }
+
+    /// A `.gltf` with the buffer embedded as base64.
+    fn gltf(&self, rest: &str) -> String {
+        let uri = format!("data:application/octet-stream;base64,{}", base64(&self.bin));
+        self.json(rest, &uri)
+    }
+
+    /// A `.glb`: header, JSON chunk, BIN chunk.
+    fn glb(&self, rest: &str) -> Vec<u8> {
+        let mut json = self.json(rest, "").into_bytes();
+        while !json.len().is_multiple_of(4) {
+            json.push(b' ');
+        }
+        let mut bin = self.bin.clone();
+        while !bin.len().is_multiple_of(4) {
+            bin.push(0);
+        }
+        let total = 12 + 8 + json.len() + 8 + bin.len();
+        let mut out = Vec::with_capacity(total);
+        out.extend_from_slice(b"glTF");
+        out.extend_from_slice(&2u32.to_le_bytes());
+        out.extend_from_slice(&(total as u32).to_le_bytes());
+        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"JSON");
+        out.extend_from_slice(&json);
+        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(&bin);
+        out
+    }
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A unit quad in the plane y = 0 facing +y, as 4 positions and 2 triangles.
+const QUAD: [[f32; 3]; 4] = [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]];
+const QUAD_TRIANGLES: [u16; 6] = [0, 1, 2, 0, 2, 3];
+
+/// Materials: 0 "floor" (white: channels of exactly 1.0), 1 "lamp" (emissive with strength 4).
+const MATERIALS: &str = r#""materials":[
+    {"name":"floor","pbrMetallicRoughness":{"baseColorFactor":[1.0,0.5,1.0,0.3]}},
+    {"name":"lamp","pbrMetallicRoughness":{"baseColorFactor":[0.2,0.2,0.2,1]},
+     "emissiveFactor":[1.0,0.5,0.25],
+     "extensions":{"KHR_materials_emissive_strength":{"emissiveStrength":4.0}}}],
+  "extensionsUsed":["KHR_materials_emissive_strength"]"#;
+
+/// Two meshes: 0 the floor (material 0), 1 the lamp (material 1). Node 0 "room" (the floor)
+/// scales by 2 and translates by (1, 2, 3); its child node 1 "lamp" translates by (0, 0.5, 0)
+/// and rotates by pi about x, so the lamp faces down.
+fn two_quads() -> Doc {
+    let mut d = Doc::default();
+    d.positions(&QUAD);
+    d.indices(&QUAD_TRIANGLES);
+    d
+}
+
+const SCENE: &str = r#""scene":0,"scenes":[{"nodes":[0]}],
+  "nodes":[
+    {"name":"room","mesh":0,"translation":[1,2,3],"scale":[2,2,2],"children":[1]},
+    {"name":"lamp","mesh":1,"translation":[0,0.5,0],"rotation":[1,0,0,0]}],
+  "meshes":[
+    {"name":"floor","primitives":[{"attributes":{"POSITION":0},"indices":1,"material":0}]},
+    {"name":"lamp","primitives":[{"attributes":{"POSITION":0},"indices":1,"material":1}]}]"#;
+
+fn write(name: &str, contents: &[u8]) -> (TempDir, PathBuf) {
+    let dir = TempDir::new().unwrap();
+    let path = dir.path().join(name);
+    fs::write(&path, contents).unwrap();
+    (dir, path)
+}
+
+fn load_ok(name: &str, contents: &[u8]) -> Loaded {
+    let (_dir, path) = write(name, contents);
+    load(&path).unwrap_or_else(|e| panic!("{name} should load: {e}"))
+}
+
+fn load_err(name: &str, contents: &[u8]) -> (String, SceneError) {
+    let (_dir, path) = write(name, contents);
+    match load(&path) {
+        Ok(_) => panic!("{name} should not load"),
+        Err(e) => (e.to_string(), e),
+    }
+}
+
+fn assert_contains(message: &str, parts: &[&str]) {
+    for p in parts {
+        assert!(
+            message.contains(p),
+            "message {message:?} should contain {p:?}"
+        );
+    }
+}
+
+fn close(a: Vec3, b: Vec3) -> bool {
+    (a - b).abs().max_element() < 1e-5
+}
+
+fn check_two_quads(loaded: &Loaded) {
+    let Loaded { scene, warnings } = loaded;
+    assert_eq!(
+        warnings,
+        &vec![Warning::ReflectanceClamped {
+            material: "floor".into(),
+            count: 2
+        }]
+    );
+    let faces = scene.faces();
+    assert_eq!(faces.len(), 4);
+    let sources: Vec<u32> = faces.iter().map(|f| f.source).collect();
+    assert_eq!(sources, vec![0, 1, 2, 3]);
+    assert!(faces.iter().all(|f| f.vertices.len() == 3));
+
+    // Floor: world = T(1,2,3) S(2).
+    let at = |face: usize, corner: usize| scene.positions()[faces[face].vertices[corner] as usize];
+    assert!(close(at(0, 0), Vec3::new(1., 2., 3.)));
+    assert!(close(at(0, 2), Vec3::new(3., 2., 5.)));
+    assert!(close(scene.face_normal(&faces[0]), Vec3::Y));
+    assert!((scene.face_area(&faces[0]) - 2.0).abs() < 1e-5);
+    // Lamp: world = T(1,2,3) S(2) T(0,0.5,0) R_x(pi): (1,0,1) -> (1,0,-1) -> (1,0.5,-1) -> (3,3,1).
+    assert!(close(at(2, 2), Vec3::new(3., 3., 1.)));
+    assert!(close(scene.face_normal(&faces[2]), -Vec3::Y));
+
+    let floor = &scene.materials()[faces[0].material as usize];
+    assert_eq!(
+        floor.reflectance,
+        Vec3::new(0.999, 0.5, 0.999),
+        "alpha ignored"
+    );
+    assert_eq!(floor.emission, Vec3::ZERO);
+    let lamp = &scene.materials()[faces[2].material as usize];
+    assert_eq!(lamp.name, "lamp");
+    assert_eq!(lamp.reflectance, Vec3::splat(0.2));
+    let expected = PI * 4.0 * Vec3::new(1.0, 0.5, 0.25);
+    assert!(
+        close(lamp.emission, expected),
+        "E = pi L: {}",
+        lamp.emission
+    );
+}
+
+#[test]
+fn gltf_with_embedded_buffer_and_node_transforms() {
+    let doc = two_quads();
+    let json = doc.gltf(&format!("{SCENE},{MATERIALS}"));
+    check_two_quads(&load_ok("scene.gltf", json.as_bytes()));
+}
+
+#[test]
+fn glb_with_binary_chunk() {
+    let doc = two_quads();
+    check_two_quads(&load_ok(
+        "scene.GLB",
+        &doc.glb(&format!("{SCENE},{MATERIALS}")),
+    ));
+}
+
+#[test]
+fn gltf_with_external_buffer_and_a_missing_one() {
+    let doc = two_quads();
+    let json = doc.json(&format!("{SCENE},{MATERIALS}"), "scene%20data.bin");
+    let (dir, path) = write("scene.gltf", json.as_bytes());
+    let e = load(&path).unwrap_err();
+    assert_contains(
+        &e.to_string(),
+        &["scene.gltf", "scene data.bin", "cannot read"],
+    );
+    fs::write(dir.path().join("scene data.bin"), &doc.bin).unwrap();
+    check_two_quads(&load(&path).unwrap());
+}
+
+#[test]
+fn mirroring_transform_keeps_front_faces_front() {
+    let doc = two_quads();
+    let rest = r#""scenes":[{"nodes":[0,1]}],
+      "nodes":[{"mesh":0,"scale":[-1,1,1]},{"mesh":1,"translation":[0,1,0],"scale":[1,-1,1]}],
+      "meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1,"material":0}]},
+                {"primitives":[{"attributes":{"POSITION":0},"indices":1,"material":1}]}]"#;
+    let Loaded { scene, .. } = load_ok(
+        "m.gltf",
+        doc.gltf(&format!("{rest},{MATERIALS}")).as_bytes(),
+    );
+    let f = scene.faces();
+    // x mirrored: the quad still faces +y. y mirrored: the quad turns over and faces -y.
+    assert!(close(scene.face_normal(&f[0]), Vec3::Y));
+    assert!(close(scene.face_normal(&f[2]), -Vec3::Y));
+}
+
+#[test]
+fn default_material_skipped_primitives_textures_and_root_nodes_without_scene() {
+    let mut doc = two_quads();
+    let points = doc.positions(&[[5., 5., 5.]]);
+    // No "scenes": every root node is walked. Node 1 is a child of node 0.
+    let rest = format!(
+        r#""nodes":[{{"mesh":0,"children":[1]}},{{"mesh":1}}],
+      "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}},
+                               {{"attributes":{{"POSITION":{points}}},"mode":0}}]}},
+                {{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":0}}]}}],
+      "textures":[{{"source":0}}],"images":[{{"uri":"never_read.png"}}],
+      "materials":[{{"name":"lit","emissiveFactor":[1,1,1],
+                    "pbrMetallicRoughness":{{"baseColorFactor":[0.5,0.5,0.5,1],"baseColorTexture":{{"index":0}}}}}}]"#
+    );
+    let Loaded { scene, warnings } = load_ok("d.gltf", doc.gltf(&rest).as_bytes());
+    assert_eq!(
+        warnings,
+        vec![
+            Warning::TexturesIgnored { materials: 1 },
+            Warning::PrimitivesSkipped { count: 1 },
+            Warning::DefaultMaterial { faces: 2 },
+        ]
+    );
+    let names: Vec<&str> = scene
+        .faces()
+        .iter()
+        .map(|f| scene.materials()[f.material as usize].name.as_str())
+        .collect();
+    assert_eq!(names, ["default", "default", "lit", "lit"]);
+    assert_eq!(scene.materials()[1].reflectance, Vec3::splat(0.5));
+}
+
+#[test]
+fn index_out_of_range_names_node_mesh_and_primitive() {
+    let mut doc = Doc::default();
+    doc.positions(&QUAD);
+    doc.indices(&[0, 1, 2, 0, 2, 9]);
+    let (m, e) = load_err(
+        "bad.gltf",
+        doc.gltf(&format!("{SCENE},{MATERIALS}")).as_bytes(),
+    );
+    assert!(matches!(
+        e.innermost(),
+        SceneError::IndexOutOfRange { index: 9, count: 4 }
+    ));
+    assert_contains(
+        &m,
+        &["bad.gltf (node 0 'room', mesh 0 'floor', primitive 0): vertex index 9 is out of range"],
+    );
+}
+
+#[test]
+fn non_finite_position_names_the_primitive() {
+    let mut doc = Doc::default();
+    let mut quad = QUAD;
+    quad[2][1] = f32::NAN;
+    // min/max must be numbers in JSON: write the accessor by hand.
+    doc.positions(&QUAD);
+    let bytes: Vec<u8> = quad
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    doc.bin[..48].copy_from_slice(&bytes);
+    doc.indices(&QUAD_TRIANGLES);
+    let (m, _) = load_err("nan.glb", &doc.glb(&format!("{SCENE},{MATERIALS}")));
+    assert_contains(
+        &m,
+        &[
+            "nan.glb (node 0 'room'",
+            "vertex 2 has a non-finite coordinate (1, NaN, 1)",
+        ],
+    );
+}
+
+#[test]
+fn reflectance_above_one_and_negative_emission() {
+    let doc = two_quads();
+    let materials = MATERIALS.replace("[1.0,0.5,1.0,0.3]", "[1.5,0.5,1.0,1]");
+    let (m, _) = load_err(
+        "r.gltf",
+        doc.gltf(&format!("{SCENE},{materials}")).as_bytes(),
+    );
+    assert_contains(
+        &m,
+        &["r.gltf: material 'floor' has reflectance (1.5, 0.5, 0.999)"],
+    );
+    let materials = MATERIALS.replace("\"emissiveStrength\":4.0", "\"emissiveStrength\":-1.0");
+    let (m, _) = load_err(
+        "e.gltf",
+        doc.gltf(&format!("{SCENE},{materials}")).as_bytes(),
+    );
+    assert_contains(&m, &["e.gltf: material 'lamp' has negative emission"]);
+}
+
+#[test]
+fn no_emitter_and_empty_scene() {
+    let doc = two_quads();
+    let materials = MATERIALS.replace("[1.0,0.5,0.25]", "[0,0,0]");
+    let (m, _) = load_err(
+        "n.gltf",
+        doc.gltf(&format!("{SCENE},{materials}")).as_bytes(),
+    );
+    assert_contains(&m, &["n.gltf: the scene has no emitting face"]);
+    let (m, _) = load_err(
+        "empty.gltf",
+        doc.gltf(r#""scenes":[{"nodes":[]}]"#).as_bytes(),
+    );
+    assert_contains(&m, &["empty.gltf: the scene has no faces"]);
+}
+
+#[test]
+fn malformed_files() {
+    let (m, _) = load_err("x.gltf", b"{ not json");
+    assert_contains(&m, &["x.gltf", "not valid glTF"]);
+    let (m, _) = load_err("x.glb", b"glTF\x02\0\0\0\x0c\0\0\0");
+    assert_contains(&m, &["x.glb", "not valid glTF"]);
+    // An accessor reading past its buffer view.
+    let mut doc = two_quads();
+    doc.views[0] = doc.views[0].replace("\"byteLength\":48", "\"byteLength\":40");
+    let (m, _) = load_err(
+        "short.gltf",
+        doc.gltf(&format!("{SCENE},{MATERIALS}")).as_bytes(),
+    );
+    assert_contains(
+        &m,
+        &[
+            "short.gltf (node 0 'room', mesh 0 'floor', primitive 0)",
+            "reads past the end of buffer view 0",
+        ],
+    );
+    let e = load(&PathBuf::from("/nonexistent/dir/scene.glb")).unwrap_err();
+    assert_contains(&e.to_string(), &["cannot read", "scene.glb"]);
+}
+
+/// Must not panic: truncations of a valid GLB and of its JSON, and single-byte corruptions.
+#[test]
+fn corrupted_files_error_without_panicking() {
+    let doc = two_quads();
+    let glb = doc.glb(&format!("{SCENE},{MATERIALS}"));
+    let json = doc.gltf(&format!("{SCENE},{MATERIALS}")).into_bytes();
+    let dir = TempDir::new().unwrap();
+    let run = |name: &str, bytes: &[u8]| {
+        let path = dir.path().join(name);
+        fs::write(&path, bytes).unwrap();
+        let _ = load(&path);
+    };
+    // Every cut in the header and chunk headers, every 4th elsewhere (file writes are slow).
+    for n in (0..glb.len()).filter(|&n| n < 40 || n % 4 == 1) {
+        run("t.glb", &glb[..n]);
+    }
+    for n in (0..json.len()).step_by(29) {
+        run("t.gltf", &json[..n]);
+    }
+    // A deterministic walk over positions and byte values (xorshift).
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    for _ in 0..500 {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let mut bytes = glb.clone();
+        let at = (state % bytes.len() as u64) as usize;
+        bytes[at] = (state >> 32) as u8;
+        run("c.glb", &bytes);
+    }
+}
