@@ -72,7 +72,11 @@ pub struct Solve {
 /// Parses a count written as an integer (`2000000`) or in float notation (`2e6`).
 fn parse_count(s: &str) -> Result<u64, String> {
     if let Ok(n) = s.parse::<u64>() {
-        return if n >= 1 { Ok(n) } else { Err("must be at least 1".into()) };
+        return if n >= 1 {
+            Ok(n)
+        } else {
+            Err("must be at least 1".into())
+        };
     }
     let x: f64 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
     if !x.is_finite() || x < 1.0 || x.fract() != 0.0 || x > u64::MAX as f64 {

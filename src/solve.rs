@@ -4,8 +4,8 @@ use crate::cli::{Method, Solve};
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
+use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
@@ -42,7 +42,9 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
             let (lo, hi) = scene
                 .positions()
                 .iter()
-                .fold((glam::Vec3::MAX, glam::Vec3::MIN), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+                .fold((glam::Vec3::MAX, glam::Vec3::MIN), |(lo, hi), p| {
+                    (lo.min(*p), hi.max(*p))
+                });
             lo.distance(hi) * DEFAULT_MAX_EDGE_FRACTION
         }))
     };
@@ -54,10 +56,18 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     let start = Instant::now();
     let (estimate, stats) = match args.method {
         Method::Shoot => {
-            let config = ShootConfig { rays: args.rays, unshot_threshold: args.unshot_threshold, seed: args.seed };
+            let config = ShootConfig {
+                rays: args.rays,
+                unshot_threshold: args.unshot_threshold,
+                seed: args.seed,
+            };
             let shooting = shoot(&mesh, &bvh, &config, &mut |p| {
                 bar.set_position(p.rays);
-                bar.set_message(format!("wave {}, {:.2}% unshot", p.waves, 100.0 * p.unshot_fraction));
+                bar.set_message(format!(
+                    "wave {}, {:.2}% unshot",
+                    p.waves,
+                    100.0 * p.unshot_fraction
+                ));
                 ControlFlow::Continue(())
             })?;
             (shooting.estimate, shooting.stats)
@@ -117,7 +127,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
 }
 
 fn create(path: &Path) -> Result<BufWriter<File>> {
-    let file = File::create(path).with_context(|| format!("could not create {}", path.display()))?;
+    let file =
+        File::create(path).with_context(|| format!("could not create {}", path.display()))?;
     Ok(BufWriter::new(file))
 }
 
@@ -128,9 +139,11 @@ fn progress_bar(quiet: bool, rays: u64) -> ProgressBar {
     }
     let bar = ProgressBar::with_draw_target(Some(rays), ProgressDrawTarget::stderr());
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {human_pos}/{human_len} rays, {msg}")
-            .expect("a valid template")
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} rays, {msg}",
+        )
+        .expect("a valid template")
+        .progress_chars("=> "),
     );
     bar
 }

@@ -41,23 +41,55 @@ fn solve_cornell_box_writes_patches_stats_and_a_summary() {
     let dir = tempfile::tempdir().unwrap();
     let (csv, json) = (path(dir.path(), "p.csv"), path(dir.path(), "s.json"));
     let o = mcrad(&[
-        "solve", "scenes/cornell-box.obj", "--method", "shoot", "--rays", "2e5", "--seed", "7", "--threads", "2",
-        "--no-subdivide", "--patches", &csv, "--stats", &json,
+        "solve",
+        "scenes/cornell-box.obj",
+        "--method",
+        "shoot",
+        "--rays",
+        "2e5",
+        "--seed",
+        "7",
+        "--threads",
+        "2",
+        "--no-subdivide",
+        "--patches",
+        &csv,
+        "--stats",
+        &json,
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let rows = read_csv(&csv);
     assert_eq!(rows.len(), 19, "one patch per face of the Cornell box");
     // With --no-subdivide the patch column is the input face index, in file order.
-    assert_eq!(rows.iter().map(|r| r.0).collect::<Vec<_>>(), (0..19).collect::<Vec<_>>());
+    assert_eq!(
+        rows.iter().map(|r| r.0).collect::<Vec<_>>(),
+        (0..19).collect::<Vec<_>>()
+    );
     // The light (face 8) emits pi * (17, 12, 4); everything else only reflects.
     let light = rows[8].2;
-    assert!((light[0] - 17.0 * std::f64::consts::PI).abs() < 1.0, "{light:?}");
-    assert!(rows.iter().all(|r| r.1 > 0.0 && r.2.iter().all(|b| b.is_finite() && *b >= 0.0)));
+    assert!(
+        (light[0] - 17.0 * std::f64::consts::PI).abs() < 1.0,
+        "{light:?}"
+    );
+    assert!(
+        rows.iter()
+            .all(|r| r.1 > 0.0 && r.2.iter().all(|b| b.is_finite() && *b >= 0.0))
+    );
     // The floor (face 0) is lit (about 0.36 W/m² red); the red wall (face 7) reflects more red than green.
     assert!(rows[0].2[0] > 0.2, "{:?}", rows[0]);
     assert!(rows[7].2[0] > 3.0 * rows[7].2[1]);
-    let stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    for key in ["method", "patches", "rays", "seconds", "rays_per_second", "iterations", "seed", "threads"] {
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for key in [
+        "method",
+        "patches",
+        "rays",
+        "seconds",
+        "rays_per_second",
+        "iterations",
+        "seed",
+        "threads",
+    ] {
         assert!(stats.get(key).is_some(), "stats lacks {key}: {stats}");
     }
     assert_eq!(stats["method"], "shoot");
@@ -66,7 +98,10 @@ fn solve_cornell_box_writes_patches_stats_and_a_summary() {
     assert_eq!(stats["threads"], 2);
     assert!(stats["rays"].as_u64().unwrap() <= 200_000);
     let summary = stdout(&o);
-    assert!(summary.contains("19 patches") && summary.contains("rays") && summary.contains("Mrays/s"), "{summary}");
+    assert!(
+        summary.contains("19 patches") && summary.contains("rays") && summary.contains("Mrays/s"),
+        "{summary}"
+    );
 }
 
 #[test]
@@ -74,7 +109,21 @@ fn same_seed_same_csv_on_one_or_two_threads() {
     let dir = tempfile::tempdir().unwrap();
     let run = |threads: &str, seed: &str| {
         let csv = path(dir.path(), &format!("t{threads}s{seed}.csv"));
-        let o = mcrad(&["solve", "scenes/cornell-box.obj", "--rays", "100000", "--max-edge", "0.1", "--seed", seed, "--threads", threads, "--patches", &csv, "-q"]);
+        let o = mcrad(&[
+            "solve",
+            "scenes/cornell-box.obj",
+            "--rays",
+            "100000",
+            "--max-edge",
+            "0.1",
+            "--seed",
+            seed,
+            "--threads",
+            threads,
+            "--patches",
+            &csv,
+            "-q",
+        ]);
         assert!(o.status.success(), "{}", stderr(&o));
         assert!(stdout(&o).is_empty(), "--quiet prints nothing");
         std::fs::read_to_string(csv).unwrap()
@@ -87,12 +136,24 @@ fn same_seed_same_csv_on_one_or_two_threads() {
 fn furnace_from_the_command_line_is_near_two() {
     let dir = tempfile::tempdir().unwrap();
     let csv = path(dir.path(), "f.csv");
-    let o = mcrad(&["solve", "scenes/furnace.obj", "--rays", "3e5", "--unshot-threshold", "1e-5", "--patches", &csv, "--max-edge", "0.5"]);
+    let o = mcrad(&[
+        "solve",
+        "scenes/furnace.obj",
+        "--rays",
+        "3e5",
+        "--unshot-threshold",
+        "1e-5",
+        "--patches",
+        &csv,
+        "--max-edge",
+        "0.5",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let rows = read_csv(&csv);
     assert_eq!(rows.len(), 24);
     // Loose here (a few percent): the statistical test lives in mc-radiosity's tests.
-    let mean: f64 = rows.iter().map(|r| r.2[0] * r.1).sum::<f64>() / rows.iter().map(|r| r.1).sum::<f64>();
+    let mean: f64 =
+        rows.iter().map(|r| r.2[0] * r.1).sum::<f64>() / rows.iter().map(|r| r.1).sum::<f64>();
     assert!((mean - 2.0).abs() < 0.02, "{mean}");
 }
 
@@ -101,7 +162,10 @@ fn assert_clean_failure(args: &[&str], expect: &str) {
     let o = mcrad(args);
     let err = stderr(&o);
     assert!(!o.status.success(), "{args:?} should fail");
-    assert!(!err.contains("panicked") && !err.contains("RUST_BACKTRACE"), "{err}");
+    assert!(
+        !err.contains("panicked") && !err.contains("RUST_BACKTRACE"),
+        "{err}"
+    );
     let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error")).collect();
     assert_eq!(lines.len(), 1, "one error line: {err}");
     assert!(err.contains(expect), "expected {expect:?} in {err}");
@@ -117,21 +181,52 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
 fn bad_input_gets_one_clear_error_line() {
     let dir = tempfile::tempdir().unwrap();
     assert_clean_failure(&["solve", "no/such/scene.obj"], "scene.obj");
-    assert_clean_failure(&["solve", "scenes/cornell-box.obj", "--rays", "0"], "--rays");
-    assert_clean_failure(&["solve", "scenes/cornell-box.obj", "--max-edge", "-1"], "max-edge");
-    assert_clean_failure(&["solve", "scenes/cornell-box.obj", "--method", "magic"], "magic");
+    assert_clean_failure(
+        &["solve", "scenes/cornell-box.obj", "--rays", "0"],
+        "--rays",
+    );
+    assert_clean_failure(
+        &["solve", "scenes/cornell-box.obj", "--max-edge", "-1"],
+        "max-edge",
+    );
+    assert_clean_failure(
+        &["solve", "scenes/cornell-box.obj", "--method", "magic"],
+        "magic",
+    );
     let nan = write(
         dir.path(),
         "nan.obj",
         "mtllib nan.mtl\nv 0 0 0\nv 1 0 0\nv nan 1 0\nusemtl lamp\nf 1 2 3\n",
     );
-    write(dir.path(), "nan.mtl", "newmtl lamp\nKd 0.5 0.5 0.5\nKe 1 1 1\n");
+    write(
+        dir.path(),
+        "nan.mtl",
+        "newmtl lamp\nKd 0.5 0.5 0.5\nKe 1 1 1\n",
+    );
     assert_clean_failure(&["solve", nan.to_str().unwrap()], "nan.obj");
-    let dark = write(dir.path(), "dark.obj", "mtllib dark.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl grey\nf 1 2 3\n");
+    let dark = write(
+        dir.path(),
+        "dark.obj",
+        "mtllib dark.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl grey\nf 1 2 3\n",
+    );
     write(dir.path(), "dark.mtl", "newmtl grey\nKd 0.5 0.5 0.5\n");
     assert_clean_failure(&["solve", dark.to_str().unwrap()], "emit");
-    let nomtl = write(dir.path(), "nomtl.obj", "mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let nomtl = write(
+        dir.path(),
+        "nomtl.obj",
+        "mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    );
     assert_clean_failure(&["solve", nomtl.to_str().unwrap()], "missing.mtl");
     let out = path(dir.path(), "no/such/dir/p.csv");
-    assert_clean_failure(&["solve", "scenes/furnace.obj", "--rays", "1000", "--patches", &out], "p.csv");
+    assert_clean_failure(
+        &[
+            "solve",
+            "scenes/furnace.obj",
+            "--rays",
+            "1000",
+            "--patches",
+            &out,
+        ],
+        "p.csv",
+    );
 }

@@ -26,7 +26,10 @@ fn main() -> Result<()> {
 }
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask lives in the workspace").to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask lives in the workspace")
+        .to_path_buf()
 }
 
 fn cargo(args: &[&str]) -> Result<()> {
@@ -44,7 +47,15 @@ fn cargo(args: &[&str]) -> Result<()> {
 
 fn ci() -> Result<()> {
     cargo(&["fmt", "--all", "--", "--check"])?;
-    cargo(&["clippy", "--workspace", "--all-targets", "--release", "--", "-D", "warnings"])?;
+    cargo(&[
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--release",
+        "--",
+        "-D",
+        "warnings",
+    ])?;
     cargo(&["test", "--workspace", "--release"])
 }
 
@@ -77,7 +88,8 @@ fn bench() -> Result<()> {
 fn throughput(bench: &Path) -> Result<f64> {
     let read = |name: &str| -> Result<serde_json::Value> {
         let p = bench.join("new").join(name);
-        let text = std::fs::read_to_string(&p).with_context(|| format!("could not read {}", p.display()))?;
+        let text = std::fs::read_to_string(&p)
+            .with_context(|| format!("could not read {}", p.display()))?;
         Ok(serde_json::from_str(&text)?)
     };
     let median_ns = read("estimates.json")?["median"]["point_estimate"]

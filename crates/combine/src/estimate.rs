@@ -33,7 +33,9 @@ pub enum EstimateError {
         b: usize,
     },
     /// A value is NaN or infinite, or a variance is negative.
-    #[error("patch {patch}: radiosity {radiosity} or variance {variance} is not finite and non-negative")]
+    #[error(
+        "patch {patch}: radiosity {radiosity} or variance {variance} is not finite and non-negative"
+    )]
     NotFinite {
         /// Patch index.
         patch: usize,

@@ -111,7 +111,12 @@ mod tests {
     #[test]
     fn weights_sum_to_one_and_zero_work_gets_zero_weight() {
         for rule in [Rule::ByWork, Rule::InverseVariance] {
-            for (na, va, nb, vb) in [(3, 1.0, 7, 2.0), (0, 1.0, 5, 1.0), (5, 0.0, 0, 0.0), (1, 0.0, 1, 0.0)] {
+            for (na, va, nb, vb) in [
+                (3, 1.0, 7, 2.0),
+                (0, 1.0, 5, 1.0),
+                (5, 0.0, 0, 0.0),
+                (1, 0.0, 1, 0.0),
+            ] {
                 let w = rule.weights(na, va, nb, vb);
                 assert!((w.a + w.b - 1.0).abs() < 1e-15, "{rule:?} {w:?}");
                 assert!((0.0..=1.0).contains(&w.a));
@@ -151,9 +156,15 @@ mod tests {
     fn merging_checks_shapes() {
         let a = est(&[1.0, 2.0], None, 1);
         let b = est(&[1.0], None, 1);
-        assert!(matches!(merge(&a, &b, Rule::ByWork), Err(EstimateError::PatchCountMismatch { .. })));
+        assert!(matches!(
+            merge(&a, &b, Rule::ByWork),
+            Err(EstimateError::PatchCountMismatch { .. })
+        ));
         let c = est(&[1.0, 2.0], None, 1);
-        assert_eq!(merge(&a, &c, Rule::InverseVariance), Err(EstimateError::MissingVariance));
+        assert_eq!(
+            merge(&a, &c, Rule::InverseVariance),
+            Err(EstimateError::MissingVariance)
+        );
         assert!(Estimate::new(vec![DVec3::NAN], None, 1).is_err());
         assert!(Estimate::new(vec![DVec3::ONE], Some(vec![]), 1).is_err());
     }

@@ -19,13 +19,23 @@ pub struct PatchRow {
 
 /// Writes the header `patch,area,r,g,b,var_r,var_g,var_b` and one line per row. Numbers are
 /// written with Rust's shortest round-trip formatting, so reading them back gives the same f64.
-pub fn write_patch_csv<W: Write>(mut out: W, rows: impl IntoIterator<Item = PatchRow>) -> Result<(), ExportError> {
-    let io = |source| ExportError::Io { what: "the patch CSV", source };
+pub fn write_patch_csv<W: Write>(
+    mut out: W,
+    rows: impl IntoIterator<Item = PatchRow>,
+) -> Result<(), ExportError> {
+    let io = |source| ExportError::Io {
+        what: "the patch CSV",
+        source,
+    };
     writeln!(out, "patch,area,r,g,b,var_r,var_g,var_b").map_err(io)?;
     for row in rows {
         let b = row.radiosity;
         match row.variance {
-            Some(v) => writeln!(out, "{},{},{},{},{},{},{},{}", row.patch, row.area, b.x, b.y, b.z, v.x, v.y, v.z),
+            Some(v) => writeln!(
+                out,
+                "{},{},{},{},{},{},{},{}",
+                row.patch, row.area, b.x, b.y, b.z, v.x, v.y, v.z
+            ),
             None => writeln!(out, "{},{},{},{},{},,,", row.patch, row.area, b.x, b.y, b.z),
         }
         .map_err(io)?;
@@ -40,8 +50,18 @@ mod tests {
     #[test]
     fn rows_round_trip_exactly() {
         let rows = [
-            PatchRow { patch: 7, area: 0.1 + 0.2, radiosity: DVec3::new(1.0 / 3.0, 2.5e-12, 0.0), variance: Some(DVec3::splat(1e-7)) },
-            PatchRow { patch: 9, area: 2.0, radiosity: DVec3::ONE, variance: None },
+            PatchRow {
+                patch: 7,
+                area: 0.1 + 0.2,
+                radiosity: DVec3::new(1.0 / 3.0, 2.5e-12, 0.0),
+                variance: Some(DVec3::splat(1e-7)),
+            },
+            PatchRow {
+                patch: 9,
+                area: 2.0,
+                radiosity: DVec3::ONE,
+                variance: None,
+            },
         ];
         let mut buf = Vec::new();
         write_patch_csv(&mut buf, rows).unwrap();

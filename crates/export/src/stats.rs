@@ -37,8 +37,16 @@ pub struct RunStats {
 impl RunStats {
     /// Writes the statistics as one pretty-printed JSON object.
     pub fn write_json<W: Write>(&self, mut out: W) -> Result<(), ExportError> {
-        serde_json::to_writer_pretty(&mut out, self).map_err(|source| ExportError::Json { what: "the run statistics", source })?;
-        writeln!(out).and_then(|_| out.flush()).map_err(|source| ExportError::Io { what: "the run statistics", source })
+        serde_json::to_writer_pretty(&mut out, self).map_err(|source| ExportError::Json {
+            what: "the run statistics",
+            source,
+        })?;
+        writeln!(out)
+            .and_then(|_| out.flush())
+            .map_err(|source| ExportError::Io {
+                what: "the run statistics",
+                source,
+            })
     }
 }
 
@@ -65,7 +73,16 @@ mod tests {
         let mut buf = Vec::new();
         s.write_json(&mut buf).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&buf).unwrap();
-        for key in ["method", "patches", "rays", "seconds", "rays_per_second", "iterations", "seed", "threads"] {
+        for key in [
+            "method",
+            "patches",
+            "rays",
+            "seconds",
+            "rays_per_second",
+            "iterations",
+            "seed",
+            "threads",
+        ] {
             assert!(v.get(key).is_some(), "missing {key}");
         }
         assert_eq!(v["method"], "shoot");

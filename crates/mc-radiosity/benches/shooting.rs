@@ -11,8 +11,8 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec3, Vec3A};
-use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_mc_radiosity::{ShootConfig, shoot};
+use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::{Bvh, Hit, Ray, RayCaster, SurfacePoint};
 use obvhs::{
     BvhBuildParams,
@@ -54,17 +54,32 @@ impl Bare {
         let tris: Vec<Triangle> = mesh
             .triangle_positions()
             .iter()
-            .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
+            .map(|t| Triangle {
+                v0: t[0].into(),
+                v1: t[1].into(),
+                v2: t[2].into(),
+            })
             .collect();
-        let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default());
-        let tris = bvh.primitive_indices.iter().map(|&i| RtTriangle::from(&tris[i as usize])).collect();
+        let bvh = build_cwbvh_from_tris(
+            &tris,
+            BvhBuildParams::medium_build(),
+            &mut Default::default(),
+        );
+        let tris = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| RtTriangle::from(&tris[i as usize]))
+            .collect();
         Bare { bvh, tris }
     }
 
     fn closest(&self, o: Vec3, d: Vec3) -> u32 {
         let ray = ObRay::new(Vec3A::from(o), Vec3A::from(d), 0.0, f32::INFINITY);
         let mut hit = RayHit::none();
-        if self.bvh.ray_traverse(ray, &mut hit, |r, id| self.tris[id].intersect(r)) {
+        if self
+            .bvh
+            .ray_traverse(ray, &mut hit, |r, id| self.tris[id].intersect(r))
+        {
             hit.primitive_id
         } else {
             u32::MAX
@@ -74,27 +89,50 @@ impl Bare {
 
 fn cornell(subdivision: Subdivision) -> Mesh {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell-box.obj");
-    let scene = mcrad_scene_io::load(&path).expect("the bundled Cornell box loads").scene;
+    let scene = mcrad_scene_io::load(&path)
+        .expect("the bundled Cornell box loads")
+        .scene;
     Mesh::build(&scene, subdivision).unwrap()
 }
 
 fn bench(c: &mut Criterion) {
-    for (name, subdivision) in [("cornell_faces", Subdivision::None), ("cornell_100k", Subdivision::MaxEdge(0.0044))] {
+    for (name, subdivision) in [
+        ("cornell_faces", Subdivision::None),
+        ("cornell_100k", Subdivision::MaxEdge(0.0044)),
+    ] {
         let mesh = cornell(subdivision);
         let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-        let config = ShootConfig { rays: RAYS, unshot_threshold: 0.0, seed: 1 };
-        let recorder = Recorder { bvh: &bvh, rays: Mutex::new(Vec::new()) };
-        let run = shoot(&mesh, &recorder, &config, &mut |_| ControlFlow::Continue(())).unwrap();
+        let config = ShootConfig {
+            rays: RAYS,
+            unshot_threshold: 0.0,
+            seed: 1,
+        };
+        let recorder = Recorder {
+            bvh: &bvh,
+            rays: Mutex::new(Vec::new()),
+        };
+        let run = shoot(
+            &mesh,
+            &recorder,
+            &config,
+            &mut |_| ControlFlow::Continue(()),
+        )
+        .unwrap();
         let mut rays = recorder.rays.into_inner().unwrap();
         // Rays in a deterministic order (the recording order depends on the threads).
-        rays.sort_by(|a, b| a.exclude.cmp(&b.exclude));
+        rays.sort_by_key(|r| r.exclude);
         let bare = Bare::new(&mesh);
 
         let mut group = c.benchmark_group(format!("{name}_{}patches", mesh.patches().len()));
         group.sample_size(10);
         group.throughput(Throughput::Elements(run.stats.rays));
         group.bench_function("shoot", |b| {
-            b.iter(|| shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap().stats.rays)
+            b.iter(|| {
+                shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(()))
+                    .unwrap()
+                    .stats
+                    .rays
+            })
         });
         group.bench_function("mcrad_bvh", |b| {
             b.iter(|| {
@@ -106,7 +144,13 @@ fn bench(c: &mut Criterion) {
         group.bench_function("bare_obvhs", |b| {
             b.iter(|| {
                 rays.par_chunks(4096)
-                    .map(|rs| rs.iter().filter(|r| bare.closest(r.origin + r.origin_normal * 1e-4, r.dir) != u32::MAX).count())
+                    .map(|rs| {
+                        rs.iter()
+                            .filter(|r| {
+                                bare.closest(r.origin + r.origin_normal * 1e-4, r.dir) != u32::MAX
+                            })
+                            .count()
+                    })
                     .sum::<usize>()
             })
         });

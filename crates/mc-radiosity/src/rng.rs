@@ -50,16 +50,26 @@ mod tests {
 
     #[test]
     fn streams_are_reproducible_and_distinct() {
-        let a: Vec<f32> = (0..8).map({
-            let mut s = Stream::new(1, 2, 3, 4);
-            move |_| s.uniform()
-        }).collect();
-        let b: Vec<f32> = (0..8).map({
-            let mut s = Stream::new(1, 2, 3, 4);
-            move |_| s.uniform()
-        }).collect();
+        let a: Vec<f32> = (0..8)
+            .map({
+                let mut s = Stream::new(1, 2, 3, 4);
+                move |_| s.uniform()
+            })
+            .collect();
+        let b: Vec<f32> = (0..8)
+            .map({
+                let mut s = Stream::new(1, 2, 3, 4);
+                move |_| s.uniform()
+            })
+            .collect();
         assert_eq!(a, b);
-        for key in [(0, 2, 3, 4), (1, 0, 3, 4), (1, 2, 0, 4), (1, 2, 3, 0), (1, 3, 2, 4)] {
+        for key in [
+            (0, 2, 3, 4),
+            (1, 0, 3, 4),
+            (1, 2, 0, 4),
+            (1, 2, 3, 0),
+            (1, 3, 2, 4),
+        ] {
             let mut s = Stream::new(key.0, key.1, key.2, key.3);
             let c: Vec<f32> = (0..8).map(|_| s.uniform()).collect();
             assert_ne!(a, c, "{key:?}");

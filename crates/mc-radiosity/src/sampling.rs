@@ -4,7 +4,7 @@
 //! directions, area for points, counting measure for discrete choices.
 
 use glam::{Vec2, Vec3};
-use std::f32::consts::{FRAC_1_PI, FRAC_PI_2, FRAC_PI_4};
+use std::f32::consts::{FRAC_1_PI, PI};
 
 /// An orthonormal frame around a unit normal (Duff et al. 2017, branchless).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,55 +39,24 @@ impl Frame {
     /// World coordinates to local.
     #[inline]
     pub fn to_local(&self, v: Vec3) -> Vec3 {
-        Vec3::new(v.dot(self.tangent), v.dot(self.bitangent), v.dot(self.normal))
+        Vec3::new(
+            v.dot(self.tangent),
+            v.dot(self.bitangent),
+            v.dot(self.normal),
+        )
     }
 }
 
-/// Shirley and Chiu's concentric map of the unit square onto the unit disk (area-preserving up
-/// to the factor `pi`).
-#[inline]
-pub fn square_to_disk(u: Vec2) -> Vec2 {
-    let o = 2.0 * u - Vec2::ONE;
-    if o == Vec2::ZERO {
-        return Vec2::ZERO;
-    }
-    let (r, theta) = if o.x.abs() > o.y.abs() {
-        (o.x, FRAC_PI_4 * (o.y / o.x))
-    } else {
-        (o.y, FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y))
-    };
-    r * Vec2::new(theta.cos(), theta.sin())
-}
-
-/// Inverse of [`square_to_disk`].
-pub fn disk_to_square(p: Vec2) -> Vec2 {
-    let r = p.length();
-    if r == 0.0 {
-        return Vec2::splat(0.5);
-    }
-    let mut phi = p.y.atan2(p.x);
-    if phi < -FRAC_PI_4 {
-        phi += 2.0 * std::f32::consts::PI;
-    }
-    let (a, b) = if phi < FRAC_PI_4 {
-        (r, phi * r / FRAC_PI_4)
-    } else if phi < 3.0 * FRAC_PI_4 {
-        (-(phi - FRAC_PI_2) * r / FRAC_PI_4, r)
-    } else if phi < 5.0 * FRAC_PI_4 {
-        (-r, -(phi - std::f32::consts::PI) * r / FRAC_PI_4)
-    } else {
-        ((phi - 3.0 * FRAC_PI_2) * r / FRAC_PI_4, -r)
-    };
-    (Vec2::new(a, b) + Vec2::ONE) * 0.5
-}
-
-/// A cosine-distributed direction about local `+z` (Malley's method: a uniform disk point lifted
-/// to the hemisphere). Density [`cosine_hemisphere_pdf`].
+/// A cosine-distributed direction about local `+z` (Malley's method: a uniform disk point in
+/// polar form, `r = sqrt(u.x)`, `phi = 2 pi u.y`, lifted to the hemisphere, `z = sqrt(1 - u.x)`).
+/// Density [`cosine_hemisphere_pdf`]. The polar form has no branch and no division, which matters
+/// in the shooting loop; the concentric map's better stratification does not, as the samples are
+/// independent.
 #[inline]
 pub fn cosine_hemisphere(u: Vec2) -> Vec3 {
-    let d = square_to_disk(u);
-    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
-    Vec3::new(d.x, d.y, z)
+    let r = u.x.sqrt();
+    let (sin, cos) = (2.0 * PI * u.y).sin_cos();
+    Vec3::new(r * cos, r * sin, (1.0 - u.x).max(0.0).sqrt())
 }
 
 /// Density of [`cosine_hemisphere`] per steradian: `cos(theta) / pi` above the surface, 0 below.
@@ -98,7 +67,12 @@ pub fn cosine_hemisphere_pdf(local_dir: Vec3) -> f32 {
 
 /// Inverse of [`cosine_hemisphere`]: the square point that maps to `local_dir` (`z >= 0`).
 pub fn cosine_hemisphere_inverse(local_dir: Vec3) -> Vec2 {
-    disk_to_square(Vec2::new(local_dir.x, local_dir.y))
+    let phi = local_dir.y.atan2(local_dir.x);
+    let v = phi / (2.0 * PI);
+    Vec2::new(
+        (local_dir.x * local_dir.x + local_dir.y * local_dir.y).min(1.0),
+        if v < 0.0 { v + 1.0 } else { v },
+    )
 }
 
 /// A uniform point of a triangle as barycentric weights `(b1, b2)` of its second and third
@@ -155,7 +129,9 @@ impl Discrete {
 
     /// The index whose cumulative interval holds `u` in `[0, 1)` (never an index of weight 0).
     pub fn sample(&self, u: f64) -> usize {
-        self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1)
+        self.cdf
+            .partition_point(|&c| c <= u)
+            .min(self.cdf.len() - 1)
     }
 
     /// Probability of index `i`.
@@ -210,7 +186,10 @@ pub(crate) mod chi2 {
                 .zip(expected)
                 .map(|(o, e)| format!("{o:.0}/{e:.1}"))
                 .collect();
-            return Err(format!("chi2 = {stat:.1}, dof = {dof}, p = {p:.2e}; observed/expected: {}", table.join(" ")));
+            return Err(format!(
+                "chi2 = {stat:.1}, dof = {dof}, p = {p:.2e}; observed/expected: {}",
+                table.join(" ")
+            ));
         }
         Ok(p)
     }
@@ -224,7 +203,10 @@ pub(crate) mod tests_support {
     /// holds `(b1, b2)`; the cells inside the triangle are congruent, of area `1/n²` each.
     pub fn sub_triangle(b: Vec2, n: usize) -> usize {
         let (x, y) = (b.x * n as f32, b.y * n as f32);
-        let (i, j) = ((x.floor() as usize).min(n - 1), (y.floor() as usize).min(n - 1));
+        let (i, j) = (
+            (x.floor() as usize).min(n - 1),
+            (y.floor() as usize).min(n - 1),
+        );
         let down = usize::from(x - i as f32 + y - j as f32 > 1.0 && i + j + 1 < n);
         (2 * (j * n + i) + down).min(2 * n * n - 1)
     }
@@ -252,9 +234,11 @@ mod tests {
         for _ in 0..SAMPLES {
             let d = cosine_hemisphere(u2(&mut s));
             assert!((d.length() - 1.0).abs() < 1e-5 && d.z >= 0.0);
-            let t = ((d.z.clamp(0.0, 1.0).acos() / FRAC_PI_2) * nt as f32).min(nt as f32 - 1.0) as usize;
+            let t = ((d.z.clamp(0.0, 1.0).acos() / std::f32::consts::FRAC_PI_2) * nt as f32)
+                .min(nt as f32 - 1.0) as usize;
             let phi = d.y.atan2(d.x) + std::f32::consts::PI;
-            let p = ((phi / (2.0 * std::f32::consts::PI)) * np as f32).min(np as f32 - 1.0) as usize;
+            let p =
+                ((phi / (2.0 * std::f32::consts::PI)) * np as f32).min(np as f32 - 1.0) as usize;
             obs[t * np + p] += 1.0;
         }
         // P(theta in [a, b]) = sin²b - sin²a for the density cos(theta)/pi.
@@ -276,7 +260,11 @@ mod tests {
         for i in 0..n {
             let theta = (i as f64 + 0.5) / n as f64 * std::f64::consts::FRAC_PI_2;
             let d = Vec3::new(theta.sin() as f32, 0.0, theta.cos() as f32);
-            total += cosine_hemisphere_pdf(d) as f64 * theta.sin() * (std::f64::consts::FRAC_PI_2 / n as f64) * 2.0 * std::f64::consts::PI;
+            total += cosine_hemisphere_pdf(d) as f64
+                * theta.sin()
+                * (std::f64::consts::FRAC_PI_2 / n as f64)
+                * 2.0
+                * std::f64::consts::PI;
         }
         assert!((total - 1.0).abs() < 1e-4, "{total}");
         assert_eq!(cosine_hemisphere_pdf(Vec3::new(0.0, 0.6, -0.8)), 0.0);
@@ -304,7 +292,10 @@ mod tests {
             let f = Frame::from_normal(n);
             assert!(f.tangent.dot(f.bitangent).abs() < 1e-5);
             assert!(f.tangent.dot(n).abs() < 1e-5 && f.bitangent.dot(n).abs() < 1e-5);
-            assert!((f.tangent.length() - 1.0).abs() < 1e-5 && (f.bitangent.length() - 1.0).abs() < 1e-5);
+            assert!(
+                (f.tangent.length() - 1.0).abs() < 1e-5
+                    && (f.bitangent.length() - 1.0).abs() < 1e-5
+            );
             let v = Vec3::new(0.3, -0.2, 0.9);
             assert!((f.to_local(f.to_world(v)) - v).length() < 1e-5);
         }
@@ -328,7 +319,11 @@ mod tests {
                 let (cell, down) = (k / 2, k % 2);
                 let (i, j) = (cell % n, cell / n);
                 let inside = if down == 0 { i + j < n } else { i + j + 1 < n };
-                if inside { SAMPLES as f64 / (n * n) as f64 } else { 0.0 }
+                if inside {
+                    SAMPLES as f64 / (n * n) as f64
+                } else {
+                    0.0
+                }
             })
             .collect();
         chi2::test(&obs, &exp, ALPHA).unwrap();
@@ -342,7 +337,15 @@ mod tests {
 
     #[test]
     fn discrete_matches_its_weights() {
-        let w: Vec<f64> = (0..50).map(|i| if i % 7 == 3 { 0.0 } else { 1.0 + (i * i % 13) as f64 }).collect();
+        let w: Vec<f64> = (0..50)
+            .map(|i| {
+                if i % 7 == 3 {
+                    0.0
+                } else {
+                    1.0 + (i * i % 13) as f64
+                }
+            })
+            .collect();
         let d = Discrete::new(&w).unwrap();
         let total: f64 = w.iter().sum();
         let mut obs = vec![0.0; w.len()];
@@ -354,10 +357,10 @@ mod tests {
         }
         let exp: Vec<f64> = w.iter().map(|x| x / total * SAMPLES as f64).collect();
         chi2::test(&obs, &exp, ALPHA).unwrap();
-        for i in 0..w.len() {
-            assert!((d.pmf(i) - w[i] / total).abs() < 1e-12);
+        for (i, &wi) in w.iter().enumerate() {
+            assert!((d.pmf(i) - wi / total).abs() < 1e-12);
             let r = d.inverse(i);
-            if w[i] > 0.0 {
+            if wi > 0.0 {
                 assert_eq!(d.sample(r.start), i);
             }
         }
@@ -370,7 +373,9 @@ mod tests {
     fn stochastic_round_is_unbiased() {
         // The extra unit is a Bernoulli(frac x) draw; Pearson's statistic over independent
         // Bernoulli cells, (O - T f)² / (T f (1 - f)), is chi-square with one dof per cell.
-        let xs: Vec<f64> = (0..40).map(|i| i as f64 * 0.37 + 0.013 * (i * i) as f64).collect();
+        let xs: Vec<f64> = (0..40)
+            .map(|i| i as f64 * 0.37 + 0.013 * (i * i) as f64)
+            .collect();
         let trials = 20_000usize;
         let mut s = Stream::new(6, 0, 0, 0);
         let mut extra = vec![0.0; xs.len()];
@@ -393,7 +398,11 @@ mod tests {
                 assert_eq!(extra[k], 0.0);
             }
         }
-        let p = 1.0 - statrs::distribution::ContinuousCDF::cdf(&statrs::distribution::ChiSquared::new(dof).unwrap(), stat);
+        let p = 1.0
+            - statrs::distribution::ContinuousCDF::cdf(
+                &statrs::distribution::ChiSquared::new(dof).unwrap(),
+                stat,
+            );
         assert!(p > ALPHA, "chi2 {stat} dof {dof} p {p}");
     }
 }

@@ -45,7 +45,11 @@ pub struct ShootConfig {
 impl Default for ShootConfig {
     /// One million rays, stop at 1% unshot, seed 0.
     fn default() -> Self {
-        ShootConfig { rays: 1_000_000, unshot_threshold: 0.01, seed: 0 }
+        ShootConfig {
+            rays: 1_000_000,
+            unshot_threshold: 0.01,
+            seed: 0,
+        }
     }
 }
 
@@ -170,13 +174,22 @@ pub fn shoot<C: RayCaster>(
     }
     let area: Vec<f64> = patches.iter().map(|p| p.area).collect();
     let rho: Vec<DVec3> = patches.iter().map(|p| p.reflectance.as_dvec3()).collect();
-    let mut unshot: Vec<DVec3> = patches.iter().map(|p| p.emission.as_dvec3() * p.area).collect();
+    let mut unshot: Vec<DVec3> = patches
+        .iter()
+        .map(|p| p.emission.as_dvec3() * p.area)
+        .collect();
     let emitted: DVec3 = unshot.iter().sum();
     if total(emitted) <= 0.0 {
         return Err(ShootError::NoEmission);
     }
     let total_area: f64 = area.iter().sum();
-    let rho_avg = (rho.iter().zip(&area).map(|(r, a)| total(*r) / 3.0 * a).sum::<f64>() / total_area).min(0.999);
+    let rho_avg = (rho
+        .iter()
+        .zip(&area)
+        .map(|(r, a)| total(*r) / 3.0 * a)
+        .sum::<f64>()
+        / total_area)
+        .min(0.999);
     let sampler = SurfaceSampler::new(mesh);
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
@@ -205,7 +218,13 @@ pub fn shoot<C: RayCaster>(
             break;
         }
         let wave = stats.waves as u64;
-        let counts = allocate(&unshot, left / ((1.0 - rho_avg) * budget_left as f64), budget_left, config.seed, wave);
+        let counts = allocate(
+            &unshot,
+            left / ((1.0 - rho_avg) * budget_left as f64),
+            budget_left,
+            config.seed,
+            wave,
+        );
         let mut jobs = Vec::new();
         for (i, &n) in counts.iter().enumerate() {
             if n == 0 {
@@ -215,7 +234,11 @@ pub fn shoot<C: RayCaster>(
             unshot[i] = DVec3::ZERO;
             for chunk in 0..n.div_ceil(JOB_RAYS) {
                 let rays = (n - chunk * JOB_RAYS).min(JOB_RAYS) as u32;
-                jobs.push(Job { patch: i as u32, chunk: chunk as u32, rays });
+                jobs.push(Job {
+                    patch: i as u32,
+                    chunk: chunk as u32,
+                    rays,
+                });
             }
         }
         for batch in batches(&jobs) {
@@ -266,9 +289,18 @@ pub fn shoot<C: RayCaster>(
         .zip(&reflected)
         .map(|(p, r)| p.emission.as_dvec3() + *r / p.area)
         .collect();
-    let variance = squares.iter().zip(&area).map(|(s, a)| *s / (a * a)).collect();
-    let estimate = Estimate::new(radiosity, Some(variance), stats.rays).expect("shooting sums stay finite");
-    Ok(Shooting { estimate, unshot, stats })
+    let variance = squares
+        .iter()
+        .zip(&area)
+        .map(|(s, a)| *s / (a * a))
+        .collect();
+    let estimate =
+        Estimate::new(radiosity, Some(variance), stats.rays).expect("shooting sums stay finite");
+    Ok(Shooting {
+        estimate,
+        unshot,
+        stats,
+    })
 }
 
 /// Ray counts of one wave: `n_i = round_stochastic(|U_i| / phi)`, at most `budget` in all, and
@@ -325,7 +357,13 @@ fn batches(jobs: &[Job]) -> impl Iterator<Item = &[Job]> {
 }
 
 /// Traces one job's rays, returning one hit record per ray.
-fn trace<C: RayCaster>(job: &Job, sampler: &SurfaceSampler, caster: &C, seed: u64, wave: u64) -> Vec<u32> {
+fn trace<C: RayCaster>(
+    job: &Job,
+    sampler: &SurfaceSampler,
+    caster: &C,
+    seed: u64,
+    wave: u64,
+) -> Vec<u32> {
     let mut rng = Stream::new(seed, wave, job.patch as u64, 1 + job.chunk as u64);
     (0..job.rays)
         .map(|_| {

@@ -34,7 +34,11 @@ impl SurfaceSampler {
             cdf: Vec::with_capacity(n),
             first: Vec::with_capacity(mesh.patches().len()),
             count: Vec::with_capacity(mesh.patches().len()),
-            frames: mesh.patches().iter().map(|p| Frame::from_normal(p.normal)).collect(),
+            frames: mesh
+                .patches()
+                .iter()
+                .map(|p| Frame::from_normal(p.normal))
+                .collect(),
         };
         let pos = mesh.positions();
         for patch in mesh.patches() {
@@ -84,8 +88,9 @@ impl SurfaceSampler {
     pub fn ray(&self, patch: usize, rng: &mut Stream) -> Ray {
         let p = self.point(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
         let frame = &self.frames[patch];
+        // Unit to rounding: a unit local direction in an orthonormal frame.
         let d = frame.to_world(cosine_hemisphere(Vec2::new(rng.uniform(), rng.uniform())));
-        Ray::from_surface(p, frame.normal, d.normalize(), patch as u32)
+        Ray::from_surface(p, frame.normal, d, patch as u32)
     }
 }
 
@@ -105,8 +110,16 @@ mod tests {
             Vec3::new(2.0, 1.0, 0.0),
             Vec3::new(1.0, 1.0, 0.0),
         ];
-        let faces = vec![Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }];
-        let lamp = Material { name: "lamp".into(), reflectance: Vec3::ZERO, emission: Vec3::ONE };
+        let faces = vec![Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }];
+        let lamp = Material {
+            name: "lamp".into(),
+            reflectance: Vec3::ZERO,
+            emission: Vec3::ONE,
+        };
         let scene = Scene::new(positions.clone(), faces, vec![lamp]).unwrap().0;
         let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
         let s = SurfaceSampler::new(&mesh);
@@ -136,7 +149,11 @@ mod tests {
                 })
                 .find(|(_, b)| b.x >= -1e-5 && b.y >= -1e-5 && b.x + b.y <= 1.0 + 1e-5)
                 .expect("point inside the quad");
-            obs[k * cells + crate::sampling::tests_support::sub_triangle(b.clamp(Vec2::ZERO, Vec2::ONE), n)] += 1.0;
+            obs[k * cells
+                + crate::sampling::tests_support::sub_triangle(
+                    b.clamp(Vec2::ZERO, Vec2::ONE),
+                    n,
+                )] += 1.0;
         }
         let exp: Vec<f64> = (0..obs.len())
             .map(|idx| {
@@ -144,7 +161,11 @@ mod tests {
                 let (c, down) = (cell / 2, cell % 2);
                 let (i, j) = (c % n, c / n);
                 let inside = if down == 0 { i + j < n } else { i + j + 1 < n };
-                if inside { samples as f64 * areas[k] / total / (n * n) as f64 } else { 0.0 }
+                if inside {
+                    samples as f64 * areas[k] / total / (n * n) as f64
+                } else {
+                    0.0
+                }
             })
             .collect();
         chi2::test(&obs, &exp, 1e-4).unwrap();
@@ -155,6 +176,9 @@ mod tests {
         let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
         let (d1, d2) = (d.dot(e1), d.dot(e2));
         let det = d11 * d22 - d12 * d12;
-        Vec2::new(((d22 * d1 - d12 * d2) / det) as f32, ((d11 * d2 - d12 * d1) / det) as f32)
+        Vec2::new(
+            ((d22 * d1 - d12 * d2) / det) as f32,
+            ((d11 * d2 - d12 * d1) / det) as f32,
+        )
     }
 }

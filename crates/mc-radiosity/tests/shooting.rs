@@ -8,8 +8,8 @@
 //! pass or a failure is reproducible.
 
 use glam::{DVec3, Vec3};
-use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
+use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};
 use std::ops::ControlFlow;
@@ -18,7 +18,11 @@ const RUNS: u64 = 16;
 const K: f64 = 4.0;
 
 fn material(name: &str, rho: f32, e: f32) -> Material {
-    Material { name: name.into(), reflectance: Vec3::splat(rho), emission: Vec3::splat(e) }
+    Material {
+        name: name.into(),
+        reflectance: Vec3::splat(rho),
+        emission: Vec3::splat(e),
+    }
 }
 
 /// The six inward-facing faces of an axis-aligned box `[0, s]³` (counter-clockwise seen from
@@ -43,14 +47,20 @@ fn box_faces(s: f32, positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials
     ];
     for (q, m) in quads.iter().zip(materials) {
         let source = faces.len() as u32;
-        faces.push(Face { vertices: q.iter().map(|i| base + i).collect(), material: m, source });
+        faces.push(Face {
+            vertices: q.iter().map(|i| base + i).collect(),
+            material: m,
+            source,
+        });
     }
 }
 
 fn furnace(rho: f32) -> Scene {
     let (mut p, mut f) = (Vec::new(), Vec::new());
     box_faces(1.0, &mut p, &mut f, [0; 6]);
-    Scene::new(p, f, vec![material("furnace", rho, 1.0)]).unwrap().0
+    Scene::new(p, f, vec![material("furnace", rho, 1.0)])
+        .unwrap()
+        .0
 }
 
 /// Per-patch radiosity (red channel) of `RUNS` seeds.
@@ -58,8 +68,16 @@ fn runs(mesh: &Mesh, config: ShootConfig) -> Vec<Vec<f64>> {
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     (0..RUNS)
         .map(|seed| {
-            let r = shoot(mesh, &bvh, &ShootConfig { seed, ..config.clone() }, &mut |_| ControlFlow::Continue(()))
-                .unwrap();
+            let r = shoot(
+                mesh,
+                &bvh,
+                &ShootConfig {
+                    seed,
+                    ..config.clone()
+                },
+                &mut |_| ControlFlow::Continue(()),
+            )
+            .unwrap();
             r.estimate.radiosity().iter().map(|b| b.x).collect()
         })
         .collect()
@@ -72,7 +90,10 @@ fn assert_within_k_se(samples: &[Vec<f64>], exact: &[f64], what: &str) {
         let mean = samples.iter().map(|s| s[i]).sum::<f64>() / n;
         let var = samples.iter().map(|s| (s[i] - mean).powi(2)).sum::<f64>() / (n - 1.0);
         let se = (var / n).sqrt();
-        assert!(se > 0.0, "{what}: patch {i} has no spread: the estimator is not random?");
+        assert!(
+            se > 0.0,
+            "{what}: patch {i} has no spread: the estimator is not random?"
+        );
         assert!(
             (mean - x).abs() <= K * se,
             "{what}: patch {i}: mean {mean:.6} vs exact {x:.6}, {:.2} standard errors ({se:.2e})",
@@ -89,7 +110,11 @@ fn closed_furnace_gives_e_over_one_minus_rho() {
         let scene = furnace(rho);
         let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap();
         assert_eq!(mesh.patches().len(), 24);
-        let config = ShootConfig { rays: 100_000, unshot_threshold: 1e-6, seed: 0 };
+        let config = ShootConfig {
+            rays: 100_000,
+            unshot_threshold: 1e-6,
+            seed: 0,
+        };
         let samples = runs(&mesh, config);
         let exact = vec![1.0 / (1.0 - rho as f64); mesh.patches().len()];
         let n = samples.len() as f64;
@@ -98,7 +123,10 @@ fn closed_furnace_gives_e_over_one_minus_rho() {
             let var = samples.iter().map(|s| (s[i] - mean).powi(2)).sum::<f64>() / (n - 1.0);
             let se = (var / n).sqrt();
             assert!(se > 0.0);
-            assert!((mean - x).abs() <= 4.5 * se, "rho {rho}: patch {i}: {mean} vs {x} ({se:.2e})");
+            assert!(
+                (mean - x).abs() <= 4.5 * se,
+                "rho {rho}: patch {i}: {mean} vs {x} ({se:.2e})"
+            );
         }
     }
 }
@@ -118,14 +146,33 @@ fn parallel_unit_squares_exchange_the_analytic_form_factor() {
         Vec3::new(0.0, 1.0, 1.0),
     ];
     let faces = vec![
-        Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }, // faces +z
-        Face { vertices: vec![4, 7, 6, 5], material: 1, source: 1 }, // faces -z
+        Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }, // faces +z
+        Face {
+            vertices: vec![4, 7, 6, 5],
+            material: 1,
+            source: 1,
+        }, // faces -z
     ];
-    let scene = Scene::new(positions, faces, vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)])
-        .unwrap()
-        .0;
+    let scene = Scene::new(
+        positions,
+        faces,
+        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0;
     let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
-    let samples = runs(&mesh, ShootConfig { rays: 200_000, unshot_threshold: 0.0, seed: 0 });
+    let samples = runs(
+        &mesh,
+        ShootConfig {
+            rays: 200_000,
+            unshot_threshold: 0.0,
+            seed: 0,
+        },
+    );
     let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
     assert_within_k_se(&receiver, &[0.5 * 0.199825], "parallel squares"); // 1 value: 0.12%
 }
@@ -142,15 +189,34 @@ fn perpendicular_unit_squares_exchange_the_analytic_form_factor() {
         Vec3::new(1.0, 0.0, 1.0),
     ];
     let faces = vec![
-        Face { vertices: vec![0, 1, 2, 3], material: 0, source: 0 }, // z = 0, faces +z
-        Face { vertices: vec![0, 4, 5, 1], material: 1, source: 1 }, // y = 0, faces +y
+        Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }, // z = 0, faces +z
+        Face {
+            vertices: vec![0, 4, 5, 1],
+            material: 1,
+            source: 1,
+        }, // y = 0, faces +y
     ];
-    let scene = Scene::new(positions, faces, vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)])
-        .unwrap()
-        .0;
+    let scene = Scene::new(
+        positions,
+        faces,
+        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0;
     let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
     assert!((mesh.patches()[1].normal - Vec3::Y).length() < 1e-6);
-    let samples = runs(&mesh, ShootConfig { rays: 200_000, unshot_threshold: 0.0, seed: 0 });
+    let samples = runs(
+        &mesh,
+        ShootConfig {
+            rays: 200_000,
+            unshot_threshold: 0.0,
+            seed: 0,
+        },
+    );
     let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
     assert_within_k_se(&receiver, &[0.5 * 0.200044], "perpendicular squares"); // 1 value: 0.12%
 }
@@ -167,26 +233,52 @@ fn open_box() -> Scene {
         Vec3::new(0.7, 0.6, 0.5),
         Vec3::new(0.3, 0.6, 0.5),
     ]);
-    f.push(Face { vertices: vec![b, b + 1, b + 2, b + 3], material: 0, source: 6 }); // faces +z
+    f.push(Face {
+        vertices: vec![b, b + 1, b + 2, b + 3],
+        material: 0,
+        source: 6,
+    }); // faces +z
     for (i, face) in f.iter_mut().enumerate() {
         face.source = i as u32;
     }
-    Scene::new(p, f, vec![material("white", 0.7, 0.0), material("lamp", 0.3, 2.0)]).unwrap().0
+    Scene::new(
+        p,
+        f,
+        vec![material("white", 0.7, 0.0), material("lamp", 0.3, 2.0)],
+    )
+    .unwrap()
+    .0
 }
 
 #[test]
 fn power_is_conserved_exactly_and_escapes_are_counted() {
     let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.25)).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 300_000, unshot_threshold: 0.001, seed: 3 }, &mut |_| {
-        ControlFlow::Continue(())
-    })
+    let r = shoot(
+        &mesh,
+        &bvh,
+        &ShootConfig {
+            rays: 300_000,
+            unshot_threshold: 0.001,
+            seed: 3,
+        },
+        &mut |_| ControlFlow::Continue(()),
+    )
     .unwrap();
     let s = &r.stats;
     let balance = s.absorbed + s.escaped + s.unshot;
-    assert!((balance - s.emitted).abs().max_element() <= 1e-9 * s.emitted.max_element(), "{s:?}");
-    assert!(s.escaped_rays > 0 && s.escaped.min_element() > 0.0, "the open box must leak: {s:?}");
-    assert!(s.back_face_hits > 0, "the panel's back faces the lamp: {s:?}");
+    assert!(
+        (balance - s.emitted).abs().max_element() <= 1e-9 * s.emitted.max_element(),
+        "{s:?}"
+    );
+    assert!(
+        s.escaped_rays > 0 && s.escaped.min_element() > 0.0,
+        "the open box must leak: {s:?}"
+    );
+    assert!(
+        s.back_face_hits > 0,
+        "the panel's back faces the lamp: {s:?}"
+    );
     assert!(s.rays <= 300_000);
     let unshot_sum: DVec3 = r.unshot.iter().sum();
     assert!((unshot_sum - s.unshot).abs().max_element() < 1e-12);
@@ -197,7 +289,11 @@ fn power_is_conserved_exactly_and_escapes_are_counted() {
 fn same_seed_same_answer_with_one_or_two_threads() {
     let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.2)).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let config = ShootConfig { rays: 200_000, unshot_threshold: 0.01, seed: 42 };
+    let config = ShootConfig {
+        rays: 200_000,
+        unshot_threshold: 0.01,
+        seed: 42,
+    };
     let solve = |threads| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -208,7 +304,13 @@ fn same_seed_same_answer_with_one_or_two_threads() {
     let (one, two) = (solve(1), solve(2));
     assert_eq!(one.estimate, two.estimate);
     assert_eq!(one.stats, two.stats);
-    let other_seed = shoot(&mesh, &bvh, &ShootConfig { seed: 43, ..config }, &mut |_| ControlFlow::Continue(())).unwrap();
+    let other_seed = shoot(
+        &mesh,
+        &bvh,
+        &ShootConfig { seed: 43, ..config },
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap();
     assert_ne!(one.estimate, other_seed.estimate);
 }
 
@@ -216,18 +318,42 @@ fn same_seed_same_answer_with_one_or_two_threads() {
 fn budget_and_observer_stop_the_run() {
     let mesh = Mesh::build(&furnace(0.9), Subdivision::None).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 10_000, unshot_threshold: 0.0, seed: 1 }, &mut |_| {
-        ControlFlow::Continue(())
-    })
+    let r = shoot(
+        &mesh,
+        &bvh,
+        &ShootConfig {
+            rays: 10_000,
+            unshot_threshold: 0.0,
+            seed: 1,
+        },
+        &mut |_| ControlFlow::Continue(()),
+    )
     .unwrap();
     assert_eq!(r.stats.stop, StopReason::BudgetSpent);
-    assert!(r.stats.rays <= 10_000 && r.stats.rays > 9_000, "{:?}", r.stats);
+    assert!(
+        r.stats.rays <= 10_000 && r.stats.rays > 9_000,
+        "{:?}",
+        r.stats
+    );
     let mut seen = 0;
-    let r = shoot(&mesh, &bvh, &ShootConfig { rays: 100_000, unshot_threshold: 0.0, seed: 1 }, &mut |p| {
-        seen += 1;
-        assert_eq!(p.waves, seen);
-        if p.waves == 2 { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
-    })
+    let r = shoot(
+        &mesh,
+        &bvh,
+        &ShootConfig {
+            rays: 100_000,
+            unshot_threshold: 0.0,
+            seed: 1,
+        },
+        &mut |p| {
+            seen += 1;
+            assert_eq!(p.waves, seen);
+            if p.waves == 2 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )
     .unwrap();
     assert_eq!((r.stats.stop, r.stats.waves), (StopReason::Stopped, 2));
 }
@@ -236,7 +362,24 @@ fn budget_and_observer_stop_the_run() {
 fn bad_configurations_are_errors() {
     let mesh = Mesh::build(&furnace(0.5), Subdivision::None).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let go = |c: ShootConfig| shoot(&mesh, &bvh, &c, &mut |_| ControlFlow::Continue(())).map(|_| ()).unwrap_err().to_string();
-    assert!(go(ShootConfig { rays: 0, ..Default::default() }).contains("at least 1"));
-    assert!(go(ShootConfig { unshot_threshold: 1.5, ..Default::default() }).contains("[0, 1]"));
+    let go = |c: ShootConfig| {
+        shoot(&mesh, &bvh, &c, &mut |_| ControlFlow::Continue(()))
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
+    assert!(
+        go(ShootConfig {
+            rays: 0,
+            ..Default::default()
+        })
+        .contains("at least 1")
+    );
+    assert!(
+        go(ShootConfig {
+            unshot_threshold: 1.5,
+            ..Default::default()
+        })
+        .contains("[0, 1]")
+    );
 }

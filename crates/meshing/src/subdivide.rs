@@ -20,9 +20,17 @@ fn pieces(length: f64, max_edge: f32) -> u32 {
 impl Cutter {
     /// Cuts one face (corner indices counter-clockwise) into patches of `mesh`.
     pub fn cut_face(&mut self, mesh: &mut Mesh, corners: &[u32], max_edge: f32, t: &PatchTemplate) {
-        let pos: Vec<DVec3> = corners.iter().map(|&i| mesh.position(i).as_dvec3()).collect();
+        let pos: Vec<DVec3> = corners
+            .iter()
+            .map(|&i| mesh.position(i).as_dvec3())
+            .collect();
         if corners.len() == 4 && is_convex(&pos) {
-            self.cut_quad(mesh, [corners[0], corners[1], corners[2], corners[3]], max_edge, t);
+            self.cut_quad(
+                mesh,
+                [corners[0], corners[1], corners[2], corners[3]],
+                max_edge,
+                t,
+            );
         } else {
             for w in corners[1..].windows(2) {
                 self.cut_triangle(mesh, [corners[0], w[0], w[1]], max_edge, t);
@@ -43,14 +51,23 @@ impl Cutter {
         if let Some(&v) = self.edge_points.get(&(lo, hi, k, n)) {
             return v;
         }
-        let p = mesh.position(lo).as_dvec3().lerp(mesh.position(hi).as_dvec3(), k as f64 / n as f64);
+        let p = mesh
+            .position(lo)
+            .as_dvec3()
+            .lerp(mesh.position(hi).as_dvec3(), k as f64 / n as f64);
         let v = mesh.push_position(p.as_vec3());
         self.edge_points.insert((lo, hi, k, n), v);
         v
     }
 
     /// Cuts triangle `abc` into `n²` similar triangles, `n` set by its longest edge.
-    fn cut_triangle(&mut self, mesh: &mut Mesh, [a, b, c]: [u32; 3], max_edge: f32, t: &PatchTemplate) {
+    fn cut_triangle(
+        &mut self,
+        mesh: &mut Mesh,
+        [a, b, c]: [u32; 3],
+        max_edge: f32,
+        t: &PatchTemplate,
+    ) {
         let (pa, pb, pc) = (
             mesh.position(a).as_dvec3(),
             mesh.position(b).as_dvec3(),
@@ -77,7 +94,8 @@ impl Cutter {
                 } else if i + j == n {
                     self.edge_point(mesh, b, c, j, n)
                 } else {
-                    let p = pa + (pb - pa) * (i as f64 / n as f64) + (pc - pa) * (j as f64 / n as f64);
+                    let p =
+                        pa + (pb - pa) * (i as f64 / n as f64) + (pc - pa) * (j as f64 / n as f64);
                     mesh.push_position(p.as_vec3())
                 };
                 grid[row_start[j as usize] + i as usize] = v;

@@ -6,13 +6,25 @@ use mcrad_scene_io::{Face, Material, Scene};
 
 fn materials() -> Vec<Material> {
     vec![
-        Material { name: "white".into(), reflectance: Vec3::splat(0.5), emission: Vec3::ZERO },
-        Material { name: "lamp".into(), reflectance: Vec3::ZERO, emission: Vec3::ONE },
+        Material {
+            name: "white".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ZERO,
+        },
+        Material {
+            name: "lamp".into(),
+            reflectance: Vec3::ZERO,
+            emission: Vec3::ONE,
+        },
     ]
 }
 
 fn face(vertices: &[u32], material: u32, source: u32) -> Face {
-    Face { vertices: vertices.to_vec(), material, source }
+    Face {
+        vertices: vertices.to_vec(),
+        material,
+        source,
+    }
 }
 
 /// A triangle, a trapezoid quad, a convex pentagon and a concave (dart) quad sharing vertices.
@@ -22,7 +34,7 @@ fn mixed_scene() -> Scene {
         Vec3::new(3.0, 0.0, 0.0),
         Vec3::new(2.0, 1.7, 0.0),
         Vec3::new(0.5, 1.3, 0.0),
-        // pentagon in the plane y = -1 facing -y... vertices CCW seen from -y
+        // a pentagon in the plane y = -1
         Vec3::new(0.0, -1.0, 0.0),
         Vec3::new(0.0, -1.0, 2.0),
         Vec3::new(1.0, -1.0, 2.7),
@@ -45,7 +57,9 @@ fn mixed_scene() -> Scene {
         face(&[9, 10, 11], 1, 3),
         face(&[14, 15, 12, 13], 0, 4),
     ];
-    Scene::new(positions, faces, materials()).expect("valid scene").0
+    Scene::new(positions, faces, materials())
+        .expect("valid scene")
+        .0
 }
 
 fn polygon_area(p: &[Vec3]) -> f64 {
@@ -65,14 +79,18 @@ fn one_patch_per_face_keeps_order_area_and_face_numbers() {
     assert_eq!(mesh.patches().len(), scene.faces().len());
     for (patch, face) in mesh.patches().iter().zip(scene.faces()) {
         assert_eq!(patch.face, face.source);
-        let pts: Vec<Vec3> = face.vertices.iter().map(|&i| scene.positions()[i as usize]).collect();
+        let pts: Vec<Vec3> = face
+            .vertices
+            .iter()
+            .map(|&i| scene.positions()[i as usize])
+            .collect();
         assert!((patch.area - polygon_area(&pts)).abs() < 1e-9 * patch.area.max(1.0));
         assert_eq!(mesh.corners(patch), &face.vertices[..]);
     }
     // The quad lies in z = 0, counter-clockwise seen from +z.
     assert!((mesh.patches()[0].normal - Vec3::Z).length() < 1e-6);
-    // The pentagon faces -y.
-    assert!((mesh.patches()[2].normal + Vec3::Y).length() < 1e-6);
+    // The pentagon in the plane y = -1 runs counter-clockwise seen from +y.
+    assert!((mesh.patches()[2].normal - Vec3::Y).length() < 1e-6);
 }
 
 #[test]
@@ -86,13 +104,32 @@ fn subdivision_preserves_each_face_area_and_bounds_edges() {
             per_face[p.face as usize] += p.area;
             let c = mesh.corners(p);
             for k in 0..c.len() {
-                let (a, b) = (mesh.positions()[c[k] as usize], mesh.positions()[c[(k + 1) % c.len()] as usize]);
-                assert!(a.distance(b) <= max_edge * (1.0 + 1e-5), "edge {} > {max_edge}", a.distance(b));
+                let (a, b) = (
+                    mesh.positions()[c[k] as usize],
+                    mesh.positions()[c[(k + 1) % c.len()] as usize],
+                );
+                assert!(
+                    a.distance(b) <= max_edge * (1.0 + 1e-5),
+                    "edge {} > {max_edge}",
+                    a.distance(b)
+                );
             }
-            assert!(p.normal.dot(mesh.patches().iter().find(|q| q.face == p.face).unwrap().normal) > 0.999);
+            assert!(
+                p.normal.dot(
+                    mesh.patches()
+                        .iter()
+                        .find(|q| q.face == p.face)
+                        .unwrap()
+                        .normal
+                ) > 0.999
+            );
         }
         for (f, face) in scene.faces().iter().enumerate() {
-            let pts: Vec<Vec3> = face.vertices.iter().map(|&i| scene.positions()[i as usize]).collect();
+            let pts: Vec<Vec3> = face
+                .vertices
+                .iter()
+                .map(|&i| scene.positions()[i as usize])
+                .collect();
             let exact = polygon_area(&pts);
             assert!(
                 (per_face[f] - exact).abs() <= 1e-6 * exact,
@@ -103,7 +140,14 @@ fn subdivision_preserves_each_face_area_and_bounds_edges() {
         let total: f64 = scene
             .faces()
             .iter()
-            .map(|f| polygon_area(&f.vertices.iter().map(|&i| scene.positions()[i as usize]).collect::<Vec<_>>()))
+            .map(|f| {
+                polygon_area(
+                    &f.vertices
+                        .iter()
+                        .map(|&i| scene.positions()[i as usize])
+                        .collect::<Vec<_>>(),
+                )
+            })
             .sum();
         assert!((mesh.total_area() - total).abs() <= 1e-6 * total);
     }
@@ -124,10 +168,19 @@ fn neighbouring_faces_share_their_edge_points() {
     let scene = Scene::new(positions, faces, materials()).unwrap().0;
     let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.25)).unwrap();
     assert_eq!(mesh.patches().len(), 32);
-    let used: std::collections::BTreeSet<u32> = mesh.patches().iter().flat_map(|p| mesh.corners(p).to_vec()).collect();
+    let used: std::collections::BTreeSet<u32> = mesh
+        .patches()
+        .iter()
+        .flat_map(|p| mesh.corners(p).to_vec())
+        .collect();
     assert_eq!(used.len(), 45);
     // Patches cut from the emitting face keep its emission and face number.
-    assert!(mesh.patches().iter().filter(|p| p.face == 1).all(|p| p.emission == Vec3::ONE));
+    assert!(
+        mesh.patches()
+            .iter()
+            .filter(|p| p.face == 1)
+            .all(|p| p.emission == Vec3::ONE)
+    );
 }
 
 #[test]

@@ -1,26 +1,27 @@
 //! The fast caster: an obvhs CWBVH over the canonical-frame triangles.
 
-use std::time::Duration;
-
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use obvhs::{
     BvhBuildParams,
-    cwbvh::{CwBvh, builder::build_cwbvh_from_tris},
+    aabb::Aabb,
+    bvh2::reinsertion::ReinsertionOptimizer,
+    cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh},
+    ploc::PlocBuilder,
     ray::{Ray as ObRay, RayHit},
     rt_triangle::RtTriangle,
+    splits::split_aabbs_preset,
     triangle::Triangle,
 };
 
 use crate::{
-    BuildError, Hit, NO_ID, Ray, RayCaster, SurfacePoint,
-    exact,
-    frame::{self, CanonicalRay, Frame, WorldRay},
+    BuildError, Hit, NO_ID, Ray, RayCaster, SurfacePoint, exact,
+    frame::{self, CanonicalRay, CanonicalSegment, Frame, WorldRay},
 };
 
 /// How much build time to spend on BVH quality (obvhs presets).
 ///
-/// Measured on a 2-core machine for 100k triangles: `Fast` ~60 ms, `Medium` ~70-230 ms,
-/// `Slow` ~150-430 ms; traversal differs by about 10%.
+/// obvhs alone on a 2-core machine, 100k triangles (`/work/shared/bench/raycast`): `Fast`
+/// 50-180 ms, `Medium` 65-230 ms, `Slow` 145-430 ms; traversal speeds differ by about 10%.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum BvhPreset {
     /// `BvhBuildParams::fast_build()`: for scenes rebuilt often.
@@ -94,20 +95,32 @@ impl Bvh {
         let canonical: Vec<Triangle> = triangles
             .iter()
             .map(|t| Triangle {
-                v0: frame.to_canonical(t[0]).into(),
-                v1: frame.to_canonical(t[1]).into(),
-                v2: frame.to_canonical(t[2]).into(),
+                v0: frame.canonical(t[0]).into(),
+                v1: frame.canonical(t[1]).into(),
+                v2: frame.canonical(t[2]).into(),
             })
             .collect();
-        let cwbvh = build_cwbvh_from_tris(&canonical, preset.params(), &mut Duration::default());
+        let pad = frame.max_lift(bounds.0, bounds.1) as f32;
+        let cwbvh = build_cwbvh_padded(&canonical, preset.params(), pad);
         // With spatial pre-splits a triangle may appear in several slots; that is fine.
         let tris = cwbvh
             .primitive_indices
             .iter()
             .map(|&i| RtTriangle::from(&canonical[i as usize]))
             .collect();
-        let ids = cwbvh.primitive_indices.iter().map(|&i| ids[i as usize]).collect();
-        Ok(Bvh { cwbvh, tris, ids, frame, bounds, triangle_count: triangles.len() })
+        let ids = cwbvh
+            .primitive_indices
+            .iter()
+            .map(|&i| ids[i as usize])
+            .collect();
+        Ok(Bvh {
+            cwbvh,
+            tris,
+            ids,
+            frame,
+            bounds,
+            triangle_count: triangles.len(),
+        })
     }
 
     /// Number of input triangles.
@@ -125,97 +138,193 @@ impl Bvh {
         self.cwbvh.nodes.len()
     }
 
-    /// [`CANONICAL_EPSILON`](crate::CANONICAL_EPSILON) in scene units: the minimum hit distance
-    /// of surface rays and the smallest origin offset.
+    /// [`CANONICAL_EPSILON`](crate::CANONICAL_EPSILON) in scene units: the smallest origin
+    /// offset and window (about `1e-6` of the scene's largest extent).
     pub fn surface_epsilon(&self) -> f32 {
         self.frame.world_epsilon() as f32
     }
 
-    /// Closest hit in canonical units: (BVH slot, t).
+    /// Closest hit in canonical units: (BVH slot, distance from the lifted origin).
     #[inline]
     fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
-        let r = ObRay::new(ray.origin, ray.dir, ray.tmin, f32::INFINITY);
-        let tmin = ray.tmin;
-        let near = |_: f32| false;
+        let CanonicalRay {
+            origin,
+            dir,
+            window,
+            ..
+        } = *ray;
+        // obvhs skips boxes left before t = 1e-4: start the traversal behind the origin so
+        // that crossings in the window around it are reached. Returned values are `t + shift`.
+        let shift = 2.0 * window;
+        let r = ObRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
+        let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
+        let test = |tri: &RtTriangle| candidate(tri, &q).map_or(f32::INFINITY, |t| t + shift);
         let mut hit = RayHit::none();
         let found = if exclude == NO_ID {
-            self.cwbvh.ray_traverse(r, &mut hit, |r, slot| {
-                intersect(&self.tris[slot], r, tmin, r.tmax, near)
-            })
+            self.cwbvh
+                .ray_traverse(r, &mut hit, |_, slot| test(&self.tris[slot]))
         } else {
-            self.cwbvh.ray_traverse(r, &mut hit, |r, slot| {
+            self.cwbvh.ray_traverse(r, &mut hit, |_, slot| {
                 if self.ids[slot] == exclude {
                     f32::INFINITY
                 } else {
-                    intersect(&self.tris[slot], r, tmin, r.tmax, near)
+                    test(&self.tris[slot])
                 }
             })
         };
-        found.then_some((hit.primitive_id as usize, hit.t))
+        found.then_some((hit.primitive_id as usize, (hit.t - shift).max(0.0)))
     }
 }
 
-/// Queries whose origin lies within this distance (canonical units) of a triangle's plane, or
-/// whose segment end is this close (in `t`) to the crossing, are re-decided in `f64`
-/// (64 surface offsets, about `6e-5` of the scene).
+/// `obvhs::cwbvh::builder::build_cwbvh_from_tris` (PLOC, reinsertion, BVH2 -> CWBVH, optional
+/// spatial pre-splits) with every primitive box padded by `pad` canonical units.
+///
+/// The padding is the largest window of the scene (see [`exact::ray_rule`]): a ray starting
+/// exactly at a corner of flat, axis-aligned boxes (a room's corner) only touches them in a
+/// point, which the `f32` slab test may miss, and would then leave through the wall it starts
+/// on. Padded, every box whose triangle is crossed within a window holds a stretch of the ray
+/// of at least half a window. The cost is nil for scenes near the origin (`2^-10` canonical
+/// units).
+fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> CwBvh {
+    let mut aabbs: Vec<Aabb> = triangles.iter().map(Triangle::aabb).collect();
+    let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
+    if params.pre_split {
+        let half_areas = aabbs.iter().map(Aabb::half_area);
+        let largest = half_areas.clone().fold(0.0f32, f32::max);
+        let average = half_areas.sum::<f32>() / triangles.len() as f32;
+        split_aabbs_preset(&mut aabbs, &mut indices, triangles, average, largest);
+    }
+    let pad = Vec3A::splat(pad);
+    for aabb in &mut aabbs {
+        *aabb = Aabb::new(aabb.min - pad, aabb.max + pad);
+    }
+    let mut bvh2 = PlocBuilder::with_capacity(aabbs.len()).build(
+        params.ploc_search_distance,
+        &aabbs,
+        indices,
+        params.sort_precision,
+        params.search_depth_threshold,
+    );
+    bvh2.uses_spatial_splits = params.pre_split;
+    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false)
+}
+
+/// Crossings of a plane passing within this distance (canonical units) of a query's origin,
+/// or this close (in `t`) to a segment's end, are re-decided in `f64` (64 surface offsets,
+/// about `6e-5` of the scene), and always within twice the query's windows.
 const NEAR: f32 = 1.0 / 16.0;
 
-/// Barycentric slack of the `f32` test below which a near crossing is re-decided in `f64`.
+/// Barycentric slack of the `f32` test within which a near crossing is re-decided in `f64`.
 const SLACK: f32 = 1.0 / 256.0;
 
-/// The `f32` Möller-Trumbore test (as obvhs's `RtTriangle::intersect`, closed edges), except
-/// that a crossing of a plane passing within `NEAR` of the origin (or, for `near_end`, a
-/// crossing near the segment's end), within `SLACK` of the triangle, is re-decided exactly.
-///
-/// Far from the origin `f32` errors only matter on measure-zero sets (shared edges,
-/// silhouettes). Next to it they are systematic: an origin on a patch edge next to another
-/// surface sits within rounding of that surface's plane, and for a ray almost parallel to a
-/// plane the `f32` barycentrics err by about `2^-24 * size / cos`. Returns `t` or `INFINITY`.
-#[inline(always)]
-fn intersect(
-    tri: &RtTriangle,
-    r: &ObRay,
-    tmin: f32,
-    tmax: f32,
-    near_end: impl Fn(f32) -> bool,
-) -> f32 {
-    let c = tri.v0 - r.origin;
-    let q = r.direction.cross(c);
-    let inv_det = 1.0 / tri.ng.dot(r.direction);
-    let u = q.dot(tri.e2) * inv_det;
-    let v = q.dot(tri.e1) * inv_det;
-    let w = 1.0 - u - v;
-    // plane distance of the origin, times |ng|
-    let plane = tri.ng.dot(c);
-    let t = plane * inv_det;
-    let near = plane * plane < NEAR * NEAR * tri.ng.length_squared() || near_end(t);
-    if !near {
-        return if u >= 0.0 && v >= 0.0 && w >= 0.0 && t >= tmin && t <= tmax {
-            t
-        } else {
-            f32::INFINITY
-        };
-    }
-    if u > -SLACK && v > -SLACK && w > -SLACK {
-        return refine(tri, r, tmin, tmax);
-    }
-    f32::INFINITY
+/// A ray (`len` infinite) or segment in canonical units, with the windows at its ends (see
+/// [`exact::ray_rule`]) and the distances within which crossings are re-decided exactly.
+#[derive(Clone, Copy, Debug)]
+struct Query {
+    origin: Vec3A,
+    dir: Vec3A,
+    len: f32,
+    window_start: f32,
+    window_end: f32,
+    near_start: f32,
+    near_end: f32,
 }
 
-/// The exact re-check of [`intersect`] on the same canonical data.
+impl Query {
+    fn new(origin: Vec3A, dir: Vec3A, len: f32, window_start: f32, window_end: f32) -> Query {
+        let near_start = NEAR.max(2.0 * window_start);
+        let near_end = NEAR.max(2.0 * window_end);
+        Query {
+            origin,
+            dir,
+            len,
+            window_start,
+            window_end,
+            near_start,
+            near_end,
+        }
+    }
+}
+
+/// One triangle against a query, in canonical units: the distance of a crossing that counts,
+/// or `None`.
+///
+/// This is obvhs's `f32` Möller-Trumbore (`RtTriangle::intersect`, closed edges) for crossings
+/// away from the query's end points. Next to them `f32` errors are systematic rather than
+/// measure-zero: an origin on a patch edge next to another surface sits within rounding of
+/// that surface's plane, and for a ray almost parallel to a plane the `f32` barycentrics err by
+/// about `2^-24 * size / cos`. So a crossing of a plane that passes near the origin (or near
+/// the segment's end), within `SLACK` of the triangle or within the windows, is re-decided
+/// exactly with the rules of [`exact::ray_rule`] and [`exact::segment_rule`].
+#[inline(always)]
+fn candidate(tri: &RtTriangle, q: &Query) -> Option<f32> {
+    let c = tri.v0 - q.origin;
+    let r = q.dir.cross(c);
+    let inv_det = 1.0 / tri.ng.dot(q.dir);
+    let u = r.dot(tri.e2) * inv_det;
+    let v = r.dot(tri.e1) * inv_det;
+    let w = 1.0 - u - v;
+    // signed distance of the origin to the plane, times |ng|
+    let plane = tri.ng.dot(c);
+    let t = plane * inv_det;
+    if !(u > -SLACK && v > -SLACK && w > -SLACK) {
+        // clearly outside (the common case): only the windows look beyond the triangle
+        let in_window = t.abs() < 2.0 * q.window_start || (t - q.len).abs() < 2.0 * q.window_end;
+        return if in_window {
+            near_end_point(tri, q, t)
+        } else {
+            None
+        };
+    }
+    let near_plane = plane * plane < q.near_start * q.near_start * tri.ng.length_squared();
+    if !near_plane && (t - q.len).abs() >= q.near_end {
+        // |t| >= near_start > window_start, |t - len| >= near_end: no window rule applies
+        let inside = u >= 0.0 && v >= 0.0 && w >= 0.0;
+        return (inside && t > 0.0 && t < q.len).then_some(t);
+    }
+    near_end_point(tri, q, t)
+}
+
+/// [`candidate`] for a crossing near one of the query's end points (or of a plane passing near
+/// its origin). Skips what the rules reject whatever the exact numbers: crossings well behind
+/// the start or past the end, back-facing ones in the start's window and front-facing ones in
+/// the end's window (the `f32` side is wrong only when the ray is almost parallel to the
+/// plane). Re-decides the rest exactly.
 #[cold]
 #[inline(never)]
-fn refine(tri: &RtTriangle, r: &ObRay, tmin: f32, tmax: f32) -> f32 {
-    // RtTriangle: e1 = v0 - v1, e2 = v2 - v0
+fn near_end_point(tri: &RtTriangle, q: &Query, t: f32) -> Option<f32> {
+    let (ws, we) = (q.window_start, q.window_end);
+    if t <= -2.0 * ws || t >= q.len + 2.0 * we {
+        return None;
+    }
+    // RtTriangle::ng is minus the counter-clockwise normal
+    let front = tri.ng.dot(q.dir) > 0.0;
+    let in_start = t < 2.0 * ws;
+    let in_end = t > q.len - 2.0 * we;
+    if (in_start && !front && t < 0.5 * ws) || (in_end && front && t > q.len - 0.5 * we) {
+        return None;
+    }
+    refine(tri, q)
+}
+
+/// The exact re-check of [`candidate`] on the same canonical data.
+#[cold]
+#[inline(never)]
+fn refine(tri: &RtTriangle, q: &Query) -> Option<f32> {
     let ray = WorldRay {
-        origin: r.origin.as_dvec3(),
-        dir: r.direction.as_dvec3(),
-        tmin: tmin as f64,
-        tmax: tmax as f64,
+        origin: q.origin.as_dvec3(),
+        dir: q.dir.as_dvec3(),
+        len: q.len as f64,
+        window_start: q.window_start as f64,
+        window_end: q.window_end as f64,
     };
-    match exact::intersect(tri.v0.as_dvec3(), -tri.e1.as_dvec3(), tri.e2.as_dvec3(), &ray) {
-        Some((t, _)) => (t as f32).clamp(tmin, tmax),
-        None => f32::INFINITY,
+    // RtTriangle: e1 = v0 - v1, e2 = v2 - v0
+    let (v0, e1, e2) = (tri.v0.as_dvec3(), -tri.e1.as_dvec3(), tri.e2.as_dvec3());
+    if q.len.is_finite() {
+        exact::blocker(v0, e1, e2, &ray).map(|_| 0.0)
+    } else {
+        exact::ray_candidate(v0, e1, e2, &ray).map(|(t, _)| t as f32)
     }
 }
 
@@ -229,8 +338,8 @@ impl RayCaster for Bvh {
         let canonical_point = c.origin.as_dvec3() + c.dir.as_dvec3() * t as f64;
         Some(Hit {
             id: self.ids[slot],
-            distance: (t as f64 * self.frame.inv_scale()) as f32,
-            point: self.frame.to_world(canonical_point),
+            distance: ((c.skip + t as f64) * self.frame.inv_scale()) as f32,
+            point: self.frame.world(canonical_point),
             front,
         })
     }
@@ -239,17 +348,29 @@ impl RayCaster for Bvh {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
-        let r = ObRay::new(s.origin, s.dir, s.tmin, s.tmax);
+        let CanonicalSegment {
+            origin,
+            dir,
+            len,
+            window_start,
+            window_end,
+        } = s;
+        let q = Query::new(origin, dir, len, window_start, window_end);
+        // as in `trace`: start behind the origin; any blocker reports `shift` (< tmax)
+        let shift = 2.0 * window_start;
+        let r = ObRay::new(
+            origin - dir * shift,
+            dir,
+            0.0,
+            len + window_end + 2.0 * shift,
+        );
         let (ia, ib) = (a.id, b.id);
-        let (tmin, tmax) = (s.tmin, s.tmax);
-        let near = |t: f32| (t - tmax).abs() < NEAR;
-        !self.cwbvh.ray_traverse_miss(r, |r, slot| {
+        !self.cwbvh.ray_traverse_miss(r, |_, slot| {
             let id = self.ids[slot];
             if id == ia || id == ib {
-                f32::INFINITY
-            } else {
-                intersect(&self.tris[slot], r, tmin, tmax, near)
+                return f32::INFINITY;
             }
+            candidate(&self.tris[slot], &q).map_or(f32::INFINITY, |_| shift)
         })
     }
 }

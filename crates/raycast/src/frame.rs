@@ -6,7 +6,11 @@
 
 use glam::{DVec3, Vec3, Vec3A};
 
-use crate::{BuildError, CANONICAL_EPSILON, CANONICAL_MIN_DISTANCE, NO_ID, Ray, SurfacePoint};
+use crate::{BuildError, CANONICAL_EPSILON, NO_ID, Ray, SurfacePoint};
+
+/// Origins farther than this (canonical units, or four windows) outside the scene's box are
+/// moved to it before casting (see [`Frame::approach`]).
+const APPROACH_MARGIN: f64 = 8.0;
 
 /// Lower end of the canonical extent: the largest bounding-box side lies in `[512, 1024)`.
 const CANONICAL_EXTENT_MIN: f64 = 512.0;
@@ -20,7 +24,10 @@ const LIFT_PER_MAGNITUDE: f64 = 1.0 / (1u64 << 21) as f64;
 /// Checks the input of a build and returns the bounds (min, max) of all vertices.
 pub(crate) fn validate(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<(Vec3, Vec3), BuildError> {
     if triangles.len() != ids.len() {
-        return Err(BuildError::LengthMismatch { triangles: triangles.len(), ids: ids.len() });
+        return Err(BuildError::LengthMismatch {
+            triangles: triangles.len(),
+            ids: ids.len(),
+        });
     }
     if triangles.is_empty() {
         return Err(BuildError::Empty);
@@ -30,7 +37,11 @@ pub(crate) fn validate(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<(Vec3, Ve
     for (triangle, (tri, &id)) in triangles.iter().zip(ids).enumerate() {
         for (vertex, &value) in tri.iter().enumerate() {
             if !value.is_finite() {
-                return Err(BuildError::NonFiniteVertex { triangle, vertex, value });
+                return Err(BuildError::NonFiniteVertex {
+                    triangle,
+                    vertex,
+                    value,
+                });
             }
             min = min.min(value);
             max = max.max(value);
@@ -42,30 +53,38 @@ pub(crate) fn validate(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<(Vec3, Ve
     Ok((min, max))
 }
 
-/// A ray prepared for the canonical frame: lifted origin, unit direction, `t` range start.
+/// A ray prepared for the canonical frame: lifted origin, unit direction, and the window
+/// around the origin in which only front-facing crossings count (see [`crate::exact::ray_rule`]).
+/// An origin far outside the scene is first moved along the ray to near the scene's box;
+/// `skip` is the distance it moved (canonical units, added to hit distances).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct CanonicalRay {
     pub origin: Vec3A,
     pub dir: Vec3A,
-    pub tmin: f32,
+    pub window: f32,
+    pub skip: f64,
 }
 
-/// A visibility segment in the canonical frame: blockers count for `t` in `[tmin, tmax]`.
+/// A visibility segment in the canonical frame, with the windows at its two ends
+/// (see [`crate::exact::segment_rule`]).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct CanonicalSegment {
     pub origin: Vec3A,
     pub dir: Vec3A,
-    pub tmin: f32,
-    pub tmax: f32,
+    pub len: f32,
+    pub window_start: f32,
+    pub window_end: f32,
 }
 
-/// A ray prepared for world-space `f64` intersection (the brute-force oracle).
+/// A ray or segment prepared for world-space `f64` intersection (the brute-force oracle);
+/// `len` is infinite for a ray.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct WorldRay {
     pub origin: DVec3,
     pub dir: DVec3,
-    pub tmin: f64,
-    pub tmax: f64,
+    pub len: f64,
+    pub window_start: f64,
+    pub window_end: f64,
 }
 
 /// The map `canonical = (world - center) * scale`, `scale` a power of two.
@@ -74,6 +93,8 @@ pub(crate) struct Frame {
     center: DVec3,
     scale: f64,
     inv_scale: f64,
+    /// Half the bounding box's sides, canonical units (the box is centred on the origin).
+    half_extent: DVec3,
 }
 
 impl Frame {
@@ -95,7 +116,13 @@ impl Frame {
             }
         }
         let scale = pow2(exp);
-        Frame { center, scale, inv_scale: pow2(-exp) }
+        let half_extent = (max - min) * 0.5 * scale;
+        Frame {
+            center,
+            scale,
+            inv_scale: pow2(-exp),
+            half_extent,
+        }
     }
 
     /// Canonical units per scene unit (a power of two).
@@ -109,43 +136,85 @@ impl Frame {
     }
 
     /// World point -> canonical `f32` point (one rounding).
-    pub(crate) fn to_canonical(&self, p: Vec3) -> Vec3 {
+    pub(crate) fn canonical(&self, p: Vec3) -> Vec3 {
         ((p.as_dvec3() - self.center) * self.scale).as_vec3()
     }
 
     /// Canonical point -> world point.
-    pub(crate) fn to_world(&self, p: DVec3) -> Vec3 {
+    pub(crate) fn world(&self, p: DVec3) -> Vec3 {
         (self.center + p * self.inv_scale).as_vec3()
     }
 
-    /// How far (canonical units) a ray origin at world point `p` is lifted off its surface:
-    /// `max(CANONICAL_EPSILON, 2^-21 * max|p_i| * scale)`.
+    /// How far (canonical units) a ray origin at world point `p` is lifted off its surface, and
+    /// the half-width of the window around it: `max(CANONICAL_EPSILON, 2^-21 * max|p_i| * s)`.
     fn lift(&self, p: Vec3) -> f64 {
         let magnitude = p.abs().max_element() as f64 * self.scale;
         (magnitude * LIFT_PER_MAGNITUDE).max(CANONICAL_EPSILON as f64)
     }
 
+    /// The largest [`Frame::lift`] of a point within these bounds.
+    pub(crate) fn max_lift(&self, min: Vec3, max: Vec3) -> f64 {
+        self.lift(min.abs().max(max.abs()))
+    }
+
     /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero).
     fn lifted(&self, p: Vec3, normal: Vec3) -> DVec3 {
         let c = (p.as_dvec3() - self.center) * self.scale;
-        if normal == Vec3::ZERO { c } else { c + normal.as_dvec3() * self.lift(p) }
+        if normal == Vec3::ZERO {
+            c
+        } else {
+            c + normal.as_dvec3() * self.lift(p)
+        }
     }
 
-    /// `None` for rays that cannot hit anything (zero or non-finite direction or origin).
+    /// `None` for rays that cannot hit anything: zero or non-finite direction or origin, or an
+    /// origin outside the scene's box on a line that misses it.
     pub(crate) fn canonical_ray(&self, ray: &Ray) -> Option<CanonicalRay> {
-        let dir = ray.dir.normalize_or_zero();
+        let dir = positive_zeros(ray.dir.normalize_or_zero());
         if dir == Vec3::ZERO || !ray.origin.is_finite() {
             return None;
         }
         let normal = ray.origin_normal.normalize_or_zero();
-        let origin = self.lifted(ray.origin, normal).as_vec3();
+        let origin = self.lifted(ray.origin, normal);
+        let window = self.lift(ray.origin);
+        let skip = self.approach(origin, dir.as_dvec3(), window)?;
+        let (origin, window) = if skip > 0.0 {
+            ((origin + dir.as_dvec3() * skip).as_vec3(), 0.0)
+        } else {
+            (origin.as_vec3(), window as f32)
+        };
         if !origin.is_finite() {
             return None;
         }
-        Some(CanonicalRay { origin: origin.into(), dir: dir.into(), tmin: CANONICAL_MIN_DISTANCE })
+        Some(CanonicalRay {
+            origin: origin.into(),
+            dir: dir.into(),
+            window,
+            skip,
+        })
     }
 
-    /// `None` when there is no segment to block (coincident or non-finite end points).
+    /// How far to move an origin along `dir` before casting: `0` near the scene's box,
+    /// otherwise to a few windows before the box (which no surface is then within a window of),
+    /// `None` if the line misses the box. obvhs treats a zero direction component as
+    /// `±f32::EPSILON`, so a ray drifts off its line by `1.2e-7 * t`: a camera far away must not
+    /// start its traversal there.
+    fn approach(&self, origin: DVec3, dir: DVec3, window: f64) -> Option<f64> {
+        let margin = APPROACH_MARGIN.max(4.0 * window);
+        let half = self.half_extent + margin;
+        if origin.abs().cmple(half).all() {
+            return Some(0.0);
+        }
+        let inv = dir.recip();
+        let (a, b) = ((-half - origin) * inv, (half - origin) * inv);
+        // a zero component gives inf or NaN; NaN (origin on a slab face) is ignored by max/min
+        let enter = a.min(b).max_element();
+        let exit = a.max(b).min_element();
+        (enter <= exit && exit >= 0.0 && enter.is_finite()).then_some(enter.max(0.0))
+    }
+
+    /// `None` when there is nothing to block: non-finite end points, end points closer than
+    /// their two windows, or a segment that stays outside the scene's box.
     pub(crate) fn canonical_segment(
         &self,
         a: &SurfacePoint,
@@ -154,23 +223,33 @@ impl Frame {
         if !(a.point.is_finite() && b.point.is_finite()) {
             return None;
         }
-        let na = a.normal.normalize_or_zero();
-        let nb = b.normal.normalize_or_zero();
-        let pa = self.lifted(a.point, na);
-        let pb = self.lifted(b.point, nb);
+        let pa = self.lifted(a.point, a.normal.normalize_or_zero());
+        let pb = self.lifted(b.point, b.normal.normalize_or_zero());
         let delta = pb - pa;
         let len = delta.length();
-        let origin = pa.as_vec3();
-        if !(len > 0.0 && len.is_finite() && origin.is_finite()) {
+        let (window_start, window_end) = (self.lift(a.point), self.lift(b.point));
+        if !(len > window_start + window_end && len.is_finite()) {
             return None;
         }
-        let tmin = CANONICAL_MIN_DISTANCE;
-        let tmax = len as f32 - CANONICAL_MIN_DISTANCE;
-        if tmax <= tmin {
+        let dir = positive_zeros((delta / len).as_vec3());
+        let skip = self.approach(pa, dir.as_dvec3(), window_start)?;
+        let (origin, window_start) = if skip > 0.0 {
+            (pa + dir.as_dvec3() * skip, 0.0)
+        } else {
+            (pa, window_start)
+        };
+        let len = len - skip;
+        let origin = origin.as_vec3();
+        if !(len > window_start + window_end && origin.is_finite()) {
             return None;
         }
-        let dir = (delta / len).as_vec3();
-        Some(CanonicalSegment { origin: origin.into(), dir: dir.into(), tmin, tmax })
+        Some(CanonicalSegment {
+            origin: origin.into(),
+            dir: dir.into(),
+            len: len as f32,
+            window_start: window_start as f32,
+            window_end: window_end as f32,
+        })
     }
 
     /// The same ray as [`Frame::canonical_ray`], in world `f64` (`t` in scene units).
@@ -179,9 +258,15 @@ impl Frame {
         if dir == DVec3::ZERO || !ray.origin.is_finite() {
             return None;
         }
-        let normal = ray.origin_normal.normalize_or_zero();
-        let origin = self.world_lifted(ray.origin, normal);
-        Some(WorldRay { origin, dir, tmin: self.world_min_distance(), tmax: f64::INFINITY })
+        let origin = self.world_lifted(ray.origin, ray.origin_normal.normalize_or_zero());
+        let window = self.lift(ray.origin) * self.inv_scale;
+        Some(WorldRay {
+            origin,
+            dir,
+            len: f64::INFINITY,
+            window_start: window,
+            window_end: 0.0,
+        })
     }
 
     /// The same segment as [`Frame::canonical_segment`], in world `f64`.
@@ -189,31 +274,27 @@ impl Frame {
         if !(a.point.is_finite() && b.point.is_finite()) {
             return None;
         }
-        let na = a.normal.normalize_or_zero();
-        let nb = b.normal.normalize_or_zero();
-        let pa = self.world_lifted(a.point, na);
-        let pb = self.world_lifted(b.point, nb);
+        let pa = self.world_lifted(a.point, a.normal.normalize_or_zero());
+        let pb = self.world_lifted(b.point, b.normal.normalize_or_zero());
         let delta = pb - pa;
         let len = delta.length();
-        if !(len > 0.0 && len.is_finite()) {
+        let window_start = self.lift(a.point) * self.inv_scale;
+        let window_end = self.lift(b.point) * self.inv_scale;
+        if !(len > window_start + window_end && len.is_finite()) {
             return None;
         }
-        let tmin = self.world_min_distance();
-        let tmax = len - tmin;
-        if tmax <= tmin {
-            return None;
-        }
-        Some(WorldRay { origin: pa, dir: delta / len, tmin, tmax })
+        Some(WorldRay {
+            origin: pa,
+            dir: delta / len,
+            len,
+            window_start,
+            window_end,
+        })
     }
 
     /// `CANONICAL_EPSILON` in scene units.
     pub(crate) fn world_epsilon(&self) -> f64 {
         CANONICAL_EPSILON as f64 * self.inv_scale
-    }
-
-    /// `CANONICAL_MIN_DISTANCE` in scene units.
-    pub(crate) fn world_min_distance(&self) -> f64 {
-        CANONICAL_MIN_DISTANCE as f64 * self.inv_scale
     }
 
     fn world_lifted(&self, p: Vec3, normal: Vec3) -> DVec3 {
@@ -223,6 +304,13 @@ impl Frame {
             p.as_dvec3() + normal.as_dvec3() * (self.lift(p) * self.inv_scale)
         }
     }
+}
+
+/// `-0.0` components replaced by `+0.0`. obvhs 0.4 picks a ray's octant with `d < 0.0` (false
+/// for `-0.0`) but inverts `-0.0` to `-1/f32::EPSILON`, so its box test swaps entry and exit and
+/// a ray such as `-Vec3::Y` (which is `(-0, -1, -0)`) misses everything.
+fn positive_zeros(d: Vec3) -> Vec3 {
+    Vec3::select(d.cmpeq(Vec3::ZERO), Vec3::ZERO, d)
 }
 
 /// `2^exp`, exact for the exponents used here (|exp| < 1000).
@@ -263,11 +351,14 @@ mod tests {
     #[test]
     fn huge_and_degenerate_bounds_give_finite_frames() {
         let f = Frame::new(Vec3::splat(-f32::MAX), Vec3::splat(f32::MAX));
-        let corner = f.to_canonical(Vec3::splat(f32::MAX));
-        assert!(corner.is_finite() && corner.x > 256.0 && corner.x <= 512.0, "{corner}");
+        let corner = f.canonical(Vec3::splat(f32::MAX));
+        assert!(
+            corner.is_finite() && corner.x > 256.0 && corner.x <= 512.0,
+            "{corner}"
+        );
         let f = Frame::new(Vec3::ONE, Vec3::ONE);
         assert_eq!(f.scale(), 1.0);
-        assert_eq!(f.to_canonical(Vec3::ONE), Vec3::ZERO);
+        assert_eq!(f.canonical(Vec3::ONE), Vec3::ZERO);
     }
 
     #[test]
@@ -277,7 +368,7 @@ mod tests {
         assert_eq!(s.log2().fract(), 0.0);
         assert_eq!(s * f.inv_scale(), 1.0);
         let p = Vec3::new(0.3, 2.2, 2.1);
-        let back = f.to_world(f.to_canonical(p).as_dvec3());
+        let back = f.world(f.canonical(p).as_dvec3());
         assert!((back - p).abs().max_element() < 1e-6);
     }
 
@@ -289,7 +380,10 @@ mod tests {
         let lift = far.lift(Vec3::splat(1e4));
         // half an f32 ulp of 1e4 is 2^-11 scene units; the lift must be several times that
         let half_ulp = 2f64.powi(-11) * far.scale();
-        assert!(lift > 4.0 * half_ulp && lift < 16.0 * half_ulp, "{lift} vs {half_ulp}");
+        assert!(
+            lift > 4.0 * half_ulp && lift < 16.0 * half_ulp,
+            "{lift} vs {half_ulp}"
+        );
     }
 
     #[test]
@@ -297,8 +391,14 @@ mod tests {
         let f = Frame::new(Vec3::ZERO, Vec3::ONE);
         assert!(f.canonical_ray(&Ray::new(Vec3::ZERO, Vec3::ZERO)).is_none());
         assert!(f.canonical_ray(&Ray::new(Vec3::NAN, Vec3::X)).is_none());
-        assert!(f.canonical_ray(&Ray::new(Vec3::ZERO, Vec3::INFINITY)).is_none());
-        assert!(f.canonical_ray(&Ray::new(Vec3::splat(1e38), Vec3::X)).is_none());
+        assert!(
+            f.canonical_ray(&Ray::new(Vec3::ZERO, Vec3::INFINITY))
+                .is_none()
+        );
+        assert!(
+            f.canonical_ray(&Ray::new(Vec3::splat(1e38), Vec3::X))
+                .is_none()
+        );
         let p = SurfacePoint::new(Vec3::ZERO, Vec3::Y, 1);
         assert!(f.canonical_segment(&p, &p).is_none());
         assert!(f.world_segment(&p, &p).is_none());

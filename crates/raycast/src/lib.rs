@@ -4,75 +4,88 @@
 //! id (many triangles may share one id: a polygonal patch made of several coplanar triangles),
 //! and answers two questions through the [`RayCaster`] trait: *what does this ray hit first?*
 //! and *is anything between these two surface points?* [`Bvh`] answers them fast (an obvhs
-//! compressed wide BVH); [`BruteForce`] answers them slowly in `f64` and is the test oracle.
+//! compressed 8-wide BVH); [`BruteForce`] answers them slowly in `f64` and is the test oracle.
+//! Both report hits on either side of a triangle ([`Hit::front`] tells which) and never report
+//! the id a query excludes.
 //!
-//! Distances, points and bounds are always in **scene units** (whatever the input uses), and a
-//! ray's `t` is a Euclidean distance: directions are normalised by the caster.
+//! Distances, points and bounds are in **scene units** (whatever the input uses), and a
+//! distance is Euclidean: the casters normalise directions.
 //!
 //! # The canonical frame
 //!
-//! obvhs 0.4 has two unit-dependent behaviours (measured in `/work/shared/bench/raycast`):
+//! obvhs 0.4 has unit-dependent behaviour (measured in `/work/shared/bench/raycast`): its CWBVH
+//! node test clamps the entry distance to `t >= 1e-4` whatever the ray's `tmin`, so hits closer
+//! than `1e-4` *units* are lost (a Cornell box modelled in metres at millimetre scale loses
+//! hits, one in kilometres does not); and a ray starting on its own triangle with `tmin = 0`
+//! hits it again 35-79% of the time, while any fixed offset is too large for a small scene or
+//! too small for a big one.
 //!
-//! * its CWBVH node test clamps the entry distance to `t >= 1e-4` whatever the ray's `tmin`,
-//!   so a hit closer than `1e-4` *units* is lost: a Cornell box modelled in metres at
-//!   millimetre scale loses hits, one modelled in kilometres does not;
-//! * a ray starting on its own triangle with `tmin = 0` hits that triangle again 35-79% of the
-//!   time, and any fixed origin offset is either too large for a small scene or too small for a
-//!   big one.
+//! So [`Bvh::build`] maps the scene into a *canonical frame*: it translates by the centre of
+//! the bounding box and scales by a power of two `s` so that the largest side lies in
+//! `[512, 1024)`. A power-of-two scale is exact, and the map is evaluated in `f64` with one
+//! rounding to `f32`, so the same world point always lands on the same canonical point (shared
+//! vertices stay shared). Queries move their origin into the frame (a unit direction is
+//! unchanged; canonical `t` = `distance * s`) and hits come back in world units. A scene in
+//! millimetres and the same scene in kilometres see the same canonical numbers, and the obvhs
+//! cut-off is about `1e-7` of the scene.
 //!
-//! So [`Bvh::build`] maps the scene into a *canonical frame*: it translates by the centre of the
-//! bounding box and scales by a power of two `s` so that the largest side lies in `[512, 1024)`.
-//! A power-of-two scale is exact in floating point and the map is evaluated in `f64` with a
-//! single rounding to `f32`, so the same world point always lands on the same canonical point
-//! (shared vertices stay shared, coplanar points stay coplanar as far as `f32` allows). Queries
-//! move their origin into the frame (the unit direction is unchanged; canonical `t` =
-//! `distance * s`), and hits come back in world units. A scene in millimetres and the same
-//! scene in kilometres, near the origin or far from it, see the same canonical numbers, and
-//! the obvhs cut-off is about `1e-7` of the scene size.
+//! # Surface offsets and the window around an origin
 //!
-//! # Surface offsets
-//!
-//! A ray built by [`Ray::from_surface`] (and each end of an [`RayCaster::occluded`] query) is
+//! A ray from [`Ray::from_surface`] (and each end of an [`RayCaster::occluded`] query) is
 //! lifted off its surface along the given normal by
-//! `max(CANONICAL_EPSILON, 2^-21 * max|p_i| * s)` canonical units, where `p` is the world point,
-//! and hits closer than [`CANONICAL_EPSILON`] to the lifted origin are ignored. The primitive
-//! id of the origin is never reported (it is skipped inside the traversal), so a ray cannot hit
-//! its own patch whatever the geometry of that patch.
-//!
-//! [`CANONICAL_EPSILON`] is `2^-10` canonical units, about `1e-6` of the scene size:
-//! * it is 16 ulps of the largest canonical coordinate (an `f32` ulp at 512 is `2^-14`), well
-//!   above the rounding noise of the plane test in the intersection (a few ulps), so a lifted
-//!   origin is on the right side of its own plane and of coplanar neighbours;
-//! * it is about 10 times the obvhs node cut-off `1e-4`, so a lifted ray never starts inside the
-//!   blind zone of a node it must enter;
+//! `lift(p) = max(CANONICAL_EPSILON, 2^-21 * max|p_i| * s)` canonical units, `p` the world
+//! point. [`CANONICAL_EPSILON`] is `2^-10` canonical units, about `1e-6` of the scene:
+//! * 16 ulps of the largest canonical coordinate (an `f32` ulp at 512 is `2^-14`), well above
+//!   the rounding of a point and of a plane test at that magnitude (a few ulps), so a lifted
+//!   origin is above its own plane and those of coplanar neighbours;
+//! * about 10 times the obvhs node cut-off `1e-4`;
 //! * obvhs replaces a direction component `|d| <= f32::EPSILON` by `±1/f32::EPSILON` in its box
-//!   test, which can cull a box the ray runs along if the origin is closer than
-//!   `1774 * f32::EPSILON = 2.1e-4` canonical units to its face (1774 is the canonical
-//!   diagonal); the lift keeps grazing rays farther than that from the surface they leave;
-//! * it is small: patches of `1e-6` of the scene's area (side `1e-3` of its extent, about one
-//!   canonical unit) are a thousand times larger than the offset.
+//!   test, so a ray drifts off its line by `1.2e-7 * t`, at most `2.1e-4` across the canonical
+//!   diagonal (1774): the offset keeps a ray that runs along the surface it leaves inside the
+//!   boxes it must enter;
+//! * still small: a patch of `1e-6` of the scene's area (side `1e-3` of its extent, about one
+//!   canonical unit) is a thousand offsets wide.
 //!
-//! The second term only matters far from the world origin: a point given in world `f32` is only
-//! known to half an ulp of its largest coordinate (for a scene `1e4` extents away that is about
-//! `6e-4` of the extent, far more than `CANONICAL_EPSILON`). The caster cannot recover what the
-//! input lost, but the lift (4 such ulps) keeps such origins above their surface, so rays from
-//! a finely subdivided floor do not hit the coplanar neighbours of their patch. Near the origin
-//! (within about two extents) the lift is exactly `CANONICAL_EPSILON`.
+//! The second term only matters far from the world origin, where a point given in world `f32`
+//! is only known to half an ulp of its largest coordinate (`6e-4` of the extent for a scene
+//! `1e4` extents away, far more than `CANONICAL_EPSILON`). The caster cannot recover what the
+//! input lost, but the lift (4 such ulps) keeps such origins above their surface, so that rays
+//! from a finely cut floor do not hit the coplanar neighbours of their patch. Within about two
+//! extents of the world origin the lift is exactly `CANONICAL_EPSILON`.
+//!
+//! The lift cannot move an origin off *every* surface it is on: at the foot of a wall, the
+//! floor point lifted along the floor's normal still lies in the wall's plane, within rounding.
+//! A minimum hit distance would let a ray heading into the wall pass through it (and leave a
+//! closed room); none would let a ray leaving the wall hit its back at distance 0. So within a
+//! *window* of `lift(p)` around the origin (in `t`) the decision rests on orientation: a
+//! front-facing crossing within half a window of a triangle counts, at distance `max(t, 0)`;
+//! a back-facing one does not. Beyond the window a crossing counts on either side. A segment's
+//! end gets the mirror-image rule. Crossings next to an end point are decided in `f64` (the
+//! `f32` test's barycentrics err by about `2^-24 * size / cos` for a ray almost parallel to a
+//! plane). The same rules, in world `f64`, make the [`BruteForce`] oracle.
+//!
+//! # Other obvhs pitfalls handled here
+//!
+//! * The traversal starts two windows behind the origin, so that boxes holding crossings in the
+//!   window are not skipped by the `1e-4` node cut-off.
+//! * Primitive boxes are padded by the scene's largest window: a ray from the very corner of a
+//!   room touches the flat box of a wall only in a point, which the `f32` box test may miss.
+//! * A `-0.0` direction component makes obvhs's box test swap entry and exit (`-Vec3::Y` missed
+//!   everything); directions are cleaned of them.
+//! * The `±f32::EPSILON` drift above makes an axis-parallel ray from a camera far away miss the
+//!   scene: an origin far outside the scene's box is first moved along the ray to near the box.
+//! * An infinite vertex panics the obvhs build: builds reject non-finite vertices first.
+//! * obvhs keeps its traversal stack in 32 fixed entries; a pathologically deep BVH (millions
+//!   of triangles piled in one spot) could overflow it and lose hits (without a panic).
 //!
 //! # Watertightness is counted, not promised
 //!
-//! obvhs intersects with Möller-Trumbore, which is not watertight: a ray can slip through the
-//! shared edge of two triangles. Measured: about one ray in three million inside a closed,
-//! tessellated room escapes (the test suite checks a bound of `1e-5`). Callers that need a hit
-//! (radiosity in a closed scene) must treat a miss as a rare event, not as a bug.
-//!
-//! # Other caveats
-//!
-//! * Degenerate (zero-area) triangles are accepted and never hit.
-//! * A ray with a zero or non-finite direction or origin hits nothing; a segment with
-//!   coincident or non-finite end points is not occluded.
-//! * obvhs keeps its traversal stack in a fixed array of 32 entries; a pathologically deep BVH
-//!   (millions of triangles piled in one spot) could overflow it and lose hits (no panic).
+//! Away from its end points a ray is tested with obvhs's `f32` Möller-Trumbore, which is not
+//! watertight: a ray can slip through the shared edge of two triangles. Measured with obvhs
+//! alone: about one ray in three million inside a closed, tessellated room escapes. The test
+//! suite bounds the escape fraction at `1e-5` for rays from uniform surface points and from
+//! interior points of closed boxes. Callers that need a hit (radiosity in a closed scene) must
+//! count a miss as a rare event, not treat it as impossible.
 //!
 //! # Example
 //!
@@ -99,8 +112,8 @@
 
 mod brute;
 mod bvh;
-mod exact;
 mod error;
+mod exact;
 mod frame;
 
 use glam::Vec3;
@@ -113,14 +126,10 @@ pub use error::BuildError;
 /// it ([`BuildError::ReservedId`]).
 pub const NO_ID: u32 = u32::MAX;
 
-/// The basic surface offset of ray origins, in canonical units (`2^-10`, about `1e-6`
-/// of the scene's largest extent). See the crate documentation for why this value.
+/// The surface offset of ray origins near the world origin, and the half-width of the window
+/// around them, in canonical units (`2^-10`, about `1e-6` of the scene's largest extent). See
+/// the crate documentation for why this value and how it grows far from the world origin.
 pub const CANONICAL_EPSILON: f32 = 1.0 / 1024.0;
-
-/// Hits closer than this to a ray's (offset) origin are ignored, in canonical units (`2^-13`,
-/// about `1e-7` of the scene's largest extent); the same margin is kept at both ends of a
-/// visibility segment. See the crate documentation for why this value.
-pub const CANONICAL_MIN_DISTANCE: f32 = 1.0 / 8192.0;
 
 /// A ray; distances along it are in scene units.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -130,8 +139,9 @@ pub struct Ray {
     /// Direction; should be a unit vector (the casters normalise it anyway, so hit distances are
     /// Euclidean). A zero or non-finite direction hits nothing.
     pub dir: Vec3,
-    /// Unit geometric normal of the surface the ray leaves, or `Vec3::ZERO` for a free point.
-    /// A non-zero normal makes the caster lift the origin along it (see the crate documentation).
+    /// Unit geometric normal of the surface the ray leaves, or `Vec3::ZERO` for a free point
+    /// (a non-finite normal counts as zero). A non-zero normal makes the caster lift the origin
+    /// along it (see the crate documentation).
     pub origin_normal: Vec3,
     /// Primitive id never reported as the hit ([`NO_ID`]: none).
     pub exclude: u32,
@@ -140,14 +150,24 @@ pub struct Ray {
 impl Ray {
     /// A ray from a free point (a camera): `origin_normal = ZERO`, `exclude = NO_ID`.
     pub fn new(origin: Vec3, dir: Vec3) -> Ray {
-        Ray { origin, dir, origin_normal: Vec3::ZERO, exclude: NO_ID }
+        Ray {
+            origin,
+            dir,
+            origin_normal: Vec3::ZERO,
+            exclude: NO_ID,
+        }
     }
 
     /// A ray leaving the surface of primitive `id` at `point` (scene units), where `normal` is
     /// the unit geometric normal of that surface (`dir · normal > 0` expected). The caster
     /// offsets the origin along `normal` by its own epsilon and never reports `id` as the hit.
     pub fn from_surface(point: Vec3, normal: Vec3, dir: Vec3, id: u32) -> Ray {
-        Ray { origin: point, dir, origin_normal: normal, exclude: id }
+        Ray {
+            origin: point,
+            dir,
+            origin_normal: normal,
+            exclude: id,
+        }
     }
 }
 
@@ -156,8 +176,8 @@ impl Ray {
 pub struct SurfacePoint {
     /// Position (scene units).
     pub point: Vec3,
-    /// Unit geometric normal of the surface on the side the segment leaves (or arrives)
-    /// from, or `Vec3::ZERO` for a free point (no offset).
+    /// Unit geometric normal of the surface, on the side the segment leaves from (or arrives
+    /// at), or `Vec3::ZERO` for a free point (no offset).
     pub normal: Vec3,
     /// Primitive id of the surface ([`NO_ID`] for a free point); never counts as a blocker.
     pub id: u32,
@@ -171,7 +191,11 @@ impl SurfacePoint {
 
     /// A point on no surface (a light or eye position): no offset, no excluded id.
     pub fn free(point: Vec3) -> SurfacePoint {
-        SurfacePoint { point, normal: Vec3::ZERO, id: NO_ID }
+        SurfacePoint {
+            point,
+            normal: Vec3::ZERO,
+            id: NO_ID,
+        }
     }
 }
 
@@ -182,7 +206,7 @@ pub struct Hit {
     pub id: u32,
     /// Distance from the ray's (offset) origin to the hit, in scene units. For a surface ray
     /// this differs from the distance to [`Ray::origin`] by at most the offset (about `1e-6` of
-    /// the scene's extent).
+    /// the scene's extent); a surface the ray starts on and walks into is hit at distance 0.
     pub distance: f32,
     /// The hit point, in scene units.
     pub point: Vec3,
