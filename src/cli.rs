@@ -1,6 +1,7 @@
 //! The command line (its flags are the contract of `ARCHITECTURE.md`).
 
 use clap::{Parser, Subcommand, ValueEnum};
+use mcrad_export::render::Exposure;
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -64,9 +65,71 @@ pub struct Solve {
     /// Write run statistics as JSON.
     #[arg(long, value_name = "F.json")]
     pub stats: Option<PathBuf>,
+    /// Render the solution: .png (tone-mapped sRGB) or .exr (linear radiance, W/(m² sr)).
+    #[arg(long, value_name = "F.png|F.exr")]
+    pub image: Option<PathBuf>,
+    /// Write the mesh with baked per-vertex radiosity (COLOR_0, and exact values in `_RADIOSITY`).
+    #[arg(long, value_name = "F.glb")]
+    pub gltf: Option<PathBuf>,
+    /// Pinhole camera: eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES] (vertical fov, default 40).
+    /// Default: the scene file's camera, else one framed automatically.
+    #[arg(long, value_name = "SPEC", value_parser = crate::camera_arg::parse_camera, allow_hyphen_values = true)]
+    pub camera: Option<crate::camera_arg::CameraArg>,
+    /// Image size in pixels.
+    #[arg(long, value_name = "WxH", default_value = "512x512", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Rays per pixel (anti-aliasing); a square number is stratified.
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub spp: u32,
+    /// PNG exposure: `auto` (the 99th percentile of luminance maps near white) or stops
+    /// (radiance × 2^stops; 0 shows 1 W/(m² sr) as white).
+    #[arg(long, value_name = "auto|STOPS", default_value = "auto", value_parser = parse_exposure, allow_hyphen_values = true)]
+    pub exposure: Exposure,
+    /// Shading of renders: smooth (radiosity reconstructed at vertices, interpolated) or flat
+    /// (one colour per patch).
+    #[arg(long, value_enum, default_value_t = ShadingArg::Smooth)]
+    pub shading: ShadingArg,
+    /// Vertex radiosity averages only across patches whose normals differ by less than this
+    /// (degrees), and never across materials.
+    #[arg(long, value_name = "DEGREES", default_value_t = mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)]
+    pub crease: f32,
     /// No progress bar and no summary line (errors and warnings still go to stderr).
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+/// How renders are shaded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ShadingArg {
+    /// Vertex radiosity interpolated across each patch.
+    Smooth,
+    /// One colour per patch.
+    Flat,
+}
+
+/// Parses `WxH`.
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
+    let side = |v: &str| match v.trim().parse::<u32>() {
+        Ok(n) if (1..=16384).contains(&n) => Ok(n),
+        _ => Err(format!("'{v}' is not a side of 1 to 16384 pixels")),
+    };
+    Ok((side(w)?, side(h)?))
+}
+
+/// Parses `auto` or a number of stops.
+fn parse_exposure(s: &str) -> Result<Exposure, String> {
+    if s.eq_ignore_ascii_case("auto") {
+        return Ok(Exposure::Auto);
+    }
+    match s.parse::<f32>() {
+        Ok(stops) if stops.is_finite() && stops.abs() <= 64.0 => Ok(Exposure::Stops(stops)),
+        _ => Err(format!(
+            "'{s}' is neither 'auto' nor a number of stops in [-64, 64]"
+        )),
+    }
 }
 
 /// Parses a count written as an integer (`2000000`) or in float notation (`2e6`).
@@ -87,7 +150,21 @@ fn parse_count(s: &str) -> Result<u64, String> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_count;
+    use super::{parse_count, parse_exposure, parse_size};
+    use mcrad_export::render::Exposure;
+
+    #[test]
+    fn sizes_and_exposures_parse() {
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(
+            parse_size("0x10").is_err()
+                && parse_size("10").is_err()
+                && parse_size("20000x10").is_err()
+        );
+        assert_eq!(parse_exposure("auto"), Ok(Exposure::Auto));
+        assert_eq!(parse_exposure("-1.5"), Ok(Exposure::Stops(-1.5)));
+        assert!(parse_exposure("bright").is_err() && parse_exposure("inf").is_err());
+    }
 
     #[test]
     fn counts_accept_integers_and_float_notation() {

@@ -1,6 +1,8 @@
 //! `mcrad`: stochastic radiosity from the command line. See `mcrad --help` and README.md.
 
+mod camera_arg;
 mod cli;
+mod output;
 mod solve;
 
 use clap::Parser;

@@ -29,6 +29,7 @@ pub fn run(args: &Solve) -> Result<()> {
 }
 
 fn solve(args: &Solve, threads: usize) -> Result<()> {
+    crate::output::check(args)?;
     let setup = Instant::now();
     let loaded = mcrad_scene_io::load(&args.scene)?;
     for warning in &loaded.warnings {
@@ -74,7 +75,6 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         }
     };
     let seconds = start.elapsed().as_secs_f64();
-    bar.finish_and_clear();
 
     if let Some(path) = &args.patches {
         let rows = mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
@@ -108,6 +108,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     if let Some(path) = &args.stats {
         run.write_json(create(path)?)?;
     }
+    crate::output::write(args, &mesh, &bvh, estimate.radiosity(), loaded.camera, &bar)?;
+    bar.finish_and_clear();
     if !args.quiet {
         println!(
             "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} waves, {:.2}% unshot, {} escaped rays, {} threads)",

@@ -1,5 +1,7 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
+mod regress;
+
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -10,13 +12,30 @@ cargo xtask <task>
 tasks:
   ci      what CI runs: cargo fmt --check, clippy -D warnings, the release test suite
   bench   the shooting benchmark (criterion), then a table of its medians in Mrays/s
+  regress golden-image regression of the bundled scenes (scenes/golden/);
+          `regress --bless` re-renders the goldens and re-measures their noise thresholds
 ";
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<()> {
     let task = std::env::args().nth(1);
     match task.as_deref() {
         Some("ci") => ci(),
         Some("bench") => bench(),
+        Some("regress") => {
+            let bless = std::env::args().nth(2).as_deref() == Some("--bless");
+            cargo(&["build", "--release", "--bin", "mcrad"])?;
+            regress::run(&root(), &root().join("target/release/mcrad"), bless)
+        }
         Some("help" | "-h" | "--help") | None => {
             print!("{HELP}");
             Ok(())

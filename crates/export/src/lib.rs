@@ -3,9 +3,13 @@
 //!
 //! Writers take any [`std::io::Write`] and never print; the caller owns files and messages.
 
+pub mod compare;
+mod gltf_out;
 mod patches;
+pub mod render;
 mod stats;
 
+pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
 pub use patches::{PatchRow, write_patch_csv};
 pub use stats::RunStats;
 
@@ -29,5 +33,12 @@ pub enum ExportError {
         /// The underlying error.
         #[source]
         source: serde_json::Error,
+    },
+    /// The glTF output could not be assembled: inconsistent or non-finite input, or a file too
+    /// large for GLB.
+    #[error("could not write glTF: {reason}")]
+    Gltf {
+        /// What is wrong, with the offending values.
+        reason: String,
     },
 }

@@ -183,6 +183,31 @@ impl Mesh {
         &self.corners[s..s + patch.corner_count as usize]
     }
 
+    /// The global corner index of corner 0 of patch number `patch_index` (its index in
+    /// [`Mesh::patches`]). Corners are numbered patch by patch in mesh order, each patch's in
+    /// [`Mesh::corners`] order, so corner `k` of patch `p` is `corner_offset(p) + k`: the sum of
+    /// the corner counts of patches `0..p`, plus `k`. Per-corner arrays (e.g.
+    /// [`Mesh::corner_radiosity`]) are indexed this way. `corner_offset(patches().len())` is
+    /// [`Mesh::corner_count`].
+    ///
+    /// # Panics
+    /// If `patch_index > patches().len()`.
+    pub fn corner_offset(&self, patch_index: usize) -> usize {
+        match self.patches.get(patch_index) {
+            Some(p) => p.first_corner as usize,
+            None if patch_index == self.patches.len() => self.corners.len(),
+            None => panic!(
+                "patch index {patch_index} out of range ({} patches)",
+                self.patches.len()
+            ),
+        }
+    }
+
+    /// The number of patch corners over all patches: the length of per-corner arrays.
+    pub fn corner_count(&self) -> usize {
+        self.corners.len()
+    }
+
     /// All triangles (vertex indices), grouped by patch in patch order; counter-clockwise from
     /// the front.
     pub fn triangles(&self) -> &[[u32; 3]] {

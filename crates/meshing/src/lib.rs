@@ -14,9 +14,11 @@
 //! they do not, the mesh has T-junctions, which patch radiosity does not mind.
 
 mod build;
+mod smooth;
 mod subdivide;
 
 pub use build::{Mesh, MeshError, Patch, Subdivision};
+pub use smooth::DEFAULT_CREASE_ANGLE_DEGREES;
 
 #[cfg(test)]
 mod tests;

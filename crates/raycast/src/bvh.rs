@@ -158,7 +158,8 @@ impl Bvh {
         let shift = 2.0 * window;
         let r = ObRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let test = |tri: &RtTriangle| candidate(tri, &q).map_or(f32::INFINITY, |t| t + shift);
+        let test =
+            |tri: &RtTriangle| candidate::<false>(tri, &q).map_or(f32::INFINITY, |t| t + shift);
         let mut hit = RayHit::none();
         let found = if exclude == NO_ID {
             self.cwbvh
@@ -258,7 +259,7 @@ impl Query {
 /// the segment's end), within `SLACK` of the triangle or within the windows, is re-decided
 /// exactly with the rules of [`exact::ray_rule`] and [`exact::segment_rule`].
 #[inline(always)]
-fn candidate(tri: &RtTriangle, q: &Query) -> Option<f32> {
+fn candidate<const SEGMENT: bool>(tri: &RtTriangle, q: &Query) -> Option<f32> {
     let c = tri.v0 - q.origin;
     let r = q.dir.cross(c);
     let inv_det = 1.0 / tri.ng.dot(q.dir);
@@ -268,9 +269,10 @@ fn candidate(tri: &RtTriangle, q: &Query) -> Option<f32> {
     // signed distance of the origin to the plane, times |ng|
     let plane = tri.ng.dot(c);
     let t = plane * inv_det;
-    if !(u > -SLACK && v > -SLACK && w > -SLACK) {
+    if !((u > -SLACK) & (v > -SLACK) & (w > -SLACK)) {
         // clearly outside (the common case): only the windows look beyond the triangle
-        let in_window = t.abs() < 2.0 * q.window_start || (t - q.len).abs() < 2.0 * q.window_end;
+        let in_window =
+            t.abs() < 2.0 * q.window_start || (SEGMENT && (t - q.len).abs() < 2.0 * q.window_end);
         return if in_window {
             near_end_point(tri, q, t)
         } else {
@@ -278,7 +280,7 @@ fn candidate(tri: &RtTriangle, q: &Query) -> Option<f32> {
         };
     }
     let near_plane = plane * plane < q.near_start * q.near_start * tri.ng.length_squared();
-    if !near_plane && (t - q.len).abs() >= q.near_end {
+    if !near_plane && (!SEGMENT || (t - q.len).abs() >= q.near_end) {
         // |t| >= near_start > window_start, |t - len| >= near_end: no window rule applies
         let inside = u >= 0.0 && v >= 0.0 && w >= 0.0;
         return (inside && t > 0.0 && t < q.len).then_some(t);
@@ -370,7 +372,7 @@ impl RayCaster for Bvh {
             if id == ia || id == ib {
                 return f32::INFINITY;
             }
-            candidate(&self.tris[slot], &q).map_or(f32::INFINITY, |_| shift)
+            candidate::<true>(&self.tris[slot], &q).map_or(f32::INFINITY, |_| shift)
         })
     }
 }

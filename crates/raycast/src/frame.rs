@@ -12,6 +12,18 @@ use crate::{BuildError, CANONICAL_EPSILON, NO_ID, Ray, SurfacePoint};
 /// moved to it before casting (see [`Frame::approach`]).
 const APPROACH_MARGIN: f64 = 8.0;
 
+/// Origins (rounded to `f32`) within this of the scene's box take the fast path of
+/// [`Frame::canonical_ray`] and [`Frame::canonical_segment`]: no approach. Half of
+/// [`APPROACH_MARGIN`], so that the `f64` origin (within `2^-14` of the `f32` one: canonical
+/// coordinates there are below 1024) is inside the approach box too.
+const INNER_MARGIN: f64 = 0.5 * APPROACH_MARGIN;
+
+/// A direction or normal whose squared length is within this of 1 is used as it is. `f32`
+/// normalisation itself only gets the squared length to within about 3 such ulps
+/// (`f32::EPSILON`) of 1, so renormalising would not make it any more unit; it would only cost a
+/// square root and a division at the start of every query.
+const UNIT_TOLERANCE: f32 = 4.0 * f32::EPSILON;
+
 /// Lower end of the canonical extent: the largest bounding-box side lies in `[512, 1024)`.
 const CANONICAL_EXTENT_MIN: f64 = 512.0;
 
@@ -87,21 +99,41 @@ pub(crate) struct WorldRay {
     pub window_end: f64,
 }
 
-/// The map `canonical = (world - center) * scale`, `scale` a power of two.
+/// The map `canonical = (world - center) * scale`, `scale` a power of two and `center` an `f32`
+/// point (the box's centre rounded to `f32`).
+///
+/// Because both are exact in `f32`, the `f32` formula `(p - center) * scale` (one correctly
+/// rounded subtraction, an exact scaling) gives the same canonical point as the `f64` one with
+/// one rounding, which lets the hot path of [`Frame::canonical_ray`] stay in `f32`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Frame {
     center: DVec3,
     scale: f64,
     inv_scale: f64,
-    /// Half the bounding box's sides, canonical units (the box is centred on the origin).
+    /// Half the sides of a box centred on the canonical origin that holds the scene
+    /// (canonical units).
     half_extent: DVec3,
+    /// `half_extent + INNER_MARGIN` in `f32`: origins within it need no approach.
+    inner: Vec3A,
+    /// `center` in `f32` (exact).
+    center32: Vec3A,
+    /// `scale` in `f32` (exact), or 0 when it is not a normal `f32` (scenes smaller than about
+    /// `2^-117` units): the `f32` path is then never taken.
+    scale32: f32,
+    /// Points with `max|p_i|` at most this have `lift(p) == CANONICAL_EPSILON` (`-1` when
+    /// `scale32` is 0).
+    eps_magnitude: f32,
 }
 
 impl Frame {
     /// The frame of a scene with these (finite) bounds.
     pub(crate) fn new(min: Vec3, max: Vec3) -> Frame {
+        // the centre rounded to the nearest f32, which lies between `min` and `max` on each axis
+        // (they are f32 too), so the box around it still holds the scene within one extent
+        let center = ((min.as_dvec3() + max.as_dvec3()) * 0.5)
+            .as_vec3()
+            .as_dvec3();
         let (min, max) = (min.as_dvec3(), max.as_dvec3());
-        let center = (min + max) * 0.5;
         let extent = (max - min).max_element();
         let mut exp: i32 = 0;
         if extent > 0.0 {
@@ -116,12 +148,31 @@ impl Frame {
             }
         }
         let scale = pow2(exp);
-        let half_extent = (max - min) * 0.5 * scale;
+        let half_extent = (max - center).max(center - min) * scale;
+        let scale32 = if (f32::MIN_POSITIVE as f64..=f32::MAX as f64).contains(&scale) {
+            scale as f32
+        } else {
+            0.0
+        };
+        // lift(p) == CANONICAL_EPSILON  <=>  max|p_i| * scale <= 2^-10 / 2^-21 = 2^11
+        let eps_magnitude = pow2(11 - exp);
+        let mut eps_magnitude32 = eps_magnitude as f32;
+        if eps_magnitude32 as f64 > eps_magnitude {
+            eps_magnitude32 = eps_magnitude32.next_down();
+        }
+        if scale32 == 0.0 {
+            // no f32 path: no point qualifies
+            eps_magnitude32 = -1.0;
+        }
         Frame {
             center,
             scale,
             inv_scale: pow2(-exp),
             half_extent,
+            inner: (half_extent + INNER_MARGIN).as_vec3().into(),
+            center32: center.as_vec3().into(),
+            scale32,
+            eps_magnitude: eps_magnitude32,
         }
     }
 
@@ -157,26 +208,89 @@ impl Frame {
         self.lift(min.abs().max(max.abs()))
     }
 
-    /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero).
-    fn lifted(&self, p: Vec3, normal: Vec3) -> DVec3 {
-        let c = (p.as_dvec3() - self.center) * self.scale;
+    /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero),
+    /// `lift` being [`Frame::lift`] of `p`: the canonical point (rounded to `f32` like a
+    /// vertex) plus the lift, in `f64`. Rounded to `f32`, that is one rounding of the exact
+    /// sum for any normal component above about `2^-19`.
+    #[inline(always)]
+    fn lifted(&self, p: Vec3, normal: Vec3, lift: f64) -> DVec3 {
+        let c = self.canonical(p).as_dvec3();
         if normal == Vec3::ZERO {
             c
         } else {
-            c + normal.as_dvec3() * self.lift(p)
+            c + normal.as_dvec3() * lift
         }
+    }
+
+    /// Whether an origin (canonical `f32`) is close enough to the scene's box that
+    /// [`Frame::approach`] would not move it (and is finite).
+    #[inline(always)]
+    fn needs_no_approach(&self, origin: Vec3A) -> bool {
+        origin.abs().cmple(self.inner).all()
     }
 
     /// `None` for rays that cannot hit anything: zero or non-finite direction or origin, or an
     /// origin outside the scene's box on a line that misses it.
+    ///
+    /// The common case (unit direction, unit or zero normal, origin in the scene's box: every
+    /// surface ray) is inlined; the rest is [`Frame::canonical_ray_general`], which gives the
+    /// same result for the common case too.
+    #[inline(always)]
     pub(crate) fn canonical_ray(&self, ray: &Ray) -> Option<CanonicalRay> {
-        let dir = positive_zeros(ray.dir.normalize_or_zero());
+        if is_unit(ray.dir.length_squared())
+            && let Some(normal) = self.epsilon_lift_normal(ray.origin, ray.origin_normal)
+        {
+            // `Frame::lifted` in f32: the canonical point is exact in f32 (see `Frame`) and so
+            // is the lift `normal * 2^-10`, so the one rounding of their sum is the only one
+            let origin = self.canonical32(ray.origin) + normal * CANONICAL_EPSILON;
+            if self.needs_no_approach(origin) {
+                return Some(CanonicalRay {
+                    origin,
+                    dir: positive_zeros(ray.dir).into(),
+                    window: CANONICAL_EPSILON,
+                    skip: 0.0,
+                });
+            }
+        }
+        self.canonical_ray_general(ray)
+    }
+
+    /// The canonical point of `p` by the `f32` formula: the same as [`Frame::canonical`] when
+    /// `scale32` is not 0 and the result is finite.
+    #[inline(always)]
+    fn canonical32(&self, p: Vec3) -> Vec3A {
+        (Vec3A::from(p) - self.center32) * self.scale32
+    }
+
+    /// For a point whose lift is `CANONICAL_EPSILON` (and `scale32 != 0`) and a normal that
+    /// [`is_unit`] or has squared length 0: the normal [`unit_or_zero`] makes of it.
+    #[inline(always)]
+    fn epsilon_lift_normal(&self, p: Vec3, normal: Vec3) -> Option<Vec3A> {
+        let n2 = normal.length_squared();
+        // (a NaN coordinate may slip through `max_element`; it makes the result non-finite)
+        if p.abs().max_element() > self.eps_magnitude {
+            None
+        } else if is_unit(n2) {
+            Some(normal.into())
+        } else if n2 == 0.0 {
+            // what `normalize_or_zero` makes of it
+            Some(Vec3A::ZERO)
+        } else {
+            None
+        }
+    }
+
+    /// [`Frame::canonical_ray`] for any ray.
+    #[cold]
+    #[inline(never)]
+    fn canonical_ray_general(&self, ray: &Ray) -> Option<CanonicalRay> {
+        let dir = positive_zeros(unit_or_zero(ray.dir));
         if dir == Vec3::ZERO || !ray.origin.is_finite() {
             return None;
         }
-        let normal = ray.origin_normal.normalize_or_zero();
-        let origin = self.lifted(ray.origin, normal);
+        let normal = unit_or_zero(ray.origin_normal);
         let window = self.lift(ray.origin);
+        let origin = self.lifted(ray.origin, normal, window);
         let skip = self.approach(origin, dir.as_dvec3(), window)?;
         let (origin, window) = if skip > 0.0 {
             ((origin + dir.as_dvec3() * skip).as_vec3(), 0.0)
@@ -199,6 +313,7 @@ impl Frame {
     /// `None` if the line misses the box. obvhs treats a zero direction component as
     /// `±f32::EPSILON`, so a ray drifts off its line by `1.2e-7 * t`: a camera far away must not
     /// start its traversal there.
+    #[inline(never)]
     fn approach(&self, origin: DVec3, dir: DVec3, window: f64) -> Option<f64> {
         let margin = APPROACH_MARGIN.max(4.0 * window);
         let half = self.half_extent + margin;
@@ -215,7 +330,33 @@ impl Frame {
 
     /// `None` when there is nothing to block: non-finite end points, end points closer than
     /// their two windows, or a segment that stays outside the scene's box.
+    ///
+    /// Inlined for the common case (unit or zero normals, lifts of `CANONICAL_EPSILON`: the
+    /// canonical points come from the `f32` formula, which is exact); the rest is
+    /// [`Frame::canonical_segment_general`], which gives the same result for the common case.
+    #[inline(always)]
     pub(crate) fn canonical_segment(
+        &self,
+        a: &SurfacePoint,
+        b: &SurfacePoint,
+    ) -> Option<CanonicalSegment> {
+        if let (Some(na), Some(nb)) = (
+            self.epsilon_lift_normal(a.point, a.normal),
+            self.epsilon_lift_normal(b.point, b.normal),
+        ) {
+            // `Frame::lifted`; non-finite points give a non-finite length, hence `None`
+            let eps = CANONICAL_EPSILON as f64;
+            let pa = self.canonical32(a.point).as_dvec3() + na.as_dvec3() * eps;
+            let pb = self.canonical32(b.point).as_dvec3() + nb.as_dvec3() * eps;
+            return self.segment_between(pa, pb, eps, eps);
+        }
+        self.canonical_segment_general(a, b)
+    }
+
+    /// [`Frame::canonical_segment`] for any end points.
+    #[cold]
+    #[inline(never)]
+    fn canonical_segment_general(
         &self,
         a: &SurfacePoint,
         b: &SurfacePoint,
@@ -223,15 +364,38 @@ impl Frame {
         if !(a.point.is_finite() && b.point.is_finite()) {
             return None;
         }
-        let pa = self.lifted(a.point, a.normal.normalize_or_zero());
-        let pb = self.lifted(b.point, b.normal.normalize_or_zero());
+        let (window_start, window_end) = (self.lift(a.point), self.lift(b.point));
+        let pa = self.lifted(a.point, unit_or_zero(a.normal), window_start);
+        let pb = self.lifted(b.point, unit_or_zero(b.normal), window_end);
+        self.segment_between(pa, pb, window_start, window_end)
+    }
+
+    /// The segment between two lifted end points (canonical `f64`) with these windows.
+    #[inline(always)]
+    fn segment_between(
+        &self,
+        pa: DVec3,
+        pb: DVec3,
+        window_start: f64,
+        window_end: f64,
+    ) -> Option<CanonicalSegment> {
         let delta = pb - pa;
         let len = delta.length();
-        let (window_start, window_end) = (self.lift(a.point), self.lift(b.point));
         if !(len > window_start + window_end && len.is_finite()) {
             return None;
         }
         let dir = positive_zeros((delta / len).as_vec3());
+        let near = Vec3A::from(pa.as_vec3());
+        if self.needs_no_approach(near) {
+            // what follows with `skip = 0`
+            return Some(CanonicalSegment {
+                origin: near,
+                dir: dir.into(),
+                len: len as f32,
+                window_start: window_start as f32,
+                window_end: window_end as f32,
+            });
+        }
         let skip = self.approach(pa, dir.as_dvec3(), window_start)?;
         let (origin, window_start) = if skip > 0.0 {
             (pa + dir.as_dvec3() * skip, 0.0)
@@ -258,7 +422,7 @@ impl Frame {
         if dir == DVec3::ZERO || !ray.origin.is_finite() {
             return None;
         }
-        let origin = self.world_lifted(ray.origin, ray.origin_normal.normalize_or_zero());
+        let origin = self.world_lifted(ray.origin, unit_or_zero(ray.origin_normal));
         let window = self.lift(ray.origin) * self.inv_scale;
         Some(WorldRay {
             origin,
@@ -274,8 +438,8 @@ impl Frame {
         if !(a.point.is_finite() && b.point.is_finite()) {
             return None;
         }
-        let pa = self.world_lifted(a.point, a.normal.normalize_or_zero());
-        let pb = self.world_lifted(b.point, b.normal.normalize_or_zero());
+        let pa = self.world_lifted(a.point, unit_or_zero(a.normal));
+        let pb = self.world_lifted(b.point, unit_or_zero(b.normal));
         let delta = pb - pa;
         let len = delta.length();
         let window_start = self.lift(a.point) * self.inv_scale;
@@ -303,6 +467,23 @@ impl Frame {
         } else {
             p.as_dvec3() + normal.as_dvec3() * (self.lift(p) * self.inv_scale)
         }
+    }
+}
+
+/// A squared length close enough to 1 (see [`UNIT_TOLERANCE`]).
+#[inline(always)]
+fn is_unit(length_squared: f32) -> bool {
+    (length_squared - 1.0).abs() <= UNIT_TOLERANCE
+}
+
+/// `v` normalised, or zero (zero, tiny, huge or non-finite `v`, as `normalize_or_zero`); a `v`
+/// that [`is_unit`] already is returned as it is.
+#[inline(always)]
+fn unit_or_zero(v: Vec3) -> Vec3 {
+    if is_unit(v.length_squared()) {
+        v
+    } else {
+        v.normalize_or_zero()
     }
 }
 

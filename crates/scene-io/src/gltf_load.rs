@@ -3,7 +3,7 @@
 //! `emissiveFactor * KHR_materials_emissive_strength` as the emitted radiance `L`, so `E = pi L`.
 
 use crate::error::{Location, SceneError, Warning};
-use crate::{Face, Loaded, Material, Scene};
+use crate::{Camera, Face, Loaded, Material, Scene};
 use glam::{Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
@@ -29,7 +29,8 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// `E = pi * emissiveFactor * emissiveStrength` in W/m². Textures are ignored
 /// ([`Warning::TexturesIgnored`]). Primitives without a material get
 /// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
-/// ([`Warning::DefaultMaterial`]). Skins, morph targets and cameras are ignored.
+/// ([`Warning::DefaultMaterial`]). Skins and morph targets are ignored; the first perspective camera in node order becomes
+/// [`Loaded::camera`] (its node's world transform applied; orthographic cameras are ignored).
 ///
 /// Errors name the file and, for geometry, the node, mesh and primitive.
 pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
@@ -62,7 +63,11 @@ pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
         defaulted: 0,
         skipped: 0,
     };
+    let mut camera = None;
     walk_scene(&document, |node, world| {
+        if camera.is_none() {
+            camera = node.camera().and_then(|c| perspective(&c, world));
+        }
         let Some(mesh) = node.mesh() else {
             return Ok(());
         };
@@ -99,7 +104,35 @@ pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
     let (scene, more) =
         Scene::new(geometry.positions, geometry.faces, materials).map_err(in_file)?;
     warnings.extend(more);
-    Ok(Loaded { scene, warnings })
+    Ok(Loaded {
+        scene,
+        warnings,
+        camera,
+    })
+}
+
+/// A glTF perspective camera placed by its node's world transform: glTF cameras look along
+/// their local `-z` with `+y` up. `None` for orthographic cameras and degenerate transforms.
+fn perspective(camera: &gltf::Camera, world: Mat4) -> Option<Camera> {
+    let gltf::camera::Projection::Perspective(p) = camera.projection() else {
+        return None;
+    };
+    let eye = world.transform_point3(Vec3::ZERO);
+    let forward = world.transform_vector3(-Vec3::Z).normalize_or_zero();
+    let up = world.transform_vector3(Vec3::Y);
+    let up = (up - forward * up.dot(forward)).normalize_or_zero();
+    let fov_y_degrees = p.yfov().to_degrees();
+    let valid = eye.is_finite()
+        && forward != Vec3::ZERO
+        && up != Vec3::ZERO
+        && fov_y_degrees > 0.0
+        && fov_y_degrees < 180.0;
+    valid.then_some(Camera {
+        eye,
+        forward,
+        up,
+        fov_y_degrees,
+    })
 }
 
 /// Checks that every primitive's `POSITION` names an existing accessor.

@@ -51,6 +51,7 @@ mod scene;
 pub use error::{Location, SceneError, Warning};
 pub use scene::{Bounds, Face, Material, Scene};
 
+use glam::Vec3;
 use std::path::Path;
 
 /// A loaded scene together with the repairs made while loading it.
@@ -60,6 +61,22 @@ pub struct Loaded {
     pub scene: Scene,
     /// Repairs made on the way (each one counted), for the caller to report.
     pub warnings: Vec<Warning>,
+    /// The file's viewpoint, when it has one (glTF: the first perspective camera in node
+    /// order; OBJ has none).
+    pub camera: Option<Camera>,
+}
+
+/// A pinhole viewpoint from the scene file, in scene units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Eye position.
+    pub eye: Vec3,
+    /// Unit viewing direction.
+    pub forward: Vec3,
+    /// Unit up direction, orthogonal to `forward`.
+    pub up: Vec3,
+    /// Vertical field of view in degrees, in `(0, 180)`.
+    pub fov_y_degrees: f32,
 }
 
 /// Loads a scene from `path`, choosing the reader by extension: `.obj` (with the `.mtl` files it

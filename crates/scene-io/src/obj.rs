@@ -83,7 +83,11 @@ pub(crate) fn load_obj(path: &Path) -> Result<Loaded, SceneError> {
     let (scene, more) = Scene::new(positions, faces, materials)
         .map_err(|e| locate(e, path, &obj, &state.material_sources, &tobj_materials))?;
     warnings.extend(more);
-    Ok(Loaded { scene, warnings })
+    Ok(Loaded {
+        scene,
+        warnings,
+        camera: None,
+    })
 }
 
 /// Reads the MTL files `tobj` asks for, remembering the first error with its line and where

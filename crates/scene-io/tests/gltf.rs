@@ -189,7 +189,9 @@ fn close(a: Vec3, b: Vec3) -> bool {
 }
 
 fn check_two_quads(loaded: &Loaded) {
-    let Loaded { scene, warnings } = loaded;
+    let Loaded {
+        scene, warnings, ..
+    } = loaded;
     assert_eq!(
         warnings,
         &vec![Warning::ReflectanceClamped {
@@ -292,7 +294,9 @@ fn default_material_skipped_primitives_textures_and_root_nodes_without_scene() {
       "materials":[{{"name":"lit","emissiveFactor":[1,1,1],
                     "pbrMetallicRoughness":{{"baseColorFactor":[0.5,0.5,0.5,1],"baseColorTexture":{{"index":0}}}}}}]"#
     );
-    let Loaded { scene, warnings } = load_ok("d.gltf", doc.gltf(&rest).as_bytes());
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok("d.gltf", doc.gltf(&rest).as_bytes());
     assert_eq!(
         warnings,
         vec![
@@ -443,4 +447,50 @@ fn corrupted_files_error_without_panicking() {
         bytes[at] = (state >> 32) as u8;
         run("c.glb", &bytes);
     }
+}
+
+#[test]
+fn first_perspective_camera_is_placed_by_its_node() {
+    // Node 2 holds an orthographic camera (ignored), node 3 a perspective one 1 unit up the
+    // room's +z, turned by pi/2 about +y so it looks along -x (glTF cameras look along -z).
+    let doc = two_quads();
+    let (s, c) = (
+        std::f32::consts::FRAC_1_SQRT_2,
+        std::f32::consts::FRAC_1_SQRT_2,
+    );
+    let scene = format!(
+        r#""scene":0,"scenes":[{{"nodes":[0,2,3]}}],
+  "nodes":[
+    {{"name":"room","mesh":0,"translation":[1,2,3],"scale":[2,2,2],"children":[1]}},
+    {{"name":"lamp","mesh":1,"translation":[0,0.5,0],"rotation":[1,0,0,0]}},
+    {{"name":"ortho","camera":0}},
+    {{"name":"eye","camera":1,"translation":[0,0,1],"rotation":[0,{s},0,{c}]}}],
+  "cameras":[
+    {{"type":"orthographic","orthographic":{{"xmag":1,"ymag":1,"znear":0.1,"zfar":10}}}},
+    {{"type":"perspective","perspective":{{"yfov":0.5,"znear":0.1}}}}],
+  "meshes":[
+    {{"name":"floor","primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":0}}]}},
+    {{"name":"lamp","primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":1}}]}}]"#
+    );
+    let loaded = load_ok(
+        "camera.gltf",
+        doc.gltf(&format!("{scene},{MATERIALS}")).as_bytes(),
+    );
+    let camera = loaded.camera.expect("the perspective camera");
+    assert!(close(camera.eye, Vec3::new(0.0, 0.0, 1.0)), "{camera:?}");
+    assert!(
+        close(camera.forward, Vec3::new(-1.0, 0.0, 0.0)),
+        "{camera:?}"
+    );
+    assert!(close(camera.up, Vec3::Y), "{camera:?}");
+    assert!((camera.fov_y_degrees - 0.5f32.to_degrees()).abs() < 1e-4);
+    // OBJ files carry no camera; a glTF without one neither.
+    assert!(
+        load_ok(
+            "plain.gltf",
+            doc.gltf(&format!("{SCENE},{MATERIALS}")).as_bytes()
+        )
+        .camera
+        .is_none()
+    );
 }

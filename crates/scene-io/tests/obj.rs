@@ -92,7 +92,9 @@ fn obj_vertex(n: usize) -> Vec3 {
 #[test]
 fn box_loads_with_quads_sources_and_materials() {
     let dir = write(&[("box.obj", &box_obj()), ("box.mtl", MTL)]);
-    let Loaded { scene, warnings } = load_ok(&dir, "box.obj");
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok(&dir, "box.obj");
     assert!(warnings.is_empty(), "{warnings:?}");
 
     let faces = scene.faces();
@@ -152,7 +154,9 @@ fn missing_kd_unknown_and_absent_materials_are_defaulted_with_warnings() {
          usemtl gold\nf 1 2 3 4\nusemtl grey\nf 1 4 8 5\n"
     );
     let dir = write(&[("box.obj", &obj), ("box.mtl", mtl)]);
-    let Loaded { scene, warnings } = load_ok(&dir, "box.obj");
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok(&dir, "box.obj");
     assert_eq!(
         warnings,
         vec![
@@ -210,7 +214,9 @@ fn degenerate_face_is_dropped_and_sources_are_kept() {
          usemtl light\nf 9 10 11 12\nv 2 0 0\nv 3 0 0\nusemtl white\nf 1 13 14\n"
     );
     let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
-    let Loaded { scene, warnings } = load_ok(&dir, "box.obj");
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok(&dir, "box.obj");
     assert_eq!(
         warnings,
         vec![Warning::DegenerateFacesDropped {
@@ -232,7 +238,9 @@ fn concave_and_non_planar_faces_are_split_with_a_warning() {
          usemtl light\nf 9 10 11 12\nusemtl white\nf 13 14 15 16 17 18\nf 19 20 21 22\n"
     );
     let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
-    let Loaded { scene, warnings } = load_ok(&dir, "box.obj");
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok(&dir, "box.obj");
     assert_eq!(
         warnings,
         vec![Warning::FacesSplit {

@@ -1,0 +1,216 @@
+//! Comparing two renders of the same scene for golden-image regression.
+//!
+//! Monte Carlo renders differ from seed to seed, so a pixel-exact comparison is meaningless and
+//! a per-pixel one drowns in noise. The images are compared per tile instead: the mean radiance
+//! of each `tile × tile` block and RGB channel, relative to the golden block's mean (plus a
+//! floor, so nearly black tiles do not divide by zero). Averaging over a tile keeps systematic
+//! changes (a wall a few percent brighter shifts every tile it covers) while it divides the noise
+//! by the square root of the pixels and patches the tile covers. The statistic is the largest
+//! relative tile difference; the threshold it is held to is measured from the spread between
+//! seeds and recorded per scene (`cargo xtask regress --bless`).
+
+use crate::render::Image;
+use glam::Vec3;
+use std::path::{Path, PathBuf};
+
+/// The result of comparing an image with its golden.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TileDifference {
+    /// The largest `|mean_actual - mean_golden| / (mean_golden + floor)` over tiles and
+    /// channels (dimensionless).
+    pub max_relative: f32,
+    /// The tile where it occurs: its top-left pixel `(x, y)`.
+    pub worst_tile: (u32, u32),
+    /// The RGB channel where it occurs (0, 1, 2).
+    pub worst_channel: usize,
+}
+
+/// Why two images cannot be compared.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CompareError {
+    /// The sizes differ.
+    #[error("image sizes differ: {a:?} vs {b:?}")]
+    SizeMismatch {
+        /// Width and height of the first image.
+        a: (u32, u32),
+        /// Width and height of the second image.
+        b: (u32, u32),
+    },
+    /// The tile size is zero.
+    #[error("the tile size must be at least 1 pixel")]
+    ZeroTile,
+}
+
+/// Compares `actual` with `golden` tile by tile (tiles of `tile × tile` pixels; the last row
+/// and column of tiles may be smaller). `floor` (radiance, W/(m² sr)) is added to the golden
+/// mean in the denominator: differences in tiles darker than it count as absolute ones.
+pub fn tile_difference(
+    actual: &Image,
+    golden: &Image,
+    tile: u32,
+    floor: f32,
+) -> Result<TileDifference, CompareError> {
+    if (actual.width, actual.height) != (golden.width, golden.height) {
+        return Err(CompareError::SizeMismatch {
+            a: (actual.width, actual.height),
+            b: (golden.width, golden.height),
+        });
+    }
+    if tile == 0 {
+        return Err(CompareError::ZeroTile);
+    }
+    let mut worst = TileDifference {
+        max_relative: 0.0,
+        worst_tile: (0, 0),
+        worst_channel: 0,
+    };
+    for ty in (0..golden.height).step_by(tile as usize) {
+        for tx in (0..golden.width).step_by(tile as usize) {
+            let (mut a, mut g) = (Vec3::ZERO, Vec3::ZERO);
+            let mut n = 0.0f32;
+            for y in ty..(ty + tile).min(golden.height) {
+                for x in tx..(tx + tile).min(golden.width) {
+                    let i = y as usize * golden.width as usize + x as usize;
+                    a += actual.pixels[i];
+                    g += golden.pixels[i];
+                    n += 1.0;
+                }
+            }
+            let rel = (a / n - g / n).abs() / (g / n + Vec3::splat(floor));
+            for c in 0..3 {
+                if rel[c] > worst.max_relative || rel[c].is_nan() {
+                    worst = TileDifference {
+                        max_relative: rel[c],
+                        worst_tile: (tx, ty),
+                        worst_channel: c,
+                    };
+                }
+            }
+        }
+    }
+    Ok(worst)
+}
+
+/// Reads an OpenEXR file's RGB channels as linear radiance (the inverse of
+/// [`write_exr`](crate::render::write_exr)).
+pub fn read_exr(path: &Path) -> Result<Image, ImageReadError> {
+    let fail = |reason: String| ImageReadError {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |size, _| (size.width(), vec![Vec3::ZERO; size.width() * size.height()]),
+        |(width, pixels): &mut (usize, Vec<Vec3>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+            pixels[pos.y() * *width + pos.x()] = Vec3::new(r, g, b);
+        },
+    )
+    .map_err(|e| fail(e.to_string()))?;
+    let size = image.layer_data.size;
+    let (_, pixels) = image.layer_data.channel_data.pixels;
+    Ok(Image {
+        width: u32::try_from(size.width()).map_err(|_| fail("too wide".into()))?,
+        height: u32::try_from(size.height()).map_err(|_| fail("too tall".into()))?,
+        pixels,
+    })
+}
+
+/// Why an image could not be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("could not read {}: {reason}", path.display())]
+pub struct ImageReadError {
+    /// The file.
+    pub path: PathBuf,
+    /// What went wrong.
+    pub reason: String,
+}
+
+/// An image of `|actual - golden|` per pixel and channel, scaled so the largest difference is 1
+/// (a picture of where two renders differ).
+pub fn difference_image(actual: &Image, golden: &Image) -> Result<Image, CompareError> {
+    if (actual.width, actual.height) != (golden.width, golden.height) {
+        return Err(CompareError::SizeMismatch {
+            a: (actual.width, actual.height),
+            b: (golden.width, golden.height),
+        });
+    }
+    let diff: Vec<Vec3> = actual
+        .pixels
+        .iter()
+        .zip(&golden.pixels)
+        .map(|(a, g)| (*a - *g).abs())
+        .collect();
+    let max = diff.iter().map(|d| d.max_element()).fold(0.0f32, f32::max);
+    let scale = if max > 0.0 { 1.0 / max } else { 1.0 };
+    Ok(Image {
+        width: golden.width,
+        height: golden.height,
+        pixels: diff.into_iter().map(|d| d * scale).collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(w: u32, h: u32, f: impl Fn(u32, u32) -> Vec3) -> Image {
+        Image {
+            width: w,
+            height: h,
+            pixels: (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| f(x, y))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_brighter_region_is_found_and_noise_averages_out() {
+        let golden = image(64, 64, |_, _| Vec3::splat(1.0));
+        // +-10% pixel noise (a checkerboard) averages to zero over an 8 x 8 tile.
+        let noisy = image(64, 64, |x, y| {
+            Vec3::splat(if (x + y) % 2 == 0 { 1.1 } else { 0.9 })
+        });
+        let d = tile_difference(&noisy, &golden, 8, 0.01).unwrap();
+        assert!(d.max_relative < 1e-5, "{d:?}");
+        // A region 4% brighter in red.
+        let shifted = image(64, 64, |x, y| {
+            if x >= 40 && y < 16 {
+                Vec3::new(1.04, 1.0, 1.0)
+            } else {
+                Vec3::ONE
+            }
+        });
+        let d = tile_difference(&shifted, &golden, 8, 0.01).unwrap();
+        assert!((d.max_relative - 0.04 / 1.01).abs() < 1e-5, "{d:?}");
+        assert_eq!(
+            (d.worst_tile.0 >= 40, d.worst_tile.1 < 16, d.worst_channel),
+            (true, true, 0)
+        );
+        let diff = difference_image(&shifted, &golden).unwrap();
+        assert_eq!(diff.pixels[63].x, 1.0);
+        assert_eq!(diff.pixels[64 * 63].x, 0.0);
+    }
+
+    #[test]
+    fn exr_reads_back_what_was_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.exr");
+        let a = image(7, 5, |x, y| {
+            Vec3::new(x as f32 * 0.37, y as f32 * 1e-3, 1e4 + x as f32)
+        });
+        crate::render::write_exr(&a, &path).unwrap();
+        assert_eq!(read_exr(&path).unwrap(), a);
+        let err = read_exr(&dir.path().join("missing.exr")).unwrap_err();
+        assert!(err.to_string().contains("missing.exr"), "{err}");
+    }
+
+    #[test]
+    fn sizes_must_match() {
+        let a = image(4, 4, |_, _| Vec3::ONE);
+        let b = image(4, 5, |_, _| Vec3::ONE);
+        assert!(tile_difference(&a, &b, 2, 0.0).is_err());
+        assert!(tile_difference(&a, &a, 0, 0.0).is_err());
+        assert!(difference_image(&a, &b).is_err());
+    }
+}

@@ -1,0 +1,175 @@
+//! Pictures of a radiosity solution: a pinhole [`Camera`] (given, or chosen by
+//! [`Camera::frame_scene`]), a parallel ray-cast [`render`] of per-patch or per-corner
+//! radiosity into an [`Image`] of radiance, and its writers [`write_exr`] (linear radiance) and
+//! [`write_png`] (an [`Exposure`], the sRGB transfer function, 8 bits).
+//!
+//! Radiosity renders without lighting computations: a diffuse surface of radiosity `B`
+//! (W/m²) has radiance `L = B / π` (W/(m² sr)) in every direction, so a pixel averages `B / π`
+//! of the front faces its sample rays hit first. A miss or a back face is black (patches
+//! reflect and emit on their front only).
+//!
+//! The render is deterministic: each pixel depends only on its own samples, whose positions
+//! are a hash of (pixel, sample), and rows are written in place, so it is the same on any
+//! number of threads.
+//!
+//! ```
+//! use glam::{DVec3, Vec3};
+//! use mcrad_export::render::{Camera, RenderSettings, Shading, render};
+//! # use mcrad_meshing::{Mesh, Subdivision};
+//! # use mcrad_raycast::Bvh;
+//! # fn build(dir: &std::path::Path) -> Mesh {
+//! #     std::fs::write(dir.join("q.mtl"), "newmtl lamp\nKd 0.5 0.5 0.5\nKe 1 1 1\n").unwrap();
+//! #     let obj = "mtllib q.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl lamp\nf 1 2 3 4\n";
+//! #     std::fs::write(dir.join("q.obj"), obj).unwrap();
+//! #     let scene = mcrad_scene_io::load(&dir.join("q.obj")).unwrap().scene;
+//! #     Mesh::build(&scene, Subdivision::None).unwrap()
+//! # }
+//! # let dir = tempfile::tempdir()?;
+//! let mesh: Mesh = build(dir.path()); // one unit square in the xy plane, facing +z
+//! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+//! let camera = Camera::look_at(Vec3::new(0.5, 0.5, 2.0), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 20.0)?;
+//! let b = [DVec3::splat(std::f64::consts::PI)]; // B = π W/m², so L = 1 W/(m² sr)
+//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4 };
+//! let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_rows| {})?;
+//! assert!((image.get(4, 4).unwrap() - Vec3::ONE).length() < 1e-6);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+mod camera;
+mod frame;
+mod image;
+mod jitter;
+mod shade;
+mod tonemap;
+
+#[cfg(test)]
+mod tests;
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use glam::{DVec3, Vec2, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::RayCaster;
+use rayon::prelude::*;
+
+pub use self::camera::{Camera, CameraError};
+pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
+pub use self::image::{Image, ImageError, write_exr, write_png};
+pub use self::shade::Shading;
+pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_encode};
+
+/// The largest image side [`render`] accepts, pixels.
+pub const MAX_SIDE: u32 = 16384;
+
+/// How big a picture to render and how many rays per pixel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RenderSettings {
+    /// Width, pixels, `1..=MAX_SIDE`.
+    pub width: u32,
+    /// Height, pixels, `1..=MAX_SIDE`.
+    pub height: u32,
+    /// Rays per pixel, `>= 1`. One goes through the pixel centre; a square number `m²` is
+    /// stratified on an `m × m` grid (jittered within each cell); other counts are jittered
+    /// over the whole pixel.
+    pub samples_per_pixel: u32,
+}
+
+impl Default for RenderSettings {
+    /// 512 × 512 pixels, 4 samples per pixel.
+    fn default() -> Self {
+        RenderSettings {
+            width: 512,
+            height: 512,
+            samples_per_pixel: 4,
+        }
+    }
+}
+
+/// Why a render could not be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RenderError {
+    /// The image size is zero or above [`MAX_SIDE`].
+    #[error("image size must be 1 to {MAX_SIDE} pixels a side, got {width}x{height}")]
+    BadSize {
+        /// Width asked for, pixels.
+        width: u32,
+        /// Height asked for, pixels.
+        height: u32,
+    },
+    /// No samples per pixel.
+    #[error("samples per pixel must be at least 1")]
+    NoSamples,
+    /// The radiosity array does not match the mesh.
+    #[error("shading needs one radiosity value per {per} ({expected}), got {got}")]
+    ShadingLength {
+        /// `"patch"` ([`Shading::Flat`]) or `"corner"` ([`Shading::Smooth`]).
+        per: &'static str,
+        /// Number of patches or corners of the mesh.
+        expected: usize,
+        /// Length of the array given.
+        got: usize,
+    },
+    /// A radiosity value is NaN or infinite.
+    #[error("radiosity {index} is not finite: {value} W/m^2")]
+    NonFiniteRadiosity {
+        /// Index in the radiosity array.
+        index: usize,
+        /// The value (W/m²).
+        value: DVec3,
+    },
+}
+
+/// Renders `mesh` as seen by `camera`: for each pixel, the mean radiance `B / π`
+/// (W/(m² sr)) of what its sample rays hit first (see [`RenderSettings`] for the samples, the
+/// module docs for misses and back faces). `caster` holds the mesh's triangles tagged with
+/// their patch indices (`Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())`).
+///
+/// Rows run in parallel on the current rayon pool; `progress` is called (from worker threads)
+/// with the number of rows finished so far after each row (1 to `height`, each once; calls
+/// from different threads may arrive slightly out of order, so show the largest). The result
+/// does not depend on the number of threads.
+pub fn render<C: RayCaster + ?Sized>(
+    mesh: &Mesh,
+    caster: &C,
+    camera: &Camera,
+    shading: Shading<'_>,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Image, RenderError> {
+    let RenderSettings {
+        width,
+        height,
+        samples_per_pixel: spp,
+    } = *settings;
+    if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+        return Err(RenderError::BadSize { width, height });
+    }
+    if spp == 0 {
+        return Err(RenderError::NoSamples);
+    }
+    let shader = shade::Shader::new(mesh, shading)?;
+    let mut pixels = vec![Vec3::ZERO; width as usize * height as usize];
+    let rows_done = AtomicUsize::new(0);
+    pixels
+        .par_chunks_mut(width as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let y = y as u32;
+            for (x, out) in (0u32..).zip(row.iter_mut()) {
+                let mut sum = DVec3::ZERO;
+                for s in 0..spp {
+                    let offset = jitter::sample_offset(x, y, s, spp);
+                    let pixel = Vec2::new(x as f32, y as f32) + offset;
+                    let ray = camera.ray(pixel, width, height);
+                    sum += shader.radiance(mesh, caster.closest_hit(&ray)).as_dvec3();
+                }
+                *out = (sum / f64::from(spp)).as_vec3();
+            }
+            progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1);
+        });
+    Ok(Image {
+        width,
+        height,
+        pixels,
+    })
+}

@@ -1,0 +1,187 @@
+//! From a hit to radiance: flat (per-patch) or smooth (per-corner, interpolated) radiosity.
+
+use std::f64::consts::PI;
+
+use glam::{DVec3, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::Hit;
+
+use super::RenderError;
+
+/// The radiosity solution to render, in W/m² per RGB channel. A pixel shows radiance
+/// `L = B / π` (W/(m² sr)) of the surface it sees (diffuse surfaces look equally bright from
+/// every direction).
+#[derive(Debug, Clone, Copy)]
+pub enum Shading<'a> {
+    /// Radiosity `B_i` per patch, in mesh order (`len = mesh.patches().len()`): each patch is
+    /// drawn in one colour.
+    Flat(&'a [DVec3]),
+    /// Radiosity per mesh corner: entry `first(p) + k` belongs to corner `k` of patch `p`
+    /// (`mesh.corners(p)[k]`), where `first(p)` is the number of corners of all patches before
+    /// `p` (`len` = total corner count). A hit is shaded by linear (barycentric) interpolation
+    /// over the corners of the fan triangle of its patch that contains it.
+    Smooth(&'a [DVec3]),
+}
+
+/// A [`Shading`] checked against its mesh and converted to radiance (W/(m² sr), `f32`).
+pub(crate) enum Shader {
+    Flat(Vec<Vec3>),
+    Smooth {
+        /// Radiance per global corner.
+        radiance: Vec<Vec3>,
+        /// `first_corner[p]`: the global index of corner 0 of patch `p`.
+        first_corner: Vec<usize>,
+    },
+}
+
+impl Shader {
+    /// Checks lengths and finiteness and converts radiosity to radiance.
+    pub(crate) fn new(mesh: &Mesh, shading: Shading<'_>) -> Result<Shader, RenderError> {
+        let to_radiance = |values: &[DVec3]| -> Result<Vec<Vec3>, RenderError> {
+            values
+                .iter()
+                .enumerate()
+                .map(|(index, &b)| {
+                    if b.is_finite() {
+                        Ok((b / PI).as_vec3())
+                    } else {
+                        Err(RenderError::NonFiniteRadiosity { index, value: b })
+                    }
+                })
+                .collect()
+        };
+        match shading {
+            Shading::Flat(b) => {
+                let expected = mesh.patches().len();
+                if b.len() != expected {
+                    return Err(RenderError::ShadingLength {
+                        per: "patch",
+                        expected,
+                        got: b.len(),
+                    });
+                }
+                Ok(Shader::Flat(to_radiance(b)?))
+            }
+            Shading::Smooth(b) => {
+                let mut first_corner = Vec::with_capacity(mesh.patches().len());
+                let mut total = 0;
+                for p in mesh.patches() {
+                    first_corner.push(total);
+                    total += mesh.corners(p).len();
+                }
+                if b.len() != total {
+                    return Err(RenderError::ShadingLength {
+                        per: "corner",
+                        expected: total,
+                        got: b.len(),
+                    });
+                }
+                Ok(Shader::Smooth {
+                    radiance: to_radiance(b)?,
+                    first_corner,
+                })
+            }
+        }
+    }
+
+    /// Radiance (W/(m² sr)) seen along a ray whose first hit is `hit` (`None`: a miss). Misses,
+    /// back faces and ids that are no patch of `mesh` are black.
+    pub(crate) fn radiance(&self, mesh: &Mesh, hit: Option<Hit>) -> Vec3 {
+        let Some(hit) = hit.filter(|h| h.front) else {
+            return Vec3::ZERO;
+        };
+        let id = hit.id as usize;
+        let Some(patch) = mesh.patches().get(id) else {
+            return Vec3::ZERO;
+        };
+        match self {
+            Shader::Flat(radiance) => radiance[id],
+            Shader::Smooth {
+                radiance,
+                first_corner,
+            } => {
+                let corners = mesh.corners(patch);
+                let values = &radiance[first_corner[id]..first_corner[id] + corners.len()];
+                interpolate(mesh.positions(), corners, values, hit.point)
+            }
+        }
+    }
+}
+
+/// Linear interpolation of per-corner `values` at `point` on a convex polygon with corner
+/// vertex indices `corners`: barycentric over the fan triangle `(0, j, j + 1)` that contains
+/// the point (or, for a point just outside through rounding, the one it is least outside of),
+/// with negative weights clamped to 0 and the rest renormalised.
+fn interpolate(positions: &[Vec3], corners: &[u32], values: &[Vec3], point: Vec3) -> Vec3 {
+    let a = positions[corners[0] as usize];
+    let mut best: Option<(f32, usize, [f32; 3])> = None;
+    for j in 1..corners.len() - 1 {
+        let b = positions[corners[j] as usize];
+        let c = positions[corners[j + 1] as usize];
+        let Some(w) = barycentric(a, b, c, point) else {
+            continue;
+        };
+        let score = w[0].min(w[1]).min(w[2]);
+        if best.is_none_or(|(s, _, _)| score > s) {
+            best = Some((score, j, w));
+        }
+        if score >= 0.0 {
+            break;
+        }
+    }
+    match best {
+        Some((_, j, w)) => {
+            let w = w.map(|x| x.max(0.0));
+            let sum = w[0] + w[1] + w[2];
+            (w[0] * values[0] + w[1] * values[j] + w[2] * values[j + 1]) / sum
+        }
+        // every fan triangle degenerate (cannot happen for a valid patch): the corner mean
+        None => values.iter().sum::<Vec3>() / values.len() as f32,
+    }
+}
+
+/// Barycentric weights of `p` (projected onto the triangle's plane) for `a`, `b`, `c`; `None`
+/// for a degenerate triangle.
+fn barycentric(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f32; 3]> {
+    let (e1, e2, d) = (b - a, c - a, p - a);
+    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d1p, d2p) = (e1.dot(d), e2.dot(d));
+    let denom = d11 * d22 - d12 * d12;
+    if !(denom > f32::EPSILON * d11 * d22) {
+        return None;
+    }
+    let u = (d22 * d1p - d12 * d2p) / denom;
+    let v = (d11 * d2p - d12 * d1p) / denom;
+    Some([1.0 - u - v, u, v])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interpolation_is_exact_for_a_linear_function_on_a_quad() {
+        // a square in the xy plane, value = (x, y, x + 2y)
+        let positions = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        let f = |p: Vec3| Vec3::new(p.x, p.y, p.x + 2.0 * p.y);
+        let values: Vec<Vec3> = positions.iter().map(|&p| f(p)).collect();
+        let corners = [0, 1, 2, 3];
+        for p in [
+            Vec3::new(0.3, 0.8, 0.0),
+            Vec3::new(1.7, 0.2, 0.0),
+            Vec3::new(1.0, 0.5, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+        ] {
+            let v = interpolate(&positions, &corners, &values, p);
+            assert!((v - f(p)).length() < 1e-5, "{p}: {v}");
+        }
+        // slightly outside: clamped to the edge value
+        let v = interpolate(&positions, &corners, &values, Vec3::new(-0.001, 0.5, 0.0));
+        assert!((v - f(Vec3::new(0.0, 0.5, 0.0))).length() < 1e-3, "{v}");
+    }
+}

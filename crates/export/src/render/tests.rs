@@ -1,0 +1,359 @@
+//! Scene-level tests of the renderer: auto-framing, determinism, flat against smooth shading.
+
+use std::f64::consts::PI;
+use std::path::Path;
+use std::sync::Mutex;
+
+use glam::{DVec3, Vec2, Vec3};
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_raycast::{Bvh, RayCaster};
+
+use super::*;
+
+fn load(path: &Path, subdivision: Subdivision) -> (Mesh, Bvh) {
+    let scene = mcrad_scene_io::load(path).unwrap().scene;
+    let mesh = Mesh::build(&scene, subdivision).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    (mesh, bvh)
+}
+
+fn scene(name: &str, subdivision: Subdivision) -> (Mesh, Bvh) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    load(&root.join(name), subdivision)
+}
+
+/// A 2 × 1 emitting quad in the plane z = 0 facing +z, emitted radiosity (3, 2, 1) W/m².
+fn lamp(subdivision: Subdivision) -> (Mesh, Bvh) {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("l.mtl"),
+        "newmtl lamp\nKd 0.5 0.5 0.5\nKe 3 2 1\n",
+    )
+    .unwrap();
+    let obj = "mtllib l.mtl\nv 0 0 0\nv 2 0 0\nv 2 1 0\nv 0 1 0\nusemtl lamp\nf 1 2 3 4\n";
+    std::fs::write(dir.path().join("l.obj"), obj).unwrap();
+    load(&dir.path().join("l.obj"), subdivision)
+}
+
+/// Per-corner values `f(position of the corner)`, in global corner order.
+fn per_corner(mesh: &Mesh, f: impl Fn(Vec3) -> DVec3) -> Vec<DVec3> {
+    mesh.patches()
+        .iter()
+        .flat_map(|p| {
+            mesh.corners(p)
+                .iter()
+                .map(|&v| f(mesh.positions()[v as usize]))
+        })
+        .collect()
+}
+
+fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
+    RenderSettings {
+        width,
+        height,
+        samples_per_pixel,
+    }
+}
+
+fn no_progress(_: usize) {}
+
+#[test]
+fn cornell_box_is_framed_from_its_open_side() {
+    let (mesh, bvh) = scene("cornell-box.obj", Subdivision::None);
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    assert!((camera.forward() - Vec3::Z).length() < 1e-6, "{:?}", camera);
+    assert!((camera.up() - Vec3::Y).length() < 1e-6, "{:?}", camera);
+    assert!(
+        camera.eye().z < -0.5,
+        "eye outside the open side: {}",
+        camera.eye()
+    );
+    assert_eq!(camera.fov_y_degrees(), FRAME_FOV_Y_DEGREES);
+    // the whole box is in view: every corner of the open side projects into the image
+    for &(x, y) in &[(0.0, 0.0), (0.556, 0.0), (0.0, 0.5488), (0.556, 0.5488)] {
+        let p = camera.project(Vec3::new(x, y, 0.0), 100, 100);
+        assert!(p.is_some(), "({x}, {y}) out of view");
+    }
+    // red wall (x = 0.55) on the left, as in the photographs
+    let left = camera
+        .project(Vec3::new(0.55, 0.27, 0.3), 100, 100)
+        .unwrap();
+    assert!(left.x < 50.0, "{left}");
+}
+
+#[test]
+fn a_wall_is_framed_from_its_front() {
+    let (mesh, bvh) = lamp(Subdivision::None);
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    assert!(
+        (camera.forward() - Vec3::NEG_Z).length() < 1e-6,
+        "{:?}",
+        camera
+    );
+    assert!(camera.eye().z > 0.0);
+}
+
+#[test]
+fn closed_room_is_framed_from_inside() {
+    let (mesh, bvh) = scene("furnace.obj", Subdivision::None);
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    assert_eq!(camera.fov_y_degrees(), INSIDE_FOV_Y_DEGREES);
+    assert!(
+        (camera.eye() - Vec3::new(0.5, 0.5, 0.1)).length() < 1e-6,
+        "{:?}",
+        camera
+    );
+    assert!((camera.forward() - Vec3::Z).length() < 1e-6);
+    // and from there it sees the walls' fronts
+    let ray = camera.ray(Vec2::new(8.0, 8.0), 16, 16);
+    assert!(bvh.closest_hit(&ray).unwrap().front);
+}
+
+#[test]
+fn render_is_the_same_on_one_and_two_threads() {
+    let (mesh, bvh) = scene("cornell-box.obj", Subdivision::MaxEdge(0.1));
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    // distinct values per patch, so that any mix-up shows
+    let b: Vec<DVec3> = (0..mesh.patches().len())
+        .map(|i| DVec3::new(i as f64, (i * 7 % 13) as f64, 1.0 / (1.0 + i as f64)))
+        .collect();
+    let corners = per_corner(&mesh, |p| p.as_dvec3() * 10.0);
+    for (shading, spp) in [(Shading::Flat(&b), 4), (Shading::Smooth(&corners), 3)] {
+        let run = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                render(
+                    &mesh,
+                    &bvh,
+                    &camera,
+                    shading,
+                    &settings(61, 47, spp),
+                    &no_progress,
+                )
+            })
+            .unwrap()
+        };
+        let (one, two) = (run(1), run(2));
+        assert!(
+            one.pixels
+                .iter()
+                .zip(&two.pixels)
+                .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits))
+        );
+        assert!(one.pixels.iter().any(|p| *p != Vec3::ZERO));
+    }
+}
+
+#[test]
+fn constant_radiosity_renders_the_same_with_flat_and_smooth_shading() {
+    let (mesh, bvh) = scene("cornell-box.obj", Subdivision::MaxEdge(0.1));
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    let c = DVec3::new(1.5, 2.5, 4.0);
+    let flat = vec![c; mesh.patches().len()];
+    let smooth = per_corner(&mesh, |_| c);
+    let s = settings(40, 30, 4);
+    let a = render(&mesh, &bvh, &camera, Shading::Flat(&flat), &s, &no_progress).unwrap();
+    let b = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Smooth(&smooth),
+        &s,
+        &no_progress,
+    )
+    .unwrap();
+    let l = (c / PI).as_vec3();
+    let mut lit = 0;
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        assert!(
+            (*p - *q).abs().max_element() <= 1e-6 * l.max_element(),
+            "{p} vs {q}"
+        );
+        if *p != Vec3::ZERO {
+            lit += 1;
+        }
+    }
+    // the centre sees the back wall fully
+    assert!(
+        (a.get(20, 15).unwrap() - l).abs().max_element() < 1e-6,
+        "{}",
+        a.get(20, 15).unwrap()
+    );
+    assert!(lit > 40 * 30 / 2, "{lit}");
+}
+
+#[test]
+fn a_uniformly_lit_wall_shows_e_over_pi() {
+    let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.3));
+    let camera = Camera::look_at(
+        Vec3::new(1.0, 0.5, 3.0),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        15.0,
+    )
+    .unwrap();
+    let e: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .map(|p| p.emission.as_dvec3())
+        .collect();
+    let corners = per_corner(&mesh, |_| DVec3::new(3.0, 2.0, 1.0));
+    let expected = Vec3::new(3.0, 2.0, 1.0) / std::f32::consts::PI;
+    for shading in [Shading::Flat(&e), Shading::Smooth(&corners)] {
+        let image = render(
+            &mesh,
+            &bvh,
+            &camera,
+            shading,
+            &settings(16, 16, 9),
+            &no_progress,
+        )
+        .unwrap();
+        for p in &image.pixels {
+            assert!((*p - expected).abs().max_element() < 1e-6, "{p}");
+        }
+    }
+}
+
+#[test]
+fn smooth_shading_interpolates_a_linear_field_exactly() {
+    let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.3));
+    let camera = Camera::look_at(
+        Vec3::new(0.7, 0.2, 2.0),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        30.0,
+    )
+    .unwrap();
+    let f = |p: Vec3| DVec3::new(1.0 + p.x as f64, 2.0 - p.y as f64, 0.5 + (p.x + p.y) as f64);
+    let corners = per_corner(&mesh, f);
+    let (w, h) = (24, 20);
+    let image = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Smooth(&corners),
+        &settings(w, h, 1),
+        &no_progress,
+    )
+    .unwrap();
+    let mut checked = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let ray = camera.ray(Vec2::new(x as f32 + 0.5, y as f32 + 0.5), w, h);
+            let t = -ray.origin.z / ray.dir.z;
+            let p = ray.origin + t * ray.dir;
+            let got = image.get(x, y).unwrap();
+            if (0.01..1.99).contains(&p.x) && (0.01..0.99).contains(&p.y) {
+                let expected = (f(p) / PI).as_vec3();
+                assert!(
+                    (got - expected).abs().max_element() < 1e-4,
+                    "({x}, {y}): {got} vs {expected}"
+                );
+                checked += 1;
+            } else if !(-0.01..2.01).contains(&p.x) || !(-0.01..1.01).contains(&p.y) {
+                assert_eq!(got, Vec3::ZERO, "({x}, {y}) misses");
+            }
+        }
+    }
+    assert!(checked > 100, "{checked}");
+}
+
+#[test]
+fn back_faces_are_black() {
+    let (mesh, bvh) = lamp(Subdivision::None);
+    let camera = Camera::look_at(
+        Vec3::new(1.0, 0.5, -3.0),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        15.0,
+    )
+    .unwrap();
+    let b = vec![DVec3::ONE; mesh.patches().len()];
+    let image = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&b),
+        &settings(8, 8, 1),
+        &no_progress,
+    )
+    .unwrap();
+    assert!(image.pixels.iter().all(|p| *p == Vec3::ZERO));
+    // whereas the ray at the centre does hit the quad
+    assert!(
+        bvh.closest_hit(&camera.ray(Vec2::splat(4.0), 8, 8))
+            .is_some()
+    );
+}
+
+#[test]
+fn progress_counts_every_row_up_to_the_height() {
+    let (mesh, bvh) = lamp(Subdivision::None);
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    let b = vec![DVec3::ONE; mesh.patches().len()];
+    let seen = Mutex::new(Vec::new());
+    let progress = |rows: usize| seen.lock().unwrap().push(rows);
+    render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&b),
+        &settings(5, 13, 1),
+        &progress,
+    )
+    .unwrap();
+    let mut seen = seen.into_inner().unwrap();
+    seen.sort_unstable();
+    assert_eq!(seen, (1..=13).collect::<Vec<_>>());
+}
+
+#[test]
+fn bad_settings_and_shading_are_typed_errors() {
+    let (mesh, bvh) = lamp(Subdivision::None);
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    let one = [DVec3::ONE];
+    let go = |shading, s: RenderSettings| {
+        render(&mesh, &bvh, &camera, shading, &s, &no_progress).unwrap_err()
+    };
+    assert_eq!(
+        go(Shading::Flat(&one), settings(0, 4, 1)),
+        RenderError::BadSize {
+            width: 0,
+            height: 4
+        }
+    );
+    assert!(matches!(
+        go(Shading::Flat(&one), settings(MAX_SIDE + 1, 4, 1)),
+        RenderError::BadSize { .. }
+    ));
+    assert_eq!(
+        go(Shading::Flat(&one), settings(4, 4, 0)),
+        RenderError::NoSamples
+    );
+    assert_eq!(
+        go(Shading::Smooth(&one), settings(4, 4, 1)),
+        RenderError::ShadingLength {
+            per: "corner",
+            expected: 4,
+            got: 1
+        }
+    );
+    assert_eq!(
+        go(Shading::Flat(&[]), settings(4, 4, 1)),
+        RenderError::ShadingLength {
+            per: "patch",
+            expected: 1,
+            got: 0
+        }
+    );
+    let nan = [DVec3::new(1.0, f64::NAN, 0.0)];
+    let err = go(Shading::Flat(&nan), settings(4, 4, 1));
+    assert!(
+        matches!(err, RenderError::NonFiniteRadiosity { index: 0, .. }),
+        "{err}"
+    );
+}

@@ -1,0 +1,345 @@
+//! Vertex radiosity: per-patch values extrapolated to patch corners for smooth display.
+//!
+//! Balog's section 1.5: "Vertex radiosity is normally extrapolated from patches as area
+//! weighted average." A corner takes the area-weighted mean of the patches around its vertex
+//! that belong to the same surface as its own patch, so linear interpolation over the patch
+//! shows smooth illumination while material boundaries and creases stay sharp.
+
+use crate::build::Mesh;
+use glam::{DVec3, Vec3};
+
+/// The default crease angle (degrees): neighbours whose normals differ from a corner's patch
+/// normal by more than this are another surface and are not averaged in.
+pub const DEFAULT_CREASE_ANGLE_DEGREES: f32 = 30.0;
+
+/// Slack on the cosine comparison, so coplanar patches whose f32 normals differ by rounding
+/// still count as one surface even at a crease angle of 0 (about 0.08° at 0°, far less above).
+const COSINE_SLACK: f64 = 1e-6;
+
+/// A vertex position as a hashable, ordered key: its coordinates' bits, with `-0` taken as `+0`
+/// so that points equal as f32 are one vertex.
+type PointKey = [u32; 3];
+
+fn point_key(p: Vec3) -> PointKey {
+    // `-0.0 + 0.0 == +0.0` in round-to-nearest; every other value is unchanged.
+    p.to_array().map(|c| (c + 0.0).to_bits())
+}
+
+impl Mesh {
+    /// Radiosity at every patch corner, extrapolated from per-patch values (W/m² per RGB channel,
+    /// or any per-patch quantity) by the area-weighted average over the corner's surface.
+    ///
+    /// The value at corner `k` of patch `p` (global index [`Mesh::corner_offset`]`(p) + k`) is
+    /// `sum_q A_q v_q / sum_q A_q` over the patches `q` that have a corner at the same point
+    /// (positions equal as f32, so vertices an OBJ repeats per object or group still join;
+    /// vertex indices are not compared) and lie on the same surface as `p`: the same
+    /// [`Patch::material`](crate::Patch::material), and a normal within
+    /// `crease_angle_degrees` of `p`'s normal. `p` itself always counts, once however many of
+    /// its corners fall on the point. A patch that only touches the point along an edge
+    /// (a T-junction) does not count.
+    ///
+    /// `crease_angle_degrees` is clamped to `[0, 180]` (NaN counts as 0);
+    /// [`DEFAULT_CREASE_ANGLE_DEGREES`] suits most scenes. At 180 every patch of the same
+    /// material at the point is averaged in, including back-to-back ones.
+    ///
+    /// A corner whose surface is its own patch alone gets that patch's value exactly, and so does
+    /// every corner of a constant solution. The result is deterministic: sums run in patch
+    /// order.
+    ///
+    /// # Panics
+    /// If `patch_values.len()` differs from [`Mesh::patches`]`().len()`.
+    pub fn corner_radiosity(
+        &self,
+        patch_values: &[DVec3],
+        crease_angle_degrees: f32,
+    ) -> Vec<DVec3> {
+        let patches = self.patches();
+        assert_eq!(
+            patch_values.len(),
+            patches.len(),
+            "corner_radiosity needs one value per patch"
+        );
+        let angle = if crease_angle_degrees.is_nan() {
+            0.0
+        } else {
+            crease_angle_degrees.clamp(0.0, 180.0)
+        };
+        let min_cosine = (angle as f64).to_radians().cos() - COSINE_SLACK;
+
+        // Every (point, patch) incidence, sorted by point and then patch, without repeats.
+        let mut incidences: Vec<(PointKey, u32)> = Vec::with_capacity(self.corner_count());
+        for (p, patch) in patches.iter().enumerate() {
+            for &v in self.corners(patch) {
+                incidences.push((point_key(self.positions()[v as usize]), p as u32));
+            }
+        }
+        incidences.sort_unstable();
+        incidences.dedup();
+
+        // The smoothed value of each incidence: its patch's surface around the point.
+        let mut smoothed = Vec::with_capacity(incidences.len());
+        for group in incidences.chunk_by(|a, b| a.0 == b.0) {
+            for &(_, p) in group {
+                let own = &patches[p as usize];
+                let normal = own.normal.as_dvec3();
+                // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written so
+                // that a lone patch or a constant solution comes out exactly.
+                let own_value = patch_values[p as usize];
+                let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
+                for &(_, q) in group {
+                    let other = &patches[q as usize];
+                    let same_surface = q == p
+                        || (other.material == own.material
+                            && other.normal.as_dvec3().dot(normal) >= min_cosine);
+                    if same_surface {
+                        weighted += other.area * (patch_values[q as usize] - own_value);
+                        area += other.area;
+                    }
+                }
+                smoothed.push(own_value + weighted / area);
+            }
+        }
+
+        let mut out = Vec::with_capacity(self.corner_count());
+        for (p, patch) in patches.iter().enumerate() {
+            for &v in self.corners(patch) {
+                let key = (point_key(self.positions()[v as usize]), p as u32);
+                let i = incidences
+                    .binary_search(&key)
+                    .expect("every corner was recorded as an incidence");
+                out.push(smoothed[i]);
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DEFAULT_CREASE_ANGLE_DEGREES;
+    use crate::{Mesh, Subdivision};
+    use glam::{DVec3, Vec3};
+    use mcrad_scene_io::{Face, Material, Scene};
+
+    /// Two materials, both emitting (a scene needs an emitter; smoothing ignores emission).
+    fn materials() -> Vec<Material> {
+        ["white", "red"]
+            .iter()
+            .map(|name| Material {
+                name: (*name).into(),
+                reflectance: Vec3::splat(0.5),
+                emission: Vec3::ONE,
+            })
+            .collect()
+    }
+
+    fn face(vertices: &[u32], material: u32, source: u32) -> Face {
+        Face {
+            vertices: vertices.to_vec(),
+            material,
+            source,
+        }
+    }
+
+    fn mesh(positions: Vec<Vec3>, faces: Vec<Face>, subdivision: Subdivision) -> Mesh {
+        let scene = Scene::new(positions, faces, materials())
+            .expect("valid scene")
+            .0;
+        let mesh = Mesh::build(&scene, subdivision).expect("mesh");
+        mesh.validate().expect("valid mesh");
+        mesh
+    }
+
+    /// Global corner indices and positions of `patch`'s corners.
+    fn corners(mesh: &Mesh, patch: usize) -> impl Iterator<Item = (usize, Vec3)> + '_ {
+        let offset = mesh.corner_offset(patch);
+        mesh.corners(&mesh.patches()[patch])
+            .iter()
+            .enumerate()
+            .map(move |(k, &v)| (offset + k, mesh.positions()[v as usize]))
+    }
+
+    /// Two unit quads sharing the edge x = 1 (vertices 1 and 2); the second is turned up about
+    /// that edge by `bend_degrees` (0: coplanar, 90: a wall). Each quad uses its own copies of
+    /// the shared vertices, as an OBJ with two objects would.
+    fn hinge(bend_degrees: f32, materials: [u32; 2]) -> Mesh {
+        let (s, c) = bend_degrees.to_radians().sin_cos();
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            // copies of 1 and 2, then the far edge of the bent quad
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0 + c, 0.0, s),
+            Vec3::new(1.0 + c, 1.0, s),
+            Vec3::new(1.0, 1.0, 0.0),
+        ];
+        let faces = vec![
+            face(&[0, 1, 2, 3], materials[0], 0),
+            face(&[4, 5, 6, 7], materials[1], 1),
+        ];
+        mesh(positions, faces, Subdivision::None)
+    }
+
+    fn on_hinge(p: Vec3) -> bool {
+        p.x == 1.0 && p.z == 0.0
+    }
+
+    #[test]
+    fn corner_offsets_are_prefix_sums_of_corner_counts() {
+        let m = hinge(0.0, [0, 0]);
+        assert_eq!(m.corner_offset(0), 0);
+        assert_eq!(m.corner_offset(1), 4);
+        assert_eq!(m.corner_offset(2), 8);
+        assert_eq!(m.corner_count(), 8);
+    }
+
+    #[test]
+    fn a_constant_solution_stays_constant_at_every_corner() {
+        // Two walls, a floor, a bent quad and a pentagon of two materials, subdivided.
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 2.0, 0.0),
+            Vec3::new(0.0, 2.0, 0.0),
+            Vec3::new(0.0, 0.0, 1.5),
+            Vec3::new(2.0, 0.0, 1.5),
+            Vec3::new(2.5, 2.0, 0.3),
+            Vec3::new(-1.0, 1.0, 0.0),
+            Vec3::new(-0.7, 0.2, 0.0),
+        ];
+        let faces = vec![
+            face(&[0, 1, 2, 3], 0, 0),
+            face(&[1, 0, 4, 5], 0, 1),
+            face(&[1, 6, 2], 1, 2),
+            face(&[0, 3, 7, 8], 1, 3),
+        ];
+        let m = mesh(positions, faces, Subdivision::MaxEdge(0.3));
+        let value = DVec3::new(0.7, 3.1, 12.9);
+        let out = m.corner_radiosity(&vec![value; m.patches().len()], 45.0);
+        assert_eq!(out.len(), m.corner_count());
+        for (i, v) in out.iter().enumerate() {
+            assert_eq!(*v, value, "corner {i}");
+        }
+    }
+
+    #[test]
+    fn a_linear_field_is_reproduced_at_interior_vertices_of_uniform_grids() {
+        // Around an interior vertex of a uniform quad grid (4 quads) or triangle grid (6
+        // triangles) the neighbours are equal in area and point-symmetric about the vertex, so
+        // the area-weighted mean of a linear function at their centroids is its vertex value.
+        let f = |p: DVec3| DVec3::new(1.0 + 2.0 * p.x - 3.0 * p.y, 0.5 * p.x + p.y, 4.0 - p.y);
+        let square = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(4.0, 0.0, 0.0),
+            Vec3::new(4.0, 4.0, 0.0),
+            Vec3::new(0.0, 4.0, 0.0),
+        ];
+        let e = 1e-3;
+        let in_square = |p: Vec3| p.x > e && p.y > e && p.x < 4.0 - e && p.y < 4.0 - e;
+        let in_triangle = |p: Vec3| p.y > e && p.x < 4.0 - e && p.x - p.y > e;
+        // Grid spacings 1 and 1/2, so every position is exact in f32 and the symmetry is exact.
+        type Interior<'a> = &'a dyn Fn(Vec3) -> bool;
+        let cases: [(Face, f32, Interior, usize); 2] = [
+            (face(&[0, 1, 2, 3], 0, 0), 1.0, &in_square, 3 * 3),
+            (face(&[0, 1, 2], 0, 0), 0.75, &in_triangle, 7 * 6 / 2),
+        ];
+        for (face, max_edge, interior, interior_vertices) in cases {
+            let m = mesh(square.clone(), vec![face], Subdivision::MaxEdge(max_edge));
+            // The centroid of these triangles and parallelograms is the mean of their corners.
+            let values: Vec<DVec3> = (0..m.patches().len())
+                .map(|p| {
+                    let c: Vec<DVec3> = corners(&m, p).map(|(_, x)| x.as_dvec3()).collect();
+                    f(c.iter().sum::<DVec3>() / c.len() as f64)
+                })
+                .collect();
+            let out = m.corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+            let mut seen = std::collections::BTreeSet::new();
+            for p in 0..m.patches().len() {
+                for (i, pos) in corners(&m, p).filter(|&(_, pos)| interior(pos)) {
+                    seen.insert(pos.to_array().map(f32::to_bits));
+                    let want = f(pos.as_dvec3());
+                    assert!(
+                        (out[i] - want).abs().max_element() < 1e-12,
+                        "corner {i} at {pos}: {} vs {want}",
+                        out[i]
+                    );
+                }
+            }
+            assert_eq!(seen.len(), interior_vertices);
+        }
+    }
+
+    #[test]
+    fn a_material_boundary_is_not_averaged_across() {
+        let values = [DVec3::splat(1.0), DVec3::splat(3.0)];
+        // Same material: the shared edge's corners get the mean of the two equal-area quads.
+        let joined = hinge(0.0, [0, 0]);
+        let out = joined.corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+        for (p, value) in values.iter().enumerate() {
+            for (i, pos) in corners(&joined, p) {
+                let want = if on_hinge(pos) { 2.0 } else { value.x };
+                assert_eq!(out[i], DVec3::splat(want), "patch {p} corner at {pos}");
+            }
+        }
+        // Different materials: every corner keeps its own patch's value.
+        let split = hinge(0.0, [0, 1]);
+        let out = split.corner_radiosity(&values, 180.0);
+        for (p, &value) in values.iter().enumerate() {
+            for (i, pos) in corners(&split, p) {
+                assert_eq!(out[i], value, "patch {p} corner at {pos}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_crease_is_not_averaged_across_but_a_gentle_bend_is() {
+        let values = [DVec3::new(1.0, 2.0, 4.0), DVec3::new(3.0, 2.0, 0.0)];
+        let wall = hinge(90.0, [0, 0]);
+        let out = wall.corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+        for (p, &value) in values.iter().enumerate() {
+            for (i, _) in corners(&wall, p) {
+                assert_eq!(out[i], value);
+            }
+        }
+        // A 10° bend is one surface at the default crease angle, but not at a 5° one.
+        let bent = hinge(10.0, [0, 0]);
+        let (a0, a1) = (bent.patches()[0].area, bent.patches()[1].area);
+        let mean = (a0 * values[0] + a1 * values[1]) / (a0 + a1);
+        let out = bent.corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+        let sharp = bent.corner_radiosity(&values, 5.0);
+        let mut shared = 0;
+        for (p, &value) in values.iter().enumerate() {
+            for (i, pos) in corners(&bent, p) {
+                if on_hinge(pos) {
+                    shared += 1;
+                    assert!((out[i] - mean).abs().max_element() < 1e-12, "{}", out[i]);
+                } else {
+                    assert_eq!(out[i], value);
+                }
+                assert_eq!(sharp[i], value);
+            }
+        }
+        assert_eq!(shared, 4);
+    }
+
+    #[test]
+    fn back_to_back_patches_are_separate_surfaces_below_180_degrees() {
+        // The same square twice, facing +z and -z.
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        let faces = vec![face(&[0, 1, 2, 3], 0, 0), face(&[3, 2, 1, 0], 0, 1)];
+        let m = mesh(positions, faces, Subdivision::None);
+        let values = [DVec3::ONE, DVec3::splat(5.0)];
+        let out = m.corner_radiosity(&values, 179.0);
+        assert!(out[..4].iter().all(|&v| v == values[0]));
+        assert!(out[4..].iter().all(|&v| v == values[1]));
+        let out = m.corner_radiosity(&values, 180.0);
+        assert!(out.iter().all(|&v| v == DVec3::splat(3.0)));
+    }
+}
