@@ -14,10 +14,18 @@ struct Recipe {
 }
 
 fn recipe() -> Recipe {
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.json")).unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.json"),
+    )
+    .unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     Recipe {
-        args: v["args"].as_array().unwrap().iter().map(|a| a.as_str().unwrap().to_string()).collect(),
+        args: v["args"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| a.as_str().unwrap().to_string())
+            .collect(),
         tile: v["tile"].as_u64().unwrap() as u32,
         relative_floor: v["relative_floor"].as_f64().unwrap() as f32,
         threshold: v["threshold"].as_f64().unwrap() as f32,
@@ -38,10 +46,14 @@ fn difference(scene: &Path, seed: u64, out: &Path) -> f32 {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let golden = read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.exr")).unwrap();
+    let golden =
+        read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.exr"))
+            .unwrap();
     let sum: f32 = golden.pixels.iter().map(|p| p.x + p.y + p.z).sum();
     let floor = r.relative_floor * sum / (3.0 * golden.pixels.len() as f32);
-    tile_difference(&read_exr(out).unwrap(), &golden, r.tile, floor).unwrap().max_relative
+    tile_difference(&read_exr(out).unwrap(), &golden, r.tile, floor)
+        .unwrap()
+        .max_relative
 }
 
 #[test]
@@ -51,14 +63,38 @@ fn golden_comparison_passes_noise_and_catches_a_brighter_wall() {
     let threshold = recipe().threshold;
     assert!(threshold > 0.0, "the recipe has been blessed");
     // Another seed: noise only. (Seed 0 is the golden itself.)
-    let noise = difference(&root.join("scenes/cornell-box.obj"), 7, &dir.path().join("seed7.exr"));
-    assert!(noise <= threshold, "a new seed differs by {noise}, over the threshold {threshold}");
+    let noise = difference(
+        &root.join("scenes/cornell-box.obj"),
+        7,
+        &dir.path().join("seed7.exr"),
+    );
+    assert!(
+        noise <= threshold,
+        "a new seed differs by {noise}, over the threshold {threshold}"
+    );
     // The red wall 4% more reflective (Kd 0.63 -> 0.655 in red).
-    std::fs::copy(root.join("scenes/cornell-box.obj"), dir.path().join("cornell-box.obj")).unwrap();
+    std::fs::copy(
+        root.join("scenes/cornell-box.obj"),
+        dir.path().join("cornell-box.obj"),
+    )
+    .unwrap();
     let mtl = std::fs::read_to_string(root.join("scenes/cornell-box.mtl")).unwrap();
     assert!(mtl.contains("Kd 0.63 0.065 0.05"));
-    std::fs::write(dir.path().join("cornell-box.mtl"), mtl.replace("Kd 0.63 0.065 0.05", "Kd 0.655 0.065 0.05")).unwrap();
-    let changed = difference(&dir.path().join("cornell-box.obj"), 0, &dir.path().join("red.exr"));
-    eprintln!("tile difference: seed 7 {noise:.4}, red wall +4% {changed:.4}, threshold {threshold:.4}");
-    assert!(changed > threshold, "a 4% brighter red wall differs by only {changed} (threshold {threshold})");
+    std::fs::write(
+        dir.path().join("cornell-box.mtl"),
+        mtl.replace("Kd 0.63 0.065 0.05", "Kd 0.655 0.065 0.05"),
+    )
+    .unwrap();
+    let changed = difference(
+        &dir.path().join("cornell-box.obj"),
+        0,
+        &dir.path().join("red.exr"),
+    );
+    eprintln!(
+        "tile difference: seed 7 {noise:.4}, red wall +4% {changed:.4}, threshold {threshold:.4}"
+    );
+    assert!(
+        changed > threshold,
+        "a 4% brighter red wall differs by only {changed} (threshold {threshold})"
+    );
 }

@@ -14,6 +14,7 @@
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
 //! This crate does no I/O.
 
+pub mod reference;
 pub mod rng;
 pub mod sampling;
 mod shoot;

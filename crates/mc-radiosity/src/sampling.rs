@@ -59,6 +59,21 @@ pub fn cosine_hemisphere(u: Vec2) -> Vec3 {
     Vec3::new(r * cos, r * sin, (1.0 - u.x).max(0.0).sqrt())
 }
 
+/// A cosine-distributed direction about local `+z`, like [`cosine_hemisphere`], from a uniform
+/// disk point found by rejection from the square `[-1, 1]²` (accepted with probability `pi/4`,
+/// so 2.5 uniforms on average). No trigonometry: this is the shooting loop's sampler. Same
+/// density, [`cosine_hemisphere_pdf`]; no inverse (the number of uniforms it uses varies).
+#[inline]
+pub fn cosine_hemisphere_rejection(mut uniform: impl FnMut() -> f32) -> Vec3 {
+    loop {
+        let (x, y) = (2.0 * uniform() - 1.0, 2.0 * uniform() - 1.0);
+        let r2 = x * x + y * y;
+        if r2 <= 1.0 {
+            return Vec3::new(x, y, (1.0 - r2).sqrt());
+        }
+    }
+}
+
 /// Density of [`cosine_hemisphere`] per steradian: `cos(theta) / pi` above the surface, 0 below.
 #[inline]
 pub fn cosine_hemisphere_pdf(local_dir: Vec3) -> f32 {
@@ -228,11 +243,20 @@ mod tests {
 
     #[test]
     fn cosine_hemisphere_matches_its_density() {
+        cosine_sampler_matches_its_density(|s| cosine_hemisphere(u2(s)));
+    }
+
+    #[test]
+    fn cosine_hemisphere_by_rejection_matches_its_density() {
+        cosine_sampler_matches_its_density(|s| cosine_hemisphere_rejection(|| s.uniform()));
+    }
+
+    fn cosine_sampler_matches_its_density(mut sample: impl FnMut(&mut Stream) -> Vec3) {
         let (nt, np) = (16usize, 32usize);
         let mut obs = vec![0.0; nt * np];
         let mut s = Stream::new(1, 0, 0, 0);
         for _ in 0..SAMPLES {
-            let d = cosine_hemisphere(u2(&mut s));
+            let d = sample(&mut s);
             assert!((d.length() - 1.0).abs() < 1e-5 && d.z >= 0.0);
             let t = ((d.z.clamp(0.0, 1.0).acos() / std::f32::consts::FRAC_PI_2) * nt as f32)
                 .min(nt as f32 - 1.0) as usize;

@@ -1,7 +1,7 @@
 //! Uniform points and cosine-distributed rays on patches.
 
 use crate::rng::Stream;
-use crate::sampling::{Frame, cosine_hemisphere, uniform_triangle};
+use crate::sampling::{Frame, cosine_hemisphere_rejection, uniform_triangle};
 use glam::{Vec2, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Ray;
@@ -83,13 +83,13 @@ impl SurfaceSampler {
     }
 
     /// A ray leaving a uniform point of `patch` in a cosine-distributed direction about its
-    /// normal, drawing five uniforms from `rng`.
+    /// normal, drawing three uniforms for the point and about 2.5 for the direction from `rng`.
     #[inline]
     pub fn ray(&self, patch: usize, rng: &mut Stream) -> Ray {
         let p = self.point(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
         let frame = &self.frames[patch];
         // Unit to rounding: a unit local direction in an orthonormal frame.
-        let d = frame.to_world(cosine_hemisphere(Vec2::new(rng.uniform(), rng.uniform())));
+        let d = frame.to_world(cosine_hemisphere_rejection(|| rng.uniform()));
         Ray::from_surface(p, frame.normal, d, patch as u32)
     }
 }

@@ -15,6 +15,7 @@
 //! - `occluded/mcrad` and `occluded/obvhs`: the same for segments between two surface points
 //!   (`ray_traverse_miss`, `tmax` the segment's length less `1e-4`).
 
+use std::f32::consts::TAU;
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -191,7 +192,7 @@ fn room_with_boxes(seed: u64, n_boxes: usize) -> Scene {
         let (center, rot) = match k % 3 {
             0 => {
                 let c = vec3(rng.range(0.3, 3.7), half.y, rng.range(0.3, 4.7));
-                (c, Mat3::from_rotation_y(rng.range(0.0, 6.283)))
+                (c, Mat3::from_rotation_y(rng.range(0.0, TAU)))
             }
             1 => (
                 vec3(half.x, rng.range(0.3, 2.7), rng.range(0.3, 4.7)),
@@ -204,9 +205,9 @@ fn room_with_boxes(seed: u64, n_boxes: usize) -> Scene {
                     rng.range(0.3, 4.7),
                 );
                 let (a, b, g) = (
-                    rng.range(0.0, 6.283),
-                    rng.range(0.0, 6.283),
-                    rng.range(0.0, 6.283),
+                    rng.range(0.0, TAU),
+                    rng.range(0.0, TAU),
+                    rng.range(0.0, TAU),
                 );
                 (c, Mat3::from_euler(glam::EulerRot::YXZ, a, b, g))
             }

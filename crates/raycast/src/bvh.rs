@@ -251,6 +251,10 @@ impl Query {
 /// One triangle against a query, in canonical units: the distance of a crossing that counts,
 /// or `None`.
 ///
+/// `SEGMENT` is `false` for a ray (`len` infinite, no end window), which drops the tests at the
+/// end: `|t - len| < 2 * window_end` never holds for it, and `|t - len| >= near_end` holds for
+/// every `t` that can reach that test (finite or `-inf`; a `+inf` is rejected either way).
+///
 /// This is obvhs's `f32` Möller-Trumbore (`RtTriangle::intersect`, closed edges) for crossings
 /// away from the query's end points. Next to them `f32` errors are systematic rather than
 /// measure-zero: an origin on a patch edge next to another surface sits within rounding of

@@ -12,10 +12,10 @@ use crate::{BuildError, CANONICAL_EPSILON, NO_ID, Ray, SurfacePoint};
 /// moved to it before casting (see [`Frame::approach`]).
 const APPROACH_MARGIN: f64 = 8.0;
 
-/// Origins (rounded to `f32`) within this of the scene's box take the fast path of
-/// [`Frame::canonical_ray`] and [`Frame::canonical_segment`]: no approach. Half of
-/// [`APPROACH_MARGIN`], so that the `f64` origin (within `2^-14` of the `f32` one: canonical
-/// coordinates there are below 1024) is inside the approach box too.
+/// Origins (rounded to `f32`) within this of the scene's box need no approach (see
+/// [`Frame::approach`]): half of [`APPROACH_MARGIN`], so that the unrounded origin (within
+/// `2^-13` of the rounded one: canonical coordinates there are below 2048) is inside the
+/// approach box too.
 const INNER_MARGIN: f64 = 0.5 * APPROACH_MARGIN;
 
 /// A direction or normal whose squared length is within this of 1 is used as it is. `f32`
@@ -210,8 +210,9 @@ impl Frame {
 
     /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero),
     /// `lift` being [`Frame::lift`] of `p`: the canonical point (rounded to `f32` like a
-    /// vertex) plus the lift, in `f64`. Rounded to `f32`, that is one rounding of the exact
-    /// sum for any normal component above about `2^-19`.
+    /// vertex) plus the lift. Rounded to `f32`, that is the `f32` sum the fast path of
+    /// [`Frame::canonical_ray`] computes: the `f64` sum is exact unless a normal component is
+    /// below `2^-9`, and even then the two differ only at a double-rounding tie.
     #[inline(always)]
     fn lifted(&self, p: Vec3, normal: Vec3, lift: f64) -> DVec3 {
         let c = self.canonical(p).as_dvec3();
@@ -344,11 +345,16 @@ impl Frame {
             self.epsilon_lift_normal(a.point, a.normal),
             self.epsilon_lift_normal(b.point, b.normal),
         ) {
-            // `Frame::lifted`; non-finite points give a non-finite length, hence `None`
-            let eps = CANONICAL_EPSILON as f64;
-            let pa = self.canonical32(a.point).as_dvec3() + na.as_dvec3() * eps;
-            let pb = self.canonical32(b.point).as_dvec3() + nb.as_dvec3() * eps;
-            return self.segment_between(pa, pb, eps, eps);
+            let (ca, cb) = (self.canonical32(a.point), self.canonical32(b.point));
+            // (non-finite: a non-finite point, or an overflow of the f32 formula for a point far
+            // outside a huge scene, which the f64 one handles)
+            if ca.is_finite() && cb.is_finite() {
+                // `Frame::lifted`
+                let eps = CANONICAL_EPSILON as f64;
+                let pa = ca.as_dvec3() + na.as_dvec3() * eps;
+                let pb = cb.as_dvec3() + nb.as_dvec3() * eps;
+                return self.segment_between(pa, pb, eps, eps);
+            }
         }
         self.canonical_segment_general(a, b)
     }
@@ -585,5 +591,140 @@ mod tests {
         assert!(f.world_segment(&p, &p).is_none());
         let q = SurfacePoint::new(Vec3::NAN, Vec3::Y, 1);
         assert!(f.canonical_segment(&p, &q).is_none());
+    }
+
+    /// A small seeded stream for the tests below.
+    struct Stream(u64);
+
+    impl Stream {
+        fn unit(&mut self) -> f32 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            (self.0 >> 40) as f32 / (1u64 << 24) as f32
+        }
+        fn point(&mut self, min: Vec3, max: Vec3) -> Vec3 {
+            // mostly inside the box, some outside, some on its faces
+            let t = Vec3::new(self.unit(), self.unit(), self.unit()) * 1.4 - 0.2;
+            let t = if self.unit() < 0.1 {
+                t.round().clamp(Vec3::ZERO, Vec3::ONE)
+            } else {
+                t
+            };
+            min + (max - min) * t
+        }
+        fn direction(&mut self) -> Vec3 {
+            let d = Vec3::new(self.unit(), self.unit(), self.unit()) * 2.0 - 1.0;
+            let d = if self.unit() < 0.1 {
+                d * Vec3::new(1.0, 0.0, 0.0) // axis-parallel, with zeros
+            } else {
+                d
+            };
+            d.normalize_or(Vec3::Y)
+        }
+    }
+
+    fn frames() -> Vec<(Vec3, Vec3)> {
+        vec![
+            (Vec3::ZERO, Vec3::ONE),
+            (Vec3::splat(0.1), Vec3::new(0.3, 0.7, 0.2)),
+            (Vec3::new(-3.0, 1.0, 2.0), Vec3::new(7.0, 4.0, 2.5)),
+            (Vec3::splat(1e4), Vec3::splat(1e4 + 1.0)),
+            (Vec3::splat(-1e-20), Vec3::new(3e-20, 1e-20, 0.0)),
+            (Vec3::splat(-2e30), Vec3::splat(5e30)),
+            (Vec3::new(1e-3, 2.0, -5.0), Vec3::new(1e3, 2.5, 5.0)),
+            (Vec3::ZERO, Vec3::splat(3e38)),
+        ]
+    }
+
+    fn same_ray(a: Option<CanonicalRay>, b: Option<CanonicalRay>) -> bool {
+        match (a, b) {
+            (None, None) => true,
+            (Some(a), Some(b)) => {
+                let bits = |v: Vec3A| v.to_array().map(f32::to_bits);
+                bits(a.origin) == bits(b.origin)
+                    && bits(a.dir) == bits(b.dir)
+                    && a.window.to_bits() == b.window.to_bits()
+                    && a.skip.to_bits() == b.skip.to_bits()
+            }
+            _ => false,
+        }
+    }
+
+    fn same_segment(a: Option<CanonicalSegment>, b: Option<CanonicalSegment>) -> bool {
+        match (a, b) {
+            (None, None) => true,
+            (Some(a), Some(b)) => {
+                let bits = |v: Vec3A| v.to_array().map(f32::to_bits);
+                bits(a.origin) == bits(b.origin)
+                    && bits(a.dir) == bits(b.dir)
+                    && a.len.to_bits() == b.len.to_bits()
+                    && a.window_start.to_bits() == b.window_start.to_bits()
+                    && a.window_end.to_bits() == b.window_end.to_bits()
+            }
+            _ => false,
+        }
+    }
+
+    #[test]
+    fn f32_canonical_points_match_the_f64_map() {
+        let mut rng = Stream(0x9e37_79b9_7f4a_7c15);
+        for (min, max) in frames() {
+            let f = Frame::new(min, max);
+            assert_eq!(f.center32.as_dvec3(), f.center);
+            for _ in 0..20_000 {
+                let p = rng.point(min, max);
+                let fast = f.canonical32(p);
+                if f.scale32 != 0.0 && fast.is_finite() {
+                    assert_eq!(Vec3::from(fast), f.canonical(p), "{p} in {min}..{max}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fast_paths_match_the_general_paths() {
+        let mut rng = Stream(0x2545_f491_4f6c_dd1d);
+        let mut fast_rays = 0;
+        for (min, max) in frames() {
+            let f = Frame::new(min, max);
+            let surface = |rng: &mut Stream| {
+                let normal = if rng.unit() < 0.1 {
+                    Vec3::ZERO
+                } else {
+                    rng.direction()
+                };
+                SurfacePoint::new(rng.point(min, max), normal, 1)
+            };
+            for _ in 0..20_000 {
+                let p = surface(&mut rng);
+                let ray = Ray::from_surface(p.point, p.normal, rng.direction(), 1);
+                let fast = f.canonical_ray(&ray);
+                assert!(
+                    same_ray(fast, f.canonical_ray_general(&ray)),
+                    "{ray:?} in {min}..{max}"
+                );
+                fast_rays += usize::from(fast.is_some_and(|c| c.skip == 0.0));
+                let q = surface(&mut rng);
+                assert!(
+                    same_segment(
+                        f.canonical_segment(&p, &q),
+                        f.canonical_segment_general(&p, &q)
+                    ),
+                    "{p:?} -> {q:?} in {min}..{max}"
+                );
+            }
+        }
+        assert!(fast_rays > 50_000, "{fast_rays}");
+        // a point far outside a huge scene overflows the f32 formula, not the f64 one
+        let f = Frame::new(Vec3::ZERO, Vec3::splat(3e38));
+        let (a, b) = (
+            SurfacePoint::free(Vec3::splat(-3e38)),
+            SurfacePoint::new(Vec3::splat(1e38), Vec3::X, 1),
+        );
+        assert!(!f.canonical32(a.point).is_finite());
+        let segment = f.canonical_segment(&a, &b);
+        assert!(segment.is_some());
+        assert!(same_segment(segment, f.canonical_segment_general(&a, &b)));
     }
 }

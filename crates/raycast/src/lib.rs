@@ -21,20 +21,22 @@
 //! too small for a big one.
 //!
 //! So [`Bvh::build`] maps the scene into a *canonical frame*: it translates by the centre of
-//! the bounding box and scales by a power of two `s` so that the largest side lies in
-//! `[512, 1024)`. A power-of-two scale is exact, and the map is evaluated in `f64` with one
-//! rounding to `f32`, so the same world point always lands on the same canonical point (shared
-//! vertices stay shared). Queries move their origin into the frame (a unit direction is
-//! unchanged; canonical `t` = `distance * s`) and hits come back in world units. A scene in
-//! millimetres and the same scene in kilometres see the same canonical numbers, and the obvhs
-//! cut-off is about `1e-7` of the scene.
+//! the bounding box (rounded to `f32`) and scales by a power of two `s` so that the largest side
+//! lies in `[512, 1024)`. A power-of-two scale is exact, and the map is evaluated with one
+//! rounding to `f32` (in `f64`, or in `f32` on the hot path of a query, which gives the same
+//! point since centre and scale are exact in `f32`), so the same world point always lands on the
+//! same canonical point (shared vertices stay shared). Queries move their origin into the frame
+//! (a unit direction is unchanged; canonical `t` = `distance * s`) and hits come back in world
+//! units. A scene in millimetres and the same scene in kilometres see the same canonical
+//! numbers, and the obvhs cut-off is about `1e-7` of the scene.
 //!
 //! # Surface offsets and the window around an origin
 //!
 //! A ray from [`Ray::from_surface`] (and each end of an [`RayCaster::occluded`] query) is
 //! lifted off its surface along the given normal by
 //! `lift(p) = max(CANONICAL_EPSILON, 2^-21 * max|p_i| * s)` canonical units, `p` the world
-//! point. [`CANONICAL_EPSILON`] is `2^-10` canonical units, about `1e-6` of the scene:
+//! point: the lift is added to the canonical point (rounded like a vertex) and the sum rounded
+//! to `f32` once more. [`CANONICAL_EPSILON`] is `2^-10` canonical units, about `1e-6` of the scene:
 //! * 16 ulps of the largest canonical coordinate (an `f32` ulp at 512 is `2^-14`), well above
 //!   the rounding of a point and of a plane test at that magnitude (a few ulps), so a lifted
 //!   origin is above its own plane and those of coplanar neighbours;
@@ -137,7 +139,9 @@ pub struct Ray {
     /// Start point (scene units). For a surface ray: the point on the surface, not yet offset.
     pub origin: Vec3,
     /// Direction; should be a unit vector (the casters normalise it anyway, so hit distances are
-    /// Euclidean). A zero or non-finite direction hits nothing.
+    /// Euclidean). A zero or non-finite direction hits nothing. A direction (or normal) that is
+    /// already unit to `f32` precision (squared length within `4 * f32::EPSILON` of 1, which is
+    /// as close as `normalize` gets) is used as it is, so unit input costs no normalisation.
     pub dir: Vec3,
     /// Unit geometric normal of the surface the ray leaves, or `Vec3::ZERO` for a free point
     /// (a non-finite normal counts as zero). A non-zero normal makes the caster lift the origin

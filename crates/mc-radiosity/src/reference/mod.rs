@@ -1,0 +1,192 @@
+//! The deterministic reference solver: explicit form factors and a linear solve.
+//!
+//! Monte Carlo estimators are judged against a reference solution of
+//! `B_i = E_i + ρ_i Σ_j F_ij B_j` (radiosity `B` and emission `E` in W/m², per RGB channel).
+//! This module computes one without random numbers, for scenes of up to about ten thousand
+//! patches (the work and memory grow as the square of the patch count):
+//!
+//! 1. **Form factors** ([`form_factors`]), row by row in parallel:
+//!    `F_ij = (1/A_i) ∫_{P_i} F_{x→P_j} v(x, j) dA_x`, with the inner integral the exact
+//!    point-to-polygon form factor ([`point_polygon_form_factor`], Lambert's contour integral,
+//!    with `P_j` clipped to the horizon of `x`), the outer one by adaptive triangle quadrature
+//!    with embedded error estimates, and the visible fraction `v` from shadow rays through
+//!    [`RayCaster::occluded`], refined where the rays disagree. Each row is refined until its
+//!    estimated error is below `tolerance × Σ_j F_ij` (default `1e-4`). A pair whose probe rays
+//!    are all unblocked is integrated without any visibility error. See [`matrix`](self) for the
+//!    steps and what the estimate does not see.
+//! 2. **Solve** ([`solve`]): Gauss-Seidel per channel to a residual
+//!    `max |E + ρ F B - B| / max B` below `residual` (default `1e-9`).
+//!
+//! The result is a [`combine::Estimate`](mcrad_combine::Estimate) with no variance. Every step
+//! is deterministic: rows are independent, and the answer does not depend on the thread count.
+//!
+//! # Example
+//!
+//! ```
+//! use glam::Vec3;
+//! use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
+//! use mcrad_meshing::{Mesh, Subdivision};
+//! use mcrad_raycast::Bvh;
+//! use mcrad_scene_io::{Face, Material, Scene};
+//!
+//! // A closed unit cube, every face emitting 1 W/m² with reflectance 0.5: B = E / (1 - ρ) = 2.
+//! let positions: Vec<Vec3> = (0..8)
+//!     .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
+//!     .collect();
+//! let quads = [[1, 3, 2, 0], [6, 7, 5, 4], [4, 5, 1, 0], [3, 7, 6, 2], [2, 6, 4, 0], [5, 7, 3, 1]];
+//! let faces = quads
+//!     .iter()
+//!     .enumerate()
+//!     .map(|(k, q)| Face { vertices: q.to_vec(), material: 0, source: k as u32 })
+//!     .collect();
+//! let material = Material { name: "m".into(), reflectance: Vec3::splat(0.5), emission: Vec3::ONE };
+//! let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
+//! let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+//! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+//! let r = reference(&mesh, &bvh, &ReferenceConfig::default(), &|_| {}).unwrap();
+//! for b in r.estimate.radiosity() {
+//!     assert!((b.x - 2.0).abs() < 1e-3);
+//! }
+//! ```
+
+mod form_factor;
+mod matrix;
+mod quadrature;
+mod solve;
+
+pub use form_factor::point_polygon_form_factor;
+pub use matrix::{FormFactorStats, FormFactors, form_factors};
+pub use solve::{Solution, solve};
+
+use mcrad_combine::Estimate;
+use mcrad_meshing::Mesh;
+use mcrad_raycast::RayCaster;
+
+/// Settings of the reference solver.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceConfig {
+    /// The most patches accepted; larger meshes are refused before any work
+    /// ([`ReferenceError::TooManyPatches`]). Work grows as the square of the patch count:
+    /// about 10k patches is the practical ceiling.
+    pub max_patches: usize,
+    /// Target error of each form-factor row relative to its sum `Σ_j F_ij`, in `(0, 1)`.
+    pub tolerance: f64,
+    /// Target residual of the solve, `max_{i,c} |E + ρ F B - B| / max B`, `> 0`.
+    pub residual: f64,
+    /// Gauss-Seidel sweeps allowed before [`ReferenceError::NotConverged`].
+    pub max_iterations: usize,
+}
+
+impl Default for ReferenceConfig {
+    /// 10 000 patches, row error `1e-4` of the row sum, residual `1e-9`, 10 000 sweeps.
+    fn default() -> Self {
+        ReferenceConfig {
+            max_patches: 10_000,
+            tolerance: 1e-4,
+            residual: 1e-9,
+            max_iterations: 10_000,
+        }
+    }
+}
+
+/// Why the reference solver refused or failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReferenceError {
+    /// The mesh is too large for explicit form factors.
+    #[error(
+        "the mesh has {patches} patches, more than the reference solver's limit of {limit}: \
+         its form factors take work and memory that grow as the square of the patch count; \
+         use a coarser mesh (a larger --max-edge)"
+    )]
+    TooManyPatches {
+        /// Patches in the mesh.
+        patches: usize,
+        /// The limit ([`ReferenceConfig::max_patches`]).
+        limit: usize,
+    },
+    /// The form-factor tolerance is not in `(0, 1)`.
+    #[error("the form-factor tolerance must be in (0, 1), got {0}")]
+    BadTolerance(f64),
+    /// The residual target is not a positive number.
+    #[error("the residual target must be a positive number, got {0}")]
+    BadResidual(f64),
+    /// The form-factor matrix belongs to another mesh.
+    #[error("the form-factor matrix has {rows} rows but the mesh has {patches} patches")]
+    MatrixSize {
+        /// Patches in the mesh.
+        patches: usize,
+        /// Rows of the matrix.
+        rows: usize,
+    },
+    /// Gauss-Seidel did not reach the residual target.
+    #[error(
+        "Gauss-Seidel reached a residual of {residual:.3e} after {iterations} sweeps, not the \
+         target {target:.1e} (reflectances close to 1 converge slowly; allow more sweeps)"
+    )]
+    NotConverged {
+        /// Sweeps done.
+        iterations: usize,
+        /// Residual reached (relative to the largest radiosity).
+        residual: f64,
+        /// The target.
+        target: f64,
+    },
+}
+
+/// Work, accuracy and convergence of a reference solution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceStats {
+    /// Patches solved.
+    pub patches: usize,
+    /// Form-factor work and estimated accuracy.
+    pub form_factors: FormFactorStats,
+    /// Gauss-Seidel sweeps.
+    pub iterations: usize,
+    /// Final residual relative to the largest radiosity.
+    pub residual: f64,
+}
+
+/// A reference solution.
+#[derive(Debug, Clone)]
+pub struct Reference {
+    /// Radiosity `B_i` (W/m² per channel); no variance (the error is deterministic: see
+    /// [`ReferenceStats`]); `rays` counts the shadow rays cast.
+    pub estimate: Estimate,
+    /// Work and accuracy.
+    pub stats: ReferenceStats,
+}
+
+/// Solves radiosity on `mesh` deterministically: form factors with visibility from `caster`
+/// (ids must be patch indices), then Gauss-Seidel. `progress` is called with the number of
+/// form-factor rows done (from worker threads; up to `mesh.patches().len()`).
+///
+/// Refuses meshes with more than [`ReferenceConfig::max_patches`] patches before doing any
+/// work.
+pub fn reference<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ReferenceConfig,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Reference, ReferenceError> {
+    let patches = mesh.patches().len();
+    if patches > config.max_patches {
+        return Err(ReferenceError::TooManyPatches {
+            patches,
+            limit: config.max_patches,
+        });
+    }
+    if !(config.residual > 0.0 && config.residual.is_finite()) {
+        return Err(ReferenceError::BadResidual(config.residual));
+    }
+    let factors = form_factors(mesh, caster, config.tolerance, progress)?;
+    let solution = solve(mesh, &factors, config.residual, config.max_iterations)?;
+    let stats = ReferenceStats {
+        patches,
+        form_factors: factors.stats().clone(),
+        iterations: solution.iterations,
+        residual: solution.residual,
+    };
+    let estimate = Estimate::new(solution.radiosity, None, stats.form_factors.rays)
+        .expect("a converged solution is finite");
+    Ok(Reference { estimate, stats })
+}

@@ -1,0 +1,459 @@
+//! The deterministic reference solver against exact answers: analytic form factors, closed
+//! boxes whose rows sum to 1, the closed furnace `B = E / (1 - ρ)`, and an occluded pair
+//! against a Monte Carlo estimate with a known standard error.
+
+use glam::{DVec3, Vec3};
+use mcrad_mc_radiosity::SurfaceSampler;
+use mcrad_mc_radiosity::reference::{
+    FormFactors, ReferenceConfig, ReferenceError, form_factors, point_polygon_form_factor,
+    reference,
+};
+use mcrad_mc_radiosity::rng::Stream;
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_raycast::{Bvh, RayCaster};
+use mcrad_scene_io::{Face, Material, Scene};
+
+/// Parallel unit squares one unit apart, facing each other (Hottel's crossed-strings value).
+const PARALLEL: f64 = 0.199_824_895_698_387_5;
+/// Unit squares sharing an edge at a right angle.
+const PERPENDICULAR: f64 = 0.200_043_776_075_403_2;
+
+fn material(name: &str, rho: f32, e: f32) -> Material {
+    Material {
+        name: name.into(),
+        reflectance: Vec3::splat(rho),
+        emission: Vec3::splat(e),
+    }
+}
+
+fn quad(vertices: [u32; 4], material: u32, source: u32) -> Face {
+    Face {
+        vertices: vertices.to_vec(),
+        material,
+        source,
+    }
+}
+
+/// The six inward-facing faces of an axis-aligned box `[0, s]³` (counter-clockwise seen from
+/// inside), each with the material index given.
+fn box_faces(s: f32, positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials: [u32; 6]) {
+    let base = positions.len() as u32;
+    for z in [0.0, s] {
+        for y in [0.0, s] {
+            for x in [0.0, s] {
+                positions.push(Vec3::new(x, y, z));
+            }
+        }
+    }
+    // Vertex (x, y, z) bits: index = x + 2y + 4z. Quads listed CCW seen from inside.
+    let quads = [
+        [1, 3, 2, 0], // z = 0, normal +z
+        [6, 7, 5, 4], // z = s, normal -z
+        [4, 5, 1, 0], // y = 0, normal +y
+        [3, 7, 6, 2], // y = s, normal -y
+        [2, 6, 4, 0], // x = 0, normal +x
+        [5, 7, 3, 1], // x = s, normal -x
+    ];
+    for (q, m) in quads.iter().zip(materials) {
+        let source = faces.len() as u32;
+        faces.push(quad(q.map(|i| base + i), m, source));
+    }
+}
+
+fn furnace(rho: f32) -> Scene {
+    let (mut p, mut f) = (Vec::new(), Vec::new());
+    box_faces(1.0, &mut p, &mut f, [0; 6]);
+    Scene::new(p, f, vec![material("furnace", rho, 1.0)])
+        .unwrap()
+        .0
+}
+
+fn bvh(mesh: &Mesh) -> Bvh {
+    Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap()
+}
+
+fn factors(mesh: &Mesh, tolerance: f64) -> FormFactors {
+    form_factors(mesh, &bvh(mesh), tolerance, &|_| {}).unwrap()
+}
+
+/// Two unit squares: `z = 0` facing +z (patch 0) and `z = 1` facing -z (patch 1).
+fn parallel_squares() -> Scene {
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(0.0, 1.0, 1.0),
+    ];
+    let faces = vec![quad([0, 1, 2, 3], 0, 0), quad([4, 7, 6, 5], 1, 1)];
+    Scene::new(
+        positions,
+        faces,
+        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0
+}
+
+/// Two unit squares sharing the edge `y = z = 0`: `z = 0` facing +z, `y = 0` facing +y.
+fn perpendicular_squares() -> Scene {
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+    ];
+    let faces = vec![quad([0, 1, 2, 3], 0, 0), quad([0, 4, 5, 1], 1, 1)];
+    Scene::new(
+        positions,
+        faces,
+        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0
+}
+
+#[test]
+fn point_to_square_matches_the_closed_form() {
+    // A point under the centre of a parallel unit square at distance 1: four corner
+    // rectangles 0.5 x 0.5, each (X/√(1+X²) atan(Y/√(1+X²)) + Y/√(1+Y²) atan(X/√(1+Y²)))/2π.
+    let x = 0.5f64;
+    let s = (1.0 + x * x).sqrt();
+    let exact = 4.0 * 2.0 * (x / s * (x / s).atan()) / std::f64::consts::TAU;
+    let square = [
+        DVec3::new(-0.5, -0.5, 1.0),
+        DVec3::new(0.5, -0.5, 1.0),
+        DVec3::new(0.5, 0.5, 1.0),
+        DVec3::new(-0.5, 0.5, 1.0),
+    ];
+    let f = point_polygon_form_factor(DVec3::ZERO, DVec3::Z, &square);
+    assert!((f - exact).abs() < 1e-14, "{f} vs {exact}");
+    // Tilting the receiver's normal by 90 degrees about x keeps the half above its horizon.
+    let tilted = point_polygon_form_factor(DVec3::ZERO, DVec3::Y, &square);
+    assert!(tilted > 0.0 && tilted < f, "{tilted}");
+}
+
+#[test]
+fn parallel_unit_squares_have_the_analytic_form_factor() {
+    let mesh = Mesh::build(&parallel_squares(), Subdivision::None).unwrap();
+    let f = factors(&mesh, 1e-4);
+    for (i, j) in [(0, 1), (1, 0)] {
+        let got = f.get(i, j);
+        assert!((got - PARALLEL).abs() < 1e-4 * PARALLEL, "F_{i}{j} = {got}");
+    }
+    assert!(f.stats().max_row_error <= 1e-4, "{:?}", f.stats());
+    // Tighter tolerance, tighter answer: the error estimate is honest.
+    let f = factors(&mesh, 1e-9);
+    assert!((f.get(0, 1) - PARALLEL).abs() < 1e-9, "{}", f.get(0, 1));
+    assert_eq!(f.stats().partly_visible_pairs, 0);
+}
+
+#[test]
+fn perpendicular_unit_squares_have_the_analytic_form_factor() {
+    let mesh = Mesh::build(&perpendicular_squares(), Subdivision::None).unwrap();
+    let f = factors(&mesh, 1e-4);
+    for (i, j) in [(0, 1), (1, 0)] {
+        let got = f.get(i, j);
+        assert!(
+            (got - PERPENDICULAR).abs() < 1e-4 * PERPENDICULAR,
+            "F_{i}{j} = {got}"
+        );
+    }
+    let f = factors(&mesh, 1e-9);
+    assert!(
+        (f.get(0, 1) - PERPENDICULAR).abs() < 1e-9,
+        "{}",
+        f.get(0, 1)
+    );
+}
+
+#[test]
+fn closed_cube_rows_sum_to_one_and_obey_reciprocity() {
+    for subdivision in [Subdivision::None, Subdivision::MaxEdge(0.3)] {
+        let mesh = Mesh::build(&furnace(0.5), subdivision).unwrap();
+        let f = factors(&mesh, 1e-4);
+        let patches = mesh.patches();
+        for i in 0..patches.len() {
+            let s = f.row_sum(i);
+            assert!(
+                (s - 1.0).abs() < 1e-4,
+                "{subdivision:?}: row {i} sums to {s}"
+            );
+            let (cols, vals) = f.row(i);
+            for (&j, &fij) in cols.iter().zip(vals) {
+                let j = j as usize;
+                assert_ne!(
+                    patches[i].face, patches[j].face,
+                    "coplanar patches exchange"
+                );
+                let (gij, gji) = (patches[i].area * fij, patches[j].area * f.get(j, i));
+                assert!(
+                    (gij - gji).abs() <= 1e-4 * gij.max(gji),
+                    "{subdivision:?}: A_{i} F_{i}{j} = {gij}, A_{j} F_{j}{i} = {gji}"
+                );
+            }
+        }
+        assert!(f.stats().max_row_error <= 1e-4, "{:?}", f.stats());
+        assert_eq!(f.stats().rows_over_tolerance, 0);
+    }
+}
+
+#[test]
+fn closed_furnace_gives_e_over_one_minus_rho() {
+    for rho in [0.5f32, 0.9] {
+        for subdivision in [Subdivision::None, Subdivision::MaxEdge(0.5)] {
+            let mesh = Mesh::build(&furnace(rho), subdivision).unwrap();
+            let config = ReferenceConfig {
+                tolerance: 1e-8,
+                ..ReferenceConfig::default()
+            };
+            let r = reference(&mesh, &bvh(&mesh), &config, &|_| {}).unwrap();
+            let exact = 1.0 / (1.0 - rho as f64);
+            for (i, b) in r.estimate.radiosity().iter().enumerate() {
+                assert!(
+                    (*b - DVec3::splat(exact)).abs().max_element() < 1e-6 * exact,
+                    "rho {rho}, {subdivision:?}: patch {i}: {b} vs {exact}"
+                );
+            }
+            assert!(r.stats.residual <= 1e-9);
+            assert!(r.estimate.variance().is_none());
+        }
+    }
+}
+
+#[test]
+fn default_tolerance_furnace_is_within_its_error_budget() {
+    // With the default row tolerance 1e-4, B = E / (1 - ρ S) is off by at most
+    // ρ / (1 - ρ)² × 1e-4 relative to the row sums; here it must be far better than that.
+    let mesh = Mesh::build(&furnace(0.9), Subdivision::MaxEdge(0.25)).unwrap();
+    let r = reference(&mesh, &bvh(&mesh), &ReferenceConfig::default(), &|_| {}).unwrap();
+    for b in r.estimate.radiosity() {
+        assert!((b.x - 10.0).abs() < 9e-3, "{b}");
+    }
+}
+
+/// The parallel squares with a blocker square `[0.3, 0.8] x [0.2, 0.7]` at `z = 0.5`,
+/// facing down, so that it hides part of each square from the other.
+fn blocked_squares() -> Scene {
+    let mut scene_positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(0.0, 1.0, 1.0),
+    ];
+    scene_positions.extend([
+        Vec3::new(0.3, 0.2, 0.5),
+        Vec3::new(0.8, 0.2, 0.5),
+        Vec3::new(0.8, 0.7, 0.5),
+        Vec3::new(0.3, 0.7, 0.5),
+    ]);
+    let faces = vec![
+        quad([0, 1, 2, 3], 0, 0),
+        quad([4, 7, 6, 5], 0, 1),
+        quad([8, 11, 10, 9], 0, 2),
+    ];
+    Scene::new(scene_positions, faces, vec![material("grey", 0.5, 1.0)])
+        .unwrap()
+        .0
+}
+
+/// Monte Carlo `F_ij`: the fraction of `n` cosine-distributed rays from uniform points of
+/// patch `i` whose first hit is the front of patch `j`, and its standard error.
+fn monte_carlo(mesh: &Mesh, caster: &impl RayCaster, i: usize, j: usize, n: u64) -> (f64, f64) {
+    let sampler = SurfaceSampler::new(mesh);
+    let mut rng = Stream::new(7, 0, i as u64, j as u64);
+    let hits = (0..n)
+        .filter(|_| {
+            let ray = sampler.ray(i, &mut rng);
+            matches!(caster.closest_hit(&ray), Some(h) if h.front && h.id == j as u32)
+        })
+        .count();
+    let p = hits as f64 / n as f64;
+    (p, (p * (1.0 - p) / n as f64).sqrt())
+}
+
+#[test]
+fn occluded_pair_agrees_with_monte_carlo() {
+    // Squares cut in 4 x 4, so that many pairs are partly visible. Each compared value is
+    // within 4.5 standard errors plus the form factor's own tolerance: a false failure has
+    // probability below 7e-6 per value (normal tail), 1e-4 over the 16 values.
+    let mesh = Mesh::build(&blocked_squares(), Subdivision::MaxEdge(0.26)).unwrap();
+    let caster = bvh(&mesh);
+    let f = form_factors(&mesh, &caster, 1e-4, &|_| {}).unwrap();
+    assert!(f.stats().partly_visible_pairs > 0, "{:?}", f.stats());
+    let patches = mesh.patches();
+    let bottom: Vec<usize> = (0..patches.len())
+        .filter(|&k| patches[k].face == 0)
+        .collect();
+    let top: Vec<usize> = (0..patches.len())
+        .filter(|&k| patches[k].face == 1)
+        .collect();
+    assert_eq!((bottom.len(), top.len()), (16, 16));
+    // Patch to whole face: sums of rows over the top face's patches.
+    for &i in &bottom {
+        let reference: f64 = top.iter().map(|&j| f.get(i, j)).sum();
+        let sampler = SurfaceSampler::new(&mesh);
+        let mut rng = Stream::new(11, 0, i as u64, 0);
+        let n = 400_000u64;
+        let hits = (0..n)
+            .filter(|_| {
+                let ray = sampler.ray(i, &mut rng);
+                matches!(caster.closest_hit(&ray), Some(h) if h.front && patches[h.id as usize].face == 1)
+            })
+            .count();
+        let p = hits as f64 / n as f64;
+        let se = (p * (1.0 - p) / n as f64).sqrt();
+        assert!(
+            (reference - p).abs() <= 4.5 * se + 1e-4,
+            "patch {i}: reference {reference:.5} vs Monte Carlo {p:.5} ± {se:.1e}"
+        );
+    }
+    // One partly hidden pair of small patches, with many rays.
+    let (i, j) = (bottom[5], top[6]);
+    let (p, se) = monte_carlo(&mesh, &caster, i, j, 4_000_000);
+    let got = f.get(i, j);
+    assert!(
+        (got - p).abs() <= 4.5 * se + 1e-4 * f.row_sum(i),
+        "F_{i}{j}: reference {got:.6} vs Monte Carlo {p:.6} ± {se:.1e}"
+    );
+}
+
+#[test]
+fn hidden_and_back_facing_pairs_exchange_nothing() {
+    // The blocker's back faces the bottom square: F = 0 both ways. The bottom square sees the
+    // top one around the blocker only.
+    let mesh = Mesh::build(&blocked_squares(), Subdivision::None).unwrap();
+    let f = factors(&mesh, 1e-4);
+    assert_eq!(
+        f.get(0, 2),
+        0.0,
+        "the blocker's back faces the bottom square"
+    );
+    assert_eq!(f.get(2, 0), 0.0, "the bottom square is behind the blocker");
+    assert!(f.get(2, 1) > 0.0 && f.get(1, 2) > 0.0);
+    assert!(f.get(0, 1) > 0.0 && f.get(0, 1) < PARALLEL - 0.01);
+    // Two squares facing away from each other: nothing.
+    let mut scene = parallel_squares();
+    let mut faces = scene.faces().to_vec();
+    faces[1].vertices.reverse();
+    scene = Scene::new(
+        scene.positions().to_vec(),
+        faces,
+        scene.materials().to_vec(),
+    )
+    .unwrap()
+    .0;
+    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    let f = factors(&mesh, 1e-4);
+    assert_eq!((f.row_sum(0), f.row_sum(1)), (0.0, 0.0));
+}
+
+#[test]
+fn same_answer_with_one_or_two_threads() {
+    let mesh = Mesh::build(&blocked_squares(), Subdivision::MaxEdge(0.3)).unwrap();
+    let caster = bvh(&mesh);
+    let run = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| form_factors(&mesh, &caster, 1e-4, &|_| {}).unwrap())
+    };
+    assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn progress_counts_every_row() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let mesh = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.5)).unwrap();
+    let (calls, last) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    reference(&mesh, &bvh(&mesh), &ReferenceConfig::default(), &|done| {
+        calls.fetch_add(1, Ordering::Relaxed);
+        last.fetch_max(done, Ordering::Relaxed);
+    })
+    .unwrap();
+    assert_eq!(calls.into_inner(), 24);
+    assert_eq!(last.into_inner(), 24);
+}
+
+#[test]
+fn too_many_patches_is_refused_with_the_count_and_the_limit() {
+    let mesh = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.5)).unwrap();
+    let config = ReferenceConfig {
+        max_patches: 20,
+        ..ReferenceConfig::default()
+    };
+    let err = reference(&mesh, &bvh(&mesh), &config, &|_| panic!("no work")).unwrap_err();
+    assert_eq!(
+        err,
+        ReferenceError::TooManyPatches {
+            patches: 24,
+            limit: 20
+        }
+    );
+    let message = err.to_string();
+    assert!(
+        message.contains("24 patches") && message.contains("limit of 20"),
+        "{message}"
+    );
+}
+
+#[test]
+fn slow_convergence_is_an_error_not_a_wrong_answer() {
+    let mesh = Mesh::build(&furnace(0.99), Subdivision::None).unwrap();
+    let config = ReferenceConfig {
+        max_iterations: 50,
+        ..ReferenceConfig::default()
+    };
+    let err = reference(&mesh, &bvh(&mesh), &config, &|_| {}).unwrap_err();
+    assert!(
+        matches!(err, ReferenceError::NotConverged { iterations: 50, residual, .. } if residual > 1e-9),
+        "{err}"
+    );
+    for tolerance in [0.0, 1.0, f64::NAN] {
+        let config = ReferenceConfig {
+            tolerance,
+            ..ReferenceConfig::default()
+        };
+        let err = reference(&mesh, &bvh(&mesh), &config, &|_| {}).unwrap_err();
+        assert_eq!(err.to_string().contains("tolerance"), true, "{err}");
+    }
+}
+
+#[test]
+fn zz_debug() {
+    let mesh = Mesh::build(&blocked_squares(), Subdivision::MaxEdge(0.26)).unwrap();
+    let caster = bvh(&mesh);
+    let f = form_factors(&mesh, &caster, 1e-4, &|_| {}).unwrap();
+    eprintln!("{:?}", f.stats());
+    let patches = mesh.patches();
+    let i = 5;
+    eprintln!("patch {i} centroid {}", patches[i].centroid);
+    let top: Vec<usize> = (0..patches.len())
+        .filter(|&k| patches[k].face == 1)
+        .collect();
+    for &j in &top {
+        let (p, se) = monte_carlo(&mesh, &caster, i, j, 1_000_000);
+        eprintln!(
+            "j {j} c {} ref {:.5} mc {:.5} ± {:.1e}",
+            patches[j].centroid,
+            f.get(i, j),
+            p,
+            se
+        );
+    }
+    let unb = Mesh::build(&parallel_squares(), Subdivision::MaxEdge(0.26)).unwrap();
+    let g = factors(&unb, 1e-4);
+    let ub = bvh(&unb);
+    let (p, se) = monte_carlo(&unb, &ub, 5, 21, 1_000_000);
+    eprintln!("unblocked 5-21 {} mc {} {}", g.get(5, 21), p, se);
+}
