@@ -23,12 +23,17 @@ pub enum Command {
 pub enum Method {
     /// Stochastic shooting with constant energy per ray (paper, section 1.3).
     Shoot,
+    /// Progressive ray refinement (Algorithm 1): shooting passes merged by their rays.
+    Prr,
 }
 
 impl Method {
-    pub fn name(self) -> &'static str {
+    /// The schedule that runs this method.
+    pub fn schedule(self) -> mcrad_mc_radiosity::schedule::Method {
+        use mcrad_mc_radiosity::schedule::Method as M;
         match self {
-            Method::Shoot => "shoot",
+            Method::Shoot => M::Shoot,
+            Method::Prr => M::Prr,
         }
     }
 }
@@ -40,9 +45,23 @@ pub struct Solve {
     /// Solution method.
     #[arg(long, value_enum, default_value_t = Method::Shoot)]
     pub method: Method,
-    /// Total ray budget over all passes (accepts 2000000 and 2e6).
-    #[arg(long, default_value = "2e6", value_parser = parse_count)]
-    pub rays: u64,
+    /// Total ray budget over all passes (accepts 2000000 and 2e6). Default: 2e6, or no limit
+    /// with --time.
+    #[arg(long, value_parser = parse_count)]
+    pub rays: Option<u64>,
+    /// Wall-clock budget in seconds: progressive methods stop with the best complete solution
+    /// when the next step would not finish in time.
+    #[arg(long, value_name = "S", value_parser = parse_seconds)]
+    pub time: Option<f64>,
+    /// Add the ambient term (paper, section 3.1) to shooting solutions.
+    #[arg(long)]
+    pub ambient: bool,
+    /// A reference solution (a --patches CSV of the same mesh) to measure error against.
+    #[arg(long, value_name = "R.csv", requires = "trace")]
+    pub reference: Option<PathBuf>,
+    /// Write the error against --reference after each step: `seconds,rays,rms_rel`.
+    #[arg(long, value_name = "T.csv", requires = "reference")]
+    pub trace: Option<PathBuf>,
     /// Seed of all random streams: the same seed gives the same answer on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -129,6 +148,14 @@ fn parse_exposure(s: &str) -> Result<Exposure, String> {
         _ => Err(format!(
             "'{s}' is neither 'auto' nor a number of stops in [-64, 64]"
         )),
+    }
+}
+
+/// Parses a positive number of seconds.
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("'{s}' is not a positive number of seconds")),
     }
 }
 

@@ -4,6 +4,7 @@ mod camera_arg;
 mod cli;
 mod output;
 mod solve;
+mod trace;
 
 use clap::Parser;
 use std::process::ExitCode;

@@ -1,10 +1,11 @@
 //! `mcrad solve`: load, mesh, build the BVH, run the method, write the results.
 
-use crate::cli::{Method, Solve};
+use crate::cli::Solve;
+use crate::trace::Tracer;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
+use mcrad_mc_radiosity::schedule::{self, ScheduleConfig, Solution};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::fs::File;
@@ -15,6 +16,9 @@ use std::time::Instant;
 
 /// Default subdivision: no patch edge longer than this fraction of the bounding-box diagonal.
 const DEFAULT_MAX_EDGE_FRACTION: f32 = 1.0 / 20.0;
+
+/// Default ray budget when neither --rays nor --time is given.
+const DEFAULT_RAYS: u64 = 2_000_000;
 
 pub fn run(args: &Solve) -> Result<()> {
     let threads = args
@@ -39,42 +43,63 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     let subdivision = if args.no_subdivide {
         Subdivision::None
     } else {
-        Subdivision::MaxEdge(args.max_edge.unwrap_or_else(|| {
-            let (lo, hi) = scene
-                .positions()
-                .iter()
-                .fold((glam::Vec3::MAX, glam::Vec3::MIN), |(lo, hi), p| {
-                    (lo.min(*p), hi.max(*p))
-                });
-            lo.distance(hi) * DEFAULT_MAX_EDGE_FRACTION
-        }))
+        Subdivision::MaxEdge(
+            args.max_edge
+                .unwrap_or_else(|| scene.bounds().diagonal() as f32 * DEFAULT_MAX_EDGE_FRACTION),
+        )
     };
     let mesh = Mesh::build(scene, subdivision)?;
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let mut tracer = match (&args.reference, &args.trace) {
+        (Some(reference), Some(trace)) => {
+            Some(Tracer::new(&mesh, reference, trace, args.no_subdivide)?)
+        }
+        _ => None,
+    };
     let setup_seconds = setup.elapsed().as_secs_f64();
 
-    let bar = progress_bar(args.quiet, args.rays);
-    let start = Instant::now();
-    let (estimate, stats) = match args.method {
-        Method::Shoot => {
-            let config = ShootConfig {
-                rays: args.rays,
-                unshot_threshold: args.unshot_threshold,
-                seed: args.seed,
-            };
-            let shooting = shoot(&mesh, &bvh, &config, &mut |p| {
-                bar.set_position(p.rays);
-                bar.set_message(format!(
-                    "wave {}, {:.2}% unshot",
-                    p.waves,
-                    100.0 * p.unshot_fraction
-                ));
-                ControlFlow::Continue(())
-            })?;
-            (shooting.estimate, shooting.stats)
-        }
+    let rays = args.rays.unwrap_or(if args.time.is_some() {
+        u64::MAX
+    } else {
+        DEFAULT_RAYS
+    });
+    let bar = progress_bar(args.quiet, rays);
+    let config = ScheduleConfig {
+        rays,
+        seed: args.seed,
+        unshot_threshold: args.unshot_threshold,
+        ambient: args.ambient,
+        first_pass_rays: None,
     };
+    let start = Instant::now();
+    let mut trace_error = None;
+    let solution: Solution =
+        schedule::run(args.method.schedule(), &mesh, &bvh, &config, &mut |step| {
+            let seconds = start.elapsed().as_secs_f64();
+            bar.set_position(step.rays.min(rays));
+            bar.set_message(format!("step {}", step.index));
+            if let Some(t) = tracer.as_mut()
+                && let Err(e) = t.record(seconds, step.rays, step.radiosity)
+            {
+                trace_error = Some(e);
+                return ControlFlow::Break(());
+            }
+            match args.time {
+                // Stop when the next step, at the speed so far, would end after the deadline.
+                Some(budget)
+                    if seconds + step.next_rays as f64 * seconds / step.rays.max(1) as f64
+                        > budget =>
+                {
+                    ControlFlow::Break(())
+                }
+                _ => ControlFlow::Continue(()),
+            }
+        })?;
+    if let Some(e) = trace_error {
+        return Err(e);
+    }
     let seconds = start.elapsed().as_secs_f64();
+    let estimate = &solution.estimate;
 
     if let Some(path) = &args.patches {
         let rows = mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
@@ -85,24 +110,18 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         });
         write_patch_csv(create(path)?, rows)?;
     }
-    let emitted = stats.emitted.x + stats.emitted.y + stats.emitted.z;
     let run = RunStats {
-        method: args.method.name().into(),
+        method: args.method.schedule().name().into(),
         patches: mesh.patches().len(),
-        rays: stats.rays,
+        rays: estimate.rays(),
         seconds,
-        rays_per_second: stats.rays as f64 / seconds.max(1e-9),
-        iterations: stats.waves,
+        rays_per_second: estimate.rays() as f64 / seconds.max(1e-9),
+        iterations: solution.steps,
         seed: args.seed,
         threads,
-        escaped_rays: stats.escaped_rays,
-        unshot_fraction: (stats.unshot.x + stats.unshot.y + stats.unshot.z) / emitted,
-        stop: match stats.stop {
-            StopReason::Converged => "converged",
-            StopReason::BudgetSpent => "budget",
-            StopReason::Stopped => "stopped",
-        }
-        .into(),
+        escaped_rays: solution.escaped_rays,
+        unshot_fraction: solution.unshot_fraction,
+        stop: if solution.stopped { "stopped" } else { "done" }.into(),
         setup_seconds,
     };
     if let Some(path) = &args.stats {
@@ -112,7 +131,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     bar.finish_and_clear();
     if !args.quiet {
         println!(
-            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} waves, {:.2}% unshot, {} escaped rays, {} threads)",
+            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} steps, {:.2}% unshot, {} escaped rays, {} threads)",
             args.scene.display(),
             run.patches,
             run.rays,
@@ -128,7 +147,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     Ok(())
 }
 
-fn create(path: &Path) -> Result<BufWriter<File>> {
+pub fn create(path: &Path) -> Result<BufWriter<File>> {
     let file =
         File::create(path).with_context(|| format!("could not create {}", path.display()))?;
     Ok(BufWriter::new(file))
@@ -139,7 +158,8 @@ fn progress_bar(quiet: bool, rays: u64) -> ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::with_draw_target(Some(rays), ProgressDrawTarget::stderr());
+    let length = (rays != u64::MAX).then_some(rays);
+    let bar = ProgressBar::with_draw_target(length, ProgressDrawTarget::stderr());
     bar.set_style(
         ProgressStyle::with_template(
             "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} rays, {msg}",

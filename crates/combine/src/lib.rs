@@ -14,7 +14,9 @@
 //! refinement and progressive gathering use (Balog, sections 2.1-2.2).
 
 mod estimate;
+mod measure;
 mod rule;
 
 pub use estimate::{Estimate, EstimateError};
+pub use measure::rms_rel;
 pub use rule::{Rule, Weights, merge};

@@ -33,7 +33,7 @@ fn bench(c: &mut Criterion) {
     ));
     group
         .sample_size(20)
-        .measurement_time(Duration::from_secs(10));
+        .measurement_time(Duration::from_secs(20));
     for spp in [1, 4] {
         let settings = RenderSettings {
             width: 512,

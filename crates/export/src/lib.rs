@@ -10,7 +10,7 @@ pub mod render;
 mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
-pub use patches::{PatchRow, write_patch_csv};
+pub use patches::{PatchRow, ReadCsvError, read_patch_csv, write_patch_csv};
 pub use stats::RunStats;
 
 /// Why writing a result failed.

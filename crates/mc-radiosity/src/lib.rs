@@ -17,6 +17,7 @@
 pub mod reference;
 pub mod rng;
 pub mod sampling;
+pub mod schedule;
 mod shoot;
 mod surface;
 

@@ -18,6 +18,12 @@ fn mix(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// A seed for an independent sub-run (a pass of a progressive schedule, an estimator within
+/// it): a hash of the run's `seed` and a `tag`. Different tags give unrelated streams.
+pub fn derive_seed(seed: u64, tag: u64) -> u64 {
+    mix(mix(seed ^ 0x2545_f491_4f6c_dd1d) ^ mix(tag.wrapping_add(0x9e37_79b9_7f4a_7c15)))
+}
+
 impl Stream {
     /// The stream for run seed `seed`, pass (wave, round) `pass`, item (patch, vertex) `item` and
     /// sub-stream `sub` (a purpose tag or a chunk of the item's work).

@@ -83,7 +83,7 @@ pub enum StopReason {
 
 /// What the observer sees after each wave.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ShootProgress {
+pub struct ShootProgress<'a> {
     /// Waves done.
     pub waves: u32,
     /// Rays cast so far.
@@ -92,6 +92,8 @@ pub struct ShootProgress {
     pub budget: u64,
     /// Unshot power left as a fraction of the emitted power (channels summed).
     pub unshot_fraction: f64,
+    /// The solution so far, `B_i = E_i + received_i / A_i` (W/m²), in mesh order.
+    pub radiosity: &'a [DVec3],
 }
 
 /// Counters and power balance of a run. Powers are in W per RGB channel (scene units² × W/m²).
@@ -206,6 +208,7 @@ pub fn shoot<C: RayCaster>(
         stop: StopReason::BudgetSpent,
     };
     let mut per_ray = vec![DVec3::ZERO; patches.len()];
+    let mut radiosity = vec![DVec3::ZERO; patches.len()];
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
@@ -272,11 +275,13 @@ pub fn shoot<C: RayCaster>(
             }
         }
         stats.waves += 1;
+        radiosity_so_far(patches, &reflected, &mut radiosity);
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
             budget: config.rays,
             unshot_fraction: total(unshot.iter().sum::<DVec3>()) / total(emitted),
+            radiosity: &radiosity,
         };
         if observer(&progress).is_break() {
             stats.stop = StopReason::Stopped;
@@ -284,11 +289,7 @@ pub fn shoot<C: RayCaster>(
         }
     }
     stats.unshot = unshot.iter().sum();
-    let radiosity = patches
-        .iter()
-        .zip(&reflected)
-        .map(|(p, r)| p.emission.as_dvec3() + *r / p.area)
-        .collect();
+    radiosity_so_far(patches, &reflected, &mut radiosity);
     let variance = squares
         .iter()
         .zip(&area)
@@ -301,6 +302,13 @@ pub fn shoot<C: RayCaster>(
         unshot,
         stats,
     })
+}
+
+/// `B_i = E_i + reflected_i / A_i` into `out`.
+fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3], out: &mut [DVec3]) {
+    for ((b, p), r) in out.iter_mut().zip(patches).zip(reflected) {
+        *b = p.emission.as_dvec3() + *r / p.area;
+    }
 }
 
 /// Ray counts of one wave: `n_i = round_stochastic(|U_i| / phi)`, at most `budget` in all, and

@@ -18,7 +18,7 @@ mod smooth;
 mod subdivide;
 
 pub use build::{Mesh, MeshError, Patch, Subdivision};
-pub use smooth::DEFAULT_CREASE_ANGLE_DEGREES;
+pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 
 #[cfg(test)]
 mod tests;

@@ -5,7 +5,7 @@
 //! that belong to the same surface as its own patch, so linear interpolation over the patch
 //! shows smooth illumination while material boundaries and creases stay sharp.
 
-use crate::build::Mesh;
+use crate::build::{Mesh, Patch};
 use glam::{DVec3, Vec3};
 
 /// The default crease angle (degrees): neighbours whose normals differ from a corner's patch
@@ -59,39 +59,21 @@ impl Mesh {
             patches.len(),
             "corner_radiosity needs one value per patch"
         );
-        let angle = if crease_angle_degrees.is_nan() {
-            0.0
-        } else {
-            crease_angle_degrees.clamp(0.0, 180.0)
-        };
-        let min_cosine = (angle as f64).to_radians().cos() - COSINE_SLACK;
-
-        // Every (point, patch) incidence, sorted by point and then patch, without repeats.
-        let mut incidences: Vec<(PointKey, u32)> = Vec::with_capacity(self.corner_count());
-        for (p, patch) in patches.iter().enumerate() {
-            for &v in self.corners(patch) {
-                incidences.push((point_key(self.positions()[v as usize]), p as u32));
-            }
-        }
-        incidences.sort_unstable();
-        incidences.dedup();
+        let min_cosine = min_cosine(crease_angle_degrees);
+        let incidences = self.incidences();
 
         // The smoothed value of each incidence: its patch's surface around the point.
         let mut smoothed = Vec::with_capacity(incidences.len());
         for group in incidences.chunk_by(|a, b| a.0 == b.0) {
             for &(_, p) in group {
                 let own = &patches[p as usize];
-                let normal = own.normal.as_dvec3();
                 // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written so
                 // that a lone patch or a constant solution comes out exactly.
                 let own_value = patch_values[p as usize];
                 let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
                 for &(_, q) in group {
                     let other = &patches[q as usize];
-                    let same_surface = q == p
-                        || (other.material == own.material
-                            && other.normal.as_dvec3().dot(normal) >= min_cosine);
-                    if same_surface {
+                    if q == p || same_surface(own, other, min_cosine) {
                         weighted += other.area * (patch_values[q as usize] - own_value);
                         area += other.area;
                     }
@@ -111,6 +93,148 @@ impl Mesh {
             }
         }
         out
+    }
+
+    /// Every `(point, patch)` incidence, sorted by point and then patch, without repeats.
+    fn incidences(&self) -> Vec<(PointKey, u32)> {
+        let mut incidences: Vec<(PointKey, u32)> = Vec::with_capacity(self.corner_count());
+        for (p, patch) in self.patches().iter().enumerate() {
+            for &v in self.corners(patch) {
+                incidences.push((point_key(self.positions()[v as usize]), p as u32));
+            }
+        }
+        incidences.sort_unstable();
+        incidences.dedup();
+        incidences
+    }
+
+    /// The surfaces [`Mesh::corner_radiosity`] averages over, grouped so that corners averaging
+    /// over the same patches at the same point share one group.
+    ///
+    /// Corner `k` of patch `p` (global index [`Mesh::corner_offset`]`(p) + k`) belongs to group
+    /// [`CornerGroups::group_of`]`(corner)`, whose [`CornerGroups::patches`] are exactly the
+    /// patches `q` that `corner_radiosity` averages for that corner with the same
+    /// `crease_angle_degrees` (its own patch, and those with a corner at the same point, the same
+    /// material and a normal within the crease angle of `p`'s). So
+    /// `corner_radiosity(v)[corner]` is the area-weighted mean of `v` over the corner's group, and
+    /// a per-vertex quantity computed once per group (a vertex gather) belongs to every corner of
+    /// the group. The relation "within the crease angle of" is not transitive, so two corners at
+    /// one point may belong to different, overlapping groups.
+    ///
+    /// Groups are numbered by point (ordered by the bits of its coordinates) and then by the
+    /// lowest patch index that uses them; the result is deterministic.
+    pub fn corner_groups(&self, crease_angle_degrees: f32) -> CornerGroups {
+        let patches = self.patches();
+        let min_cosine = min_cosine(crease_angle_degrees);
+        let incidences = self.incidences();
+        let mut groups = CornerGroups {
+            points: Vec::new(),
+            first_patch: vec![0],
+            patches: Vec::new(),
+            corner_group: Vec::with_capacity(self.corner_count()),
+        };
+        // The group of each incidence.
+        let mut incidence_group = Vec::with_capacity(incidences.len());
+        let mut members = Vec::new();
+        for at_point in incidences.chunk_by(|a, b| a.0 == b.0) {
+            let first_group_here = groups.len();
+            for &(key, p) in at_point {
+                let own = &patches[p as usize];
+                members.clear();
+                members.extend(
+                    at_point
+                        .iter()
+                        .map(|&(_, q)| q)
+                        .filter(|&q| q == p || same_surface(own, &patches[q as usize], min_cosine)),
+                );
+                let existing =
+                    (first_group_here..groups.len()).find(|&g| groups.patches(g) == members);
+                let g = existing.unwrap_or_else(|| {
+                    groups
+                        .points
+                        .push(Vec3::from_array(key.map(f32::from_bits)));
+                    groups.patches.extend_from_slice(&members);
+                    groups.first_patch.push(groups.patches.len() as u32);
+                    groups.len() - 1
+                });
+                incidence_group.push(g as u32);
+            }
+        }
+        for (p, patch) in patches.iter().enumerate() {
+            for &v in self.corners(patch) {
+                let key = (point_key(self.positions()[v as usize]), p as u32);
+                let i = incidences
+                    .binary_search(&key)
+                    .expect("every corner was recorded as an incidence");
+                groups.corner_group.push(incidence_group[i]);
+            }
+        }
+        groups
+    }
+}
+
+/// The cosine a neighbour's normal must reach to lie within `crease_angle_degrees` (clamped to
+/// `[0, 180]`, NaN as 0), less the rounding slack.
+fn min_cosine(crease_angle_degrees: f32) -> f64 {
+    let angle = if crease_angle_degrees.is_nan() {
+        0.0
+    } else {
+        crease_angle_degrees.clamp(0.0, 180.0)
+    };
+    (angle as f64).to_radians().cos() - COSINE_SLACK
+}
+
+/// Whether `other` belongs to `own`'s surface at a shared point: the same material and a normal
+/// within the crease angle (`own` itself always does; callers test that by index).
+fn same_surface(own: &Patch, other: &Patch, min_cosine: f64) -> bool {
+    other.material == own.material
+        && other.normal.as_dvec3().dot(own.normal.as_dvec3()) >= min_cosine
+}
+
+/// Groups of patch corners that share a surface at a point: see [`Mesh::corner_groups`].
+///
+/// Invariants: every group has a point and at least one patch (sorted, without repeats, all of
+/// one material); every corner of the mesh names a group.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CornerGroups {
+    /// Per group: the shared corner position (scene units).
+    points: Vec<Vec3>,
+    /// Per group `g`: its patches are `patches[first_patch[g]..first_patch[g + 1]]`.
+    first_patch: Vec<u32>,
+    patches: Vec<u32>,
+    /// Per global corner: its group.
+    corner_group: Vec<u32>,
+}
+
+impl CornerGroups {
+    /// Number of groups.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when there is no group (a mesh without patches).
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The position shared by the corners of group `g` (scene units).
+    pub fn point(&self, g: usize) -> Vec3 {
+        self.points[g]
+    }
+
+    /// The patch indices of group `g`, ascending: the patches whose values are averaged there.
+    pub fn patches(&self, g: usize) -> &[u32] {
+        &self.patches[self.first_patch[g] as usize..self.first_patch[g + 1] as usize]
+    }
+
+    /// The group of global corner `corner` (see [`Mesh::corner_offset`]).
+    pub fn group_of(&self, corner: usize) -> usize {
+        self.corner_group[corner] as usize
+    }
+
+    /// The group of every global corner, in corner order ([`Mesh::corner_count`] entries).
+    pub fn corner_groups(&self) -> &[u32] {
+        &self.corner_group
     }
 }
 
@@ -322,6 +446,96 @@ mod tests {
             }
         }
         assert_eq!(shared, 4);
+    }
+
+    #[test]
+    fn corner_groups_hold_exactly_what_corner_radiosity_averages() {
+        // Walls, a floor, a gentle bend and a second material, subdivided; and a fan of three
+        // quads bent by 20° each (the outer two 40° apart).
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 2.0, 0.0),
+            Vec3::new(0.0, 2.0, 0.0),
+            Vec3::new(0.0, 0.0, 1.5),
+            Vec3::new(2.0, 0.0, 1.5),
+            Vec3::new(2.5, 2.0, 0.3),
+            Vec3::new(-1.0, 1.0, 0.0),
+            Vec3::new(-0.7, 0.2, 0.0),
+        ];
+        let faces = vec![
+            face(&[0, 1, 2, 3], 0, 0),
+            face(&[1, 0, 4, 5], 0, 1),
+            face(&[1, 6, 2], 0, 2),
+            face(&[0, 3, 7, 8], 1, 3),
+        ];
+        let walls = mesh(positions, faces, Subdivision::MaxEdge(0.4));
+        let fan = {
+            let (s, c) = 20f32.to_radians().sin_cos();
+            let (s2, c2) = 40f32.to_radians().sin_cos();
+            let positions = vec![
+                Vec3::new(0.0, 0.0, 0.0),
+                Vec3::new(1.0, 0.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(1.0 + c, 0.0, s),
+                Vec3::new(1.0 + c, 1.0, s),
+                Vec3::new(1.0 + c + c2, 0.0, s + s2),
+                Vec3::new(1.0 + c + c2, 1.0, s + s2),
+            ];
+            let faces = vec![
+                face(&[0, 1, 2, 3], 0, 0),
+                face(&[1, 4, 5, 2], 0, 1),
+                face(&[4, 6, 7, 5], 0, 2),
+            ];
+            mesh(positions, faces, Subdivision::None)
+        };
+        for m in [&walls, &fan] {
+            let values: Vec<DVec3> = (0..m.patches().len())
+                .map(|p| DVec3::new(1.0 + p as f64, (p * p % 7) as f64, 0.5 * (p % 3) as f64))
+                .collect();
+            for crease in [0.0, DEFAULT_CREASE_ANGLE_DEGREES, 90.0, 180.0] {
+                let smooth = m.corner_radiosity(&values, crease);
+                let groups = m.corner_groups(crease);
+                assert_eq!(groups.corner_groups().len(), m.corner_count());
+                for p in 0..m.patches().len() {
+                    for (i, pos) in corners(m, p) {
+                        let g = groups.group_of(i);
+                        let members = groups.patches(g);
+                        assert_eq!(groups.point(g), pos);
+                        assert!(members.contains(&(p as u32)));
+                        assert!(members.windows(2).all(|w| w[0] < w[1]));
+                        let (mut sum, mut area) = (DVec3::ZERO, 0.0);
+                        for &q in members {
+                            sum += m.patches()[q as usize].area * values[q as usize];
+                            area += m.patches()[q as usize].area;
+                        }
+                        assert!(
+                            (sum / area - smooth[i]).abs().max_element() < 1e-12,
+                            "crease {crease}, corner {i}"
+                        );
+                    }
+                }
+                // Groups are distinct (point, patches) pairs.
+                for g in 0..groups.len() {
+                    for h in 0..g {
+                        assert!(
+                            groups.point(g) != groups.point(h)
+                                || groups.patches(g) != groups.patches(h)
+                        );
+                    }
+                }
+            }
+        }
+        // In the fan at 30°, the middle quad shares its first hinge with the first quad and its
+        // second with the third, which are two surfaces apart.
+        let groups = fan.corner_groups(DEFAULT_CREASE_ANGLE_DEGREES);
+        let first_hinge = (0..4)
+            .map(|k| fan.corner_offset(1) + k)
+            .map(|i| groups.patches(groups.group_of(i)).to_vec())
+            .collect::<Vec<_>>();
+        assert_eq!(first_hinge[0], vec![0, 1]);
+        assert_eq!(first_hinge[1], vec![1, 2]);
     }
 
     #[test]

@@ -145,7 +145,7 @@ impl Camera {
         let (w, h) = (width as f32, height as f32);
         let d = point - self.eye;
         let z = d.dot(self.forward);
-        if !(z > 0.0) {
+        if z.is_nan() || z <= 0.0 {
             return None;
         }
         let aspect = w / h;

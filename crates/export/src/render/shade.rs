@@ -147,7 +147,8 @@ fn barycentric(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f32; 3]> {
     let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
     let (d1p, d2p) = (e1.dot(d), e2.dot(d));
     let denom = d11 * d22 - d12 * d12;
-    if !(denom > f32::EPSILON * d11 * d22) {
+    // NaN (non-finite input) also counts as degenerate
+    if denom.is_nan() || denom <= f32::EPSILON * d11 * d22 {
         return None;
     }
     let u = (d22 * d1p - d12 * d2p) / denom;

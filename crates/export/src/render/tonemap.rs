@@ -55,7 +55,11 @@ pub fn luminance(rgb: Vec3) -> f32 {
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value, clipped to `[0, 1]` first
 /// (NaN counts as 0).
 pub fn srgb_encode(linear: f32) -> f32 {
-    let v = linear.max(0.0).min(1.0);
+    let v = if linear.is_nan() {
+        0.0
+    } else {
+        linear.clamp(0.0, 1.0)
+    };
     if v <= 0.003_130_8 {
         12.92 * v
     } else {

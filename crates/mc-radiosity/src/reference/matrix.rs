@@ -1,66 +1,57 @@
-//! Form-factor rows: adaptive quadrature of the exact point-to-polygon form factor over the
-//! source patch, times a visibility fraction refined by shadow rays.
+//! The form-factor matrix: two passes over the unordered pairs `i < j`.
 //!
-//! Row `i` holds `F_ij = (1/A_i) ∫_{P_i} F_{x→P_j} v(x, j) dA_x` for every patch `j`. Per pair:
+//! Reciprocity `A_i F_ij = A_j F_ji` holds for the exact form factors, and the quantities here
+//! are computed once per unordered pair as the exchange `G_ij = A_i F_ij` (scene units²), so it
+//! holds in the result to rounding. For each pair:
 //!
 //! 1. **Horizons.** Only `P_j' = P_j ∩ {front of P_i}` can be seen from `P_i`, and only from
-//!    `P_i' = P_i ∩ {front of P_j}` (a patch receives on its front only). Both are clipped once;
-//!    an empty one makes `F_ij = 0`, as does a shared input face (coplanar patches).
-//! 2. **Probe.** Shadow rays between stratified points of `P_i'` and `P_j'` (at least 16 per
-//!    pair, 4 per pair of fan triangles) classify the pair: all unblocked, visible (`v = 1`);
-//!    all blocked, hidden (`F_ij = 0`); otherwise partly visible.
-//! 3. **Quadrature** of `U_ij = ∫_{P_i'} F_{x→P_j'} dA_x` with the exact contour form factor as
-//!    integrand, on the fan triangles of `P_i'`: Radon's degree-5 rule first, then Dunavant's
-//!    degree-8 rule, then the degree-8 rule on the four midpoint children, recursively (the
-//!    integrand is smooth except at vertices `P_i'` shares with `P_j'`). Each triangle carries
-//!    the conservative estimate `|Q_high - Q_low|` of its embedded pair of rules.
-//! 4. **Visibility** of a partly visible pair is `φ_ij = Σ_b u_b f_b / Σ_b u_b` over blocks
-//!    `b = (t, c)`, `t` a triangle of `P_i'`, `c` one of `P_j'`, with weight
-//!    `u_b = A_t F_{centroid(t)→c}` (the unoccluded exchange, so a pair whose rays are all
-//!    unblocked comes out exactly `U_ij`) and `f_b` the fraction of its 4 rays (sub-triangle
-//!    centroids of `t` to those of `c`, paired as a Latin square) that are unblocked. A block
-//!    whose rays disagree is split (the side with the longer edge, into 4) and probed again.
-//!    Its error is estimated as `u_b sqrt(f (1 - f) / k)` (scaled to form-factor units), and
-//!    the errors of different blocks are combined as independent (root of the sum of squares):
-//!    a shadow boundary crosses each block at an unrelated place.
+//!    `P_i' = P_i ∩ {front of P_j}` (a patch emits and receives on its front only). Both are
+//!    clipped once; an empty one, or a shared input face (coplanar patches), makes `G_ij = 0`.
+//! 2. **Probe.** 16 shadow rays or more on the block grid of [`visibility`](super::visibility)
+//!    classify the pair: all unblocked, visible (`φ = 1`, no visibility error); all blocked,
+//!    hidden (`G_ij = 0`); otherwise partly visible.
+//! 3. **Quadrature** of the unoccluded exchange `U_ij = ∫_{P_i'} F_{x→P_j'} dA_x` (or the same
+//!    integral from the other side, over whichever clipped polygon is smaller), with the exact
+//!    point-to-polygon form factor as integrand, adaptively to an estimated error of
+//!    `tolerance / 2` relative to `U_ij` (see [`quadrature`](super::quadrature)). The integrand is
+//!    smooth except at vertices the two polygons share, where the refinement concentrates.
+//! 4. **Visibility** of partly visible pairs, `φ_ij` with error `δφ_ij`, refined on a uniform
+//!    block grid ([`visibility`](super::visibility)) once all pairs are known: row `r` has the
+//!    budget `(tolerance / 2) S_r` for the root of the sum of squares of its visibility errors
+//!    (treated as independent between pairs), shared out as
+//!    `δ(F_rj) <= (tolerance / 2) S_r sqrt(F_rj / S_r^partial)`, where `S_r` is the row sum and
+//!    `S_r^partial` its part over partly visible pairs (both from the probes). A pair is refined
+//!    until it meets the smaller of the budgets of its two rows.
 //!
-//! `F_ij = φ_ij U_ij / A_i`. The row's error estimate is `Σ_j φ_j err(U_ij) / A_i` (quadrature,
-//! conservative) plus the visibility term; refinement is greedy, always the triangle or block
-//! with the largest estimate in the row, until each part is below half the tolerance times
-//! the row sum `S_i = Σ_j F_ij`, or a depth or work limit is reached (counted in the stats).
+//! `G_ij = φ_ij U_ij`, `F_ij = G_ij / A_i`, `F_ji = G_ij / A_j`. The error estimate of row `r`
+//! is `Σ_j δ(U_rj) / A_r + sqrt(Σ_j (U_rj δφ_rj / A_r)²)`; it is reported relative to `S_r`.
 //!
-//! What the error estimate cannot see: a blocker that no probe ray of a pair meets (a thin
-//! object between the rays, about a quarter of a patch apart), and a gap between blockers that
-//! none passes through.
+//! What the estimate cannot see: a blocker that no probe ray of a pair meets (one much thinner
+//! than a quarter of a patch, between the rays), or a gap in a blocker that none passes
+//! through; such a pair is taken as wholly visible or wholly hidden.
 
 use super::ReferenceError;
 use super::form_factor::{clip_above, contour};
-use super::quadrature::{DUNAVANT16, RADON7, integrate};
+use super::quadrature::{Adaptive, integrate_adaptive};
+use super::visibility::{Grid, Side, fan};
 use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
-use mcrad_raycast::{RayCaster, SurfacePoint};
+use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
-use std::ops::Range;
 use std::sync::atomic::{self, AtomicUsize};
 
+/// The least number of visibility blocks (and probe rays besides the corner rays) per pair.
+const MIN_BLOCKS: usize = 16;
+/// The most visibility blocks per pair (one ray each).
+const MAX_BLOCKS: usize = 1 << 20;
 /// Deepest quadrature subdivision: a triangle `4^-24` (about `3.6e-15`) of its fan triangle.
 const MAX_QUAD_DEPTH: u8 = 24;
-/// Deepest visibility block: 16 splits, so each side is cut to about `1/256` of its size.
-const MAX_VIS_DEPTH: u8 = 16;
-/// Quadrature refinements allowed per row: this plus [`QUAD_REFINEMENTS_PER_PAIR`] per pair.
-const QUAD_REFINEMENTS: usize = 1 << 14;
-/// See [`QUAD_REFINEMENTS`].
-const QUAD_REFINEMENTS_PER_PAIR: usize = 64;
-/// Visibility rays allowed per row: this plus [`VIS_RAYS_PER_PAIR`] per partly visible pair.
-const VIS_RAYS: u64 = 1 << 14;
-/// See [`VIS_RAYS`].
-const VIS_RAYS_PER_PAIR: u64 = 4096;
+/// Quadrature refinements allowed per pair.
+const MAX_QUAD_REFINEMENTS: usize = 4096;
 
 /// A sparse form-factor matrix: for each patch `i` (mesh order) the patches `j` with
 /// `F_ij > 0`, ascending, and the form factors (dimensionless, `Σ_j F_ij <= 1`, equal to 1 in a
-/// closed scene). Zeros are not stored.
+/// closed scene). Zeros are not stored. Reciprocity `A_i F_ij = A_j F_ji` holds to rounding.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FormFactors {
     rows: Vec<Row>,
@@ -82,10 +73,10 @@ pub struct FormFactorStats {
     pub evaluations: u64,
     /// Non-zero entries kept.
     pub nonzeros: usize,
-    /// Ordered pairs `(i, j)` found partly visible by their probe rays.
+    /// Unordered pairs `{i, j}` found partly visible by their probe rays.
     pub partly_visible_pairs: u64,
     /// The largest estimated error of a row relative to its sum, over rows with a positive
-    /// sum: `max_i (err_quadrature_i + err_visibility_i) / S_i`.
+    /// sum: `max_r err_r / S_r` (module documentation of [`form_factors`]).
     pub max_row_error: f64,
     /// Rows whose estimated error stayed above the tolerance because a depth or work limit
     /// was reached.
@@ -138,7 +129,7 @@ impl FormFactors {
         &self.stats
     }
 
-    /// `y_i = Σ_j F_ij x_j` for row `i` (per RGB channel).
+    /// `Σ_j F_ij x_j` for row `i` (per RGB channel).
     #[inline]
     pub(crate) fn row_dot(&self, i: usize, x: &[DVec3]) -> DVec3 {
         let r = &self.rows[i];
@@ -151,10 +142,16 @@ impl FormFactors {
 
 /// The form-factor matrix of `mesh`, with visibility from `caster` (its ids must be the patch
 /// indices, as for a [`mcrad_raycast::Bvh`] built from [`Mesh::triangle_patch`]).
-/// `tolerance` is the target error of each row relative to its sum (see the module
-/// documentation for how it is estimated). `progress` is called with the number of rows done
-/// after each row, from the worker threads. Rows are computed in parallel on the current rayon
-/// pool; the result does not depend on the thread count.
+///
+/// `tolerance` is the target error of each row relative to its sum, half for the quadrature and
+/// half for the visibility; how each part is estimated, and what the estimate cannot see, is
+/// below. The work runs in two passes over the rows on the current rayon pool, and `progress`
+/// is called from the worker threads after each row of each pass with the number done so far,
+/// out of `2 × patches`. The result does not depend on the thread count.
+///
+/// # Method
+///
+
 pub fn form_factors<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
@@ -173,27 +170,97 @@ pub fn form_factors<C: RayCaster>(
     }
     let geometry = Geometry::new(mesh);
     let done = AtomicUsize::new(0);
-    let rows: Vec<(Row, RowStats)> = (0..n)
+    let tick = || progress(done.fetch_add(1, atomic::Ordering::Relaxed) + 1);
+
+    // Pass 1: every pair probed, every visible pair integrated.
+    let first: Vec<(Vec<PairRecord>, Work)> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let row = RowWork::new(i, &geometry, caster, tolerance).run();
-            progress(done.fetch_add(1, atomic::Ordering::Relaxed) + 1);
+            let row = first_pass(i, &geometry, caster, tolerance);
+            tick();
             row
         })
         .collect();
-    let mut stats = FormFactorStats::default();
-    for (row, s) in &rows {
-        stats.rays += s.rays;
-        stats.evaluations += s.evaluations;
-        stats.nonzeros += row.cols.len();
-        stats.partly_visible_pairs += s.partial;
-        stats.max_row_error = stats.max_row_error.max(s.relative_error);
-        stats.rows_over_tolerance += usize::from(s.relative_error > tolerance);
+    let (mut records, mut work): (Vec<Vec<PairRecord>>, Vec<Work>) = first.into_iter().unzip();
+
+    // The visibility budgets need the row sums, from the probes' visible fractions.
+    let mut sum = vec![0.0; n];
+    let mut partial_sum = vec![0.0; n];
+    for (i, row) in records.iter().enumerate() {
+        for r in row {
+            let g = r.phi * r.exchange;
+            let j = r.j as usize;
+            sum[i] += g / geometry.area[i];
+            sum[j] += g / geometry.area[j];
+            if r.partial {
+                partial_sum[i] += g / geometry.area[i];
+                partial_sum[j] += g / geometry.area[j];
+            }
+        }
     }
-    Ok(FormFactors {
-        rows: rows.into_iter().map(|(r, _)| r).collect(),
-        stats,
-    })
+    let budget = Budget {
+        tolerance,
+        sum: &sum,
+        partial_sum: &partial_sum,
+    };
+
+    // Pass 2: partly visible pairs refined to their budgets.
+    records
+        .par_iter_mut()
+        .zip(work.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (row, w))| {
+            second_pass(i, row, w, &geometry, caster, &budget);
+            tick();
+        });
+
+    Ok(assemble(&records, &work, &geometry, tolerance))
+}
+
+/// Rays and evaluations of one row.
+#[derive(Debug, Default, Clone, Copy)]
+struct Work {
+    rays: u64,
+    evaluations: u64,
+    partial: u64,
+}
+
+/// What pass 1 and 2 find about the pair `(i, j)`, `i < j`, kept in row `i`.
+#[derive(Debug, Clone, Copy)]
+struct PairRecord {
+    j: u32,
+    partial: bool,
+    /// Rounds of the visibility grid behind `phi`.
+    rounds: u8,
+    /// Unoccluded exchange `U_ij = A_i F_ij^unoccluded` (scene units²).
+    exchange: f64,
+    /// Its quadrature error estimate (scene units²).
+    quad_error: f64,
+    /// Visible fraction `φ_ij`.
+    phi: f64,
+    /// Its error estimate, times `U_ij` (scene units²).
+    vis_error: f64,
+}
+
+/// Visibility error budgets (pass 2).
+struct Budget<'a> {
+    tolerance: f64,
+    sum: &'a [f64],
+    partial_sum: &'a [f64],
+}
+
+impl Budget<'_> {
+    /// The allowed error of `φ_ij U_ij` (scene units²): the smaller of the two rows' shares.
+    fn target(&self, geometry: &Geometry, i: usize, r: &PairRecord) -> f64 {
+        let g = r.phi * r.exchange;
+        [i, r.j as usize]
+            .into_iter()
+            .map(|k| {
+                let a = geometry.area[k];
+                0.5 * self.tolerance * self.sum[k] * (a * g / self.partial_sum[k]).sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
 }
 
 /// Patch polygons and planes in f64.
@@ -265,530 +332,199 @@ impl Geometry {
     }
 }
 
-/// Work and accuracy of one row.
-#[derive(Debug, Default)]
-struct RowStats {
-    rays: u64,
-    evaluations: u64,
-    partial: u64,
-    relative_error: f64,
-}
-
-/// One source-target pair of a row.
-#[derive(Debug)]
-struct Pair {
-    j: u32,
-    /// `P_i'`: the source clipped to the front of the target, in `RowWork::pool`.
-    src: Range<usize>,
-    /// `P_j'`: the target clipped to the front of the source, in `RowWork::pool`.
-    dst: Range<usize>,
-    /// Visible fraction `φ` (1: unoccluded, 0: hidden).
-    phi: f64,
-    /// Some probe rays were blocked and some not: `φ` comes from the blocks.
-    partial: bool,
-    /// `U_ij = ∫_{P_i'} F_{x→P_j'} dA_x` (scene units²) and its error estimate.
-    integral: f64,
-    error: f64,
-    /// Visibility weights `Σ u_b` and `Σ u_b f_b` over the pair's blocks (scene units²).
-    sum_u: f64,
-    sum_uf: f64,
-    /// Form-factor units per unit of block weight, `U_ij / (A_i Σ u_b)` at the start.
-    scale: f64,
-}
-
-/// A quadrature triangle.
-#[derive(Debug, Clone)]
-struct Region {
-    pair: u32,
-    tri: [DVec3; 3],
-    /// 0: Radon's rule; 1: Dunavant's.
-    stage: u8,
-    depth: u8,
-    value: f64,
-    error: f64,
-    active: bool,
-}
-
-/// A visibility block: a triangle of `P_i'` and one of `P_j'`.
-#[derive(Debug, Clone)]
-struct Block {
-    pair: u32,
-    t: [DVec3; 3],
-    c: [DVec3; 3],
-    u: f64,
-    visible: u32,
-    rays: u32,
-    depth: u8,
-    active: bool,
-}
-
-impl Block {
-    fn fraction(&self) -> f64 {
-        self.visible as f64 / self.rays as f64
+impl Geometry {
+    /// The unit normal of patch `i` as one side of a pair.
+    fn side(&self, i: usize) -> Side {
+        Side {
+            id: i as u32,
+            normal: self.normal[i],
+            normal32: self.normal32[i],
+        }
     }
 
-    fn mixed(&self) -> bool {
-        self.visible != 0 && self.visible != self.rays
+    /// Clips `P_i` to the front of `P_j` (into `a`) and `P_j` to the front of `P_i` (into
+    /// `b`); false when the two cannot exchange light (no front part, or one input face).
+    fn clip_pair(&self, i: usize, j: usize, a: &mut Vec<DVec3>, b: &mut Vec<DVec3>) -> bool {
+        if self.face[i] == self.face[j] {
+            return false;
+        }
+        let (pi, pj) = (self.polygon(i), self.polygon(j));
+        if !pj.iter().any(|v| self.height(i, *v) > self.eps)
+            || !pi.iter().any(|v| self.height(j, *v) > self.eps)
+        {
+            return false;
+        }
+        clip_above(pi, self.normal[j], self.offset[j], self.eps, a);
+        clip_above(pj, self.normal[i], self.offset[i], self.eps, b);
+        !a.is_empty() && !b.is_empty()
+    }
+
+    /// The unoccluded exchange `U_ij = ∫_{P_i'} F_{x→P_j'} dA_x = ∫_{P_j'} F_{y→P_i'} dA_y`
+    /// (scene units²) over the smaller of the two clipped polygons.
+    fn exchange(&self, i: usize, j: usize, a: &[DVec3], b: &[DVec3], tolerance: f64) -> Adaptive {
+        let (outer, normal, target) = if polygon_area(a) <= polygon_area(b) {
+            (a, self.normal[i], b)
+        } else {
+            (b, self.normal[j], a)
+        };
+        // An absolute floor that adds at most 1e-3 of the tolerance to any row sum.
+        let floor =
+            0.5 * tolerance * 1e-3 * self.area[i].min(self.area[j]) / self.area.len() as f64;
+        integrate_adaptive(
+            outer,
+            0.5 * tolerance,
+            floor,
+            MAX_QUAD_DEPTH,
+            MAX_QUAD_REFINEMENTS,
+            |x| contour(x, normal, target),
+        )
     }
 }
 
-/// A heap key: largest value first, then lowest index (deterministic).
-#[derive(Debug, PartialEq)]
-struct Key(f64, u32);
-
-impl Eq for Key {}
-
-impl Ord for Key {
-    fn cmp(&self, other: &Self) -> Ordering {
-        self.0
-            .total_cmp(&other.0)
-            .then_with(|| other.1.cmp(&self.1))
+impl Geometry {
+    /// The visibility grid of the pair `(i, j)`, `i < j`, for clipped polygons `a` and `b`.
+    fn grid(&self, i: usize, j: usize, a: &[DVec3], b: &[DVec3]) -> Grid {
+        let roots = (fan(a).count() * fan(b).count()).max(1);
+        let mut rounds = 1;
+        while roots << (2 * (rounds + 1)) <= MAX_BLOCKS {
+            rounds += 1;
+        }
+        let key = (i * self.area.len() + j) as u64;
+        Grid::new(self.side(i), a, self.side(j), b, key, rounds)
     }
 }
 
-impl PartialOrd for Key {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
+fn polygon_area(poly: &[DVec3]) -> f64 {
+    fan(poly)
+        .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+        .sum()
 }
 
-/// Everything one row needs.
-struct RowWork<'a, C> {
+/// Pass 1 for row `i`: the pairs `(i, j > i)` that exchange light, probed and integrated.
+fn first_pass<C: RayCaster>(
     i: usize,
-    g: &'a Geometry,
-    caster: &'a C,
+    geometry: &Geometry,
+    caster: &C,
     tolerance: f64,
-    pool: Vec<DVec3>,
-    pairs: Vec<Pair>,
-    regions: Vec<Region>,
-    blocks: Vec<Block>,
-    stats: RowStats,
-}
-
-fn fan(poly: &[DVec3]) -> impl Iterator<Item = [DVec3; 3]> + '_ {
-    (1..poly.len().saturating_sub(1))
-        .map(move |k| [poly[0], poly[k], poly[k + 1]])
-        .filter(|t| area(t) > 0.0)
-}
-
-#[inline]
-fn area(t: &[DVec3; 3]) -> f64 {
-    0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
-}
-
-#[inline]
-fn centroid(t: &[DVec3; 3]) -> DVec3 {
-    (t[0] + t[1] + t[2]) / 3.0
-}
-
-/// The four midpoint children of a triangle.
-fn split(t: &[DVec3; 3]) -> [[DVec3; 3]; 4] {
-    let [a, b, c] = *t;
-    let (ab, bc, ca) = ((a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5);
-    [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
-}
-
-/// The centroids of the four midpoint children of a triangle (its stratified points).
-fn strata(t: &[DVec3; 3]) -> [DVec3; 4] {
-    let [a, b, c] = *t;
-    [
-        (a + b + c) / 3.0,
-        (4.0 * a + b + c) / 6.0,
-        (a + 4.0 * b + c) / 6.0,
-        (a + b + 4.0 * c) / 6.0,
-    ]
-}
-
-fn longest_edge(t: &[DVec3; 3]) -> f64 {
-    t[0].distance_squared(t[1])
-        .max(t[1].distance_squared(t[2]))
-        .max(t[2].distance_squared(t[0]))
-}
-
-impl<'a, C: RayCaster> RowWork<'a, C> {
-    fn new(i: usize, g: &'a Geometry, caster: &'a C, tolerance: f64) -> Self {
-        RowWork {
-            i,
-            g,
-            caster,
-            tolerance,
-            pool: Vec::new(),
-            pairs: Vec::new(),
-            regions: Vec::new(),
-            blocks: Vec::new(),
-            stats: RowStats::default(),
+) -> (Vec<PairRecord>, Work) {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    let mut records = Vec::new();
+    let mut work = Work::default();
+    for j in i + 1..geometry.area.len() {
+        if !geometry.clip_pair(i, j, &mut a, &mut b) {
+            continue;
         }
-    }
-
-    fn area_i(&self) -> f64 {
-        self.g.area[self.i]
-    }
-
-    fn run(mut self) -> (Row, RowStats) {
-        self.find_pairs();
-        self.probe_pairs();
-        self.start_quadrature();
-        self.refine_quadrature();
-        self.start_visibility();
-        self.refine_visibility();
-        // The visible fractions moved: check the quadrature budget with the final ones.
-        self.refine_quadrature();
-        self.finish()
-    }
-
-    /// Step 1: the pairs that can exchange light at all, with both polygons clipped.
-    fn find_pairs(&mut self) {
-        let (g, i) = (self.g, self.i);
-        let eps = g.eps;
-        let mut scratch = Vec::new();
-        for j in 0..g.area.len() {
-            if j == i || g.face[j] == g.face[i] {
-                continue;
-            }
-            let (src, dst) = (g.polygon(i), g.polygon(j));
-            if !dst.iter().any(|v| g.height(i, *v) > eps)
-                || !src.iter().any(|v| g.height(j, *v) > eps)
-            {
-                continue;
-            }
-            let start = self.pool.len();
-            clip_above(src, g.normal[j], g.offset[j], eps, &mut scratch);
-            self.pool.extend_from_slice(&scratch);
-            let mid = self.pool.len();
-            clip_above(dst, g.normal[i], g.offset[i], eps, &mut scratch);
-            self.pool.extend_from_slice(&scratch);
-            let end = self.pool.len();
-            self.pairs.push(Pair {
-                j: j as u32,
-                src: start..mid,
-                dst: mid..end,
-                phi: 1.0,
-                partial: false,
-                integral: 0.0,
-                error: 0.0,
-                sum_u: 0.0,
-                sum_uf: 0.0,
-                scale: 0.0,
-            });
+        let grid = geometry.grid(i, j, &a, &b);
+        let rounds = grid.rounds_for(MIN_BLOCKS);
+        let probe = grid.estimate(caster, rounds, false);
+        let (corners_lit, corners) = grid.probe_corners(caster, &a, &b);
+        work.rays += (probe.blocks + corners) as u64;
+        let (lit, rays) = (probe.lit + corners_lit, probe.blocks + corners);
+        if lit == 0 {
+            continue;
         }
-    }
-
-    /// Casts `shifts.len() × 4` rays between the strata of `t` (on `P_i`) and `c` (on `P_j`);
-    /// returns how many are unblocked.
-    fn probe(&mut self, j: usize, t: &[DVec3; 3], c: &[DVec3; 3], shifts: &[usize]) -> u32 {
-        let (from, to) = (strata(t), strata(c));
-        let (ni, nj) = (self.g.normal32[self.i], self.g.normal32[j]);
-        let mut visible = 0;
-        for &s in shifts {
-            for (k, p) in from.iter().enumerate() {
-                let a = SurfacePoint::new(p.as_vec3(), ni, self.i as u32);
-                let b = SurfacePoint::new(to[(k + s) % 4].as_vec3(), nj, j as u32);
-                visible += u32::from(!self.caster.occluded(&a, &b));
-            }
+        let q = geometry.exchange(i, j, &a, &b, tolerance);
+        work.evaluations += q.evaluations;
+        if !(q.value > 0.0) {
+            continue;
         }
-        self.stats.rays += 4 * shifts.len() as u64;
-        visible
+        let partial = lit < rays;
+        let (phi, vis_error) = if partial {
+            let v = grid.estimate(caster, rounds, true);
+            work.rays += v.blocks as u64;
+            work.evaluations += v.evaluations;
+            work.partial += 1;
+            (v.fraction, v.error * q.value)
+        } else {
+            (1.0, 0.0)
+        };
+        records.push(PairRecord {
+            j: j as u32,
+            partial,
+            rounds: rounds as u8,
+            exchange: q.value,
+            quad_error: q.error,
+            phi,
+            vis_error,
+        });
     }
+    (records, work)
+}
 
-    /// Step 2: classify each pair by at least 16 rays; partly visible pairs keep their blocks.
-    fn probe_pairs(&mut self) {
-        let ni = self.g.normal[self.i];
-        for p in 0..self.pairs.len() {
-            let pair = &self.pairs[p];
-            let j = pair.j as usize;
-            let src: Vec<[DVec3; 3]> = fan(&self.pool[pair.src.clone()]).collect();
-            let dst: Vec<[DVec3; 3]> = fan(&self.pool[pair.dst.clone()]).collect();
-            let shifts: &[usize] = match src.len() * dst.len() {
-                0 => &[],
-                1 => &[0, 1, 2, 3],
-                2 | 3 => &[1, 3],
-                _ => &[1],
-            };
-            let first = self.blocks.len();
-            let (mut visible, mut rays) = (0, 0);
-            for t in &src {
-                for c in &dst {
-                    let v = self.probe(j, t, c, shifts);
-                    let k = 4 * shifts.len() as u32;
-                    visible += v;
-                    rays += k;
-                    self.blocks.push(Block {
-                        pair: p as u32,
-                        t: *t,
-                        c: *c,
-                        u: 0.0,
-                        visible: v,
-                        rays: k,
-                        depth: 0,
-                        active: true,
-                    });
-                }
-            }
-            let pair = &mut self.pairs[p];
-            if visible == rays {
-                pair.phi = if rays == 0 { 0.0 } else { 1.0 };
-                self.blocks.truncate(first);
-                continue;
-            }
-            if visible == 0 {
-                pair.phi = 0.0;
-                self.blocks.truncate(first);
-                continue;
-            }
-            self.stats.partial += 1;
-            pair.partial = true;
-            let (mut sum_u, mut sum_uf) = (0.0, 0.0);
-            for b in &mut self.blocks[first..] {
-                b.u = area(&b.t) * contour(centroid(&b.t), ni, &b.c);
-                sum_u += b.u;
-                sum_uf += b.u * b.fraction();
-            }
-            self.stats.evaluations += (self.blocks.len() - first) as u64;
-            pair.sum_u = sum_u;
-            pair.sum_uf = sum_uf;
-            pair.phi = if sum_u > 0.0 {
-                sum_uf / sum_u
-            } else {
-                visible as f64 / rays as f64
-            };
+/// Pass 2 for row `i`: its partly visible pairs refined until they meet their budgets.
+fn second_pass<C: RayCaster>(
+    i: usize,
+    records: &mut [PairRecord],
+    work: &mut Work,
+    geometry: &Geometry,
+    caster: &C,
+    budget: &Budget,
+) {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for r in records.iter_mut().filter(|r| r.partial) {
+        let target = budget.target(geometry, i, r);
+        if r.vis_error <= target {
+            continue;
         }
-    }
-
-    /// Step 3a: Radon's rule on every fan triangle of every pair that is not hidden.
-    fn start_quadrature(&mut self) {
-        let ni = self.g.normal[self.i];
-        for p in 0..self.pairs.len() {
-            let pair = &self.pairs[p];
-            if pair.phi == 0.0 {
-                continue;
-            }
-            let dst = &self.pool[pair.dst.clone()];
-            let (mut value, mut error) = (0.0, 0.0);
-            for tri in fan(&self.pool[pair.src.clone()]) {
-                let (v, e) = integrate(&RADON7, &tri, |x| contour(x, ni, dst));
-                self.stats.evaluations += RADON7.points.len() as u64;
-                value += v;
-                error += e;
-                self.regions.push(Region {
-                    pair: p as u32,
-                    tri,
-                    stage: 0,
-                    depth: 0,
-                    value: v,
-                    error: e,
-                    active: true,
-                });
-            }
-            let pair = &mut self.pairs[p];
-            pair.integral = value;
-            pair.error = error;
-        }
-    }
-
-    /// `S_i` with the current visible fractions.
-    fn row_sum(&self) -> f64 {
-        self.pairs.iter().map(|p| p.phi * p.integral).sum::<f64>() / self.area_i()
-    }
-
-    /// The quadrature part of the row's error estimate.
-    fn quadrature_error(&self) -> f64 {
-        self.pairs.iter().map(|p| p.phi * p.error).sum::<f64>() / self.area_i()
-    }
-
-    /// Step 3b: refine the triangle with the largest weighted error estimate until the
-    /// quadrature error is below half the tolerance of the row sum.
-    fn refine_quadrature(&mut self) {
-        let ni = self.g.normal[self.i];
-        let a_i = self.area_i();
-        let mut heap: BinaryHeap<Key> = self
-            .regions
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| r.active && r.depth < MAX_QUAD_DEPTH)
-            .map(|(k, r)| Key(r.error * self.pairs[r.pair as usize].phi, k as u32))
-            .collect();
-        let mut sum = self.row_sum();
-        let mut error = self.quadrature_error();
-        let limit = QUAD_REFINEMENTS + QUAD_REFINEMENTS_PER_PAIR * self.pairs.len();
-        let mut refinements = 0;
-        while error > 0.5 * self.tolerance * sum && refinements < limit {
-            let Some(Key(_, k)) = heap.pop() else {
+        let j = r.j as usize;
+        geometry.clip_pair(i, j, &mut a, &mut b);
+        let grid = geometry.grid(i, j, &a, &b);
+        for rounds in r.rounds as usize + 1..=grid.max_rounds() {
+            let v = grid.estimate(caster, rounds, true);
+            work.rays += v.blocks as u64;
+            work.evaluations += v.evaluations;
+            r.phi = v.fraction;
+            r.vis_error = v.error * r.exchange;
+            r.rounds = rounds as u8;
+            if r.vis_error <= target {
                 break;
-            };
-            refinements += 1;
-            let r = self.regions[k as usize].clone();
-            let pair = &self.pairs[r.pair as usize];
-            let phi = pair.phi;
-            let dst = &self.pool[pair.dst.clone()];
-            let children: Vec<([DVec3; 3], u8)> = if r.stage == 0 {
-                vec![(r.tri, r.depth)]
-            } else {
-                split(&r.tri).map(|t| (t, r.depth + 1)).to_vec()
-            };
-            let (mut value, mut err) = (-r.value, -r.error);
-            let first = self.regions.len();
-            for (tri, depth) in children {
-                let (v, e) = integrate(&DUNAVANT16, &tri, |x| contour(x, ni, dst));
-                self.stats.evaluations += DUNAVANT16.points.len() as u64;
-                value += v;
-                err += e;
-                self.regions.push(Region {
-                    pair: r.pair,
-                    tri,
-                    stage: 1,
-                    depth,
-                    value: v,
-                    error: e,
-                    active: true,
-                });
-            }
-            self.regions[k as usize].active = false;
-            for (idx, child) in self.regions.iter().enumerate().skip(first) {
-                if child.depth < MAX_QUAD_DEPTH {
-                    heap.push(Key(child.error * phi, idx as u32));
-                }
-            }
-            let pair = &mut self.pairs[r.pair as usize];
-            pair.integral += value;
-            pair.error += err;
-            sum += phi * value / a_i;
-            error += phi * err / a_i;
-        }
-        // Exact sums over the active triangles, in a fixed order.
-        for p in &mut self.pairs {
-            p.integral = 0.0;
-            p.error = 0.0;
-        }
-        for r in self.regions.iter().filter(|r| r.active) {
-            let p = &mut self.pairs[r.pair as usize];
-            p.integral += r.value;
-            p.error += r.error;
-        }
-    }
-
-    /// The error estimate of a block in form-factor units (0 when its rays agree).
-    fn block_error(&self, b: &Block) -> f64 {
-        if !b.mixed() {
-            return 0.0;
-        }
-        let f = b.fraction();
-        b.u * self.pairs[b.pair as usize].scale * (f * (1.0 - f) / b.rays as f64).sqrt()
-    }
-
-    /// Step 4a: scale of each partly visible pair's block weights.
-    fn start_visibility(&mut self) {
-        let a_i = self.area_i();
-        for p in self.pairs.iter_mut().filter(|p| p.partial && p.sum_u > 0.0) {
-            p.scale = p.integral / (a_i * p.sum_u);
-        }
-    }
-
-    /// Step 4b: split the block with the largest error estimate until the visibility error is
-    /// below half the tolerance of the row sum.
-    fn refine_visibility(&mut self) {
-        if self.blocks.is_empty() {
-            return;
-        }
-        let ni = self.g.normal[self.i];
-        let a_i = self.area_i();
-        let mut heap: BinaryHeap<Key> = BinaryHeap::new();
-        let mut squares = 0.0;
-        for (k, b) in self.blocks.iter().enumerate() {
-            let e = self.block_error(b);
-            squares += e * e;
-            if e > 0.0 {
-                heap.push(Key(e, k as u32));
             }
         }
-        let mut sum = self.row_sum();
-        let partial = self.pairs.iter().filter(|p| p.partial).count() as u64;
-        let budget = self.stats.rays + VIS_RAYS + VIS_RAYS_PER_PAIR * partial;
-        while squares.max(0.0).sqrt() > 0.5 * self.tolerance * sum && self.stats.rays < budget {
-            let Some(Key(e, k)) = heap.pop() else {
-                break;
-            };
-            let b = self.blocks[k as usize].clone();
-            if b.depth >= MAX_VIS_DEPTH {
+    }
+}
+
+/// The rows, from the pairs in both directions, and the statistics.
+fn assemble(
+    records: &[Vec<PairRecord>],
+    work: &[Work],
+    geometry: &Geometry,
+    tolerance: f64,
+) -> FormFactors {
+    let n = records.len();
+    let mut rows = vec![Row::default(); n];
+    let mut quad = vec![0.0; n];
+    let mut vis = vec![0.0; n];
+    // Row r gets (k, r) for k < r while k runs, then (r, j > r): ascending columns.
+    for (i, row) in records.iter().enumerate() {
+        for r in row {
+            let j = r.j as usize;
+            let g = r.phi * r.exchange;
+            if !(g > 0.0) {
                 continue;
             }
-            let j = self.pairs[b.pair as usize].j as usize;
-            let split_source = longest_edge(&b.t) >= longest_edge(&b.c);
-            let children: [([DVec3; 3], [DVec3; 3]); 4] = if split_source {
-                split(&b.t).map(|t| (t, b.c))
-            } else {
-                split(&b.c).map(|c| (b.t, c))
-            };
-            let (mut du, mut duf) = (-b.u, -b.u * b.fraction());
-            squares -= e * e;
-            self.blocks[k as usize].active = false;
-            for (t, c) in children {
-                let visible = self.probe(j, &t, &c, &[1]);
-                let u = area(&t) * contour(centroid(&t), ni, &c);
-                self.stats.evaluations += 1;
-                let child = Block {
-                    pair: b.pair,
-                    t,
-                    c,
-                    u,
-                    visible,
-                    rays: 4,
-                    depth: b.depth + 1,
-                    active: true,
-                };
-                du += u;
-                duf += u * child.fraction();
-                let ce = self.block_error(&child);
-                squares += ce * ce;
-                if ce > 0.0 {
-                    heap.push(Key(ce, self.blocks.len() as u32));
-                }
-                self.blocks.push(child);
+            for (from, to) in [(i, j), (j, i)] {
+                let a = geometry.area[from];
+                rows[from].cols.push(to as u32);
+                rows[from].vals.push(g / a);
+                quad[from] += r.phi * r.quad_error / a;
+                vis[from] += (r.vis_error / a).powi(2);
             }
-            let pair = &mut self.pairs[b.pair as usize];
-            let old = pair.phi;
-            pair.sum_u += du;
-            pair.sum_uf += duf;
-            if pair.sum_u > 0.0 {
-                pair.phi = (pair.sum_uf / pair.sum_u).clamp(0.0, 1.0);
-            }
-            sum += (pair.phi - old) * pair.integral / a_i;
-        }
-        // Exact sums over the active blocks, in a fixed order.
-        for p in self.pairs.iter_mut().filter(|p| p.partial) {
-            (p.sum_u, p.sum_uf) = (0.0, 0.0);
-        }
-        for b in self.blocks.iter().filter(|b| b.active) {
-            let p = &mut self.pairs[b.pair as usize];
-            p.sum_u += b.u;
-            p.sum_uf += b.u * b.fraction();
-        }
-        for p in self.pairs.iter_mut().filter(|p| p.partial && p.sum_u > 0.0) {
-            p.phi = (p.sum_uf / p.sum_u).clamp(0.0, 1.0);
         }
     }
-
-    fn visibility_error(&self) -> f64 {
-        self.blocks
-            .iter()
-            .filter(|b| b.active)
-            .map(|b| self.block_error(b).powi(2))
-            .sum::<f64>()
-            .sqrt()
+    let mut stats = FormFactorStats::default();
+    for w in work {
+        stats.rays += w.rays;
+        stats.evaluations += w.evaluations;
+        stats.partly_visible_pairs += w.partial;
     }
-
-    fn finish(mut self) -> (Row, RowStats) {
-        let a_i = self.area_i();
-        let mut row = Row::default();
-        for p in &self.pairs {
-            let f = p.phi * p.integral / a_i;
-            if f > 0.0 {
-                row.cols.push(p.j);
-                row.vals.push(f);
-            }
-        }
+    for (r, row) in rows.iter().enumerate() {
+        stats.nonzeros += row.cols.len();
         let sum: f64 = row.vals.iter().sum();
-        let error = self.quadrature_error() + self.visibility_error();
-        self.stats.relative_error = if sum > 0.0 { error / sum } else { 0.0 };
-        (row, self.stats)
+        if sum > 0.0 {
+            let relative = (quad[r] + vis[r].sqrt()) / sum;
+            stats.max_row_error = stats.max_row_error.max(relative);
+            stats.rows_over_tolerance += usize::from(relative > tolerance);
+        }
     }
+    FormFactors { rows, stats }
 }

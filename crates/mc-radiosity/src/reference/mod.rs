@@ -53,6 +53,7 @@ mod form_factor;
 mod matrix;
 mod quadrature;
 mod solve;
+mod visibility;
 
 pub use form_factor::point_polygon_form_factor;
 pub use matrix::{FormFactorStats, FormFactors, form_factors};

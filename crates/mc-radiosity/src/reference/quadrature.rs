@@ -9,6 +9,8 @@
 //! the distance at which the integrand varies, so error control built on it is conservative.
 
 use glam::DVec3;
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
 
 /// A rule: barycentric points, the weights of the high-degree rule, and the weights of the
 /// embedded low-degree rule on the first `low.len()` points.
@@ -129,6 +131,142 @@ pub(crate) fn integrate(
         }
     }
     (area * high, area * (high - low).abs())
+}
+
+/// Adaptive quadrature of `∫_P g dA` over the convex polygon `polygon` (fan triangles), to
+/// an estimated error of at most `relative × |value| + absolute` (units of `g` × area).
+///
+/// Each fan triangle starts with [`RADON7`]; the triangle with the largest error estimate is
+/// refined next, first to [`DUNAVANT16`] on the same triangle, then by splitting it into its
+/// four midpoint children with [`DUNAVANT16`] each, down to `4^-max_depth` of its area. At most
+/// `max_refinements` refinements are made. Returns the value, the error estimate (the sum of
+/// the triangles' estimates) and the number of evaluations of `g`.
+pub(crate) fn integrate_adaptive(
+    polygon: &[DVec3],
+    relative: f64,
+    absolute: f64,
+    max_depth: u8,
+    max_refinements: usize,
+    mut g: impl FnMut(DVec3) -> f64,
+) -> Adaptive {
+    let mut regions: Vec<Region> = Vec::new();
+    let mut evaluations = 0;
+    for k in 1..polygon.len().saturating_sub(1) {
+        let tri = [polygon[0], polygon[k], polygon[k + 1]];
+        let (value, error) = integrate(&RADON7, &tri, &mut g);
+        evaluations += RADON7.points.len() as u64;
+        regions.push(Region {
+            tri,
+            stage: 0,
+            depth: 0,
+            value,
+            error,
+            active: true,
+        });
+    }
+    let mut heap: BinaryHeap<Key> = regions
+        .iter()
+        .enumerate()
+        .map(|(k, r)| Key(r.error, k as u32))
+        .collect();
+    let (mut value, mut error) = regions
+        .iter()
+        .fold((0.0, 0.0), |(v, e), r| (v + r.value, e + r.error));
+    let mut refinements = 0;
+    while error > relative * value.abs() + absolute && refinements < max_refinements {
+        let Some(Key(_, k)) = heap.pop() else {
+            break;
+        };
+        let r = regions[k as usize].clone();
+        if r.stage == 1 && r.depth >= max_depth {
+            continue;
+        }
+        refinements += 1;
+        regions[k as usize].active = false;
+        value -= r.value;
+        error -= r.error;
+        let children: Vec<([DVec3; 3], u8)> = if r.stage == 0 {
+            vec![(r.tri, r.depth)]
+        } else {
+            split(&r.tri).map(|t| (t, r.depth + 1)).to_vec()
+        };
+        for (tri, depth) in children {
+            let (v, e) = integrate(&DUNAVANT16, &tri, &mut g);
+            evaluations += DUNAVANT16.points.len() as u64;
+            value += v;
+            error += e;
+            heap.push(Key(e, regions.len() as u32));
+            regions.push(Region {
+                tri,
+                stage: 1,
+                depth,
+                value: v,
+                error: e,
+                active: true,
+            });
+        }
+    }
+    // Exact sums over the active triangles, in a fixed order.
+    let (value, error) = regions
+        .iter()
+        .filter(|r| r.active)
+        .fold((0.0, 0.0), |(v, e), r| (v + r.value, e + r.error));
+    Adaptive {
+        value,
+        error,
+        evaluations,
+    }
+}
+
+/// The result of [`integrate_adaptive`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Adaptive {
+    /// The integral (units of `g` × area).
+    pub value: f64,
+    /// Its error estimate (conservative: the lower rules' differences).
+    pub error: f64,
+    /// Evaluations of the integrand.
+    pub evaluations: u64,
+}
+
+/// A triangle of [`integrate_adaptive`].
+#[derive(Debug, Clone)]
+struct Region {
+    tri: [DVec3; 3],
+    /// 0: Radon's rule; 1: Dunavant's.
+    stage: u8,
+    depth: u8,
+    value: f64,
+    error: f64,
+    active: bool,
+}
+
+/// A heap key: largest value first, then lowest index (deterministic).
+#[derive(Debug, PartialEq)]
+pub(crate) struct Key(pub f64, pub u32);
+
+impl Eq for Key {}
+
+impl Ord for Key {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0
+            .total_cmp(&other.0)
+            .then_with(|| other.1.cmp(&self.1))
+    }
+}
+
+impl PartialOrd for Key {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// The four midpoint children of a triangle: the three corner triangles (at `a`, `b`, `c`)
+/// and the middle one, whose centroid is the parent's.
+pub(crate) fn split(t: &[DVec3; 3]) -> [[DVec3; 3]; 4] {
+    let [a, b, c] = *t;
+    let (ab, bc, ca) = ((a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5);
+    [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
 }
 
 #[cfg(test)]
