@@ -23,17 +23,30 @@ pub enum Command {
 pub enum Method {
     /// Stochastic shooting with constant energy per ray (paper, section 1.3).
     Shoot,
+    /// Jacobi gathering (section 1.4).
+    Gather,
+    /// Shooting, then one gathering round from it (section 1.5); see --split.
+    TwoPass,
     /// Progressive ray refinement (Algorithm 1): shooting passes merged by their rays.
     Prr,
+    /// Progressive gathering (Algorithm 2) from one shooting solution.
+    ProgressiveGather,
+    /// Progressive two-pass (Algorithm 3): refined shooting, regathered each pass.
+    ProgressiveTwoPass,
 }
 
 impl Method {
-    /// The schedule that runs this method.
-    pub fn schedule(self) -> mcrad_mc_radiosity::schedule::Method {
+    /// The schedule that runs this method (`split`: two-pass with the direct/indirect split).
+    pub fn schedule(self, split: bool) -> mcrad_mc_radiosity::schedule::Method {
         use mcrad_mc_radiosity::schedule::Method as M;
         match self {
             Method::Shoot => M::Shoot,
+            Method::Gather => M::Gather,
+            Method::TwoPass if split => M::TwoPassSplit,
+            Method::TwoPass => M::TwoPass,
             Method::Prr => M::Prr,
+            Method::ProgressiveGather => M::ProgressiveGather,
+            Method::ProgressiveTwoPass => M::ProgressiveTwoPass,
         }
     }
 }
@@ -56,6 +69,10 @@ pub struct Solve {
     /// Add the ambient term (paper, section 3.1) to shooting solutions.
     #[arg(long)]
     pub ambient: bool,
+    /// two-pass: compute direct light by sampling the emitters with shadow rays and gather only
+    /// the indirect light (Shirley and Wang 1991).
+    #[arg(long)]
+    pub split: bool,
     /// A reference solution (a --patches CSV of the same mesh) to measure error against.
     #[arg(long, value_name = "R.csv", requires = "trace")]
     pub reference: Option<PathBuf>,

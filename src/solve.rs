@@ -73,8 +73,12 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     };
     let start = Instant::now();
     let mut trace_error = None;
-    let solution: Solution =
-        schedule::run(args.method.schedule(), &mesh, &bvh, &config, &mut |step| {
+    let solution: Solution = schedule::run(
+        args.method.schedule(args.split),
+        &mesh,
+        &bvh,
+        &config,
+        &mut |step| {
             let seconds = start.elapsed().as_secs_f64();
             bar.set_position(step.rays.min(rays));
             bar.set_message(format!("step {}", step.index));
@@ -94,7 +98,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
                 }
                 _ => ControlFlow::Continue(()),
             }
-        })?;
+        },
+    )?;
     if let Some(e) = trace_error {
         return Err(e);
     }
@@ -111,7 +116,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         write_patch_csv(create(path)?, rows)?;
     }
     let run = RunStats {
-        method: args.method.schedule().name().into(),
+        method: args.method.schedule(args.split).name().into(),
         patches: mesh.patches().len(),
         rays: estimate.rays(),
         seconds,

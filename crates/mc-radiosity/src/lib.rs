@@ -9,11 +9,22 @@
 //! - [`shoot`]: stochastic shooting with Feda and Purgathofer's constant energy per ray (Balog,
 //!   section 1.3): unshot power `dB_i A_i` leaves patch `i` on `n_i` rays of `dB_i A_i / n_i`
 //!   each, `n_i` proportional to it.
+//! - [`gather_round`], [`gather`](gather()), [`gather_corners`] ([`gather`](mod@gather)):
+//!   gathering (section 1.4): patches (or vertices) average the radiosity that cosine rays hit;
+//!   one Jacobi round, the iteration, and gathering at vertices (section 1.5).
+//! - [`direct`](direct()) and [`two_pass_split`] ([`direct`](mod@direct)): direct light by
+//!   sampling emitters (Shirley and Wang 1991) and the second pass
+//!   `E + direct + gathered indirect` of two-pass radiosity (section 1.5).
+//! - [`ambient`](ambient()) and [`with_ambient`] ([`ambient`](mod@ambient)): Cohen et al.'s
+//!   ambient term for the power a shooting run left unshot (section 3.1).
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`rng::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
 //! This crate does no I/O.
 
+pub mod ambient;
+pub mod direct;
+pub mod gather;
 pub mod reference;
 pub mod rng;
 pub mod sampling;
@@ -21,5 +32,11 @@ pub mod schedule;
 mod shoot;
 mod surface;
 
+pub use ambient::{AmbientError, ambient, mean_reflectance, with_ambient};
+pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
+pub use gather::{
+    CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
+    Gathering, gather, gather_corners, gather_round,
+};
 pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
 pub use surface::SurfaceSampler;

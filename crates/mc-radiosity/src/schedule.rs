@@ -5,8 +5,12 @@
 //! draw progress, write an error trace, or stop the run; a stopped run returns the last complete
 //! solution, never a half-finished pass. The merge rules live in `combine`.
 
+use crate::ambient::AmbientError;
+use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round};
 use crate::rng::derive_seed;
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
+use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::{Estimate, EstimateError, Rule, merge};
 use mcrad_meshing::Mesh;
@@ -18,10 +22,24 @@ use std::ops::ControlFlow;
 pub enum Method {
     /// Stochastic shooting (section 1.3); a step is a wave.
     Shoot,
+    /// Jacobi gathering (section 1.4) from `B = E`; a step is a round.
+    Gather,
+    /// Two-pass (section 1.5): shooting with half the budget, then one gathering round from it
+    /// with the other half.
+    TwoPass,
+    /// Two-pass with Shirley's direct/indirect split: the second half computes direct light by
+    /// sampling the emitters with shadow rays and gathers only the indirect light.
+    TwoPassSplit,
     /// Progressive ray refinement (Algorithm 1): complete shooting passes with doubling rays
     /// (halving energy per ray), merged with weights proportional to their rays, i.e.
     /// inversely proportional to their energy per ray.
     Prr,
+    /// Progressive gathering (Algorithm 2): one shooting solution (a quarter of the budget),
+    /// then gathering rounds from it with doubling rays per patch, merged by rays per patch.
+    ProgressiveGather,
+    /// Progressive two-pass (Algorithm 3): shooting refined pass by pass as in PRR, each
+    /// refinement regathered with doubling rays per patch; gathers merged by rays per patch.
+    ProgressiveTwoPass,
 }
 
 impl Method {
@@ -29,7 +47,12 @@ impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::Shoot => "shoot",
+            Method::Gather => "gather",
+            Method::TwoPass => "two-pass",
+            Method::TwoPassSplit => "two-pass-split",
             Method::Prr => "prr",
+            Method::ProgressiveGather => "progressive-gather",
+            Method::ProgressiveTwoPass => "progressive-two-pass",
         }
     }
 }
@@ -97,6 +120,12 @@ pub enum ScheduleError {
     /// A shooting pass was refused.
     #[error(transparent)]
     Shoot(#[from] ShootError),
+    /// A gathering step was refused.
+    #[error(transparent)]
+    Gather(#[from] GatherError),
+    /// The ambient term could not be formed.
+    #[error(transparent)]
+    Ambient(#[from] AmbientError),
     /// Estimates could not be merged.
     #[error(transparent)]
     Merge(#[from] EstimateError),
@@ -118,7 +147,12 @@ pub fn run<C: RayCaster>(
 ) -> Result<Solution, ScheduleError> {
     match method {
         Method::Shoot => run_shoot(mesh, caster, config, observer),
+        Method::Gather => run_gather(mesh, caster, config, observer),
+        Method::TwoPass => run_two_pass(mesh, caster, config, false, observer),
+        Method::TwoPassSplit => run_two_pass(mesh, caster, config, true, observer),
         Method::Prr => run_prr(mesh, caster, config, observer),
+        Method::ProgressiveGather => run_progressive_gather(mesh, caster, config, observer),
+        Method::ProgressiveTwoPass => run_progressive_two_pass(mesh, caster, config, observer),
     }
 }
 
@@ -169,16 +203,76 @@ fn run_shoot<C: RayCaster>(
     })
 }
 
-/// The shooting estimate, with the ambient term added when the configuration asks for it.
+/// The shooting estimate, with the ambient term (its unshot power spread as
+/// `rho_i * A_amb`) added when the configuration asks for it.
 fn with_ambient(
-    _mesh: &Mesh,
+    mesh: &Mesh,
     config: &ScheduleConfig,
     s: Shooting,
 ) -> Result<Estimate, ScheduleError> {
     if !config.ambient {
         return Ok(s.estimate);
     }
-    Ok(s.estimate)
+    let a = crate::ambient::ambient(mesh, &s.unshot)?;
+    Ok(crate::ambient::with_ambient(mesh, &s.estimate, a)?)
+}
+
+/// Seed tags: shooting pass `k` uses `k`, gathering pass `k` uses `GATHER_TAG + k`.
+const GATHER_TAG: u64 = 1 << 32;
+
+/// Rays per patch for a gathering budget (at least 2, as the variance needs).
+fn per_patch(mesh: &Mesh, rays: u64) -> u32 {
+    (rays / mesh.patches().len().max(1) as u64).clamp(2, u32::MAX as u64) as u32
+}
+
+/// Merges `next` into `acc` by `rule`.
+fn accumulate(
+    acc: Option<Estimate>,
+    next: Estimate,
+    rule: Rule,
+) -> Result<Estimate, ScheduleError> {
+    Ok(match acc {
+        None => next,
+        Some(a) => merge(&a, &next, rule)?,
+    })
+}
+
+/// Jacobi gathering: a step per round.
+fn run_gather<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
+    let rays_per_patch = if config.rays == u64::MAX {
+        256
+    } else {
+        per_patch(mesh, config.rays / 10)
+    };
+    let gather_config = GatherConfig {
+        rays: config.rays,
+        rays_per_patch,
+        threshold: 1e-3,
+        seed: config.seed,
+    };
+    let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
+    let g = gather(mesh, caster, &gather_config, &mut |p| {
+        observer(&Step {
+            index: p.rounds,
+            rays: p.rays,
+            next_rays: per_round.min(p.budget - p.rays),
+            radiosity: p.radiosity,
+        })
+    })?;
+    let stopped = g.stats.stop == crate::StopReason::Stopped;
+    Ok(Solution {
+        estimate: g.estimate,
+        steps: g.rounds,
+        escaped_rays: g.stats.escaped_rays,
+        unshot_fraction: 0.0,
+        stopped,
+    })
 }
 
 /// Pass budgets: `first, 2 first, 4 first, ...` until the budget is spent; a pass that would
@@ -224,6 +318,258 @@ impl Iterator for Doubling {
     }
 }
 
+/// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
+/// split) from it with the other half. Two steps.
+fn run_two_pass<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    split: bool,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    let budget = if config.rays == u64::MAX {
+        2_000_000
+    } else {
+        config.rays
+    };
+    let s = shoot(
+        mesh,
+        caster,
+        &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
+        &mut |_| ControlFlow::Continue(()),
+    )?;
+    let (shot_rays, mut escaped_rays, unshot) =
+        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let shooting = with_ambient(mesh, config, s)?;
+    let gather_budget = budget - shot_rays;
+    if observer(&Step {
+        index: 1,
+        rays: shot_rays,
+        next_rays: gather_budget,
+        radiosity: shooting.radiosity(),
+    })
+    .is_break()
+    {
+        return Ok(Solution {
+            estimate: shooting,
+            steps: 1,
+            escaped_rays,
+            unshot_fraction: unshot,
+            stopped: true,
+        });
+    }
+    let sampler = SurfaceSampler::new(mesh);
+    let seed = derive_seed(config.seed, GATHER_TAG);
+    let gathered = if split {
+        // Direct samples cost two rays each (an emitter sample and a cosine ray).
+        let split = SplitConfig {
+            rays_per_patch: per_patch(mesh, gather_budget / 2),
+            samples_per_patch: per_patch(mesh, gather_budget / 4),
+            sampling: DirectSampling::EmittersAndCosine,
+        };
+        two_pass_split(
+            mesh,
+            &sampler,
+            caster,
+            shooting.radiosity(),
+            &split,
+            seed,
+            0,
+        )?
+    } else {
+        let r = gather_round(
+            mesh,
+            &sampler,
+            caster,
+            shooting.radiosity(),
+            Emission::Include,
+            per_patch(mesh, gather_budget),
+            seed,
+            0,
+        )?;
+        escaped_rays += r.escaped_rays;
+        r.estimate
+    };
+    // The answer's work is everything it took: the shooting and the gathering.
+    let rays = shot_rays + gathered.rays();
+    let estimate = Estimate::new(
+        gathered.radiosity().to_vec(),
+        gathered.variance().map(<[DVec3]>::to_vec),
+        rays,
+    )?;
+    let stopped = observer(&Step {
+        index: 2,
+        rays,
+        next_rays: 0,
+        radiosity: estimate.radiosity(),
+    })
+    .is_break();
+    Ok(Solution {
+        estimate,
+        steps: 2,
+        escaped_rays,
+        unshot_fraction: unshot,
+        stopped,
+    })
+}
+
+/// Algorithm 2: progressive gathering from one shooting solution.
+fn run_progressive_gather<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    let shoot_budget = if config.rays == u64::MAX {
+        1_000_000
+    } else {
+        config.rays / 4
+    };
+    let s = shoot(
+        mesh,
+        caster,
+        &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
+        &mut |_| ControlFlow::Continue(()),
+    )?;
+    let (mut rays, mut escaped_rays, unshot) =
+        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let shooting = with_ambient(mesh, config, s)?;
+    let sampler = SurfaceSampler::new(mesh);
+    let rest = config.rays.saturating_sub(rays);
+    let min_pass = 2 * mesh.patches().len() as u64;
+    let mut passes = Doubling::new(&ScheduleConfig {
+        rays: rest,
+        first_pass_rays: Some(
+            config
+                .first_pass_rays
+                .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 })
+                .max(min_pass),
+        ),
+        ..config.clone()
+    });
+    let mut combined: Option<Estimate> = None;
+    let (mut steps, mut stopped) = (0, false);
+    while let Some(budget) = passes.next() {
+        if budget < min_pass {
+            break;
+        }
+        let r = gather_round(
+            mesh,
+            &sampler,
+            caster,
+            shooting.radiosity(),
+            Emission::Include,
+            per_patch(mesh, budget),
+            derive_seed(config.seed, GATHER_TAG + steps as u64),
+            0,
+        )?;
+        rays += r.estimate.rays();
+        escaped_rays += r.escaped_rays;
+        combined = Some(accumulate(combined, r.estimate, Rule::ByWork)?);
+        steps += 1;
+        let current = combined.as_ref().expect("just set");
+        if observer(&Step {
+            index: steps,
+            rays,
+            next_rays: passes.peek(),
+            radiosity: current.radiosity(),
+        })
+        .is_break()
+        {
+            stopped = true;
+            break;
+        }
+    }
+    let gathered = combined.ok_or(ScheduleError::BudgetTooSmall(config.rays))?;
+    let estimate = Estimate::new(
+        gathered.radiosity().to_vec(),
+        gathered.variance().map(<[DVec3]>::to_vec),
+        rays,
+    )?;
+    Ok(Solution {
+        estimate,
+        steps,
+        escaped_rays,
+        unshot_fraction: unshot,
+        stopped,
+    })
+}
+
+/// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
+/// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
+fn run_progressive_two_pass<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    let min_pass = 4 * mesh.patches().len() as u64;
+    let mut passes = Doubling::new(&ScheduleConfig {
+        first_pass_rays: Some(Doubling::new(config).peek().max(min_pass)),
+        ..config.clone()
+    });
+    let sampler = SurfaceSampler::new(mesh);
+    let (mut shooting, mut gathered): (Option<Estimate>, Option<Estimate>) = (None, None);
+    let (mut steps, mut rays, mut escaped_rays, mut unshot, mut stopped) =
+        (0u32, 0u64, 0u64, 0.0, false);
+    while let Some(budget) = passes.next() {
+        if budget < min_pass {
+            break;
+        }
+        let s = shoot(
+            mesh,
+            caster,
+            &shoot_config(config, budget / 2, derive_seed(config.seed, steps as u64)),
+            &mut |_| ControlFlow::Continue(()),
+        )?;
+        rays += s.stats.rays;
+        escaped_rays += s.stats.escaped_rays;
+        unshot = unshot_fraction(&s);
+        let shot = with_ambient(mesh, config, s)?;
+        let refined = accumulate(shooting, shot, Rule::ByWork)?;
+        let r = gather_round(
+            mesh,
+            &sampler,
+            caster,
+            refined.radiosity(),
+            Emission::Include,
+            per_patch(mesh, budget / 2),
+            derive_seed(config.seed, GATHER_TAG + steps as u64),
+            0,
+        )?;
+        shooting = Some(refined);
+        rays += r.estimate.rays();
+        escaped_rays += r.escaped_rays;
+        gathered = Some(accumulate(gathered, r.estimate, Rule::ByWork)?);
+        steps += 1;
+        let current = gathered.as_ref().expect("just set");
+        if observer(&Step {
+            index: steps,
+            rays,
+            next_rays: passes.peek(),
+            radiosity: current.radiosity(),
+        })
+        .is_break()
+        {
+            stopped = true;
+            break;
+        }
+    }
+    let g = gathered.ok_or(ScheduleError::BudgetTooSmall(config.rays))?;
+    let estimate = Estimate::new(
+        g.radiosity().to_vec(),
+        g.variance().map(<[DVec3]>::to_vec),
+        rays,
+    )?;
+    Ok(Solution {
+        estimate,
+        steps,
+        escaped_rays,
+        unshot_fraction: unshot,
+        stopped,
+    })
+}
+
 /// Algorithm 1: progressive ray refinement.
 fn run_prr<C: RayCaster>(
     mesh: &Mesh,
@@ -245,10 +591,7 @@ fn run_prr<C: RayCaster>(
         escaped_rays += s.stats.escaped_rays;
         unshot = unshot_fraction(&s);
         let estimate = with_ambient(mesh, config, s)?;
-        combined = Some(match combined {
-            None => estimate,
-            Some(c) => merge(&c, &estimate, Rule::ByWork)?,
-        });
+        combined = Some(accumulate(combined, estimate, Rule::ByWork)?);
         steps += 1;
         let current = combined.as_ref().expect("just set");
         if observer(&Step {

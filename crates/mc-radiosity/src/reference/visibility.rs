@@ -18,13 +18,14 @@
 //! rays on a uniform grid make the error that of stratified sampling: for a shadow boundary
 //! crossing the four-dimensional domain, `O(N^(-5/8))` for `N` blocks.
 //!
-//! The error of `φ` is estimated from the four interleaved sub-grids of the last round (the
-//! `k`-th children of every parent, `k = 0..3`), independent stratified designs at the
-//! parent's resolution: with `φ_k` their estimates and `s` their standard deviation, the error
-//! of the whole grid is `s / 2` (the random-group estimate), but at least
-//! `sqrt(p (1 - p)) N^(-3/4) / 2` with `p = (n_lit + 1/2) / (N + 1)` (`n_lit` unblocked rays),
-//! so that sub-grids that agree by accident, or a grid whose rays all agree in a pair known to
-//! be partly visible, do not stop the refinement.
+//! The error of `φ` is the standard deviation of the ratio estimate under the jitter, estimated
+//! by collapsing the strata in fours (the children of one parent block):
+//! `Var φ ≈ (4/3) Σ_parents Σ_k (y_k - ȳ)² / (Σ_b u_b)²` with `y_b = u_b (V_b - φ)` and `ȳ` the
+//! mean over the siblings. This overestimates a little (by the spread of the siblings' true
+//! means), and is floored at `sqrt(p (1 - p)) N^(-3/4) / 2` with `p = (n_lit + 1/2) / (N + 1)`
+//! (`n_lit` unblocked rays of `N`), so that a grid whose rays all agree, in a pair known to be
+//! partly visible, does not stop the refinement. The errors of different pairs come from
+//! independent jitter: rows add them in quadrature.
 //!
 //! The probe of a pair adds rays between its corners (each moved `1e-3` of the way to its
 //! polygon's centroid): for two parallel polygons and a convex blocker, if all corner rays are
@@ -197,39 +198,29 @@ impl Grid {
         let mut rng = Stream::new(0, rounds as u64, self.key, 0);
         let mut acc = Accumulator::default();
         for (t, c) in &self.roots {
-            self.visit(caster, &mut rng, &mut acc, *t, *c, 0, rounds, 0, weigh);
+            self.visit(caster, &mut rng, &mut acc, *t, *c, 0, rounds, weigh);
         }
         let blocks = acc.blocks;
         let p = (acc.lit as f64 + 0.5) / (blocks as f64 + 1.0);
         let floor = (p * (1.0 - p)).sqrt() * (blocks as f64).powf(-0.75) / 2.0;
-        let all: f64 = acc.all.iter().sum();
-        let lit_weight: f64 = acc.lit_weight.iter().sum();
-        let (fraction, error) = if !weigh || !(all > 0.0) {
-            (
-                acc.lit as f64 / blocks.max(1) as f64,
-                if weigh { floor } else { 0.0 },
-            )
-        } else {
-            let phis: Vec<f64> = (0..4)
-                .filter(|&g| acc.all[g] > 0.0)
-                .map(|g| acc.lit_weight[g] / acc.all[g])
-                .collect();
-            let spread = if phis.len() < 2 {
-                0.0
-            } else {
-                let mean = phis.iter().sum::<f64>() / phis.len() as f64;
-                (phis.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / (phis.len() - 1) as f64)
-                    .sqrt()
-            };
-            (
-                (lit_weight / all).clamp(0.0, 1.0),
-                (spread / 2.0).max(floor),
-            )
+        let fraction = match acc.lit {
+            0 => 0.0,
+            l if l == blocks => 1.0,
+            l if !weigh || !(acc.u > 0.0) => l as f64 / blocks as f64,
+            _ => (acc.uv / acc.u).clamp(0.0, 1.0),
         };
-        let (fraction, error) = match acc.lit {
-            0 => (0.0, error),
-            l if l == blocks => (1.0, error),
-            _ => (fraction, error),
+        let error = if !weigh {
+            0.0
+        } else if acc.u > 0.0 {
+            // Collapsed strata over siblings: v = (4/3) Σ_parents Σ_k (y_k - ȳ)², with
+            // y_k = u_k (V_k - φ), expanded in the sums kept per parent.
+            let f = fraction;
+            let within = acc.uuv * (1.0 - 2.0 * f) + f * f * acc.uu;
+            let means = (acc.parent_uv2 - 2.0 * f * acc.parent_uv_u + f * f * acc.parent_u2) / 4.0;
+            let v = (4.0 / 3.0) * (within - means).max(0.0);
+            (v.sqrt() / acc.u).max(floor)
+        } else {
+            floor
         };
         Visibility {
             blocks,
@@ -250,44 +241,60 @@ impl Grid {
         c: [DVec3; 3],
         depth: usize,
         rounds: usize,
-        group: usize,
         weigh: bool,
     ) {
-        if depth == rounds {
-            let x = point_in(&t, rng.uniform_f64(), rng.uniform_f64());
-            let y = point_in(&c, rng.uniform_f64(), rng.uniform_f64());
+        let children: [([DVec3; 3], [DVec3; 3]); 4] = if self.split_source[depth] {
+            split(&t).map(|t| (t, c))
+        } else {
+            split(&c).map(|c| (t, c))
+        };
+        if depth + 1 < rounds {
+            for (t, c) in children {
+                self.visit(caster, rng, acc, t, c, depth + 1, rounds, weigh);
+            }
+            return;
+        }
+        // The children are blocks: one ray each, and the sums of this parent.
+        let (mut su, mut suv) = (0.0, 0.0);
+        for (t, c) in &children {
+            let x = point_in(t, rng.uniform_f64(), rng.uniform_f64());
+            let y = point_in(c, rng.uniform_f64(), rng.uniform_f64());
             let (a, b) = self.surface_points(x, y);
             let lit = !caster.occluded(&a, &b);
             acc.blocks += 1;
             acc.lit += usize::from(lit);
             if weigh {
-                let u = area(&t) * contour(centroid(&t), self.source.normal, &c);
+                let u = area(t) * contour(centroid(t), self.source.normal, c);
+                let uv = if lit { u } else { 0.0 };
                 acc.evaluations += 1;
-                acc.all[group] += u;
-                if lit {
-                    acc.lit_weight[group] += u;
-                }
-            }
-            return;
-        }
-        if self.split_source[depth] {
-            for (k, child) in split(&t).into_iter().enumerate() {
-                self.visit(caster, rng, acc, child, c, depth + 1, rounds, k, weigh);
-            }
-        } else {
-            for (k, child) in split(&c).into_iter().enumerate() {
-                self.visit(caster, rng, acc, t, child, depth + 1, rounds, k, weigh);
+                su += u;
+                suv += uv;
+                acc.uu += u * u;
+                acc.uuv += u * uv;
             }
         }
+        acc.u += su;
+        acc.uv += suv;
+        acc.parent_u2 += su * su;
+        acc.parent_uv2 += suv * suv;
+        acc.parent_uv_u += suv * su;
     }
 }
 
+/// Sums over the blocks of a grid (`u` the weights, `V` the 0/1 ray results) and over their
+/// parents (`U_p = Σ_{k} u_k`, `W_p = Σ_k u_k V_k` over a parent's four children).
 #[derive(Debug, Default)]
 struct Accumulator {
     blocks: usize,
     lit: usize,
-    /// Per sub-grid: `Σ u_b` and `Σ u_b V_b`.
-    all: [f64; 4],
-    lit_weight: [f64; 4],
     evaluations: u64,
+    /// `Σ u`, `Σ u V`, `Σ u²`, `Σ u² V`.
+    u: f64,
+    uv: f64,
+    uu: f64,
+    uuv: f64,
+    /// `Σ_p U_p²`, `Σ_p W_p²`, `Σ_p W_p U_p`.
+    parent_u2: f64,
+    parent_uv2: f64,
+    parent_uv_u: f64,
 }

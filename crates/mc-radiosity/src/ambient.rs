@@ -1,0 +1,125 @@
+//! The ambient term of progressive radiosity (Cohen, Chen, Wallace and Greenberg 1988; Balog,
+//! section 3.1): a cheap stand-in for the light that power not yet shot would still add.
+//!
+//! A shooting run that stops early leaves unshot power `U_j` (W per channel) on the patches: it
+//! is already in their own radiosity, but it has not lit anything else yet. Suppose it were
+//! shot, and that every watt leaving any patch landed on the surfaces in proportion to their
+//! area (the form factor `F_ij ≈ A_j / sum_k A_k`), each bounce reflecting the area-weighted
+//! mean reflectance `rho_avg = sum_j A_j rho_j / sum_j A_j`, and nothing escaping. Then every
+//! unit of area receives `sum_j U_j / sum_j A_j` directly, `rho_avg` of that after one more
+//! bounce, and so on: in all the **ambient irradiance** (W/m² arriving, per channel)
+//!
+//! ```text
+//! A_amb = R sum_j U_j / sum_j A_j,      R = 1 / (1 - rho_avg),
+//! ```
+//!
+//! of which patch `i` reflects `rho_i A_amb`: its displayed radiosity becomes
+//! `B_i + rho_i A_amb` ([`with_ambient`]). In that model the power added,
+//! `sum_i A_i rho_i A_amb = rho_avg R sum_j U_j`, is exactly the reflected power the unshot
+//! power would yet produce, so a solution plus its ambient term conserves power.
+//!
+//! **Where it is biased.** The model is exact only where it holds: a closed scene of uniform
+//! reflectance in which every patch sees the others in proportion to their area (a sphere's
+//! inside; for the mean over patches, any closed scene of uniform reflectance). Elsewhere the
+//! term ignores visibility and distance (it lights shadowed corners and closed-off rooms as much
+//! as the patches next to the unshot power, which it under-lights), ignores escape (an open
+//! scene gets the power that would have left it), and weights reflectance by area rather than by
+//! where the light lands. The bias is proportional to the unshot power, so it vanishes as the
+//! shooting converges; the term adds no variance estimate of its own.
+
+use glam::DVec3;
+use mcrad_combine::{Estimate, EstimateError};
+use mcrad_meshing::Mesh;
+
+/// Why the ambient term cannot be computed or applied.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AmbientError {
+    /// The per-patch values do not have one entry per patch.
+    #[error("{got} values were given for a mesh of {patches} patches")]
+    Length {
+        /// Patches in the mesh.
+        patches: usize,
+        /// Entries given.
+        got: usize,
+    },
+    /// An unshot power is NaN, infinite or negative.
+    #[error("unshot power of patch {patch} is not finite and non-negative: {value}")]
+    BadUnshot {
+        /// Patch index.
+        patch: usize,
+        /// The offending value (W).
+        value: DVec3,
+    },
+    /// The result could not be made an [`Estimate`].
+    #[error(transparent)]
+    Estimate(#[from] EstimateError),
+}
+
+/// The area-weighted mean reflectance `rho_avg = sum_j A_j rho_j / sum_j A_j` per channel.
+pub fn mean_reflectance(mesh: &Mesh) -> DVec3 {
+    let (weighted, area) = mesh.patches().iter().fold((DVec3::ZERO, 0.0), |(w, a), p| {
+        (w + p.reflectance.as_dvec3() * p.area, a + p.area)
+    });
+    weighted / area
+}
+
+/// The ambient irradiance `A_amb = R sum_j U_j / sum_j A_j` (W/m² per channel),
+/// `R = 1 / (1 - rho_avg)` with `rho_avg` the area-weighted mean reflectance per channel
+/// ([`mean_reflectance`]), from the unshot power `unshot[j] = U_j` (W per channel, as in
+/// [`Shooting::unshot`](crate::Shooting::unshot)). See the [module documentation](self) for
+/// what it means and where it is biased.
+///
+/// Errors: `unshot` not one finite, non-negative value per patch.
+pub fn ambient(mesh: &Mesh, unshot: &[DVec3]) -> Result<DVec3, AmbientError> {
+    let patches = mesh.patches().len();
+    if unshot.len() != patches {
+        return Err(AmbientError::Length {
+            patches,
+            got: unshot.len(),
+        });
+    }
+    if let Some(patch) = unshot
+        .iter()
+        .position(|u| !(u.is_finite() && u.min_element() >= 0.0))
+    {
+        return Err(AmbientError::BadUnshot {
+            patch,
+            value: unshot[patch],
+        });
+    }
+    let total: DVec3 = unshot.iter().sum();
+    // Each reflectance channel is < 1, so R is finite.
+    let r = (DVec3::ONE - mean_reflectance(mesh)).recip();
+    Ok(r * total / mesh.total_area())
+}
+
+/// `estimate` with the ambient term added: `B_i + rho_i A_amb` per patch and channel (W/m²),
+/// `ambient` = `A_amb` from [`ambient`]. Variances and the ray count are kept as they are (the
+/// term is a deterministic function of the run; its bias is discussed in the
+/// [module documentation](self)).
+///
+/// Errors: `estimate` not one value per patch, or a non-finite result.
+pub fn with_ambient(
+    mesh: &Mesh,
+    estimate: &Estimate,
+    ambient: DVec3,
+) -> Result<Estimate, AmbientError> {
+    let patches = mesh.patches();
+    if estimate.len() != patches.len() {
+        return Err(AmbientError::Length {
+            patches: patches.len(),
+            got: estimate.len(),
+        });
+    }
+    let radiosity = estimate
+        .radiosity()
+        .iter()
+        .zip(patches)
+        .map(|(b, p)| *b + p.reflectance.as_dvec3() * ambient)
+        .collect();
+    Ok(Estimate::new(
+        radiosity,
+        estimate.variance().map(<[DVec3]>::to_vec),
+        estimate.rays(),
+    )?)
+}

@@ -1,0 +1,352 @@
+//! Direct light by sampling the emitters (Shirley and Wang 1991), and the two-pass split of
+//! gathering into direct and indirect light (Balog, section 1.5).
+//!
+//! The reflected direct radiosity of patch `i` (W/m² per channel) is
+//!
+//! ```text
+//! D_i = rho_i (1/A_i) ∫_{A_i} sum_j ∫_{A_j} E_j cos θ_x cos θ_y V(x, y) / (π r²) dA_y dA_x
+//!     = rho_i sum_j F_ij E_j,
+//! ```
+//!
+//! `θ_x`, `θ_y` the angles between the segment `x y` and the normals at its ends, `r` its length,
+//! `V` its visibility; only front sides count (both cosines `> 0`). A gathering ray finds a small
+//! bright emitter rarely; sampling the emitters finds it on every sample.
+//!
+//! # [`DirectSampling::Emitters`] (Shirley and Wang)
+//!
+//! Each sample draws a uniform point `x` of `P_i` (density `1/A_i`), an emitter `j` with
+//! probability `p_j = |E_j| A_j / sum_k |E_k| A_k` (`|.|` the channel sum: in proportion to its
+//! power) and a uniform point `y` of `P_j` (density `1/A_j`), casts one shadow ray, and scores
+//!
+//! ```text
+//! f = E_j (A_j / p_j) cos θ_x cos θ_y V(x, y) / (π r²),
+//! ```
+//!
+//! whose mean is `sum_j F_ij E_j`. **Infinite variance next to an emitter at an angle:** where a
+//! receiver shares an edge with an emitter that is not coplanar with it (a lamp flush with a
+//! wall, every wall of a furnace), `f ~ 1/r²` near the edge and its second moment diverges. The
+//! estimate stays unbiased and converges, but slowly (the error falls like `n^(-1/3)`, not
+//! `n^(-1/2)`; usually low, now and then far high), and the sample variance reported there is
+//! unreliable. Coplanar neighbours (a light cut into a ceiling) see each other at `cos θ = 0` and
+//! are harmless.
+//!
+//! # [`DirectSampling::EmittersAndCosine`] (multiple importance sampling)
+//!
+//! Each sample draws `x` as above and then both an emitter point `y` (as above) and a
+//! cosine-distributed direction `ω` about the normal, whose first hit, if it is the front of an
+//! emitter, is its own emitter point `y'`. With the two densities of a direction, per steradian,
+//!
+//! ```text
+//! p_L(y) = (p_j / A_j) r² / cos θ_y       (emitter sampling, converted from area)
+//! p_C(y) = cos θ_x / π                    (cosine sampling)
+//! ```
+//!
+//! the sample scores (balance heuristic, Veach and Guibas 1995)
+//!
+//! ```text
+//! f = (E_j / π) cos θ_x V(x, y)   / (p_L(y)  + p_C(y))
+//!   + (E_j' / π) cos θ_x'          / (p_L(y') + p_C(y')),
+//! ```
+//!
+//! again with mean `sum_j F_ij E_j` (each visible emitter point is weighted by the share of the
+//! strategy that drew it). Each term is at most `E_j`, so the variance is finite everywhere, at
+//! the price of two rays per sample (a shadow ray and a closest-hit ray).
+//!
+//! Either way `D_i = rho_i mean(f)` over the patch's `n` samples, with variance `rho_i² s² / n`,
+//! `s²` the sample variance of `f`.
+
+use crate::gather::{
+    DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round, jobs,
+};
+use crate::rng::Stream;
+use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
+use crate::surface::SurfaceSampler;
+use glam::{DVec3, Vec3};
+use mcrad_combine::Estimate;
+use mcrad_meshing::{Mesh, Patch};
+use mcrad_raycast::{NO_ID, Ray, RayCaster, SurfacePoint};
+use rayon::prelude::*;
+use std::f64::consts::{FRAC_1_PI, PI};
+
+/// How [`direct`] samples the light arriving at a patch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DirectSampling {
+    /// Emitter points only, in proportion to power (Shirley and Wang 1991): one shadow ray per
+    /// sample. Infinite variance on receivers that share an edge with a non-coplanar emitter.
+    #[default]
+    Emitters,
+    /// Emitter points and cosine-distributed directions, combined by the balance heuristic: two
+    /// rays per sample, variance finite everywhere.
+    EmittersAndCosine,
+}
+
+/// The result of [`direct`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DirectLight {
+    /// Reflected direct radiosity `D_i` per patch (W/m², emission **not** included) and its
+    /// variance `rho_i² s² / n` ((W/m²)²); `rays` = rays cast (shadow and closest-hit).
+    pub estimate: Estimate,
+    /// Samples drawn (`patches × samples_per_patch`). An emitter point that does not face `x`
+    /// (a cosine `<= 0`, or the emitter is the patch itself) scores 0 without a shadow ray.
+    pub samples: u64,
+    /// Shadow rays that found their segment blocked.
+    pub occluded: u64,
+}
+
+/// Estimates the reflected direct light `D_i = rho_i sum_j F_ij E_j` (W/m²) of every patch with
+/// `samples_per_patch` samples per patch, drawing emitters in proportion to their power and
+/// testing visibility with [`RayCaster::occluded`] between the two surface points (with their
+/// patch ids and normals); see the [module documentation](self) for both `sampling` strategies,
+/// their estimators and their variances.
+///
+/// A scene without emitters has `D = 0` everywhere (no ray is cast). Random streams
+/// `(seed, pass, patch, DIRECT_LIGHT + chunk)`, chunks of 4096 samples; the result does not
+/// depend on the thread count.
+///
+/// Errors: `samples_per_patch < 2`.
+pub fn direct<C: RayCaster>(
+    mesh: &Mesh,
+    sampler: &SurfaceSampler,
+    caster: &C,
+    samples_per_patch: u32,
+    sampling: DirectSampling,
+    seed: u64,
+    pass: u64,
+) -> Result<DirectLight, GatherError> {
+    if samples_per_patch < 2 {
+        return Err(GatherError::TooFewRays(samples_per_patch));
+    }
+    let patches = mesh.patches();
+    if patches.len() >= NO_ID as usize {
+        return Err(GatherError::TooManyPatches(patches.len()));
+    }
+    let samples = patches.len() as u64 * samples_per_patch as u64;
+    let power: Vec<f64> = patches
+        .iter()
+        .map(|p| p.emission.as_dvec3().element_sum() * p.area)
+        .collect();
+    let Some(emitters) = Discrete::new(&power) else {
+        let zero = vec![DVec3::ZERO; patches.len()];
+        return Ok(DirectLight {
+            estimate: Estimate::new(zero.clone(), Some(zero), 0)?,
+            samples,
+            occluded: 0,
+        });
+    };
+    let light = Light {
+        patches,
+        emitters: &emitters,
+        mis: sampling == DirectSampling::EmittersAndCosine,
+    };
+    let jobs = jobs(patches.len(), samples_per_patch);
+    let seen: Vec<Tally> = jobs
+        .par_iter()
+        .map(|job| {
+            let i = job.item as usize;
+            let frame = Frame::from_normal(patches[i].normal);
+            let mut rng = Stream::new(seed, pass, i as u64, DIRECT_LIGHT + job.chunk as u64);
+            let mut tally = Tally::default();
+            for _ in 0..job.rays {
+                let f = light.sample(i, &frame, sampler, caster, &mut rng, &mut tally);
+                tally.moments.push(f);
+            }
+            tally
+        })
+        .collect();
+    // Merge each patch's chunks in chunk order.
+    let mut per_patch = vec![Tally::default(); patches.len()];
+    for (job, t) in jobs.iter().zip(seen) {
+        let acc = &mut per_patch[job.item as usize];
+        acc.moments = acc.moments.merge(t.moments);
+        acc.rays += t.rays;
+        acc.occluded += t.occluded;
+    }
+    let (mut radiosity, mut variance) = (Vec::new(), Vec::new());
+    let (mut rays, mut occluded) = (0, 0);
+    for (p, t) in patches.iter().zip(&per_patch) {
+        let rho = p.reflectance.as_dvec3();
+        radiosity.push(rho * t.moments.mean);
+        variance.push(rho * rho * t.moments.variance_of_mean());
+        rays += t.rays;
+        occluded += t.occluded;
+    }
+    Ok(DirectLight {
+        estimate: Estimate::new(radiosity, Some(variance), rays)?,
+        samples,
+        occluded,
+    })
+}
+
+/// Per-job sums of [`direct`].
+#[derive(Debug, Clone, Copy, Default)]
+struct Tally {
+    moments: Moments,
+    rays: u64,
+    occluded: u64,
+}
+
+/// What every sample of [`direct`] needs.
+struct Light<'a> {
+    patches: &'a [Patch],
+    emitters: &'a Discrete,
+    mis: bool,
+}
+
+impl Light<'_> {
+    /// Emitter sampling's density of the direction from `x` (normal `nx`) to point `y` of
+    /// emitter `j`, per steradian: `(p_j / A_j) r² / cos θ_y`; also `cos θ_x`, `cos θ_y` and `r²`.
+    /// `None` unless both points face each other.
+    fn geometry(&self, x: Vec3, nx: Vec3, y: Vec3, j: usize) -> Option<(f64, f64, f64)> {
+        let d = y.as_dvec3() - x.as_dvec3();
+        let r2 = d.length_squared();
+        if r2 == 0.0 {
+            return None;
+        }
+        let r = r2.sqrt();
+        let cos_x = nx.as_dvec3().dot(d) / r;
+        let cos_y = -self.patches[j].normal.as_dvec3().dot(d) / r;
+        (cos_x > 0.0 && cos_y > 0.0).then_some((cos_x, cos_y, r2))
+    }
+
+    /// One sample's score `f` for patch `i` (see the module documentation), counting rays.
+    fn sample<C: RayCaster>(
+        &self,
+        i: usize,
+        frame: &Frame,
+        sampler: &SurfaceSampler,
+        caster: &C,
+        rng: &mut Stream,
+        tally: &mut Tally,
+    ) -> DVec3 {
+        let nx = frame.normal;
+        let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let j = self.emitters.sample(rng.uniform_f64());
+        let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let mut f = DVec3::ZERO;
+        // Emitter sampling.
+        if let Some((cos_x, cos_y, r2)) = self.geometry(x, nx, y, j).filter(|_| j != i) {
+            tally.rays += 1;
+            let pj = &self.patches[j];
+            let blocked = caster.occluded(
+                &SurfacePoint::new(x, nx, i as u32),
+                &SurfacePoint::new(y, pj.normal, j as u32),
+            );
+            if blocked {
+                tally.occluded += 1;
+            } else {
+                let area_pdf = self.emitters.pmf(j) / pj.area;
+                let e = pj.emission.as_dvec3();
+                f += if self.mis {
+                    // (E/π) cos θ_x / (p_L + p_C), p_L = area_pdf r² / cos θ_y
+                    e * (FRAC_1_PI * cos_x) / (area_pdf * r2 / cos_y + FRAC_1_PI * cos_x)
+                } else {
+                    e * (cos_x * cos_y / (PI * r2 * area_pdf))
+                };
+            }
+        }
+        // Cosine sampling.
+        if self.mis {
+            let dir = frame.to_world(cosine_hemisphere_rejection(|| rng.uniform()));
+            tally.rays += 1;
+            if let Some(hit) = caster.closest_hit(&Ray::from_surface(x, nx, dir, i as u32))
+                && hit.front
+                && self.emitters.pmf(hit.id as usize) > 0.0
+            {
+                let k = hit.id as usize;
+                let pk = &self.patches[k];
+                let cos_x = dir.as_dvec3().dot(nx.as_dvec3());
+                let cos_y = -dir.as_dvec3().dot(pk.normal.as_dvec3());
+                let r2 = (hit.point.as_dvec3() - x.as_dvec3()).length_squared();
+                if cos_x > 0.0 && cos_y > 0.0 {
+                    let area_pdf = self.emitters.pmf(k) / pk.area;
+                    let p_c = FRAC_1_PI * cos_x;
+                    // (E/π) cos θ_x / (p_L + p_C)
+                    f += pk.emission.as_dvec3() * p_c / (area_pdf * r2 / cos_y + p_c);
+                }
+            }
+        }
+        f
+    }
+}
+
+/// Settings of [`two_pass_split`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SplitConfig {
+    /// Gathering rays per patch for the indirect light (`>= 2`).
+    pub rays_per_patch: u32,
+    /// Direct-light samples per patch (`>= 2`).
+    pub samples_per_patch: u32,
+    /// How the direct light is sampled.
+    pub sampling: DirectSampling,
+}
+
+/// The second pass of two-pass radiosity with the direct/indirect split (Balog, section 1.5;
+/// Shirley and Wang 1991), from a first-pass solution `shooting` (radiosity per patch, W/m²,
+/// e.g. a shooting estimate, with the ambient term added if wanted):
+///
+/// ```text
+/// B_i = E_i + D_i + rho_i sum_j F_ij (B_shoot,j - E_j),
+/// ```
+///
+/// the direct light `D` from [`direct`] and the indirect light from one [`gather_round`] over
+/// `input = B_shoot - E` with [`Emission::Exclude`]. Gathering rays never score emission, so a
+/// small light they miss costs nothing: only light reflected at least once is gathered. The two
+/// parts use independent streams (same `seed` and `pass`), so the variance is their sum,
+/// `Var D_i + rho_i² s_i² / n` (conditional on `shooting`); `rays` counts both.
+///
+/// Errors: `shooting` not one finite value per patch, or fewer than 2 rays or samples.
+pub fn two_pass_split<C: RayCaster>(
+    mesh: &Mesh,
+    sampler: &SurfaceSampler,
+    caster: &C,
+    shooting: &[DVec3],
+    config: &SplitConfig,
+    seed: u64,
+    pass: u64,
+) -> Result<Estimate, GatherError> {
+    check_input(mesh, shooting)?;
+    let patches = mesh.patches();
+    let indirect_input: Vec<DVec3> = shooting
+        .iter()
+        .zip(patches)
+        .map(|(b, p)| *b - p.emission.as_dvec3())
+        .collect();
+    let indirect = gather_round(
+        mesh,
+        sampler,
+        caster,
+        &indirect_input,
+        Emission::Exclude,
+        config.rays_per_patch,
+        seed,
+        pass,
+    )?
+    .estimate;
+    let direct = direct(
+        mesh,
+        sampler,
+        caster,
+        config.samples_per_patch,
+        config.sampling,
+        seed,
+        pass,
+    )?
+    .estimate;
+    let radiosity = patches
+        .iter()
+        .zip(indirect.radiosity().iter().zip(direct.radiosity()))
+        .map(|(p, (ind, dir))| p.emission.as_dvec3() + *dir + *ind)
+        .collect();
+    let variance = indirect
+        .variance()
+        .expect("gathering has variances")
+        .iter()
+        .zip(direct.variance().expect("direct light has variances"))
+        .map(|(a, b)| *a + *b)
+        .collect();
+    Ok(Estimate::new(
+        radiosity,
+        Some(variance),
+        indirect.rays() + direct.rays(),
+    )?)
+}

@@ -1,0 +1,715 @@
+//! Gathering stochastic radiosity (Balog, section 1.4): every patch (or vertex) estimates the
+//! light it receives by casting cosine-distributed rays and averaging the radiosity they hit.
+//!
+//! For patch `i` and `n` rays leaving uniform points of `P_i` with the cosine density, the first
+//! front face hit by ray `k` is patch `j_k` with probability `F_{i j_k}`, so
+//!
+//! ```text
+//! B'_i = E_i + rho_i (1/n) sum_k input[j_k]        (W/m² per RGB channel)
+//! ```
+//!
+//! is an unbiased estimate of `E_i + rho_i sum_j F_ij input_j`: one Jacobi step of the radiosity
+//! system applied to `input` ([`gather_round`]). A ray that escapes, or whose first hit is a back
+//! face, brings 0 (a back face absorbs; an escaped ray sees nothing). The rays of a patch are
+//! independent, so with `s²` the sample variance of `input[j_k]` over its rays, `rho_i² s² / n`
+//! estimates the variance of `B'_i` (conditional on `input`).
+//!
+//! Iterating from `B = E` gives Jacobi iteration ([`gather`]): after `m` rounds the expected
+//! result is the `m`-bounce solution `sum_{k <= m} (rho F)^k E`, since each round uses fresh rays
+//! and is linear in its input. [`gather_corners`] gathers at mesh vertices instead of over patches
+//! (section 1.5), so smooth shading needs no extrapolation.
+//!
+//! # Example
+//!
+//! ```
+//! use glam::{DVec3, Vec3};
+//! use mcrad_mc_radiosity::{Emission, SurfaceSampler, gather_round};
+//! use mcrad_meshing::{Mesh, Subdivision};
+//! use mcrad_raycast::Bvh;
+//! use mcrad_scene_io::{Face, Material, Scene};
+//!
+//! // A closed unit cube, every face emitting 1 W/m² with reflectance 0.5: B = E / (1 - ρ) = 2.
+//! let positions: Vec<Vec3> = (0..8)
+//!     .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
+//!     .collect();
+//! let quads = [[1, 3, 2, 0], [6, 7, 5, 4], [4, 5, 1, 0], [3, 7, 6, 2], [2, 6, 4, 0], [5, 7, 3, 1]];
+//! let faces = quads
+//!     .iter()
+//!     .enumerate()
+//!     .map(|(k, q)| Face { vertices: q.to_vec(), material: 0, source: k as u32 })
+//!     .collect();
+//! let material = Material { name: "m".into(), reflectance: Vec3::splat(0.5), emission: Vec3::ONE };
+//! let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
+//! let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+//! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+//! let sampler = SurfaceSampler::new(&mesh);
+//!
+//! // Gathering from the exact solution reproduces it: every ray sees B = 2.
+//! let exact = vec![DVec3::splat(2.0); 6];
+//! let round = gather_round(&mesh, &sampler, &bvh, &exact, Emission::Include, 100, 0, 0).unwrap();
+//! assert_eq!(round.estimate.rays(), 600);
+//! for b in round.estimate.radiosity() {
+//!     assert!((b.x - 2.0).abs() < 0.02); // exact unless a ray slipped through an edge
+//! }
+//! ```
+//!
+//! # Randomness and determinism
+//!
+//! Patch `i`'s rays in round `pass` come from `Stream::new(seed, pass, i, PATCH_GATHER + chunk)`,
+//! one stream per chunk of 4096 rays; vertex group `g`'s from
+//! `Stream::new(seed, pass, g, VERTEX_GATHER + chunk)`, and [`direct`](crate::direct())'s
+//! samples from `Stream::new(seed, pass, i, DIRECT_LIGHT + chunk)`, with the tags
+//! `PATCH_GATHER = 2^40`, `VERTEX_GATHER = 2 · 2^40` and `DIRECT_LIGHT = 3 · 2^40`. The tags keep
+//! these streams apart from shooting's (sub-streams `0` and `1 + chunk`) and from each other, so
+//! estimators run with the same `(seed, pass)` are independent. Chunks run in parallel and their
+//! moments are merged per item in chunk order, so a seed gives bit-identical results on any
+//! number of threads. A schedule must give every round it wants independent of the others its
+//! own `pass` (or its own seed, e.g. from [`rng::derive_seed`](crate::rng::derive_seed)).
+
+use crate::rng::Stream;
+use crate::sampling::{Frame, cosine_hemisphere_rejection};
+use crate::shoot::StopReason;
+use crate::surface::SurfaceSampler;
+use glam::{DVec3, Vec3};
+use mcrad_combine::{Estimate, EstimateError};
+use mcrad_meshing::{CornerGroups, Mesh};
+use mcrad_raycast::{NO_ID, Ray, RayCaster};
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+
+/// Rays (or samples) per job: the unit of parallel work and of random streams.
+pub(crate) const JOB_RAYS: u32 = 4096;
+/// Sub-stream tag of patch gathering ([`gather_round`]); the chunk number is added to it.
+pub(crate) const PATCH_GATHER: u64 = 1 << 40;
+/// Sub-stream tag of vertex gathering ([`gather_corners`]).
+pub(crate) const VERTEX_GATHER: u64 = 2 << 40;
+/// Sub-stream tag of direct-light sampling ([`direct`](crate::direct())).
+pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;
+
+/// Whether a gathering result includes the patch's own emission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Emission {
+    /// `B'_i = E_i + rho_i * (mean gathered radiosity)`: a complete radiosity.
+    Include,
+    /// `B'_i = rho_i * (mean gathered radiosity)`: the reflected part only, to be added to other
+    /// parts (the direct/indirect split of [`two_pass_split`](crate::two_pass_split)).
+    Exclude,
+}
+
+/// Why a gathering (or direct-light) estimate is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GatherError {
+    /// The input radiosity does not have one entry per patch.
+    #[error("the input has {got} values but the mesh has {patches} patches")]
+    InputLength {
+        /// Patches in the mesh.
+        patches: usize,
+        /// Entries given.
+        got: usize,
+    },
+    /// An input radiosity is NaN or infinite.
+    #[error("input radiosity of patch {patch} is not finite: {value}")]
+    NotFinite {
+        /// Patch index.
+        patch: usize,
+        /// The offending value (W/m²).
+        value: DVec3,
+    },
+    /// Fewer than two rays (or samples) per item: the sample variance needs two.
+    #[error("at least 2 rays per patch or vertex are needed for a variance, got {0}")]
+    TooFewRays(u32),
+    /// The ray budget cannot pay for a single gathering round.
+    #[error("a budget of {budget} rays cannot pay for one round of {round} rays")]
+    BudgetTooSmall {
+        /// The budget.
+        budget: u64,
+        /// Rays of one round (`patches × rays_per_patch`).
+        round: u64,
+    },
+    /// The convergence threshold is negative or not finite.
+    #[error("the gathering threshold must be finite and >= 0, got {0}")]
+    BadThreshold(f64),
+    /// The corner groups were made for another mesh.
+    #[error("the corner groups cover {got} corners but the mesh has {corners}")]
+    GroupsMismatch {
+        /// Corners of the mesh.
+        corners: usize,
+        /// Corners the groups cover.
+        got: usize,
+    },
+    /// The mesh has more patches than ray ids can name.
+    #[error("{0} patches are more than the gatherer can address (2^32 - 1)")]
+    TooManyPatches(usize),
+    /// The result could not be made an [`Estimate`] (a non-finite sum: overflow).
+    #[error(transparent)]
+    Estimate(#[from] EstimateError),
+}
+
+/// Running mean and sum of squared deviations of per-ray samples, per RGB channel (Welford's
+/// update, Chan et al.'s merge), in f64. A constant sample has exactly zero deviation.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Moments {
+    pub n: u64,
+    pub mean: DVec3,
+    pub m2: DVec3,
+}
+
+impl Moments {
+    /// Adds one sample.
+    #[inline]
+    pub fn push(&mut self, x: DVec3) {
+        self.n += 1;
+        let delta = x - self.mean;
+        self.mean += delta / self.n as f64;
+        self.m2 += delta * (x - self.mean);
+    }
+
+    /// The moments of both sample sets together.
+    pub fn merge(self, other: Moments) -> Moments {
+        if self.n == 0 {
+            return other;
+        }
+        if other.n == 0 {
+            return self;
+        }
+        let n = self.n + other.n;
+        let delta = other.mean - self.mean;
+        let w = other.n as f64 / n as f64;
+        Moments {
+            n,
+            mean: self.mean + delta * w,
+            m2: self.m2 + other.m2 + delta * delta * (self.n as f64 * w),
+        }
+    }
+
+    /// The estimated variance of the sample mean, `s² / n` with `s²` the unbiased sample
+    /// variance; zero below two samples.
+    pub fn variance_of_mean(&self) -> DVec3 {
+        if self.n < 2 {
+            return DVec3::ZERO;
+        }
+        (self.m2 / ((self.n - 1) as f64 * self.n as f64)).max(DVec3::ZERO)
+    }
+}
+
+/// One job: `rays` rays of item `item` (a patch or a vertex group), chunk `chunk` of them.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Job {
+    pub item: u32,
+    pub chunk: u32,
+    pub rays: u32,
+}
+
+/// The jobs of `items` items with `per_item` rays each, item by item, chunk by chunk.
+pub(crate) fn jobs(items: usize, per_item: u32) -> Vec<Job> {
+    let chunks = per_item.div_ceil(JOB_RAYS);
+    (0..items as u32)
+        .flat_map(|item| {
+            (0..chunks).map(move |chunk| Job {
+                item,
+                chunk,
+                rays: (per_item - chunk * JOB_RAYS).min(JOB_RAYS),
+            })
+        })
+        .collect()
+}
+
+/// What the rays of one job saw.
+#[derive(Debug, Clone, Copy, Default)]
+struct Seen {
+    moments: Moments,
+    escaped: u64,
+    back_faces: u64,
+}
+
+impl Seen {
+    fn merge(self, other: Seen) -> Seen {
+        Seen {
+            moments: self.moments.merge(other.moments),
+            escaped: self.escaped + other.escaped,
+            back_faces: self.back_faces + other.back_faces,
+        }
+    }
+}
+
+/// Casts `n` rays from `ray` and records `input` at each first front-face hit (0 otherwise).
+#[inline]
+fn look<C: RayCaster>(n: u32, caster: &C, input: &[DVec3], mut ray: impl FnMut() -> Ray) -> Seen {
+    let mut seen = Seen::default();
+    for _ in 0..n {
+        let x = match caster.closest_hit(&ray()) {
+            Some(hit) if hit.front => input[hit.id as usize],
+            Some(_) => {
+                seen.back_faces += 1;
+                DVec3::ZERO
+            }
+            None => {
+                seen.escaped += 1;
+                DVec3::ZERO
+            }
+        };
+        seen.moments.push(x);
+    }
+    seen
+}
+
+/// Runs `jobs` in parallel and merges each item's chunks in chunk order.
+fn run<F: Fn(&Job) -> Seen + Sync + Send>(items: usize, jobs: &[Job], f: F) -> Vec<Seen> {
+    let seen: Vec<Seen> = jobs.par_iter().map(f).collect();
+    let mut out = vec![Seen::default(); items];
+    for (job, s) in jobs.iter().zip(seen) {
+        out[job.item as usize] = out[job.item as usize].merge(s);
+    }
+    out
+}
+
+/// Checks that `input` has one finite value per patch of `mesh`.
+pub(crate) fn check_input(mesh: &Mesh, input: &[DVec3]) -> Result<(), GatherError> {
+    let patches = mesh.patches().len();
+    if input.len() != patches {
+        return Err(GatherError::InputLength {
+            patches,
+            got: input.len(),
+        });
+    }
+    if patches >= NO_ID as usize {
+        return Err(GatherError::TooManyPatches(patches));
+    }
+    match input.iter().position(|b| !b.is_finite()) {
+        Some(patch) => Err(GatherError::NotFinite {
+            patch,
+            value: input[patch],
+        }),
+        None => Ok(()),
+    }
+}
+
+/// The result of one gathering round over all patches.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatherRound {
+    /// `B'_i` per patch (W/m², with or without `E_i` as asked) and its variance
+    /// `rho_i² s_i² / n` ((W/m²)², conditional on the input); `rays` = rays cast.
+    pub estimate: Estimate,
+    /// Rays that hit nothing (contributing 0).
+    pub escaped_rays: u64,
+    /// Rays whose first hit was a back face (contributing 0).
+    pub back_face_hits: u64,
+}
+
+/// One Jacobi gathering round (Balog, section 1.4): every patch `i` casts `rays_per_patch`
+/// cosine-distributed rays from uniform points of itself ([`SurfaceSampler::ray`]) and gets
+///
+/// ```text
+/// B'_i = [E_i] + rho_i (1/n) sum_k input[j_k]      (W/m² per channel)
+/// ```
+///
+/// with `j_k` the patch whose front ray `k` hits first (a miss or a back-face hit contributes 0)
+/// and `E_i` added for [`Emission::Include`]. `input` is a radiosity per patch (W/m²), e.g. the
+/// previous round's result or a shooting solution. The expected value is
+/// `[E_i] + rho_i sum_j F_ij input_j`.
+///
+/// The variance reported per patch and channel is `rho_i² s² / n`, `s²` the unbiased sample
+/// variance of `input[j_k]` over the patch's `n` rays: the variance of the mean given `input`
+/// (noise already in `input` is not included). It is 0 when every ray of a patch saw the same
+/// value, which for few rays can happen by chance. `Estimate::rays` is `patches × n`.
+///
+/// Parallel over chunks of rays; random streams `(seed, pass, patch, PATCH_GATHER + chunk)`, so
+/// the result depends on `(seed, pass)` only, not on the thread count.
+///
+/// Errors: `input` not one finite value per patch, or `rays_per_patch < 2`.
+#[allow(clippy::too_many_arguments)]
+pub fn gather_round<C: RayCaster>(
+    mesh: &Mesh,
+    sampler: &SurfaceSampler,
+    caster: &C,
+    input: &[DVec3],
+    emission: Emission,
+    rays_per_patch: u32,
+    seed: u64,
+    pass: u64,
+) -> Result<GatherRound, GatherError> {
+    check_input(mesh, input)?;
+    if rays_per_patch < 2 {
+        return Err(GatherError::TooFewRays(rays_per_patch));
+    }
+    let patches = mesh.patches();
+    let jobs = jobs(patches.len(), rays_per_patch);
+    let seen = run(patches.len(), &jobs, |job| {
+        let mut rng = Stream::new(seed, pass, job.item as u64, PATCH_GATHER + job.chunk as u64);
+        look(job.rays, caster, input, || {
+            sampler.ray(job.item as usize, &mut rng)
+        })
+    });
+    finish(
+        patches.iter().map(|p| (p.reflectance, p.emission)),
+        &seen,
+        emission,
+        patches.len() as u64 * rays_per_patch as u64,
+    )
+}
+
+/// Turns each item's moments into `[E] + rho mean` and `rho² s²/n`.
+fn finish(
+    materials: impl Iterator<Item = (Vec3, Vec3)>,
+    seen: &[Seen],
+    emission: Emission,
+    rays: u64,
+) -> Result<GatherRound, GatherError> {
+    let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
+    let (mut escaped_rays, mut back_face_hits) = (0, 0);
+    for ((rho, e), s) in materials.zip(seen) {
+        let rho = rho.as_dvec3();
+        let own = match emission {
+            Emission::Include => e.as_dvec3(),
+            Emission::Exclude => DVec3::ZERO,
+        };
+        radiosity.push(own + rho * s.moments.mean);
+        variance.push(rho * rho * s.moments.variance_of_mean());
+        escaped_rays += s.escaped;
+        back_face_hits += s.back_faces;
+    }
+    Ok(GatherRound {
+        estimate: Estimate::new(radiosity, Some(variance), rays)?,
+        escaped_rays,
+        back_face_hits,
+    })
+}
+
+/// Settings of a Jacobi gathering run ([`gather`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatherConfig {
+    /// The ray budget over all rounds; a round costs `patches × rays_per_patch` rays and only
+    /// whole rounds run, so at most this many rays are cast.
+    pub rays: u64,
+    /// Rays each patch casts per round (`>= 2`).
+    pub rays_per_patch: u32,
+    /// Stop once the largest change of a round relative to the largest reflected radiosity,
+    /// `max_{i,c} |B'_ic - B_ic| / max_{i,c} (B'_ic - E_ic)` (emission left out: a bright
+    /// light would otherwise hide every change),
+    /// is at most this (finite, `>= 0`; `0` runs until the budget is spent).
+    pub threshold: f64,
+    /// Seed of every random stream of the run.
+    pub seed: u64,
+}
+
+impl Default for GatherConfig {
+    /// One million rays, 64 per patch and round, stop at a relative change of 1e-3, seed 0.
+    fn default() -> Self {
+        GatherConfig {
+            rays: 1_000_000,
+            rays_per_patch: 64,
+            threshold: 1e-3,
+            seed: 0,
+        }
+    }
+}
+
+/// What the observer of [`gather`] sees after each round.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GatherProgress<'a> {
+    /// Rounds done.
+    pub rounds: u32,
+    /// Rays cast so far.
+    pub rays: u64,
+    /// The budget.
+    pub budget: u64,
+    /// The round's largest change relative to the largest reflected radiosity (see
+    /// [`GatherConfig::threshold`]).
+    pub change: f64,
+    /// The round's solution `B_i` (W/m²), in mesh order.
+    pub radiosity: &'a [DVec3],
+}
+
+/// Counters of a Jacobi gathering run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GatherStats {
+    /// Rays cast.
+    pub rays: u64,
+    /// Rounds run.
+    pub rounds: u32,
+    /// Rays that hit nothing.
+    pub escaped_rays: u64,
+    /// Rays whose first hit was a back face.
+    pub back_face_hits: u64,
+    /// The last round's relative change.
+    pub change: f64,
+    /// Why the run ended.
+    pub stop: StopReason,
+}
+
+/// The result of [`gather`].
+#[derive(Debug, Clone)]
+pub struct Gathering {
+    /// The last round's radiosity (W/m²) and variance `rho_i² s_i² / n`, which is conditional on
+    /// the previous round: the noise of earlier rounds, propagated through the input (damped by
+    /// `rho` per round), is not in it, so it understates the error of the iterated answer.
+    /// `rays` counts every round.
+    pub estimate: Estimate,
+    /// Rounds run (the number of light bounces the answer holds).
+    pub rounds: u32,
+    /// Counters.
+    pub stats: GatherStats,
+}
+
+/// Solves radiosity by Jacobi gathering (Balog, section 1.4): starting from `B_0 = E`, round
+/// `k = 0, 1, ...` computes `B_{k+1} = gather_round(input = B_k, Emission::Include)` with pass
+/// `k`, so that `E[B_m] = sum_{k <= m} (rho F)^k E`. The run stops when a round's largest change
+/// relative to the largest reflected radiosity is at most `config.threshold` ([`StopReason::Converged`]),
+/// when the next round would exceed the budget ([`StopReason::BudgetSpent`]) or when `observer`,
+/// called after every round, breaks ([`StopReason::Stopped`]). The threshold bounds the change
+/// of the last round, not the error: the bounces still missing add about `rho / (1 - rho)` times
+/// the last change, and with few rays per patch the change never falls below the noise.
+///
+/// Errors: `config.rays_per_patch < 2`, a bad threshold, or a budget below one round.
+pub fn gather<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &GatherConfig,
+    observer: &mut dyn FnMut(&GatherProgress) -> ControlFlow<()>,
+) -> Result<Gathering, GatherError> {
+    if !(config.threshold.is_finite() && config.threshold >= 0.0) {
+        return Err(GatherError::BadThreshold(config.threshold));
+    }
+    if config.rays_per_patch < 2 {
+        return Err(GatherError::TooFewRays(config.rays_per_patch));
+    }
+    let round = mesh.patches().len() as u64 * config.rays_per_patch as u64;
+    if config.rays < round {
+        return Err(GatherError::BudgetTooSmall {
+            budget: config.rays,
+            round,
+        });
+    }
+    let sampler = SurfaceSampler::new(mesh);
+    let mut b: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .map(|p| p.emission.as_dvec3())
+        .collect();
+    let mut stats = GatherStats {
+        rays: 0,
+        rounds: 0,
+        escaped_rays: 0,
+        back_face_hits: 0,
+        change: f64::INFINITY,
+        stop: StopReason::BudgetSpent,
+    };
+    let mut last = None;
+    while stats.rays + round <= config.rays {
+        let r = gather_round(
+            mesh,
+            &sampler,
+            caster,
+            &b,
+            Emission::Include,
+            config.rays_per_patch,
+            config.seed,
+            stats.rounds as u64,
+        )?;
+        let next = r.estimate.radiosity();
+        let largest = next.iter().zip(mesh.patches()).fold(0.0f64, |m, (x, p)| {
+            m.max((*x - p.emission.as_dvec3()).max_element())
+        });
+        let diff = next
+            .iter()
+            .zip(&b)
+            .fold(0.0f64, |m, (x, y)| m.max((*x - *y).abs().max_element()));
+        stats.change = if largest > 0.0 { diff / largest } else { 0.0 };
+        stats.rays += r.estimate.rays();
+        stats.rounds += 1;
+        stats.escaped_rays += r.escaped_rays;
+        stats.back_face_hits += r.back_face_hits;
+        b.copy_from_slice(next);
+        last = Some(r.estimate);
+        let progress = GatherProgress {
+            rounds: stats.rounds,
+            rays: stats.rays,
+            budget: config.rays,
+            change: stats.change,
+            radiosity: &b,
+        };
+        if observer(&progress).is_break() {
+            stats.stop = StopReason::Stopped;
+            break;
+        }
+        if stats.change <= config.threshold {
+            stats.stop = StopReason::Converged;
+            break;
+        }
+    }
+    let last = last.expect("the budget pays for at least one round");
+    let estimate = Estimate::new(b, last.variance().map(<[DVec3]>::to_vec), stats.rays)?;
+    Ok(Gathering {
+        estimate,
+        rounds: stats.rounds,
+        stats,
+    })
+}
+
+/// Radiosity gathered at mesh vertices ([`gather_corners`]), one entry per patch corner.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CornerGathering {
+    /// Radiosity at each corner (W/m² per channel), indexed by global corner
+    /// ([`Mesh::corner_offset`]`(p) + k`): the value of the corner's group.
+    pub radiosity: Vec<DVec3>,
+    /// Its estimated variance `rho² s² / n` ((W/m²)², conditional on the input).
+    pub variance: Vec<DVec3>,
+    /// Rays cast: `groups × rays_per_vertex`.
+    pub rays: u64,
+    /// Rays that hit nothing.
+    pub escaped_rays: u64,
+    /// Rays whose first hit was a back face.
+    pub back_face_hits: u64,
+}
+
+/// Gathers radiosity directly at the vertices (Balog, section 1.5), instead of extrapolating
+/// per-patch values to corners.
+///
+/// For each group `g` of `groups` ([`Mesh::corner_groups`]: the corners that
+/// [`Mesh::corner_radiosity`] would average over the same patches at the same point), with `x`
+/// the shared point, `n` the unit area-weighted normal `sum_q A_q n_q / |.|` of the group's
+/// patches (the first patch's normal if that sum vanishes) and `rho`, `E` the group's material:
+///
+/// ```text
+/// B(x) = [E] + rho (1/n) sum_k input[j_k]      (W/m² per channel)
+/// ```
+///
+/// over `rays_per_vertex` rays from `x` in cosine-distributed directions about `n`; `j_k` and the
+/// variance `rho² s² / n` as in [`gather_round`]. The expectation is the radiosity leaving the
+/// point `x` of a surface with normal `n`: `[E] + rho sum_j F_{x j} input_j`, with `F_{x j}` the
+/// point-to-patch form factor. Every corner of the group gets the group's value.
+///
+/// # Rays from a vertex
+///
+/// A vertex lies on every patch of its group (and often on others: the foot of a wall), so a
+/// ray from it must not be tested against one excluded patch: it is cast with the group normal
+/// as its surface normal and **no** excluded id. The caster lifts the origin along `n` by its
+/// epsilon, above every plane of the group (their normals lie within the crease angle of `n`),
+/// and its window rule decides crossings next to the origin by orientation: the planes the
+/// ray leaves are crossed from behind and never count, while a surface the ray walks into at
+/// distance ~0 counts from its front, whether it is a creased neighbour inside the group
+/// (a valley), another surface at the point (the wall at the foot of which a floor vertex
+/// lies: rays heading into it see the wall, as a point next to it would) or the corner's own
+/// patch. Excluding one patch instead would let rays pass through it on a bent group.
+///
+/// Random streams `(seed, pass, g, VERTEX_GATHER + chunk)`; deterministic on any thread count.
+///
+/// Errors: `input` not one finite value per patch, `groups` made for another mesh, or
+/// `rays_per_vertex < 2`.
+#[allow(clippy::too_many_arguments)]
+pub fn gather_corners<C: RayCaster>(
+    mesh: &Mesh,
+    groups: &CornerGroups,
+    caster: &C,
+    input: &[DVec3],
+    emission: Emission,
+    rays_per_vertex: u32,
+    seed: u64,
+    pass: u64,
+) -> Result<CornerGathering, GatherError> {
+    check_input(mesh, input)?;
+    if rays_per_vertex < 2 {
+        return Err(GatherError::TooFewRays(rays_per_vertex));
+    }
+    if groups.corner_groups().len() != mesh.corner_count() {
+        return Err(GatherError::GroupsMismatch {
+            corners: mesh.corner_count(),
+            got: groups.corner_groups().len(),
+        });
+    }
+    let patches = mesh.patches();
+    let frames: Vec<Frame> = (0..groups.len())
+        .map(|g| {
+            let members = groups.patches(g);
+            let sum: DVec3 = members
+                .iter()
+                .map(|&q| patches[q as usize].normal.as_dvec3() * patches[q as usize].area)
+                .sum();
+            let total: f64 = members.iter().map(|&q| patches[q as usize].area).sum();
+            let normal = if sum.length() > 1e-6 * total {
+                sum.normalize().as_vec3()
+            } else {
+                patches[members[0] as usize].normal
+            };
+            Frame::from_normal(normal)
+        })
+        .collect();
+    let jobs = jobs(groups.len(), rays_per_vertex);
+    let seen = run(groups.len(), &jobs, |job| {
+        let g = job.item as usize;
+        let mut rng = Stream::new(seed, pass, g as u64, VERTEX_GATHER + job.chunk as u64);
+        let (origin, frame) = (groups.point(g), &frames[g]);
+        look(job.rays, caster, input, || Ray {
+            origin,
+            dir: frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())),
+            origin_normal: frame.normal,
+            exclude: NO_ID,
+        })
+    });
+    let round = finish(
+        (0..groups.len()).map(|g| {
+            let p = &patches[groups.patches(g)[0] as usize];
+            (p.reflectance, p.emission)
+        }),
+        &seen,
+        emission,
+        groups.len() as u64 * rays_per_vertex as u64,
+    )?;
+    let (values, variances) = (
+        round.estimate.radiosity(),
+        round.estimate.variance().expect("gathering has variances"),
+    );
+    let corners = groups.corner_groups();
+    Ok(CornerGathering {
+        radiosity: corners.iter().map(|&g| values[g as usize]).collect(),
+        variance: corners.iter().map(|&g| variances[g as usize]).collect(),
+        rays: round.estimate.rays(),
+        escaped_rays: round.escaped_rays,
+        back_face_hits: round.back_face_hits,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moments_merge_like_one_pass() {
+        let xs: Vec<DVec3> = (0..1000)
+            .map(|i| {
+                let t = i as f64;
+                DVec3::new((t * 0.37).sin(), t * 1e-3 + 5.0, (i % 7) as f64)
+            })
+            .collect();
+        let mut all = Moments::default();
+        xs.iter().for_each(|&x| all.push(x));
+        let mut parts = Moments::default();
+        for chunk in xs.chunks(97) {
+            let mut m = Moments::default();
+            chunk.iter().for_each(|&x| m.push(x));
+            parts = parts.merge(m);
+        }
+        let n = xs.len() as f64;
+        let mean: DVec3 = xs.iter().sum::<DVec3>() / n;
+        let var: DVec3 = xs.iter().map(|x| (*x - mean) * (*x - mean)).sum::<DVec3>() / (n - 1.0);
+        for m in [all, parts] {
+            assert_eq!(m.n, 1000);
+            assert!((m.mean - mean).abs().max_element() < 1e-12);
+            assert!((m.variance_of_mean() * n - var).abs().max_element() < 1e-10);
+        }
+        let mut constant = Moments::default();
+        (0..10).for_each(|_| constant.push(DVec3::splat(0.3)));
+        assert_eq!(constant.variance_of_mean(), DVec3::ZERO);
+    }
+
+    #[test]
+    fn jobs_split_items_into_chunks() {
+        let j = jobs(3, 2 * JOB_RAYS + 5);
+        assert_eq!(j.len(), 9);
+        assert_eq!(
+            j.iter().map(|j| j.rays as u64).sum::<u64>(),
+            3 * (2 * JOB_RAYS as u64 + 5)
+        );
+        assert_eq!((j[5].item, j[5].chunk, j[5].rays), (1, 2, 5));
+    }
+}
