@@ -33,13 +33,18 @@ pub enum Method {
     ProgressiveGather,
     /// Progressive two-pass (Algorithm 3): refined shooting, regathered each pass.
     ProgressiveTwoPass,
+    /// Deterministic reference: explicit form factors and Gauss-Seidel (up to 10k patches);
+    /// --rays does not apply.
+    Reference,
 }
 
 impl Method {
-    /// The schedule that runs this method (`split`: two-pass with the direct/indirect split).
-    pub fn schedule(self, split: bool) -> mcrad_mc_radiosity::schedule::Method {
+    /// The schedule that runs this method (`split`: two-pass with the direct/indirect split);
+    /// `None` for the reference solver.
+    pub fn schedule(self, split: bool) -> Option<mcrad_mc_radiosity::schedule::Method> {
         use mcrad_mc_radiosity::schedule::Method as M;
-        match self {
+        Some(match self {
+            Method::Reference => return None,
             Method::Shoot => M::Shoot,
             Method::Gather => M::Gather,
             Method::TwoPass if split => M::TwoPassSplit,
@@ -47,7 +52,12 @@ impl Method {
             Method::Prr => M::Prr,
             Method::ProgressiveGather => M::ProgressiveGather,
             Method::ProgressiveTwoPass => M::ProgressiveTwoPass,
-        }
+        })
+    }
+
+    /// The name in statistics and summaries.
+    pub fn name(self, split: bool) -> &'static str {
+        self.schedule(split).map_or("reference", |m| m.name())
     }
 }
 

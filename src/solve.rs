@@ -73,37 +73,95 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     };
     let start = Instant::now();
     let mut trace_error = None;
-    let solution: Solution = schedule::run(
-        args.method.schedule(args.split),
-        &mesh,
-        &bvh,
-        &config,
-        &mut |step| {
-            let seconds = start.elapsed().as_secs_f64();
-            bar.set_position(step.rays.min(rays));
-            bar.set_message(format!("step {}", step.index));
-            if let Some(t) = tracer.as_mut()
-                && let Err(e) = t.record(seconds, step.rays, step.radiosity)
+    let Some(method) = args.method.schedule(args.split) else {
+        if args.rays.is_some() || args.time.is_some() {
+            eprintln!(
+                "warning: --rays and --time do not apply to --method reference; it runs to its accuracy target"
+            );
+        }
+        let solution = solve_reference(&mesh, &bvh, &bar)?;
+        let seconds = start.elapsed().as_secs_f64();
+        return finish(
+            args,
+            threads,
+            &loaded,
+            &mesh,
+            &bvh,
+            &solution,
+            seconds,
+            setup_seconds,
+            &bar,
+        );
+    };
+    let solution: Solution = schedule::run(method, &mesh, &bvh, &config, &mut |step| {
+        let seconds = start.elapsed().as_secs_f64();
+        bar.set_position(step.rays.min(rays));
+        bar.set_message(format!("step {}", step.index));
+        if let Some(t) = tracer.as_mut()
+            && let Err(e) = t.record(seconds, step.rays, step.radiosity)
+        {
+            trace_error = Some(e);
+            return ControlFlow::Break(());
+        }
+        match args.time {
+            // Stop when the next step, at the speed so far, would end after the deadline.
+            Some(budget)
+                if seconds + step.next_rays as f64 * seconds / step.rays.max(1) as f64 > budget =>
             {
-                trace_error = Some(e);
-                return ControlFlow::Break(());
+                ControlFlow::Break(())
             }
-            match args.time {
-                // Stop when the next step, at the speed so far, would end after the deadline.
-                Some(budget)
-                    if seconds + step.next_rays as f64 * seconds / step.rays.max(1) as f64
-                        > budget =>
-                {
-                    ControlFlow::Break(())
-                }
-                _ => ControlFlow::Continue(()),
-            }
-        },
-    )?;
+            _ => ControlFlow::Continue(()),
+        }
+    })?;
     if let Some(e) = trace_error {
         return Err(e);
     }
-    let seconds = start.elapsed().as_secs_f64();
+    finish(
+        args,
+        threads,
+        &loaded,
+        &mesh,
+        &bvh,
+        &solution,
+        start.elapsed().as_secs_f64(),
+        setup_seconds,
+        &bar,
+    )
+}
+
+/// The deterministic reference solution, as a one-step [`Solution`].
+fn solve_reference(mesh: &Mesh, bvh: &Bvh, bar: &ProgressBar) -> Result<Solution> {
+    bar.set_length(mesh.patches().len() as u64);
+    bar.set_message("form-factor rows");
+    let done = std::sync::atomic::AtomicU64::new(0);
+    let r = mcrad_mc_radiosity::reference::reference(mesh, bvh, &Default::default(), &|rows| {
+        let rows = done
+            .fetch_max(rows as u64, std::sync::atomic::Ordering::Relaxed)
+            .max(rows as u64);
+        bar.set_position(rows);
+    })?;
+    Ok(Solution {
+        estimate: r.estimate,
+        steps: r.stats.iterations as u32,
+        escaped_rays: 0,
+        unshot_fraction: 0.0,
+        stopped: false,
+    })
+}
+
+/// Writes the outputs of a finished solve and prints the summary.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    args: &Solve,
+    threads: usize,
+    loaded: &mcrad_scene_io::Loaded,
+    mesh: &Mesh,
+    bvh: &Bvh,
+    solution: &Solution,
+    seconds: f64,
+    setup_seconds: f64,
+    bar: &ProgressBar,
+) -> Result<()> {
     let estimate = &solution.estimate;
 
     if let Some(path) = &args.patches {
@@ -116,7 +174,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         write_patch_csv(create(path)?, rows)?;
     }
     let run = RunStats {
-        method: args.method.schedule(args.split).name().into(),
+        method: args.method.name(args.split).into(),
         patches: mesh.patches().len(),
         rays: estimate.rays(),
         seconds,
@@ -132,7 +190,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     if let Some(path) = &args.stats {
         run.write_json(create(path)?)?;
     }
-    crate::output::write(args, &mesh, &bvh, estimate.radiosity(), loaded.camera, &bar)?;
+    crate::output::write(args, mesh, bvh, estimate.radiosity(), loaded.camera, bar)?;
     bar.finish_and_clear();
     if !args.quiet {
         println!(

@@ -1,5 +1,6 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
+mod experiment;
 mod regress;
 
 use anyhow::{Context, Result, bail};
@@ -14,6 +15,9 @@ tasks:
   bench   the shooting benchmark (criterion), then a table of its medians in Mrays/s
   regress golden-image regression of the bundled scenes (scenes/golden/);
           `regress --bless` re-renders the goldens and re-measures their noise thresholds
+  experiment figure2
+          the paper's Figure 2: gathering from refining shooting, with and without the
+          ambient term; writes docs/figure2.csv and docs/figure2.png
 ";
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +40,7 @@ fn run() -> Result<()> {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             regress::run(&root(), &root().join("target/release/mcrad"), bless)
         }
+        Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
         Some("help" | "-h" | "--help") | None => {
             print!("{HELP}");
             Ok(())

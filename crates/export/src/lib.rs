@@ -6,6 +6,7 @@
 pub mod compare;
 mod gltf_out;
 mod patches;
+pub mod plot;
 pub mod render;
 mod stats;
 
@@ -39,6 +40,13 @@ pub enum ExportError {
     #[error("could not write glTF: {reason}")]
     Gltf {
         /// What is wrong, with the offending values.
+        reason: String,
+    },
+    /// A plot could not be drawn: no data, a value that cannot be placed on its axis, or the
+    /// image could not be encoded.
+    #[error("could not plot: {reason}")]
+    Plot {
+        /// What is wrong, with the offending series and value.
         reason: String,
     },
 }

@@ -42,8 +42,10 @@ use std::sync::atomic::{self, AtomicUsize};
 
 /// The least number of visibility blocks (and probe rays besides the corner rays) per pair.
 const MIN_BLOCKS: usize = 16;
-/// The most visibility blocks per pair (one ray each).
-const MAX_BLOCKS: usize = 1 << 20;
+/// The most visibility blocks per pair (two rays each per sweep).
+const MAX_BLOCKS: usize = 1 << 16;
+/// The most visibility sweeps per pair.
+const MAX_SWEEPS: usize = 32;
 /// Deepest quadrature subdivision: a triangle `4^-24` (about `3.6e-15`) of its fan triangle.
 const MAX_QUAD_DEPTH: u8 = 24;
 /// Quadrature refinements allowed per pair.
@@ -385,11 +387,8 @@ impl Geometry {
 impl Geometry {
     /// The visibility grid of the pair `(i, j)`, `i < j`, for clipped polygons `a` and `b`.
     fn grid(&self, i: usize, j: usize, a: &[DVec3], b: &[DVec3]) -> Grid {
-        let roots = (fan(a).count() * fan(b).count()).max(1);
-        let mut rounds = 1;
-        while roots << (2 * (rounds + 1)) <= MAX_BLOCKS {
-            rounds += 1;
-        }
+        // Enough rounds for the probe's grid of at least MIN_BLOCKS blocks.
+        let rounds = 3;
         let key = (i * self.area.len() + j) as u64;
         Grid::new(self.side(i), a, self.side(j), b, key, rounds)
     }
@@ -417,10 +416,10 @@ fn first_pass<C: RayCaster>(
         }
         let grid = geometry.grid(i, j, &a, &b);
         let rounds = grid.rounds_for(MIN_BLOCKS);
-        let probe = grid.estimate(caster, rounds, false);
+        let (grid_lit, grid_rays) = grid.probe(caster, rounds);
         let (corners_lit, corners) = grid.probe_corners(caster, &a, &b);
-        work.rays += (probe.blocks + corners) as u64;
-        let (lit, rays) = (probe.lit + corners_lit, probe.blocks + corners);
+        work.rays += (grid_rays + corners) as u64;
+        let (lit, rays) = (grid_lit + corners_lit, grid_rays + corners);
         if lit == 0 {
             continue;
         }
@@ -431,8 +430,9 @@ fn first_pass<C: RayCaster>(
         }
         let partial = lit < rays;
         let (phi, vis_error) = if partial {
-            let v = grid.estimate(caster, rounds, true);
-            work.rays += v.blocks as u64;
+            // One sweep: the visible fraction and its error that set the budgets.
+            let v = grid.refine(caster, rounds, 0.0, MAX_BLOCKS, 1);
+            work.rays += v.rays;
             work.evaluations += v.evaluations;
             work.partial += 1;
             (v.fraction, v.error * q.value)
@@ -470,19 +470,17 @@ fn second_pass<C: RayCaster>(
         let j = r.j as usize;
         geometry.clip_pair(i, j, &mut a, &mut b);
         let grid = geometry.grid(i, j, &a, &b);
-        let mut rounds = r.rounds as usize;
-        while r.vis_error > target && rounds < grid.max_rounds() {
-            // The error falls by about 2.4 per round (N^(-5/8), N x 4): skip the rounds that
-            // cannot be enough, rather than cast them.
-            let skip = ((r.vis_error / target).ln() / 2.4f64.ln()).floor().max(1.0) as usize;
-            rounds = (rounds + skip).min(grid.max_rounds());
-            let v = grid.estimate(caster, rounds, true);
-            work.rays += v.blocks as u64;
-            work.evaluations += v.evaluations;
-            r.phi = v.fraction;
-            r.vis_error = v.error * r.exchange;
-            r.rounds = rounds as u8;
-        }
+        let v = grid.refine(
+            caster,
+            r.rounds as usize,
+            target / r.exchange,
+            MAX_BLOCKS,
+            MAX_SWEEPS,
+        );
+        work.rays += v.rays;
+        work.evaluations += v.evaluations;
+        r.phi = v.fraction;
+        r.vis_error = v.error * r.exchange;
     }
 }
 

@@ -88,13 +88,15 @@ pub(crate) struct Grid {
     key: u64,
 }
 
-/// One grid's estimate.
+/// A visibility estimate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Visibility {
-    /// Blocks (one ray each).
+    /// Blocks of the final partition.
     pub blocks: usize,
-    /// Rays that were unblocked.
+    /// Rays of the final sweep that were unblocked.
     pub lit: usize,
+    /// Rays cast, all sweeps.
+    pub rays: u64,
     /// The visible fraction `φ` (1 when all rays are unblocked, 0 when none is).
     pub fraction: f64,
     /// Its estimated error (module documentation).
@@ -190,111 +192,223 @@ impl Grid {
         (lit, xs.len() * ys.len())
     }
 
-    /// The estimate after `rounds` rounds of splitting (`>= 1`): one jittered ray per block.
-    /// With `weigh == false` only the rays are cast (a probe): `fraction` is then the plain
-    /// fraction of unblocked rays and `error` 0.
-    pub fn estimate<C: RayCaster>(&self, caster: &C, rounds: usize, weigh: bool) -> Visibility {
-        let rounds = rounds.clamp(1, self.split_source.len().max(1));
-        let mut rng = Stream::new(0, rounds as u64, self.key, 0);
-        let mut acc = Accumulator::default();
+    /// The probe: one jittered ray per block of the uniform grid after `rounds` rounds
+    /// (`>= 1`). Returns `(unblocked, cast)`.
+    pub fn probe<C: RayCaster>(&self, caster: &C, rounds: usize) -> (usize, usize) {
+        let rounds = rounds.clamp(1, self.max_rounds().max(1));
+        let mut rng = Stream::new(0, 0, self.key, rounds as u64);
+        let mut cells = Vec::new();
         for (t, c) in &self.roots {
-            self.visit(caster, &mut rng, &mut acc, *t, *c, 0, rounds, weigh);
+            self.uniform(&mut cells, *t, *c, 0, rounds);
         }
-        let blocks = acc.blocks;
-        let p = (acc.lit as f64 + 0.5) / (blocks as f64 + 1.0);
-        let floor = (p * (1.0 - p)).sqrt() * (blocks as f64).powf(-0.75) / 2.0;
-        let fraction = match acc.lit {
-            0 => 0.0,
-            l if l == blocks => 1.0,
-            l if !weigh || !(acc.u > 0.0) => l as f64 / blocks as f64,
-            _ => (acc.uv / acc.u).clamp(0.0, 1.0),
-        };
-        let error = if !weigh {
-            0.0
-        } else if acc.u > 0.0 {
-            // Collapsed strata over siblings: v = (4/3) Σ_parents Σ_k (y_k - ȳ)², with
-            // y_k = u_k (V_k - φ), expanded in the sums kept per parent.
-            let f = fraction;
-            let within = acc.uuv * (1.0 - 2.0 * f) + f * f * acc.uu;
-            let means = (acc.parent_uv2 - 2.0 * f * acc.parent_uv_u + f * f * acc.parent_u2) / 4.0;
-            let v = (4.0 / 3.0) * (within - means).max(0.0);
-            (v.sqrt() / acc.u).max(floor)
-        } else {
-            floor
-        };
-        Visibility {
-            blocks,
-            lit: acc.lit,
-            fraction,
-            error,
-            evaluations: acc.evaluations,
-        }
+        let lit = cells
+            .iter()
+            .filter(|(t, c)| self.ray(caster, &mut rng, t, c))
+            .count();
+        (lit, cells.len())
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn visit<C: RayCaster>(
+    /// The blocks of the uniform grid under `(t, c)` after `rounds - depth` more rounds.
+    fn uniform(
         &self,
-        caster: &C,
-        rng: &mut Stream,
-        acc: &mut Accumulator,
+        out: &mut Vec<([DVec3; 3], [DVec3; 3])>,
         t: [DVec3; 3],
         c: [DVec3; 3],
         depth: usize,
         rounds: usize,
-        weigh: bool,
     ) {
-        let children: [([DVec3; 3], [DVec3; 3]); 4] = if self.split_source[depth] {
-            split(&t).map(|t| (t, c))
-        } else {
-            split(&c).map(|c| (t, c))
-        };
-        if depth + 1 < rounds {
-            for (t, c) in children {
-                self.visit(caster, rng, acc, t, c, depth + 1, rounds, weigh);
-            }
+        if depth == rounds {
+            out.push((t, c));
             return;
         }
-        // The children are blocks: one ray each, and the sums of this parent.
-        let (mut su, mut suv) = (0.0, 0.0);
-        for (t, c) in &children {
-            let x = point_in(t, rng.uniform_f64(), rng.uniform_f64());
-            let y = point_in(c, rng.uniform_f64(), rng.uniform_f64());
-            let (a, b) = self.surface_points(x, y);
-            let lit = !caster.occluded(&a, &b);
-            acc.blocks += 1;
-            acc.lit += usize::from(lit);
-            if weigh {
-                let u = area(t) * contour(centroid(t), self.source.normal, c);
-                let uv = if lit { u } else { 0.0 };
-                acc.evaluations += 1;
-                su += u;
-                suv += uv;
-                acc.uu += u * u;
-                acc.uuv += u * uv;
+        if self.split_source[depth] {
+            for child in split(&t) {
+                self.uniform(out, child, c, depth + 1, rounds);
+            }
+        } else {
+            for child in split(&c) {
+                self.uniform(out, t, child, depth + 1, rounds);
             }
         }
-        acc.u += su;
-        acc.uv += suv;
-        acc.parent_u2 += su * su;
-        acc.parent_uv2 += suv * suv;
-        acc.parent_uv_u += suv * su;
+    }
+
+    /// One jittered ray of the block `(t, c)`: true when unblocked.
+    fn ray<C: RayCaster>(
+        &self,
+        caster: &C,
+        rng: &mut Stream,
+        t: &[DVec3; 3],
+        c: &[DVec3; 3],
+    ) -> bool {
+        let x = point_in(t, rng.uniform_f64(), rng.uniform_f64());
+        let y = point_in(c, rng.uniform_f64(), rng.uniform_f64());
+        let (a, b) = self.surface_points(x, y);
+        !caster.occluded(&a, &b)
+    }
+
+    /// The visible fraction, refined adaptively from the uniform grid after `rounds` rounds
+    /// until its estimated error is at most `target`, the partition would exceed `max_blocks`
+    /// blocks, or `max_sweeps` sweeps were made (module documentation).
+    pub fn refine<C: RayCaster>(
+        &self,
+        caster: &C,
+        rounds: usize,
+        target: f64,
+        max_blocks: usize,
+        max_sweeps: usize,
+    ) -> Visibility {
+        let rounds = rounds.clamp(1, self.max_rounds().max(1));
+        let mut cells = Vec::new();
+        for (t, c) in &self.roots {
+            self.uniform(&mut cells, *t, *c, 0, rounds);
+        }
+        let mut evaluations = cells.len() as u64;
+        let mut blocks: Vec<Block> = cells
+            .into_iter()
+            .map(|(t, c)| Block::new(&self.source, t, c, 0.0, 0.0))
+            .collect();
+        let mut rays = 0u64;
+        let mut sweep = 0u64;
+        loop {
+            sweep += 1;
+            let mut rng = Stream::new(0, sweep, self.key, 1 << 32);
+            let (mut all, mut lit_weight, mut lit) = (0.0, 0.0, 0usize);
+            for b in &mut blocks {
+                let v1 = self.ray(caster, &mut rng, &b.t, &b.c);
+                let v2 = self.ray(caster, &mut rng, &b.t, &b.c);
+                b.lit = u8::from(v1) + u8::from(v2);
+                b.seen_lit += f32::from(b.lit);
+                b.seen += 2.0;
+                all += b.u;
+                lit_weight += b.u * f64::from(b.lit) / 2.0;
+                lit += usize::from(b.lit);
+            }
+            let n = 2 * blocks.len();
+            rays += n as u64;
+            let fraction = match lit {
+                0 => 0.0,
+                l if l == n => 1.0,
+                l if !(all > 0.0) => l as f64 / n as f64,
+                _ => (lit_weight / all).clamp(0.0, 1.0),
+            };
+            // Var φ = Σ_b u_b² Var(V̄_b) / (Σ_b u_b)², with Var(V̄_b) = p_b (1 - p_b) / 2
+            // estimated without bias by (V1 - V2)² / 4.
+            let var: f64 = blocks
+                .iter()
+                .filter(|b| b.lit == 1)
+                .map(|b| b.u * b.u / 4.0)
+                .sum();
+            let p = (lit as f64 + 0.5) / (n as f64 + 1.0);
+            let floor = (p * (1.0 - p)).sqrt() * (n as f64).powf(-0.75) / 2.0;
+            let error = if all > 0.0 {
+                (var.sqrt() / all).max(floor)
+            } else {
+                floor
+            };
+            if std::env::var("DBGV").is_ok() {
+                eprintln!(
+                    "DBG key {} sweep {sweep} blocks {} phi {fraction:.5} err {error:.2e} target {target:.2e}",
+                    self.key,
+                    blocks.len()
+                );
+            }
+            if error <= target || sweep as usize >= max_sweeps || blocks.len() + 3 > max_blocks {
+                return Visibility {
+                    blocks: blocks.len(),
+                    lit,
+                    rays,
+                    fraction,
+                    error,
+                    evaluations,
+                };
+            }
+            // Split the blocks with the largest expected variance `u² p (1 - p) / 2`, `p` from
+            // every ray the block has seen, until the rest would meet the target.
+            let expected: Vec<f64> = blocks.iter().map(Block::expected_variance).collect();
+            let mut order: Vec<usize> = (0..blocks.len()).collect();
+            order.sort_by(|&a, &b| expected[b].total_cmp(&expected[a]).then(a.cmp(&b)));
+            let goal = (target * all).powi(2);
+            let total: f64 = expected.iter().sum();
+            let share: f64 = std::env::var("SHARE")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0.5);
+            let mut projected = total;
+            let mut taken = 0.0;
+            let room = (max_blocks - blocks.len()) / 3;
+            let mut chosen = vec![false; blocks.len()];
+            for &k in order.iter().take(room.min(blocks.len())) {
+                if chosen.iter().any(|c| *c) && (projected <= goal || taken >= share * total) {
+                    break;
+                }
+                chosen[k] = true;
+                taken += expected[k];
+                projected -= 0.75 * expected[k];
+            }
+            let inherit: f32 = std::env::var("INHERIT")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(1.0);
+            let mut next = Vec::with_capacity(blocks.len() + 3 * room);
+            for (b, split_it) in blocks.into_iter().zip(chosen) {
+                if !split_it {
+                    next.push(b);
+                    continue;
+                }
+                let children: [([DVec3; 3], [DVec3; 3]); 4] =
+                    if longest_edge(&b.t) >= longest_edge(&b.c) {
+                        split(&b.t).map(|t| (t, b.c))
+                    } else {
+                        split(&b.c).map(|c| (b.t, c))
+                    };
+                for (t, c) in children {
+                    next.push(Block::new(
+                        &self.source,
+                        t,
+                        c,
+                        b.seen_lit * inherit,
+                        b.seen * inherit,
+                    ));
+                    evaluations += 1;
+                }
+            }
+            blocks = next;
+        }
     }
 }
 
-/// Sums over the blocks of a grid (`u` the weights, `V` the 0/1 ray results) and over their
-/// parents (`U_p = Σ_{k} u_k`, `W_p = Σ_k u_k V_k` over a parent's four children).
-#[derive(Debug, Default)]
-struct Accumulator {
-    blocks: usize,
-    lit: usize,
-    evaluations: u64,
-    /// `Σ u`, `Σ u V`, `Σ u²`, `Σ u² V`.
+/// A block of an adaptive partition.
+#[derive(Debug, Clone)]
+struct Block {
+    t: [DVec3; 3],
+    c: [DVec3; 3],
+    /// Weight `u_b = A_t F_{centroid(t)→c}` (scene units²).
     u: f64,
-    uv: f64,
-    uu: f64,
-    uuv: f64,
-    /// `Σ_p U_p²`, `Σ_p W_p²`, `Σ_p W_p U_p`.
-    parent_u2: f64,
-    parent_uv2: f64,
-    parent_uv_u: f64,
+    /// Unblocked rays of the current sweep (0..=2).
+    lit: u8,
+    /// Rays seen by the block and its ancestors (a quarter of a parent's count each), and the
+    /// unblocked ones: the evidence for splitting.
+    seen: f32,
+    seen_lit: f32,
+}
+
+impl Block {
+    fn new(source: &Side, t: [DVec3; 3], c: [DVec3; 3], seen_lit: f32, seen: f32) -> Block {
+        let u = area(&t) * contour(centroid(&t), source.normal, &c);
+        Block {
+            t,
+            c,
+            u,
+            lit: 0,
+            seen,
+            seen_lit,
+        }
+    }
+
+    /// `u² p (1 - p) / 2` with `p = (seen_lit + 1/2) / (seen + 1)`: the variance this block
+    /// adds to `Σ u V̄` with two rays.
+    fn expected_variance(&self) -> f64 {
+        let p = (f64::from(self.seen_lit) + 0.5) / (f64::from(self.seen) + 1.0);
+        self.u * self.u * p * (1.0 - p) / 2.0
+    }
 }

@@ -1,0 +1,180 @@
+//! Every method against the deterministic reference solver on the Cornell box, and the error
+//! of every progressive method falling as it refines.
+//!
+//! References: `scenes/reference/cornell-box-*.csv`, written by
+//! `mcrad solve scenes/cornell-box.obj --method reference [--no-subdivide | --max-edge 0.033] --patches F`
+//! (form-factor rows to 1e-4 of their sums, Gauss-Seidel to a residual of 1e-9).
+//!
+//! The statistic: for each patch and channel, `z = (mean - R) / (s / sqrt(n))` over `n` seeds
+//! (Student-t with `n - 1` dof for an unbiased method). The test asks that the mean of `z²`
+//! over all patches and channels stays below 3 (its expectation is `(n-1)/(n-3)`, 1.4 for
+//! n = 8, with a spread of about 0.4 over 57 values: 3 is about four of those) and that no more
+//! than 2% of the values lie beyond 4 standard errors. A bias of a fraction of a standard error
+//! on many patches fails the first; a gross error on a few patches fails the second.
+
+use glam::DVec3;
+use mcrad_combine::rms_rel;
+use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_raycast::Bvh;
+use std::ops::ControlFlow;
+use std::path::Path;
+
+const METHODS: [Method; 7] = [
+    Method::Shoot,
+    Method::Gather,
+    Method::TwoPass,
+    Method::TwoPassSplit,
+    Method::Prr,
+    Method::ProgressiveGather,
+    Method::ProgressiveTwoPass,
+];
+
+fn root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
+}
+
+fn cornell(subdivision: Subdivision) -> (Mesh, Bvh) {
+    let scene = mcrad_scene_io::load(&root().join("scenes/cornell-box.obj"))
+        .unwrap()
+        .scene;
+    let mesh = Mesh::build(&scene, subdivision).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    (mesh, bvh)
+}
+
+/// The reference radiosity, in mesh order (rows are in mesh order in these files).
+fn reference(name: &str, mesh: &Mesh) -> Vec<DVec3> {
+    let text = std::fs::read_to_string(root().join("scenes/reference").join(name)).unwrap();
+    let rows: Vec<DVec3> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<f64> = l.split(',').take(5).map(|x| x.parse().unwrap()).collect();
+            DVec3::new(f[2], f[3], f[4])
+        })
+        .collect();
+    assert_eq!(
+        rows.len(),
+        mesh.patches().len(),
+        "{name} belongs to another mesh"
+    );
+    rows
+}
+
+fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, rays: u64, seed: u64) -> Vec<DVec3> {
+    let config = ScheduleConfig {
+        rays,
+        seed,
+        unshot_threshold: 1e-4,
+        ambient: false,
+        first_pass_rays: None,
+    };
+    run(method, mesh, bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap()
+    .estimate
+    .radiosity()
+    .to_vec()
+}
+
+fn check_against_reference(subdivision: Subdivision, name: &str, rays: u64, seeds: u64) {
+    let (mesh, bvh) = cornell(subdivision);
+    let r = reference(name, &mesh);
+    for method in METHODS {
+        let runs: Vec<Vec<DVec3>> = (0..seeds)
+            .map(|seed| solve(method, &mesh, &bvh, rays, 100 + seed))
+            .collect();
+        let n = seeds as f64;
+        let (mut sum_z2, mut beyond, mut count) = (0.0, 0usize, 0usize);
+        let mut worst = (0.0f64, 0usize);
+        for (i, &reference) in r.iter().enumerate() {
+            for c in 0..3 {
+                let mean = runs.iter().map(|x| x[i][c]).sum::<f64>() / n;
+                let var = runs.iter().map(|x| (x[i][c] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+                let se = (var / n).sqrt();
+                if se == 0.0 {
+                    // Emitters without reflected light: exact.
+                    assert!(
+                        (mean - reference[c]).abs() <= 1e-9 * reference[c].abs().max(1.0),
+                        "{method:?} patch {i}"
+                    );
+                    continue;
+                }
+                let z = (mean - reference[c]) / se;
+                sum_z2 += z * z;
+                beyond += usize::from(z.abs() > 4.0);
+                count += 1;
+                if z.abs() > worst.0 {
+                    worst = (z.abs(), i);
+                }
+            }
+        }
+        let mean_z2 = sum_z2 / count as f64;
+        assert!(
+            mean_z2 < 3.0 && beyond as f64 <= 0.02 * count as f64,
+            "{method:?} on {name}: mean z² {mean_z2:.2}, {beyond} of {count} beyond 4 SE (worst {:.1} at patch {})",
+            worst.0,
+            worst.1
+        );
+    }
+}
+
+#[test]
+fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
+    check_against_reference(Subdivision::None, "cornell-box-faces.csv", 1_000_000, 8);
+}
+
+#[test]
+fn every_method_agrees_with_the_reference_on_the_cornell_box_2k() {
+    check_against_reference(
+        Subdivision::MaxEdge(0.033),
+        "cornell-box-2k.csv",
+        1_000_000,
+        6,
+    );
+}
+
+#[test]
+fn progressive_methods_refine() {
+    // Over its steps, each progressive method's error against the reference falls: the last
+    // step's error is below 60% of the first's (with ~64x the rays, an unbiased method's falls
+    // to about 1/8), and the later half of the steps averages below the earlier half.
+    let (mesh, bvh) = cornell(Subdivision::None);
+    let r = reference("cornell-box-faces.csv", &mesh);
+    let area: Vec<f64> = mesh.patches().iter().map(|p| p.area).collect();
+    let emission: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .map(|p| p.emission.as_dvec3())
+        .collect();
+    for method in [
+        Method::Prr,
+        Method::ProgressiveGather,
+        Method::ProgressiveTwoPass,
+        Method::Gather,
+    ] {
+        let mut errors = Vec::new();
+        let config = ScheduleConfig {
+            rays: 4_000_000,
+            seed: 3,
+            unshot_threshold: 1e-4,
+            ambient: true,
+            first_pass_rays: None,
+        };
+        run(method, &mesh, &bvh, &config, &mut |step| {
+            errors.push(rms_rel(&area, &emission, step.radiosity, &r));
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        assert!(errors.len() >= 4, "{method:?}: only {} steps", errors.len());
+        let half = errors.len() / 2;
+        let early = errors[..half].iter().sum::<f64>() / half as f64;
+        let late = errors[half..].iter().sum::<f64>() / (errors.len() - half) as f64;
+        assert!(
+            errors[errors.len() - 1] < 0.6 * errors[0] && late < early,
+            "{method:?}: errors over steps {errors:?}"
+        );
+    }
+}
