@@ -230,3 +230,39 @@ fn bad_input_gets_one_clear_error_line() {
         "p.csv",
     );
 }
+
+#[test]
+fn readme_image_is_what_the_readme_command_writes() {
+    // The README's first command, with its outputs sent to a temporary directory.
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let command = readme
+        .lines()
+        .find(|l| l.starts_with("cargo run --release -- solve "))
+        .expect("the README's first command");
+    let dir = tempfile::tempdir().unwrap();
+    let mut args: Vec<String> = Vec::new();
+    let mut words = command
+        .trim_start_matches("cargo run --release -- ")
+        .split_whitespace();
+    while let Some(w) = words.next() {
+        match w {
+            "--image" | "--patches" | "--stats" => {
+                let file = words.next().unwrap();
+                let name = Path::new(file).file_name().unwrap().to_str().unwrap();
+                args.extend([w.to_string(), path(dir.path(), name)]);
+            }
+            _ => args.push(w.to_string()),
+        }
+    }
+    args.push("-q".into());
+    let o = mcrad(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let written = std::fs::read(dir.path().join("cornell.png")).unwrap();
+    let stored =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/cornell.png")).unwrap();
+    assert!(
+        written == stored,
+        "docs/cornell.png is not what the README's command writes now: run that command to refresh it"
+    );
+}

@@ -46,6 +46,9 @@ pub(crate) struct Side {
     pub normal32: Vec3,
 }
 
+/// The share of the expected variance whose blocks a sweep splits.
+const SPLIT_SHARE: f64 = 0.8;
+
 /// How far corners move towards their polygon's centroid for the probe rays.
 const CORNER_INSET: f64 = 1e-3;
 
@@ -305,13 +308,6 @@ impl Grid {
             } else {
                 floor
             };
-            if std::env::var("DBGV").is_ok() {
-                eprintln!(
-                    "DBG key {} sweep {sweep} blocks {} phi {fraction:.5} err {error:.2e} target {target:.2e}",
-                    self.key,
-                    blocks.len()
-                );
-            }
             if error <= target || sweep as usize >= max_sweeps || blocks.len() + 3 > max_blocks {
                 return Visibility {
                     blocks: blocks.len(),
@@ -329,10 +325,7 @@ impl Grid {
             order.sort_by(|&a, &b| expected[b].total_cmp(&expected[a]).then(a.cmp(&b)));
             let goal = (target * all).powi(2);
             let total: f64 = expected.iter().sum();
-            let share: f64 = std::env::var("SHARE")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0.5);
+            let share = SPLIT_SHARE;
             let mut projected = total;
             let mut taken = 0.0;
             let room = (max_blocks - blocks.len()) / 3;
@@ -345,10 +338,6 @@ impl Grid {
                 taken += expected[k];
                 projected -= 0.75 * expected[k];
             }
-            let inherit: f32 = std::env::var("INHERIT")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(1.0);
             let mut next = Vec::with_capacity(blocks.len() + 3 * room);
             for (b, split_it) in blocks.into_iter().zip(chosen) {
                 if !split_it {
@@ -366,8 +355,8 @@ impl Grid {
                         &self.source,
                         t,
                         c,
-                        b.seen_lit * inherit,
-                        b.seen * inherit,
+                        b.seen_lit,
+                        b.seen,
                     ));
                     evaluations += 1;
                 }
