@@ -227,7 +227,8 @@ fn one_round_from_the_exact_furnace_solution_reproduces_it() {
 #[test]
 fn jacobi_gathering_converges_to_the_furnace_answer() {
     // Round m of Jacobi in the furnace gives exactly B_m = (1 - rho^(m+1)) / (1 - rho); the run
-    // stops at the first round whose change rho^m / B_m is below the threshold.
+    // stops at the first round whose change relative to the reflected light, rho^m / (B_m - E)
+    // with E = 1, is below the threshold.
     for rho in [0.5f32, 0.9] {
         let mesh = Mesh::build(&furnace(rho), Subdivision::MaxEdge(0.5)).unwrap();
         let rho = rho as f64;
@@ -247,7 +248,7 @@ fn jacobi_gathering_converges_to_the_furnace_answer() {
         assert_eq!(r.stats.stop, StopReason::Converged);
         let m = r.rounds as i32;
         let want_rounds = (1..)
-            .find(|&m| rho.powi(m) / ((1.0 - rho.powi(m + 1)) / (1.0 - rho)) <= 1e-4)
+            .find(|&m| rho.powi(m) / ((rho - rho.powi(m + 1)) / (1.0 - rho)) <= 1e-4)
             .unwrap();
         assert_eq!(m, want_rounds, "rho {rho}");
         assert_eq!(changes.len(), m as usize);

@@ -30,14 +30,16 @@
 //! than a quarter of a patch, between the rays), or a gap in a blocker that none passes
 //! through; such a pair is taken as wholly visible or wholly hidden.
 
-use super::ReferenceError;
+use super::{ReferenceConfig, ReferenceError};
 use super::form_factor::{clip_above, contour};
 use super::quadrature::{Adaptive, integrate_adaptive};
+use super::shaft::{FaceInput, Occluders};
 use super::visibility::{Grid, Side, fan};
 use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
+use std::collections::BTreeMap;
 use std::sync::atomic::{self, AtomicUsize};
 
 /// The least number of visibility blocks (and probe rays besides the corner rays) per pair.
@@ -66,22 +68,26 @@ struct Row {
     vals: Vec<f64>,
 }
 
-/// Work and accuracy of a form-factor computation.
+/// Work and accuracy of a form-factor computation. Errors are relative to the row sum `S_r`
+/// (at least `0.01 ×` the area-weighted mean row sum).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FormFactorStats {
-    /// Shadow rays cast (probes and visibility refinement).
+    /// Shadow rays cast.
     pub rays: u64,
-    /// Point-to-polygon form factors evaluated (quadrature nodes and visibility weights).
+    /// Point-to-polygon form factors evaluated (quadrature nodes, visibility weights, bounds).
     pub evaluations: u64,
     /// Non-zero entries kept.
     pub nonzeros: usize,
-    /// Unordered pairs `{i, j}` found partly visible by their probe rays.
-    pub partly_visible_pairs: u64,
-    /// The largest estimated error of a row relative to its sum, over rows with a positive
-    /// sum: `max_r err_r / S_r` (module documentation of [`form_factors`]).
-    pub max_row_error: f64,
-    /// Rows whose estimated error stayed above the tolerance because a depth or work limit
-    /// was reached.
+    /// Unordered pairs `{i, j}` with an occluder in their shaft: their visibility was
+    /// estimated (by shadow rays or an analytic bound) rather than known to be 1.
+    pub occluded_pairs: u64,
+    /// The largest estimated quadrature error of a row (conservative: a sum of the embedded
+    /// rules' differences), relative to its sum.
+    pub max_quadrature_error: f64,
+    /// The largest estimated visibility error of a row (one standard deviation), relative to
+    /// its sum.
+    pub max_visibility_error: f64,
+    /// Rows whose estimated errors stayed above the tolerances because a work limit was reached.
     pub rows_over_tolerance: usize,
 }
 
@@ -145,30 +151,36 @@ impl FormFactors {
 /// The form-factor matrix of `mesh`, with visibility from `caster` (its ids must be the patch
 /// indices, as for a [`mcrad_raycast::Bvh`] built from [`Mesh::triangle_patch`]).
 ///
-/// `tolerance` is the target error of each row relative to its sum, half for the quadrature and
-/// half for the visibility; how each part is estimated, and what the estimate cannot see, is
-/// below. The work runs in two passes over the rows on the current rayon pool, and `progress`
+/// Each row `r` is refined until its quadrature error is below
+/// [`ReferenceConfig::tolerance`] `× S_r` and the standard deviation of its visibility error
+/// below [`ReferenceConfig::visibility_tolerance`] `× S_r`, `S_r = Σ_j F_rj` (but at least
+/// `0.01 ×` the area-weighted mean row sum), or until a work limit per pair is reached (counted
+/// in [`FormFactorStats::rows_over_tolerance`]). The [module documentation](self) has the
+/// method. The work runs in two passes over the rows on the current rayon pool, and `progress`
 /// is called from the worker threads after each row of each pass with the number done so far,
 /// out of `2 × patches`. The result does not depend on the thread count.
 ///
-/// # Method
-///
-
+/// Refuses a mesh with more than [`ReferenceConfig::max_patches`] patches before any work.
 pub fn form_factors<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
-    tolerance: f64,
+    config: &ReferenceConfig,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<FormFactors, ReferenceError> {
-    if !(tolerance > 0.0 && tolerance < 1.0) {
-        return Err(ReferenceError::BadTolerance(tolerance));
-    }
     let n = mesh.patches().len();
-    if n >= u32::MAX as usize {
+    if n > config.max_patches || n >= u32::MAX as usize {
         return Err(ReferenceError::TooManyPatches {
             patches: n,
-            limit: u32::MAX as usize - 1,
+            limit: config.max_patches.min(u32::MAX as usize - 1),
         });
+    }
+    for (name, value) in [
+        ("tolerance", config.tolerance),
+        ("visibility_tolerance", config.visibility_tolerance),
+    ] {
+        if !(value > 0.0 && value < 1.0) {
+            return Err(ReferenceError::BadTolerance { name, value });
+        }
     }
     let geometry = Geometry::new(mesh);
     let done = AtomicUsize::new(0);
@@ -178,7 +190,7 @@ pub fn form_factors<C: RayCaster>(
     let first: Vec<(Vec<PairRecord>, Work)> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let row = first_pass(i, &geometry, caster, tolerance);
+            let row = first_pass(i, &geometry, caster, config.tolerance);
             tick();
             row
         })
@@ -200,8 +212,14 @@ pub fn form_factors<C: RayCaster>(
             }
         }
     }
+    // A row that receives almost nothing (a patch under a block) is held to the budget of one
+    // that receives a hundredth of the average, not to a fraction of its own tiny sum.
+    let floor = ROW_SUM_FLOOR * mean_row_sum(&sum, &geometry.area);
+    for s in &mut sum {
+        *s = s.max(floor);
+    }
     let budget = Budget {
-        tolerance,
+        tolerance: config.visibility_tolerance,
         sum: &sum,
         partial_sum: &partial_sum,
     };
@@ -216,7 +234,21 @@ pub fn form_factors<C: RayCaster>(
             tick();
         });
 
-    Ok(assemble(&records, &work, &geometry, tolerance))
+    Ok(assemble(&records, &work, &geometry, config))
+}
+
+/// Rows are held to a tolerance relative to their sum, but not below this fraction of the
+/// area-weighted mean row sum.
+const ROW_SUM_FLOOR: f64 = 0.01;
+
+/// The area-weighted mean of the row sums.
+fn mean_row_sum(sums: &[f64], areas: &[f64]) -> f64 {
+    let total: f64 = areas.iter().sum();
+    if total > 0.0 {
+        sums.iter().zip(areas).map(|(s, a)| s * a).sum::<f64>() / total
+    } else {
+        0.0
+    }
 }
 
 /// Rays and evaluations of one row.
@@ -234,6 +266,9 @@ struct PairRecord {
     partial: bool,
     /// Rounds of the visibility grid behind `phi`.
     rounds: u8,
+    /// An upper bound of the blocked exchange `(1 - φ) U_ij` from the occluders' outlines
+    /// (scene units²; infinite for unoccluded pairs).
+    bound: f64,
     /// Unoccluded exchange `U_ij = A_i F_ij^unoccluded` (scene units²).
     exchange: f64,
     /// Its quadrature error estimate (scene units²).
@@ -260,7 +295,7 @@ impl Budget<'_> {
             .into_iter()
             .map(|k| {
                 let a = geometry.area[k];
-                0.5 * self.tolerance * self.sum[k] * (a * g / self.partial_sum[k]).sqrt()
+                self.tolerance * self.sum[k] * (a * g / self.partial_sum[k]).sqrt()
             })
             .fold(f64::INFINITY, f64::min)
     }
@@ -274,10 +309,14 @@ struct Geometry {
     normal32: Vec<Vec3>,
     offset: Vec<f64>,
     area: Vec<f64>,
-    face: Vec<u32>,
+    /// Per patch: its plane group, the patches of one input face that share a plane (a
+    /// non-planar face is split into triangles that keep its number).
+    group: Vec<u32>,
     /// Signed distances to a plane within this are "on the plane" (scene units): rounding of
     /// f32 vertices and of planes fitted to them.
     eps: f64,
+    /// The plane groups as occluders.
+    occluders: Occluders,
 }
 
 impl Geometry {
@@ -290,8 +329,9 @@ impl Geometry {
             normal32: Vec::new(),
             offset: Vec::new(),
             area: Vec::new(),
-            face: Vec::new(),
+            group: Vec::new(),
             eps: 0.0,
+            occluders: Occluders::new(Vec::new(), 0.0),
         };
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for p in mesh.patches() {
@@ -315,12 +355,36 @@ impl Geometry {
             g.normal32.push(p.normal);
             g.offset.push(n.dot(centroid));
             g.area.push(p.area);
-            g.face.push(p.face);
         }
         if lo.x.is_finite() {
             let magnitude = lo.abs().max(hi.abs()).max_element();
             g.eps = 1e-6 * (hi - lo).length() + 1e-7 * magnitude;
         }
+        // Plane groups: patches of one face whose planes agree (normals within 1e-6 rad² and
+        // offsets within eps), in order of first appearance.
+        let mut groups: Vec<FaceInput> = Vec::new();
+        let mut by_face: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
+        for (i, p) in mesh.patches().iter().enumerate() {
+            let (n, d) = (g.normal[i], g.offset[i]);
+            let candidates = by_face.entry(p.face).or_default();
+            let found = candidates.iter().copied().find(|&k| {
+                let f = &groups[k as usize];
+                f.normal.dot(n) > 1.0 - 1e-6 && (f.offset - d).abs() <= g.eps
+            });
+            let k = found.unwrap_or_else(|| {
+                groups.push(FaceInput {
+                    face: groups.len() as u32,
+                    normal: n,
+                    offset: d,
+                    points: Vec::new(),
+                });
+                candidates.push(groups.len() as u32 - 1);
+                groups.len() as u32 - 1
+            });
+            groups[k as usize].points.extend_from_slice(g.polygon(i));
+            g.group.push(k);
+        }
+        g.occluders = Occluders::new(groups, g.eps);
         g
     }
 
@@ -348,7 +412,7 @@ impl Geometry {
     /// Clips `P_i` to the front of `P_j` (into `a`) and `P_j` to the front of `P_i` (into
     /// `b`); false when the two cannot exchange light (no front part, or one input face).
     fn clip_pair(&self, i: usize, j: usize, a: &mut Vec<DVec3>, b: &mut Vec<DVec3>) -> bool {
-        if self.face[i] == self.face[j] {
+        if self.group[i] == self.group[j] {
             return false;
         }
         let (pi, pj) = (self.polygon(i), self.polygon(j));
@@ -371,11 +435,10 @@ impl Geometry {
             (b, self.normal[j], a)
         };
         // An absolute floor that adds at most 1e-3 of the tolerance to any row sum.
-        let floor =
-            0.5 * tolerance * 1e-3 * self.area[i].min(self.area[j]) / self.area.len() as f64;
+        let floor = tolerance * 1e-3 * self.area[i].min(self.area[j]) / self.area.len() as f64;
         integrate_adaptive(
             outer,
-            0.5 * tolerance,
+            tolerance,
             floor,
             MAX_QUAD_DEPTH,
             MAX_QUAD_REFINEMENTS,
@@ -394,6 +457,41 @@ impl Geometry {
     }
 }
 
+impl Geometry {
+    /// An upper bound of the exchange between `P_i'` (`a`) and `P_j'` (`b`) that the clipped
+    /// occluders can block (scene units²): every blocked segment crosses one of them, so the
+    /// blocked part is at most `Σ_Q min(∫_{P_i'} F_{x→Q} dA_x, ∫_{P_j'} F_{y→Q} dA_y)`, each
+    /// integral taken with a coarse adaptive rule plus its error estimate.
+    fn blocked_bound(
+        &self,
+        i: usize,
+        j: usize,
+        a: &[DVec3],
+        b: &[DVec3],
+        occluders: &[Vec<DVec3>],
+        work: &mut Work,
+    ) -> f64 {
+        let mut clipped = Vec::new();
+        let mut side = |k: usize, poly: &[DVec3], q: &[DVec3]| {
+            clip_above(q, self.normal[k], self.offset[k], self.eps, &mut clipped);
+            if clipped.len() < 3 {
+                return 0.0;
+            }
+            let n = self.normal[k];
+            let r = integrate_adaptive(poly, 0.05, 0.0, 8, 64, |x| contour(x, n, &clipped));
+            work.evaluations += r.evaluations;
+            r.value + r.error
+        };
+        occluders
+            .iter()
+            .map(|q| {
+                let from_i = side(i, a, q);
+                from_i.min(side(j, b, q))
+            })
+            .sum()
+    }
+}
+
 fn polygon_area(poly: &[DVec3]) -> f64 {
     fan(poly)
         .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
@@ -408,41 +506,49 @@ fn first_pass<C: RayCaster>(
     tolerance: f64,
 ) -> (Vec<PairRecord>, Work) {
     let (mut a, mut b) = (Vec::new(), Vec::new());
+    let mut occluders = Vec::new();
     let mut records = Vec::new();
     let mut work = Work::default();
     for j in i + 1..geometry.area.len() {
         if !geometry.clip_pair(i, j, &mut a, &mut b) {
             continue;
         }
-        let grid = geometry.grid(i, j, &a, &b);
-        let rounds = grid.rounds_for(MIN_BLOCKS);
-        let (grid_lit, grid_rays) = grid.probe(caster, rounds);
-        let (corners_lit, corners) = grid.probe_corners(caster, &a, &b);
-        work.rays += (grid_rays + corners) as u64;
-        let (lit, rays) = (grid_lit + corners_lit, grid_rays + corners);
-        if lit == 0 {
-            continue;
-        }
+        occluders.clear();
+        geometry.occluders.in_shaft(
+            &a,
+            &b,
+            [geometry.group[i], geometry.group[j]],
+            &mut occluders,
+        );
         let q = geometry.exchange(i, j, &a, &b, tolerance);
         work.evaluations += q.evaluations;
         if !(q.value > 0.0) {
             continue;
         }
-        let partial = lit < rays;
-        let (phi, vis_error) = if partial {
-            // One sweep: the visible fraction and its error that set the budgets.
-            let v = grid.refine(caster, rounds, 0.0, MAX_BLOCKS, 1);
-            work.rays += v.rays;
-            work.evaluations += v.evaluations;
+        let partial = !occluders.is_empty();
+        let (mut rounds, mut phi, mut vis_error, mut bound) = (0, 1.0, 0.0, f64::INFINITY);
+        if partial {
             work.partial += 1;
-            (v.fraction, v.error * q.value)
-        } else {
-            (1.0, 0.0)
-        };
+            bound = geometry
+                .blocked_bound(i, j, &a, &b, &occluders, &mut work)
+                .min(q.value);
+            let grid = geometry.grid(i, j, &a, &b);
+            rounds = grid.rounds_for(MIN_BLOCKS);
+            // The bound beats what one sweep of rays could show when they all agree.
+            if bound / q.value <= 2.0 / (2.0 * grid.blocks(rounds) as f64 + 2.0) {
+                (phi, vis_error) = (1.0 - 0.5 * bound / q.value, 0.5 * bound);
+            } else {
+                let v = grid.refine(caster, rounds, 0.0, MAX_BLOCKS, 1);
+                work.rays += v.rays;
+                work.evaluations += v.evaluations;
+                (phi, vis_error) = (v.fraction, v.error * q.value);
+            }
+        }
         records.push(PairRecord {
             j: j as u32,
             partial,
             rounds: rounds as u8,
+            bound,
             exchange: q.value,
             quad_error: q.error,
             phi,
@@ -479,8 +585,12 @@ fn second_pass<C: RayCaster>(
         );
         work.rays += v.rays;
         work.evaluations += v.evaluations;
-        r.phi = v.fraction;
-        r.vis_error = v.error * r.exchange;
+        if v.error * r.exchange < 0.5 * r.bound {
+            r.phi = v.fraction;
+            r.vis_error = v.error * r.exchange;
+        } else {
+            (r.phi, r.vis_error) = (1.0 - 0.5 * r.bound / r.exchange, 0.5 * r.bound);
+        }
     }
 }
 
@@ -489,7 +599,7 @@ fn assemble(
     records: &[Vec<PairRecord>],
     work: &[Work],
     geometry: &Geometry,
-    tolerance: f64,
+    config: &ReferenceConfig,
 ) -> FormFactors {
     let n = records.len();
     let mut rows = vec![Row::default(); n];
@@ -500,31 +610,34 @@ fn assemble(
         for r in row {
             let j = r.j as usize;
             let g = r.phi * r.exchange;
-            if !(g > 0.0) {
-                continue;
-            }
             for (from, to) in [(i, j), (j, i)] {
                 let a = geometry.area[from];
-                rows[from].cols.push(to as u32);
-                rows[from].vals.push(g / a);
+                if g > 0.0 {
+                    rows[from].cols.push(to as u32);
+                    rows[from].vals.push(g / a);
+                }
                 quad[from] += r.phi * r.quad_error / a;
                 vis[from] += (r.vis_error / a).powi(2);
             }
         }
     }
+    let sums: Vec<f64> = rows.iter().map(|r| r.vals.iter().sum()).collect();
+    let floor = ROW_SUM_FLOOR * mean_row_sum(&sums, &geometry.area);
     let mut stats = FormFactorStats::default();
     for w in work {
         stats.rays += w.rays;
         stats.evaluations += w.evaluations;
-        stats.partly_visible_pairs += w.partial;
+        stats.occluded_pairs += w.partial;
     }
     for (r, row) in rows.iter().enumerate() {
         stats.nonzeros += row.cols.len();
-        let sum: f64 = row.vals.iter().sum();
+        let sum = sums[r].max(floor);
         if sum > 0.0 {
-            let relative = (quad[r] + vis[r].sqrt()) / sum;
-            stats.max_row_error = stats.max_row_error.max(relative);
-            stats.rows_over_tolerance += usize::from(relative > tolerance);
+            let (q, v) = (quad[r] / sum, vis[r].sqrt() / sum);
+            stats.max_quadrature_error = stats.max_quadrature_error.max(q);
+            stats.max_visibility_error = stats.max_visibility_error.max(v);
+            stats.rows_over_tolerance +=
+                usize::from(q > config.tolerance || v > config.visibility_tolerance);
         }
     }
     FormFactors { rows, stats }

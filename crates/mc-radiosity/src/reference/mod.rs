@@ -52,6 +52,7 @@
 mod form_factor;
 mod matrix;
 mod quadrature;
+mod shaft;
 mod solve;
 mod visibility;
 
@@ -70,8 +71,14 @@ pub struct ReferenceConfig {
     /// ([`ReferenceError::TooManyPatches`]). Work grows as the square of the patch count:
     /// about 10k patches is the practical ceiling.
     pub max_patches: usize,
-    /// Target error of each form-factor row relative to its sum `Σ_j F_ij`, in `(0, 1)`.
+    /// Target quadrature error of each form-factor row relative to its sum `Σ_j F_ij`, in
+    /// `(0, 1)`: the error of the integrals of the exact kernel over the patches, estimated
+    /// conservatively.
     pub tolerance: f64,
+    /// Target visibility error of each row (one standard deviation of the shadow-ray estimate)
+    /// relative to its sum, in `(0, 1)`. Visibility converges slowly (each row's cost grows
+    /// about as this to the power -1.5), hence a separate, looser target.
+    pub visibility_tolerance: f64,
     /// Target residual of the solve, `max_{i,c} |E + ρ F B - B| / max B`, `> 0`.
     pub residual: f64,
     /// Gauss-Seidel sweeps allowed before [`ReferenceError::NotConverged`].
@@ -79,11 +86,13 @@ pub struct ReferenceConfig {
 }
 
 impl Default for ReferenceConfig {
-    /// 10 000 patches, row error `1e-4` of the row sum, residual `1e-9`, 10 000 sweeps.
+    /// 10 000 patches; row errors `1e-4` (quadrature) and `1e-3` (visibility) of the row sum;
+    /// residual `1e-9`; 10 000 sweeps.
     fn default() -> Self {
         ReferenceConfig {
             max_patches: 10_000,
             tolerance: 1e-4,
+            visibility_tolerance: 1e-3,
             residual: 1e-9,
             max_iterations: 10_000,
         }
@@ -105,9 +114,14 @@ pub enum ReferenceError {
         /// The limit ([`ReferenceConfig::max_patches`]).
         limit: usize,
     },
-    /// The form-factor tolerance is not in `(0, 1)`.
-    #[error("the form-factor tolerance must be in (0, 1), got {0}")]
-    BadTolerance(f64),
+    /// A form-factor tolerance is not in `(0, 1)`.
+    #[error("the form-factor {name} must be in (0, 1), got {value}")]
+    BadTolerance {
+        /// Which tolerance ([`ReferenceConfig`] field name).
+        name: &'static str,
+        /// The value given.
+        value: f64,
+    },
     /// The residual target is not a positive number.
     #[error("the residual target must be a positive number, got {0}")]
     BadResidual(f64),
@@ -170,16 +184,10 @@ pub fn reference<C: RayCaster>(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Reference, ReferenceError> {
     let patches = mesh.patches().len();
-    if patches > config.max_patches {
-        return Err(ReferenceError::TooManyPatches {
-            patches,
-            limit: config.max_patches,
-        });
-    }
     if !(config.residual > 0.0 && config.residual.is_finite()) {
         return Err(ReferenceError::BadResidual(config.residual));
     }
-    let factors = form_factors(mesh, caster, config.tolerance, progress)?;
+    let factors = form_factors(mesh, caster, config, progress)?;
     let solution = solve(mesh, &factors, config.residual, config.max_iterations)?;
     let stats = ReferenceStats {
         patches,

@@ -1,36 +1,30 @@
-//! The visible fraction of a pair of patches, from jittered shadow rays on a uniform grid of
-//! blocks.
+//! The visible fraction of a pair of patches whose shaft holds an occluder, from jittered
+//! shadow rays on an adaptive partition into blocks.
 //!
 //! The pair's exchange `∫_{P_i'} ∫_{P_j'} K(x, y) V(x, y) dA_y dA_x` (`K` the form-factor kernel
 //! `cos θ_x cos θ_y / (π r²)`, `V` the 0/1 visibility) is split into blocks `b = (t, c)`: `t` a
 //! triangle of `P_i'`, `c` one of `P_j'`, cut from the fan triangles of the clipped polygons by
-//! `L` rounds of midpoint subdivision, each round splitting every block on the side with the
-//! longer edges. Each block gets one ray between a uniform point of `t` and a uniform point of
-//! `c` (jittered stratification, the points from a [`Stream`] keyed by the pair and `L`), and
+//! midpoint subdivision (a block is split on the side with the longer edges). Each block has
 //! the weight `u_b = A_t F_{centroid(t)→c}` (its unoccluded exchange, scene units², with the
-//! exact point-to-polygon form factor). The visible fraction is the ratio estimate
-//! `φ = Σ_b u_b V_b / Σ_b u_b`, so a pair whose rays are all unblocked has `φ = 1` exactly.
+//! exact point-to-polygon form factor), and the visible fraction is the ratio estimate
+//! `φ = Σ_b u_b V̄_b / Σ_b u_b`, `V̄_b` the fraction of the block's rays that are unblocked.
 //!
-//! Why uniform and jittered: refining only blocks whose rays disagree biases the estimate (a
-//! block whose rays agree keeps the lit or shadowed island they missed, and all such errors
-//! have the sign of the block's verdict), and rays through block centroids line up with the
-//! shadow edges of axis-aligned scenes, so their errors add up instead of cancelling. Jittered
-//! rays on a uniform grid make the error that of stratified sampling: for a shadow boundary
-//! crossing the four-dimensional domain, `O(N^(-5/8))` for `N` blocks.
+//! The work runs in sweeps, starting from a uniform grid of at least 16 blocks. A sweep casts
+//! two fresh rays per block, each between a uniform point of `t` and one of `c` (jittered
+//! stratification; the points come from a [`Stream`] keyed by the pair and the sweep), and
+//! estimates `φ` and its error from these rays alone. Then it splits the blocks with the
+//! largest expected variance `u_b² p_b (1 - p_b) / 2` (`p_b` from every ray the block and its
+//! ancestors have seen) until those split hold 80% of the total. Because the partition of a
+//! sweep depends only on earlier sweeps, each sweep's estimate is unbiased for it: refining
+//! only where the rays of the same sweep disagree would keep every lit or shadowed island they
+//! missed, errors that all have the sign of the block's verdict.
 //!
-//! The error of `φ` is the standard deviation of the ratio estimate under the jitter, estimated
-//! by collapsing the strata in fours (the children of one parent block):
-//! `Var φ ≈ (4/3) Σ_parents Σ_k (y_k - ȳ)² / (Σ_b u_b)²` with `y_b = u_b (V_b - φ)` and `ȳ` the
-//! mean over the siblings. This overestimates a little (by the spread of the siblings' true
-//! means), and is floored at `sqrt(p (1 - p)) N^(-3/4) / 2` with `p = (n_lit + 1/2) / (N + 1)`
-//! (`n_lit` unblocked rays of `N`), so that a grid whose rays all agree, in a pair known to be
-//! partly visible, does not stop the refinement. The errors of different pairs come from
-//! independent jitter: rows add them in quadrature.
-//!
-//! The probe of a pair adds rays between its corners (each moved `1e-3` of the way to its
-//! polygon's centroid): for two parallel polygons and a convex blocker, if all corner rays are
-//! blocked then so is every ray, so these catch the thin penumbrae at the rim of a shadow that
-//! a coarse grid misses.
+//! The error of `φ` is its standard deviation under the jitter,
+//! `sqrt(Σ_b u_b² Var V̄_b) / Σ_b u_b`, with `Var V̄_b = p_b (1 - p_b) / 2` estimated without bias
+//! by `(V_1 - V_2)² / 4`. It is floored: when every ray of the sweep agrees, at `1 / (n + 2)` for
+//! `n` rays (a lit or blocked fraction that small is as likely as none: the mean of the
+//! posterior under a uniform prior); otherwise at `sqrt(p (1 - p)) n^(-3/4) / 2`. Different
+//! pairs use independent jitter, so rows add their errors in quadrature.
 
 use super::form_factor::contour;
 use super::quadrature::split;
@@ -48,9 +42,6 @@ pub(crate) struct Side {
 
 /// The share of the expected variance whose blocks a sweep splits.
 const SPLIT_SHARE: f64 = 0.8;
-
-/// How far corners move towards their polygon's centroid for the probe rays.
-const CORNER_INSET: f64 = 1e-3;
 
 fn centroid(t: &[DVec3; 3]) -> DVec3 {
     (t[0] + t[1] + t[2]) / 3.0
@@ -173,44 +164,6 @@ impl Grid {
         )
     }
 
-    /// Rays between the (inset) corners of the two polygons: `(unblocked, cast)`.
-    pub fn probe_corners<C: RayCaster>(
-        &self,
-        caster: &C,
-        source_polygon: &[DVec3],
-        target_polygon: &[DVec3],
-    ) -> (usize, usize) {
-        let inset = |poly: &[DVec3]| -> Vec<DVec3> {
-            let c = poly.iter().sum::<DVec3>() / poly.len() as f64;
-            poly.iter().map(|v| *v + (c - *v) * CORNER_INSET).collect()
-        };
-        let (xs, ys) = (inset(source_polygon), inset(target_polygon));
-        let mut lit = 0;
-        for x in &xs {
-            for y in &ys {
-                let (a, b) = self.surface_points(*x, *y);
-                lit += usize::from(!caster.occluded(&a, &b));
-            }
-        }
-        (lit, xs.len() * ys.len())
-    }
-
-    /// The probe: one jittered ray per block of the uniform grid after `rounds` rounds
-    /// (`>= 1`). Returns `(unblocked, cast)`.
-    pub fn probe<C: RayCaster>(&self, caster: &C, rounds: usize) -> (usize, usize) {
-        let rounds = rounds.clamp(1, self.max_rounds().max(1));
-        let mut rng = Stream::new(0, 0, self.key, rounds as u64);
-        let mut cells = Vec::new();
-        for (t, c) in &self.roots {
-            self.uniform(&mut cells, *t, *c, 0, rounds);
-        }
-        let lit = cells
-            .iter()
-            .filter(|(t, c)| self.ray(caster, &mut rng, t, c))
-            .count();
-        (lit, cells.len())
-    }
-
     /// The blocks of the uniform grid under `(t, c)` after `rounds - depth` more rounds.
     fn uniform(
         &self,
@@ -301,8 +254,15 @@ impl Grid {
                 .filter(|b| b.lit == 1)
                 .map(|b| b.u * b.u / 4.0)
                 .sum();
+            // When every ray agrees the grid says nothing about a shadow (or a gap) smaller
+            // than its cells: a lit (blocked) fraction of 1 / (n + 2), the mean of its
+            // posterior under a uniform prior, is as likely as none.
             let p = (lit as f64 + 0.5) / (n as f64 + 1.0);
-            let floor = (p * (1.0 - p)).sqrt() * (n as f64).powf(-0.75) / 2.0;
+            let floor = if lit == 0 || lit == n {
+                1.0 / (n as f64 + 2.0)
+            } else {
+                (p * (1.0 - p)).sqrt() * (n as f64).powf(-0.75) / 2.0
+            };
             let error = if all > 0.0 {
                 (var.sqrt() / all).max(floor)
             } else {
