@@ -413,6 +413,57 @@ fn run_two_pass<C: RayCaster>(
     })
 }
 
+/// The bookkeeping of a progressive schedule: the merged solution so far and the counters.
+#[derive(Default)]
+struct Progressive {
+    merged: Option<Estimate>,
+    steps: u32,
+    rays: u64,
+    escaped_rays: u64,
+    unshot_fraction: f64,
+    stopped: bool,
+}
+
+impl Progressive {
+    /// Merges `estimate` into the solution by work, counts the step and shows the merged
+    /// solution to the observer. `Ok(false)` when the observer stops the run.
+    fn step(
+        &mut self,
+        estimate: Estimate,
+        next_rays: u64,
+        observer: &mut Observer,
+    ) -> Result<bool, ScheduleError> {
+        let merged = accumulate(self.merged.take(), estimate, Rule::ByWork)?;
+        self.steps += 1;
+        let step = Step {
+            index: self.steps,
+            rays: self.rays,
+            next_rays,
+            radiosity: merged.radiosity(),
+        };
+        self.stopped = observer(&step).is_break();
+        self.merged = Some(merged);
+        Ok(!self.stopped)
+    }
+
+    /// The solution: the merged estimate, its work counted as every ray the run cast.
+    fn finish(self, budget: u64) -> Result<Solution, ScheduleError> {
+        let m = self.merged.ok_or(ScheduleError::BudgetTooSmall(budget))?;
+        let estimate = Estimate::new(
+            m.radiosity().to_vec(),
+            m.variance().map(<[DVec3]>::to_vec),
+            self.rays,
+        )?;
+        Ok(Solution {
+            estimate,
+            steps: self.steps,
+            escaped_rays: self.escaped_rays,
+            unshot_fraction: self.unshot_fraction,
+            stopped: self.stopped,
+        })
+    }
+}
+
 /// Algorithm 2: progressive gathering from one shooting solution.
 fn run_progressive_gather<C: RayCaster>(
     mesh: &Mesh,
@@ -431,28 +482,27 @@ fn run_progressive_gather<C: RayCaster>(
         &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
-    let (mut rays, mut escaped_rays, unshot) =
-        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let mut run = Progressive {
+        rays: s.stats.rays,
+        escaped_rays: s.stats.escaped_rays,
+        unshot_fraction: unshot_fraction(&s),
+        ..Default::default()
+    };
     let shooting = with_ambient(mesh, config, s)?;
     let sampler = SurfaceSampler::new(mesh);
-    let rest = config.rays.saturating_sub(rays);
+    let rest = config.rays.saturating_sub(run.rays);
     let min_pass = 2 * mesh.patches().len() as u64;
+    let first =
+        config
+            .first_pass_rays
+            .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 });
     let mut passes = Doubling::new(&ScheduleConfig {
         rays: rest,
-        first_pass_rays: Some(
-            config
-                .first_pass_rays
-                .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 })
-                .max(min_pass),
-        ),
+        first_pass_rays: Some(first.max(min_pass)),
         ..config.clone()
     });
-    let mut combined: Option<Estimate> = None;
-    let (mut steps, mut stopped) = (0, false);
-    while let Some(budget) = passes.next() {
-        if budget < min_pass {
-            break;
-        }
+    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        let seed = derive_seed(config.seed, GATHER_TAG + run.steps as u64);
         let r = gather_round(
             mesh,
             &sampler,
@@ -460,39 +510,16 @@ fn run_progressive_gather<C: RayCaster>(
             shooting.radiosity(),
             Emission::Include,
             per_patch(mesh, budget),
-            derive_seed(config.seed, GATHER_TAG + steps as u64),
+            seed,
             0,
         )?;
-        rays += r.estimate.rays();
-        escaped_rays += r.escaped_rays;
-        combined = Some(accumulate(combined, r.estimate, Rule::ByWork)?);
-        steps += 1;
-        let current = combined.as_ref().expect("just set");
-        if observer(&Step {
-            index: steps,
-            rays,
-            next_rays: passes.peek(),
-            radiosity: current.radiosity(),
-        })
-        .is_break()
-        {
-            stopped = true;
+        run.rays += r.estimate.rays();
+        run.escaped_rays += r.escaped_rays;
+        if !run.step(r.estimate, passes.peek(), observer)? {
             break;
         }
     }
-    let gathered = combined.ok_or(ScheduleError::BudgetTooSmall(config.rays))?;
-    let estimate = Estimate::new(
-        gathered.radiosity().to_vec(),
-        gathered.variance().map(<[DVec3]>::to_vec),
-        rays,
-    )?;
-    Ok(Solution {
-        estimate,
-        steps,
-        escaped_rays,
-        unshot_fraction: unshot,
-        stopped,
-    })
+    run.finish(config.rays)
 }
 
 /// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
@@ -504,29 +531,31 @@ fn run_progressive_two_pass<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     let min_pass = 4 * mesh.patches().len() as u64;
+    let first = Doubling::new(config).peek().max(min_pass);
     let mut passes = Doubling::new(&ScheduleConfig {
-        first_pass_rays: Some(Doubling::new(config).peek().max(min_pass)),
+        first_pass_rays: Some(first),
         ..config.clone()
     });
     let sampler = SurfaceSampler::new(mesh);
-    let (mut shooting, mut gathered): (Option<Estimate>, Option<Estimate>) = (None, None);
-    let (mut steps, mut rays, mut escaped_rays, mut unshot, mut stopped) =
-        (0u32, 0u64, 0u64, 0.0, false);
-    while let Some(budget) = passes.next() {
-        if budget < min_pass {
-            break;
-        }
+    let mut shooting: Option<Estimate> = None;
+    let mut run = Progressive::default();
+    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        let k = run.steps as u64;
         let s = shoot(
             mesh,
             caster,
-            &shoot_config(config, budget / 2, derive_seed(config.seed, steps as u64)),
+            &shoot_config(config, budget / 2, derive_seed(config.seed, k)),
             &mut |_| ControlFlow::Continue(()),
         )?;
-        rays += s.stats.rays;
-        escaped_rays += s.stats.escaped_rays;
-        unshot = unshot_fraction(&s);
-        let shot = with_ambient(mesh, config, s)?;
-        let refined = accumulate(shooting, shot, Rule::ByWork)?;
+        run.rays += s.stats.rays;
+        run.escaped_rays += s.stats.escaped_rays;
+        run.unshot_fraction = unshot_fraction(&s);
+        let refined = accumulate(
+            shooting.take(),
+            with_ambient(mesh, config, s)?,
+            Rule::ByWork,
+        )?;
+        let seed = derive_seed(config.seed, GATHER_TAG + k);
         let r = gather_round(
             mesh,
             &sampler,
@@ -534,40 +563,17 @@ fn run_progressive_two_pass<C: RayCaster>(
             refined.radiosity(),
             Emission::Include,
             per_patch(mesh, budget / 2),
-            derive_seed(config.seed, GATHER_TAG + steps as u64),
+            seed,
             0,
         )?;
         shooting = Some(refined);
-        rays += r.estimate.rays();
-        escaped_rays += r.escaped_rays;
-        gathered = Some(accumulate(gathered, r.estimate, Rule::ByWork)?);
-        steps += 1;
-        let current = gathered.as_ref().expect("just set");
-        if observer(&Step {
-            index: steps,
-            rays,
-            next_rays: passes.peek(),
-            radiosity: current.radiosity(),
-        })
-        .is_break()
-        {
-            stopped = true;
+        run.rays += r.estimate.rays();
+        run.escaped_rays += r.escaped_rays;
+        if !run.step(r.estimate, passes.peek(), observer)? {
             break;
         }
     }
-    let g = gathered.ok_or(ScheduleError::BudgetTooSmall(config.rays))?;
-    let estimate = Estimate::new(
-        g.radiosity().to_vec(),
-        g.variance().map(<[DVec3]>::to_vec),
-        rays,
-    )?;
-    Ok(Solution {
-        estimate,
-        steps,
-        escaped_rays,
-        unshot_fraction: unshot,
-        stopped,
-    })
+    run.finish(config.rays)
 }
 
 /// Algorithm 1: progressive ray refinement.
@@ -578,42 +584,23 @@ fn run_prr<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     let mut passes = Doubling::new(config);
-    let mut combined: Option<Estimate> = None;
-    let (mut steps, mut rays, mut escaped_rays, mut unshot, mut stopped) = (0, 0, 0, 0.0, false);
+    let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
+        let seed = derive_seed(config.seed, run.steps as u64);
         let s = shoot(
             mesh,
             caster,
-            &shoot_config(config, budget, derive_seed(config.seed, steps as u64)),
+            &shoot_config(config, budget, seed),
             &mut |_| ControlFlow::Continue(()),
         )?;
-        rays += s.stats.rays;
-        escaped_rays += s.stats.escaped_rays;
-        unshot = unshot_fraction(&s);
-        let estimate = with_ambient(mesh, config, s)?;
-        combined = Some(accumulate(combined, estimate, Rule::ByWork)?);
-        steps += 1;
-        let current = combined.as_ref().expect("just set");
-        if observer(&Step {
-            index: steps,
-            rays,
-            next_rays: passes.peek(),
-            radiosity: current.radiosity(),
-        })
-        .is_break()
-        {
-            stopped = true;
+        run.rays += s.stats.rays;
+        run.escaped_rays += s.stats.escaped_rays;
+        run.unshot_fraction = unshot_fraction(&s);
+        if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
             break;
         }
     }
-    let estimate = combined.ok_or(ScheduleError::BudgetTooSmall(config.rays))?;
-    Ok(Solution {
-        estimate,
-        steps,
-        escaped_rays,
-        unshot_fraction: unshot,
-        stopped,
-    })
+    run.finish(config.rays)
 }
 
 #[cfg(test)]
