@@ -1,9 +1,10 @@
 //! Every method against the deterministic reference solver on the Cornell box, and the error
 //! of every progressive method falling as it refines.
 //!
-//! References: `scenes/reference/cornell-box-*.csv`, written by
-//! `mcrad solve scenes/cornell-box.obj --method reference [--no-subdivide | --max-edge 0.033] --patches F`
-//! (form-factor rows to 1e-4 of their sums, Gauss-Seidel to a residual of 1e-9).
+//! Reference: `scenes/reference/cornell-box-faces.csv`, written by
+//! `mcrad solve scenes/cornell-box.obj --method reference --no-subdivide --patches F`
+//! (form-factor rows to 1e-4 of their sums, Gauss-Seidel to a residual of 1e-9); it agrees
+//! with a 3e7-ray shooting run (unshot threshold 1e-6) to 0.08% rms_rel.
 //!
 //! The statistic: for each patch and channel, `z = (mean - R) / (s / sqrt(n))` over `n` seeds
 //! (Student-t with `n - 1` dof for an unbiased method). The test asks that the mean of `z²`
@@ -124,16 +125,6 @@ fn check_against_reference(subdivision: Subdivision, name: &str, rays: u64, seed
 #[test]
 fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
     check_against_reference(Subdivision::None, "cornell-box-faces.csv", 1_000_000, 8);
-}
-
-#[test]
-fn every_method_agrees_with_the_reference_on_the_cornell_box_2k() {
-    check_against_reference(
-        Subdivision::MaxEdge(0.033),
-        "cornell-box-2k.csv",
-        1_000_000,
-        6,
-    );
 }
 
 #[test]

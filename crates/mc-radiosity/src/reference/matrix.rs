@@ -1,40 +1,11 @@
-//! The form-factor matrix: two passes over the unordered pairs `i < j`.
-//!
-//! Reciprocity `A_i F_ij = A_j F_ji` holds for the exact form factors, and the quantities here
-//! are computed once per unordered pair as the exchange `G_ij = A_i F_ij` (scene units²), so it
-//! holds in the result to rounding. For each pair:
-//!
-//! 1. **Horizons.** Only `P_j' = P_j ∩ {front of P_i}` can be seen from `P_i`, and only from
-//!    `P_i' = P_i ∩ {front of P_j}` (a patch emits and receives on its front only). Both are
-//!    clipped once; an empty one, or a shared input face (coplanar patches), makes `G_ij = 0`.
-//! 2. **Probe.** 16 shadow rays or more on the block grid of [`visibility`](super::visibility)
-//!    classify the pair: all unblocked, visible (`φ = 1`, no visibility error); all blocked,
-//!    hidden (`G_ij = 0`); otherwise partly visible.
-//! 3. **Quadrature** of the unoccluded exchange `U_ij = ∫_{P_i'} F_{x→P_j'} dA_x` (or the same
-//!    integral from the other side, over whichever clipped polygon is smaller), with the exact
-//!    point-to-polygon form factor as integrand, adaptively to an estimated error of
-//!    `tolerance / 2` relative to `U_ij` (see [`quadrature`](super::quadrature)). The integrand is
-//!    smooth except at vertices the two polygons share, where the refinement concentrates.
-//! 4. **Visibility** of partly visible pairs, `φ_ij` with error `δφ_ij`, refined on a uniform
-//!    block grid ([`visibility`](super::visibility)) once all pairs are known: row `r` has the
-//!    budget `(tolerance / 2) S_r` for the root of the sum of squares of its visibility errors
-//!    (treated as independent between pairs), shared out as
-//!    `δ(F_rj) <= (tolerance / 2) S_r sqrt(F_rj / S_r^partial)`, where `S_r` is the row sum and
-//!    `S_r^partial` its part over partly visible pairs (both from the probes). A pair is refined
-//!    until it meets the smaller of the budgets of its two rows.
-//!
-//! `G_ij = φ_ij U_ij`, `F_ij = G_ij / A_i`, `F_ji = G_ij / A_j`. The error estimate of row `r`
-//! is `Σ_j δ(U_rj) / A_r + sqrt(Σ_j (U_rj δφ_rj / A_r)²)`; it is reported relative to `S_r`.
-//!
-//! What the estimate cannot see: a blocker that no probe ray of a pair meets (one much thinner
-//! than a quarter of a patch, between the rays), or a gap in a blocker that none passes
-//! through; such a pair is taken as wholly visible or wholly hidden.
+//! The form-factor matrix, in two passes over the unordered pairs `i < j` (method: the
+//! [module documentation](super)).
 
-use super::{ReferenceConfig, ReferenceError};
 use super::form_factor::{clip_above, contour};
 use super::quadrature::{Adaptive, integrate_adaptive};
 use super::shaft::{FaceInput, Occluders};
 use super::visibility::{Grid, Side, fan};
+use super::{ReferenceConfig, ReferenceError};
 use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -42,10 +13,10 @@ use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::sync::atomic::{self, AtomicUsize};
 
-/// The least number of visibility blocks (and probe rays besides the corner rays) per pair.
+/// The least number of visibility blocks of a pair's first sweep (two rays each).
 const MIN_BLOCKS: usize = 16;
 /// The most visibility blocks per pair (two rays each per sweep).
-const MAX_BLOCKS: usize = 1 << 16;
+const MAX_BLOCKS: usize = 1 << 18;
 /// The most visibility sweeps per pair.
 const MAX_SWEEPS: usize = 32;
 /// Deepest quadrature subdivision: a triangle `4^-24` (about `3.6e-15`) of its fan triangle.
@@ -69,7 +40,7 @@ struct Row {
 }
 
 /// Work and accuracy of a form-factor computation. Errors are relative to the row sum `S_r`
-/// (at least `0.01 ×` the area-weighted mean row sum).
+/// (at least `0.1 ×` the area-weighted mean row sum).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FormFactorStats {
     /// Shadow rays cast.
@@ -154,11 +125,12 @@ impl FormFactors {
 /// Each row `r` is refined until its quadrature error is below
 /// [`ReferenceConfig::tolerance`] `× S_r` and the standard deviation of its visibility error
 /// below [`ReferenceConfig::visibility_tolerance`] `× S_r`, `S_r = Σ_j F_rj` (but at least
-/// `0.01 ×` the area-weighted mean row sum), or until a work limit per pair is reached (counted
-/// in [`FormFactorStats::rows_over_tolerance`]). The [module documentation](self) has the
+/// `0.1 ×` the area-weighted mean row sum), or until a work limit per pair is reached (counted
+/// in [`FormFactorStats::rows_over_tolerance`]). The [module documentation](super) has the
 /// method. The work runs in two passes over the rows on the current rayon pool, and `progress`
-/// is called from the worker threads after each row of each pass with the number done so far,
-/// out of `2 × patches`. The result does not depend on the thread count.
+/// is called from the worker threads after each row of each pass with the number of rows done,
+/// each pass counting half (so the values run up to the patch count, not necessarily in
+/// order). The result does not depend on the thread count.
 ///
 /// Refuses a mesh with more than [`ReferenceConfig::max_patches`] patches before any work.
 pub fn form_factors<C: RayCaster>(
@@ -184,9 +156,13 @@ pub fn form_factors<C: RayCaster>(
     }
     let geometry = Geometry::new(mesh);
     let done = AtomicUsize::new(0);
-    let tick = || progress(done.fetch_add(1, atomic::Ordering::Relaxed) + 1);
+    // Each pass counts half a row: the last call says `n`.
+    let tick = || {
+        let halves = done.fetch_add(1, atomic::Ordering::Relaxed) + 1;
+        progress(halves / 2);
+    };
 
-    // Pass 1: every pair probed, every visible pair integrated.
+    // Pass 1: every pair clipped, culled and integrated; occluded pairs get one sweep of rays.
     let first: Vec<(Vec<PairRecord>, Work)> = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -197,23 +173,23 @@ pub fn form_factors<C: RayCaster>(
         .collect();
     let (mut records, mut work): (Vec<Vec<PairRecord>>, Vec<Work>) = first.into_iter().unzip();
 
-    // The visibility budgets need the row sums, from the probes' visible fractions.
+    // The visibility budgets need the row sums, from the first sweeps' visible fractions.
     let mut sum = vec![0.0; n];
-    let mut partial_sum = vec![0.0; n];
+    let mut occluded_sum = vec![0.0; n];
     for (i, row) in records.iter().enumerate() {
         for r in row {
-            let g = r.phi * r.exchange + r.vis_error;
+            let g = r.exchange_seen() + f64::from(r.vis_error);
             let j = r.j as usize;
             sum[i] += g / geometry.area[i];
             sum[j] += g / geometry.area[j];
-            if r.partial {
-                partial_sum[i] += g / geometry.area[i];
-                partial_sum[j] += g / geometry.area[j];
+            if r.occluded {
+                occluded_sum[i] += g / geometry.area[i];
+                occluded_sum[j] += g / geometry.area[j];
             }
         }
     }
     // A row that receives almost nothing (a patch under a block) is held to the budget of one
-    // that receives a hundredth of the average, not to a fraction of its own tiny sum.
+    // that receives a tenth of the average, not to a fraction of its own tiny sum.
     let floor = ROW_SUM_FLOOR * mean_row_sum(&sum, &geometry.area);
     for s in &mut sum {
         *s = s.max(floor);
@@ -221,10 +197,10 @@ pub fn form_factors<C: RayCaster>(
     let budget = Budget {
         tolerance: config.visibility_tolerance,
         sum: &sum,
-        partial_sum: &partial_sum,
+        occluded_sum: &occluded_sum,
     };
 
-    // Pass 2: partly visible pairs refined to their budgets.
+    // Pass 2: occluded pairs refined to their budgets.
     records
         .par_iter_mut()
         .zip(work.par_iter_mut())
@@ -234,12 +210,12 @@ pub fn form_factors<C: RayCaster>(
             tick();
         });
 
-    Ok(assemble(&records, &work, &geometry, config))
+    Ok(assemble(records, &work, &geometry, config))
 }
 
 /// Rows are held to a tolerance relative to their sum, but not below this fraction of the
 /// area-weighted mean row sum.
-const ROW_SUM_FLOOR: f64 = 0.01;
+const ROW_SUM_FLOOR: f64 = 0.1;
 
 /// The area-weighted mean of the row sums.
 fn mean_row_sum(sums: &[f64], areas: &[f64]) -> f64 {
@@ -256,46 +232,54 @@ fn mean_row_sum(sums: &[f64], areas: &[f64]) -> f64 {
 struct Work {
     rays: u64,
     evaluations: u64,
-    partial: u64,
+    occluded: u64,
 }
 
-/// What pass 1 and 2 find about the pair `(i, j)`, `i < j`, kept in row `i`.
+/// What pass 1 and 2 find about the pair `(i, j)`, `i < j`, kept in row `i` (32 bytes: there
+/// are up to `n² / 2` of them). Errors and bounds need no more than f32.
 #[derive(Debug, Clone, Copy)]
 struct PairRecord {
-    j: u32,
-    partial: bool,
-    /// Rounds of the visibility grid behind `phi`.
-    rounds: u8,
-    /// An upper bound of the blocked exchange `(1 - φ) U_ij` from the occluders' outlines
-    /// (scene units²; infinite for unoccluded pairs).
-    bound: f64,
     /// Unoccluded exchange `U_ij = A_i F_ij^unoccluded` (scene units²).
     exchange: f64,
-    /// Its quadrature error estimate (scene units²).
-    quad_error: f64,
-    /// Visible fraction `φ_ij`.
-    phi: f64,
-    /// Its error estimate, times `U_ij` (scene units²).
-    vis_error: f64,
+    j: u32,
+    /// Visible fraction `φ_ij` (exactly 1 for unoccluded pairs).
+    phi: f32,
+    /// The quadrature error estimate of `U_ij` (scene units²).
+    quad_error: f32,
+    /// The error estimate of `φ_ij U_ij` (scene units², one standard deviation).
+    vis_error: f32,
+    /// An upper bound of the blocked exchange `(1 - φ) U_ij` from the occluders' outlines
+    /// (scene units²), computed when every ray of the first sweep passed; infinite otherwise.
+    bound: f32,
+    /// An occluder meets the pair's shaft: `phi` is an estimate.
+    occluded: bool,
+}
+
+impl PairRecord {
+    /// `G_ij = φ_ij U_ij` (scene units²).
+    fn exchange_seen(&self) -> f64 {
+        f64::from(self.phi) * self.exchange
+    }
 }
 
 /// Visibility error budgets (pass 2).
 struct Budget<'a> {
     tolerance: f64,
     sum: &'a [f64],
-    partial_sum: &'a [f64],
+    occluded_sum: &'a [f64],
 }
 
 impl Budget<'_> {
     /// The allowed error of `φ_ij U_ij` (scene units²): the smaller of the two rows' shares,
     /// for the exchange `(φ + δφ) U` (the probe's `φ` can be 0 in a partly visible pair).
     fn target(&self, geometry: &Geometry, i: usize, r: &PairRecord) -> f64 {
-        let g = r.phi * r.exchange + r.vis_error;
+        let g = r.exchange_seen() + f64::from(r.vis_error);
         [i, r.j as usize]
             .into_iter()
+            .filter(|&k| self.occluded_sum[k] > 0.0)
             .map(|k| {
                 let a = geometry.area[k];
-                self.tolerance * self.sum[k] * (a * g / self.partial_sum[k]).sqrt()
+                self.tolerance * self.sum[k] * (a * g / self.occluded_sum[k]).sqrt()
             })
             .fold(f64::INFINITY, f64::min)
     }
@@ -360,7 +344,7 @@ impl Geometry {
             let magnitude = lo.abs().max(hi.abs()).max_element();
             g.eps = 1e-6 * (hi - lo).length() + 1e-7 * magnitude;
         }
-        // Plane groups: patches of one face whose planes agree (normals within 1e-6 rad² and
+        // Plane groups: patches of one face whose planes agree (normals within about 1.4e-3 rad,
         // offsets within eps), in order of first appearance.
         let mut groups: Vec<FaceInput> = Vec::new();
         let mut by_face: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
@@ -410,7 +394,7 @@ impl Geometry {
     }
 
     /// Clips `P_i` to the front of `P_j` (into `a`) and `P_j` to the front of `P_i` (into
-    /// `b`); false when the two cannot exchange light (no front part, or one input face).
+    /// `b`); false when the two cannot exchange light (no front part, or one plane group).
     fn clip_pair(&self, i: usize, j: usize, a: &mut Vec<DVec3>, b: &mut Vec<DVec3>) -> bool {
         if self.group[i] == self.group[j] {
             return false;
@@ -450,7 +434,7 @@ impl Geometry {
 impl Geometry {
     /// The visibility grid of the pair `(i, j)`, `i < j`, for clipped polygons `a` and `b`.
     fn grid(&self, i: usize, j: usize, a: &[DVec3], b: &[DVec3]) -> Grid {
-        // Enough rounds for the probe's grid of at least MIN_BLOCKS blocks.
+        // Enough rounds for the first sweep's grid of at least MIN_BLOCKS blocks.
         let rounds = 3;
         let key = (i * self.area.len() + j) as u64;
         Grid::new(self.side(i), a, self.side(j), b, key, rounds)
@@ -522,37 +506,37 @@ fn first_pass<C: RayCaster>(
         );
         let q = geometry.exchange(i, j, &a, &b, tolerance);
         work.evaluations += q.evaluations;
-        if !(q.value > 0.0) {
+        if q.value.is_nan() || q.value <= 0.0 {
             continue;
         }
-        let partial = !occluders.is_empty();
-        let (mut rounds, mut phi, mut vis_error, mut bound) = (0, 1.0, 0.0, f64::INFINITY);
-        if partial {
-            work.partial += 1;
-            bound = geometry
-                .blocked_bound(i, j, &a, &b, &occluders, &mut work)
-                .min(q.value);
+        let occluded = !occluders.is_empty();
+        let (mut phi, mut vis_error, mut bound) = (1.0, 0.0, f64::INFINITY);
+        if occluded {
+            work.occluded += 1;
             let grid = geometry.grid(i, j, &a, &b);
-            rounds = grid.rounds_for(MIN_BLOCKS);
-            // The bound beats what one sweep of rays could show when they all agree.
-            if bound / q.value <= 2.0 / (2.0 * grid.blocks(rounds) as f64 + 2.0) {
-                (phi, vis_error) = (1.0 - 0.5 * bound / q.value, 0.5 * bound);
-            } else {
-                let v = grid.refine(caster, rounds, 0.0, MAX_BLOCKS, 1);
-                work.rays += v.rays;
-                work.evaluations += v.evaluations;
-                (phi, vis_error) = (v.fraction, v.error * q.value);
+            let v = grid.refine(caster, grid.rounds_for(MIN_BLOCKS), 0.0, MAX_BLOCKS, 1);
+            work.rays += v.rays;
+            work.evaluations += v.evaluations;
+            (phi, vis_error) = (v.fraction, v.error * q.value);
+            if v.lit == 2 * v.blocks {
+                // Every ray passed: the occluders may only graze the shaft, and the analytic
+                // bound on what they can block may say more than the rays.
+                bound = geometry
+                    .blocked_bound(i, j, &a, &b, &occluders, &mut work)
+                    .min(q.value);
+                if 0.5 * bound < vis_error {
+                    (phi, vis_error) = (1.0 - 0.5 * bound / q.value, 0.5 * bound);
+                }
             }
         }
         records.push(PairRecord {
-            j: j as u32,
-            partial,
-            rounds: rounds as u8,
-            bound,
             exchange: q.value,
-            quad_error: q.error,
-            phi,
-            vis_error,
+            j: j as u32,
+            phi: phi as f32,
+            quad_error: q.error as f32,
+            vis_error: vis_error as f32,
+            bound: bound as f32,
+            occluded,
         });
     }
     (records, work)
@@ -568,9 +552,9 @@ fn second_pass<C: RayCaster>(
     budget: &Budget,
 ) {
     let (mut a, mut b) = (Vec::new(), Vec::new());
-    for r in records.iter_mut().filter(|r| r.partial) {
+    for r in records.iter_mut().filter(|r| r.occluded) {
         let target = budget.target(geometry, i, r);
-        if r.vis_error <= target {
+        if f64::from(r.vis_error) <= target {
             continue;
         }
         let j = r.j as usize;
@@ -578,46 +562,62 @@ fn second_pass<C: RayCaster>(
         let grid = geometry.grid(i, j, &a, &b);
         let v = grid.refine(
             caster,
-            r.rounds as usize,
+            grid.rounds_for(MIN_BLOCKS),
             target / r.exchange,
             MAX_BLOCKS,
             MAX_SWEEPS,
         );
         work.rays += v.rays;
         work.evaluations += v.evaluations;
-        if v.error * r.exchange < 0.5 * r.bound {
-            r.phi = v.fraction;
-            r.vis_error = v.error * r.exchange;
+        let bound = f64::from(r.bound);
+        let (phi, error) = if v.error * r.exchange < 0.5 * bound {
+            (v.fraction, v.error * r.exchange)
         } else {
-            (r.phi, r.vis_error) = (1.0 - 0.5 * r.bound / r.exchange, 0.5 * r.bound);
-        }
+            (1.0 - 0.5 * bound / r.exchange, 0.5 * bound)
+        };
+        r.phi = phi as f32;
+        r.vis_error = error as f32;
     }
 }
 
 /// The rows, from the pairs in both directions, and the statistics.
 fn assemble(
-    records: &[Vec<PairRecord>],
+    records: Vec<Vec<PairRecord>>,
     work: &[Work],
     geometry: &Geometry,
     config: &ReferenceConfig,
 ) -> FormFactors {
     let n = records.len();
-    let mut rows = vec![Row::default(); n];
+    let mut counts = vec![0usize; n];
+    for (i, row) in records.iter().enumerate() {
+        for r in row.iter().filter(|r| r.exchange_seen() > 0.0) {
+            counts[i] += 1;
+            counts[r.j as usize] += 1;
+        }
+    }
+    let mut rows: Vec<Row> = counts
+        .iter()
+        .map(|&c| Row {
+            cols: Vec::with_capacity(c),
+            vals: Vec::with_capacity(c),
+        })
+        .collect();
     let mut quad = vec![0.0; n];
     let mut vis = vec![0.0; n];
-    // Row r gets (k, r) for k < r while k runs, then (r, j > r): ascending columns.
-    for (i, row) in records.iter().enumerate() {
+    // Row r gets (k, r) for k < r while k runs, then (r, j > r): ascending columns. Each row of
+    // records is dropped once read.
+    for (i, row) in records.into_iter().enumerate() {
         for r in row {
             let j = r.j as usize;
-            let g = r.phi * r.exchange;
+            let g = r.exchange_seen();
             for (from, to) in [(i, j), (j, i)] {
                 let a = geometry.area[from];
                 if g > 0.0 {
                     rows[from].cols.push(to as u32);
                     rows[from].vals.push(g / a);
                 }
-                quad[from] += r.phi * r.quad_error / a;
-                vis[from] += (r.vis_error / a).powi(2);
+                quad[from] += f64::from(r.phi) * f64::from(r.quad_error) / a;
+                vis[from] += (f64::from(r.vis_error) / a).powi(2);
             }
         }
     }
@@ -627,7 +627,7 @@ fn assemble(
     for w in work {
         stats.rays += w.rays;
         stats.evaluations += w.evaluations;
-        stats.occluded_pairs += w.partial;
+        stats.occluded_pairs += w.occluded;
     }
     for (r, row) in rows.iter().enumerate() {
         stats.nonzeros += row.cols.len();

@@ -8,6 +8,9 @@
 //! returned (`Q_high`) by a factor `~ (d / h)^(p_high - p_low)`, `h` the triangle's size and `d`
 //! the distance at which the integrand varies, so error control built on it is conservative.
 
+// Nodes and weights keep the digits they were computed with; the compiler rounds them.
+#![allow(clippy::excessive_precision)]
+
 use glam::DVec3;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;

@@ -66,7 +66,8 @@ impl Occluders {
             .into_iter()
             .map(|f| {
                 let outline = convex_outline(&f.points, f.normal);
-                let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                let (mut lo, mut hi) =
+                    (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
                 for p in &outline {
                     lo = lo.min(*p);
                     hi = hi.max(*p);
@@ -189,7 +190,9 @@ fn convex_outline(points: &[DVec3], n: DVec3) -> Vec<DVec3> {
             Box::new(pts.iter().rev())
         };
         for p in iter {
-            while hull.len() >= start + 2 && cross(&hull[hull.len() - 2], &hull[hull.len() - 1], p) <= 0.0 {
+            while hull.len() >= start + 2
+                && cross(&hull[hull.len() - 2], &hull[hull.len() - 1], p) <= 0.0
+            {
                 hull.pop();
             }
             hull.push(*p);
@@ -338,7 +341,9 @@ mod tests {
     }
 
     fn face(id: u32, points: Vec<DVec3>) -> FaceInput {
-        let n = (points[1] - points[0]).cross(points[2] - points[0]).normalize();
+        let n = (points[1] - points[0])
+            .cross(points[2] - points[0])
+            .normalize();
         FaceInput {
             face: id,
             normal: n,
@@ -349,7 +354,10 @@ mod tests {
 
     #[test]
     fn a_blocker_between_two_squares_is_found_and_one_beside_them_is_not() {
-        let (a, b) = (square(0.0, 0.0, 1.0, 0.0, 1.0), square(1.0, 0.0, 1.0, 0.0, 1.0));
+        let (a, b) = (
+            square(0.0, 0.0, 1.0, 0.0, 1.0),
+            square(1.0, 0.0, 1.0, 0.0, 1.0),
+        );
         let between = Occluders::new(vec![face(7, square(0.5, 0.4, 0.6, 0.4, 0.6))], 1e-9);
         let found = |o: &Occluders, a: &[DVec3], b: &[DVec3], skip: [u32; 2]| {
             let mut out = Vec::new();
@@ -359,7 +367,10 @@ mod tests {
         let hit = found(&between, &a, &b, [0, 1]);
         assert_eq!(hit.len(), 1);
         assert_eq!(hit[0].len(), 4, "the blocker lies wholly inside: {hit:?}");
-        assert!(found(&between, &a, &b, [7, 1]).is_empty(), "skipped faces do not count");
+        assert!(
+            found(&between, &a, &b, [7, 1]).is_empty(),
+            "skipped faces do not count"
+        );
         let beside = Occluders::new(vec![face(7, square(0.5, 1.2, 1.6, 0.4, 0.6))], 1e-9);
         assert!(found(&beside, &a, &b, [0, 1]).is_empty());
         // A wall the shaft runs along (x = 0) only touches it.
@@ -374,7 +385,12 @@ mod tests {
         // A face made of many patches is one occluder with the hull as outline, and the
         // hierarchy finds it among many others.
         let mut faces: Vec<FaceInput> = (0..50)
-            .map(|k| face(10 + k, square(0.5, 3.0 + k as f64, 3.5 + k as f64, 0.0, 1.0)))
+            .map(|k| {
+                face(
+                    10 + k,
+                    square(0.5, 3.0 + k as f64, 3.5 + k as f64, 0.0, 1.0),
+                )
+            })
             .collect();
         let mut pts = square(0.5, 0.9, 0.95, 0.9, 0.95);
         pts.extend(square(0.5, 0.95, 0.99, 0.9, 0.95));

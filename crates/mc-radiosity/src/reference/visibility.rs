@@ -64,6 +64,9 @@ pub(crate) fn fan(poly: &[DVec3]) -> impl Iterator<Item = [DVec3; 3]> + '_ {
         .filter(|t| area(t) > 0.0)
 }
 
+/// A block's two triangles: `t` on the source side, `c` on the target side.
+type Cell = ([DVec3; 3], [DVec3; 3]);
+
 /// A uniform point of triangle `t` from two uniforms (density `1/A_t`).
 fn point_in(t: &[DVec3; 3], u1: f64, u2: f64) -> DVec3 {
     let s = u1.sqrt();
@@ -75,7 +78,7 @@ fn point_in(t: &[DVec3; 3], u1: f64, u2: f64) -> DVec3 {
 pub(crate) struct Grid {
     source: Side,
     target: Side,
-    roots: Vec<([DVec3; 3], [DVec3; 3])>,
+    roots: Vec<Cell>,
     /// `split_source[r]`: round `r + 1` splits the source side.
     split_source: Vec<bool>,
     /// Stream item of the pair.
@@ -116,7 +119,7 @@ impl Grid {
                 roots.push((t, c));
             }
         }
-        let size = |f: fn(&([DVec3; 3], [DVec3; 3])) -> &[DVec3; 3]| {
+        let size = |f: fn(&Cell) -> &[DVec3; 3]| {
             roots.iter().map(|r| longest_edge(f(r))).fold(0.0, f64::max)
         };
         let (mut s, mut c) = (size(|r| &r.0), size(|r| &r.1));
@@ -167,7 +170,7 @@ impl Grid {
     /// The blocks of the uniform grid under `(t, c)` after `rounds - depth` more rounds.
     fn uniform(
         &self,
-        out: &mut Vec<([DVec3; 3], [DVec3; 3])>,
+        out: &mut Vec<Cell>,
         t: [DVec3; 3],
         c: [DVec3; 3],
         depth: usize,
@@ -244,7 +247,7 @@ impl Grid {
             let fraction = match lit {
                 0 => 0.0,
                 l if l == n => 1.0,
-                l if !(all > 0.0) => l as f64 / n as f64,
+                l if all.is_nan() || all <= 0.0 => l as f64 / n as f64,
                 _ => (lit_weight / all).clamp(0.0, 1.0),
             };
             // Var φ = Σ_b u_b² Var(V̄_b) / (Σ_b u_b)², with Var(V̄_b) = p_b (1 - p_b) / 2
@@ -304,20 +307,13 @@ impl Grid {
                     next.push(b);
                     continue;
                 }
-                let children: [([DVec3; 3], [DVec3; 3]); 4] =
-                    if longest_edge(&b.t) >= longest_edge(&b.c) {
-                        split(&b.t).map(|t| (t, b.c))
-                    } else {
-                        split(&b.c).map(|c| (b.t, c))
-                    };
+                let children: [Cell; 4] = if longest_edge(&b.t) >= longest_edge(&b.c) {
+                    split(&b.t).map(|t| (t, b.c))
+                } else {
+                    split(&b.c).map(|c| (b.t, c))
+                };
                 for (t, c) in children {
-                    next.push(Block::new(
-                        &self.source,
-                        t,
-                        c,
-                        b.seen_lit,
-                        b.seen,
-                    ));
+                    next.push(Block::new(&self.source, t, c, b.seen_lit, b.seen));
                     evaluations += 1;
                 }
             }
