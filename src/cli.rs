@@ -79,6 +79,10 @@ pub struct Solve {
     /// Add the ambient term (paper, section 3.1) to shooting solutions.
     #[arg(long)]
     pub ambient: bool,
+    /// reference: the target error of each form-factor row's visibility, relative to the row
+    /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays.
+    #[arg(long, value_name = "F", default_value_t = 2e-3)]
+    pub visibility_tolerance: f64,
     /// two-pass: compute direct light by sampling the emitters with shadow rays and gather only
     /// the indirect light (Shirley and Wang 1991).
     #[arg(long)]

@@ -79,7 +79,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
                 "warning: --rays and --time do not apply to --method reference; it runs to its accuracy target"
             );
         }
-        let solution = solve_reference(&mesh, &bvh, &bar)?;
+        let solution = solve_reference(&mesh, &bvh, args.visibility_tolerance, &bar)?;
         let seconds = start.elapsed().as_secs_f64();
         return finish(
             args,
@@ -130,11 +130,20 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
 }
 
 /// The deterministic reference solution, as a one-step [`Solution`].
-fn solve_reference(mesh: &Mesh, bvh: &Bvh, bar: &ProgressBar) -> Result<Solution> {
+fn solve_reference(
+    mesh: &Mesh,
+    bvh: &Bvh,
+    visibility_tolerance: f64,
+    bar: &ProgressBar,
+) -> Result<Solution> {
     bar.set_length(mesh.patches().len() as u64);
     bar.set_message("form-factor rows");
     let done = std::sync::atomic::AtomicU64::new(0);
-    let r = mcrad_mc_radiosity::reference::reference(mesh, bvh, &Default::default(), &|rows| {
+    let config = mcrad_mc_radiosity::reference::ReferenceConfig {
+        visibility_tolerance,
+        ..Default::default()
+    };
+    let r = mcrad_mc_radiosity::reference::reference(mesh, bvh, &config, &|rows| {
         let rows = done
             .fetch_max(rows as u64, std::sync::atomic::Ordering::Relaxed)
             .max(rows as u64);

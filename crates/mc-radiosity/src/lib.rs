@@ -17,6 +17,10 @@
 //!   `E + direct + gathered indirect` of two-pass radiosity (section 1.5).
 //! - [`ambient`](ambient()) and [`with_ambient`] ([`ambient`](mod@ambient)): Cohen et al.'s
 //!   ambient term for the power a shooting run left unshot (section 3.1).
+//! - [`schedule`]: the methods behind one interface — single-pass shooting, gathering and
+//!   two-pass, and the progressive Algorithms 1-3 — handing each complete intermediate solution
+//!   to an observer that may stop the run.
+//! - [`reference`]: the deterministic reference solver (explicit form factors, Gauss-Seidel).
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`rng::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.

@@ -2,9 +2,10 @@
 //! of every progressive method falling as it refines.
 //!
 //! Reference: `scenes/reference/cornell-box-faces.csv`, written by
-//! `mcrad solve scenes/cornell-box.obj --method reference --no-subdivide --patches F`
+//! `mcrad solve scenes/cornell-box.obj --method reference --no-subdivide --visibility-tolerance 1e-4 --patches F`
 //! (form-factor rows to 1e-4 of their sums, Gauss-Seidel to a residual of 1e-9); it agrees
-//! with a 3e7-ray shooting run (unshot threshold 1e-6) to 0.08% rms_rel.
+//! with a 3e7-ray shooting run (unshot threshold 1e-6) to 0.1% rms_rel, the shooting run's
+//! own noise.
 //!
 //! The statistic: for each patch and channel, `z = (mean - R) / (s / sqrt(n))` over `n` seeds
 //! (Student-t with `n - 1` dof for an unbiased method). The test asks that the mean of `z²`
