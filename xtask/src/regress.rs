@@ -21,7 +21,7 @@ use std::process::Command;
 /// Seeds rendered by `--bless` to measure the noise.
 const SEEDS: u64 = 6;
 /// Threshold = MARGIN × the largest seed-to-seed difference seen when blessing.
-const MARGIN: f32 = 1.5;
+const MARGIN: f32 = 2.0;
 
 /// How one scene is rendered and judged; stored as `scenes/golden/<name>.json`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
