@@ -2,6 +2,9 @@
 //! boxes whose rows sum to 1, the closed furnace `B = E / (1 - ρ)`, and an occluded pair
 //! against a Monte Carlo estimate with a known standard error.
 
+mod common;
+
+use common::{bvh, furnace, material, quad};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::SurfaceSampler;
 use mcrad_mc_radiosity::reference::{
@@ -10,67 +13,13 @@ use mcrad_mc_radiosity::reference::{
 };
 use mcrad_mc_radiosity::rng::Stream;
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::{Bvh, RayCaster};
-use mcrad_scene_io::{Face, Material, Scene};
+use mcrad_raycast::RayCaster;
+use mcrad_scene_io::Scene;
 
 /// Parallel unit squares one unit apart, facing each other (Hottel's crossed-strings value).
 const PARALLEL: f64 = 0.199_824_895_698_387_5;
 /// Unit squares sharing an edge at a right angle.
 const PERPENDICULAR: f64 = 0.200_043_776_075_403_2;
-
-fn material(name: &str, rho: f32, e: f32) -> Material {
-    Material {
-        name: name.into(),
-        reflectance: Vec3::splat(rho),
-        emission: Vec3::splat(e),
-    }
-}
-
-fn quad(vertices: [u32; 4], material: u32, source: u32) -> Face {
-    Face {
-        vertices: vertices.to_vec(),
-        material,
-        source,
-    }
-}
-
-/// The six inward-facing faces of an axis-aligned box `[0, s]³` (counter-clockwise seen from
-/// inside), each with the material index given.
-fn box_faces(s: f32, positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials: [u32; 6]) {
-    let base = positions.len() as u32;
-    for z in [0.0, s] {
-        for y in [0.0, s] {
-            for x in [0.0, s] {
-                positions.push(Vec3::new(x, y, z));
-            }
-        }
-    }
-    // Vertex (x, y, z) bits: index = x + 2y + 4z. Quads listed CCW seen from inside.
-    let quads = [
-        [1, 3, 2, 0], // z = 0, normal +z
-        [6, 7, 5, 4], // z = s, normal -z
-        [4, 5, 1, 0], // y = 0, normal +y
-        [3, 7, 6, 2], // y = s, normal -y
-        [2, 6, 4, 0], // x = 0, normal +x
-        [5, 7, 3, 1], // x = s, normal -x
-    ];
-    for (q, m) in quads.iter().zip(materials) {
-        let source = faces.len() as u32;
-        faces.push(quad(q.map(|i| base + i), m, source));
-    }
-}
-
-fn furnace(rho: f32) -> Scene {
-    let (mut p, mut f) = (Vec::new(), Vec::new());
-    box_faces(1.0, &mut p, &mut f, [0; 6]);
-    Scene::new(p, f, vec![material("furnace", rho, 1.0)])
-        .unwrap()
-        .0
-}
-
-fn bvh(mesh: &Mesh) -> Bvh {
-    Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap()
-}
 
 /// Form factors with the given quadrature and visibility tolerances.
 fn factors_with(mesh: &Mesh, tolerance: f64, visibility_tolerance: f64) -> FormFactors {

@@ -7,61 +7,18 @@
 //! is at most that many times 1.2e-3 (under 1% for every test here). The seeds are fixed, so a
 //! pass or a failure is reproducible.
 
+mod common;
+
+use common::{box_faces, furnace, material};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
-use mcrad_scene_io::{Face, Material, Scene};
+use mcrad_scene_io::{Face, Scene};
 use std::ops::ControlFlow;
 
 const RUNS: u64 = 16;
 const K: f64 = 4.0;
-
-fn material(name: &str, rho: f32, e: f32) -> Material {
-    Material {
-        name: name.into(),
-        reflectance: Vec3::splat(rho),
-        emission: Vec3::splat(e),
-    }
-}
-
-/// The six inward-facing faces of an axis-aligned box `[0, s]³` (counter-clockwise seen from
-/// inside), each with the material index given.
-fn box_faces(s: f32, positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials: [u32; 6]) {
-    let base = positions.len() as u32;
-    for z in [0.0, s] {
-        for y in [0.0, s] {
-            for x in [0.0, s] {
-                positions.push(Vec3::new(x, y, z));
-            }
-        }
-    }
-    // Vertex (x, y, z) bits: index = x + 2y + 4z. Quads listed CCW seen from inside.
-    let quads = [
-        [1, 3, 2, 0], // z = 0, normal +z
-        [6, 7, 5, 4], // z = s, normal -z
-        [4, 5, 1, 0], // y = 0, normal +y
-        [3, 7, 6, 2], // y = s, normal -y
-        [2, 6, 4, 0], // x = 0, normal +x
-        [5, 7, 3, 1], // x = s, normal -x
-    ];
-    for (q, m) in quads.iter().zip(materials) {
-        let source = faces.len() as u32;
-        faces.push(Face {
-            vertices: q.iter().map(|i| base + i).collect(),
-            material: m,
-            source,
-        });
-    }
-}
-
-fn furnace(rho: f32) -> Scene {
-    let (mut p, mut f) = (Vec::new(), Vec::new());
-    box_faces(1.0, &mut p, &mut f, [0; 6]);
-    Scene::new(p, f, vec![material("furnace", rho, 1.0)])
-        .unwrap()
-        .0
-}
 
 /// Per-patch radiosity (red channel) of `RUNS` seeds.
 fn runs(mesh: &Mesh, config: ShootConfig) -> Vec<Vec<f64>> {
