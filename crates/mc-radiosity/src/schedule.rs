@@ -43,6 +43,17 @@ pub enum Method {
 }
 
 impl Method {
+    /// Every method, in the order experiments list them.
+    pub const ALL: [Method; 7] = [
+        Method::Shoot,
+        Method::Gather,
+        Method::TwoPass,
+        Method::TwoPassSplit,
+        Method::Prr,
+        Method::ProgressiveGather,
+        Method::ProgressiveTwoPass,
+    ];
+
     /// The name used on the command line and in statistics.
     pub fn name(self) -> &'static str {
         match self {
