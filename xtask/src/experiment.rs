@@ -132,7 +132,11 @@ impl Setup {
     ) -> Result<[Row; 2]> {
         let stats = &shooting.stats;
         let unshot = stats.unshot.element_sum() / stats.emitted.element_sum();
-        let term = ambient(&self.mesh, &shooting.unshot)?;
+        let term = ambient(
+            &self.mesh,
+            &shooting.unshot,
+            shooting.stats.escape_fraction(),
+        )?;
         let row = |with: bool| -> Result<Row> {
             let input: Estimate = if with {
                 with_ambient(&self.mesh, &shooting.estimate, term)?

@@ -197,7 +197,7 @@ fn run_shoot<C: RayCaster>(
             observer(&Step {
                 index: p.waves,
                 rays: p.rays,
-                next_rays: p.budget - p.rays,
+                next_rays: p.budget.saturating_sub(p.rays),
                 radiosity: p.radiosity,
             })
         },
@@ -224,7 +224,7 @@ fn with_ambient(
     if !config.ambient {
         return Ok(s.estimate);
     }
-    let a = crate::ambient::ambient(mesh, &s.unshot)?;
+    let a = crate::ambient::ambient(mesh, &s.unshot, s.stats.escape_fraction())?;
     Ok(crate::ambient::with_ambient(mesh, &s.estimate, a)?)
 }
 
@@ -352,7 +352,7 @@ fn run_two_pass<C: RayCaster>(
     let (shot_rays, mut escaped_rays, unshot) =
         (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
     let shooting = with_ambient(mesh, config, s)?;
-    let gather_budget = budget - shot_rays;
+    let gather_budget = budget.saturating_sub(shot_rays);
     if observer(&Step {
         index: 1,
         rays: shot_rays,

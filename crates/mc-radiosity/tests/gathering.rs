@@ -749,7 +749,7 @@ fn the_ambient_term_restores_the_furnace_mean() {
                     (unshot_fraction - expected).abs() < 1e-3,
                     "{unshot_fraction}"
                 );
-                let a = ambient(&mesh, &s.unshot).unwrap();
+                let a = ambient(&mesh, &s.unshot, s.stats.escape_fraction()).unwrap();
                 let b = with_ambient(&mesh, &s.estimate, a).unwrap();
                 assert_eq!(b.variance(), s.estimate.variance());
                 let area = mesh.total_area();
@@ -872,6 +872,8 @@ fn bad_inputs_are_errors() {
             .to_string()
             .contains("at least 2")
     );
-    assert!(ambient(&mesh, &good[..2]).is_err());
-    assert!(ambient(&mesh, &[DVec3::NEG_ONE; 6]).is_err());
+    assert!(ambient(&mesh, &good[..2], DVec3::ZERO).is_err());
+    assert!(ambient(&mesh, &[DVec3::NEG_ONE; 6], DVec3::ZERO).is_err());
+    assert!(ambient(&mesh, &good, DVec3::splat(1.5)).is_err());
+    assert!(ambient(&mesh, &good, DVec3::splat(f64::NAN)).is_err());
 }

@@ -23,16 +23,6 @@ use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
 use std::path::Path;
 
-const METHODS: [Method; 7] = [
-    Method::Shoot,
-    Method::Gather,
-    Method::TwoPass,
-    Method::TwoPassSplit,
-    Method::Prr,
-    Method::ProgressiveGather,
-    Method::ProgressiveTwoPass,
-];
-
 fn root() -> &'static Path {
     Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../.."))
 }
@@ -82,27 +72,62 @@ fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, rays: u64, seed: u64) -> Vec<DV
     .to_vec()
 }
 
+/// What the statistic compares: every patch, or every input face (the area-weighted mean of its
+/// patches).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Level {
+    Patches,
+    Faces,
+}
+
+/// `values` as `level` asks: per patch as they are, or per face `sum A_i B_i / sum A_i` over the
+/// face's patches.
+fn at_level(mesh: &Mesh, level: Level, values: &[DVec3]) -> Vec<DVec3> {
+    if level == Level::Patches {
+        return values.to_vec();
+    }
+    let faces = mesh
+        .patches()
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap();
+    let mut sum = vec![DVec3::ZERO; faces];
+    let mut area = vec![0.0; faces];
+    for (p, b) in mesh.patches().iter().zip(values) {
+        sum[p.face as usize] += *b * p.area;
+        area[p.face as usize] += p.area;
+    }
+    sum.iter()
+        .zip(&area)
+        .filter(|(_, a)| **a > 0.0)
+        .map(|(s, a)| *s / *a)
+        .collect()
+}
+
 fn check_against_reference(
     subdivision: Subdivision,
     name: &str,
+    level: Level,
     methods: &[Method],
     rays: u64,
     seeds: u64,
 ) {
     let (mesh, bvh) = cornell(subdivision);
-    let r = reference(name, &mesh);
+    let per_patch = reference(name, &mesh);
     // The area-weighted mean reflected radiosity of the reference (W/m², channels averaged).
     let typical = mesh
         .patches()
         .iter()
-        .zip(&r)
+        .zip(&per_patch)
         .map(|(p, b)| p.area * (*b - p.emission.as_dvec3()).element_sum() / 3.0)
         .sum::<f64>()
         / mesh.total_area();
+    let r = at_level(&mesh, level, &per_patch);
     let mut failures = Vec::new();
     for &method in methods {
         let runs: Vec<Vec<DVec3>> = (0..seeds)
-            .map(|seed| solve(method, &mesh, &bvh, rays, 100 + seed))
+            .map(|seed| at_level(&mesh, level, &solve(method, &mesh, &bvh, rays, 100 + seed)))
             .collect();
         let n = seeds as f64;
         let (mut sum_z2, mut beyond, mut count) = (0.0, 0usize, 0usize);
@@ -135,7 +160,7 @@ fn check_against_reference(
         }
         let mean_z2 = sum_z2 / count as f64;
         let verdict = format!(
-            "{method:?} on {name}: mean z² {mean_z2:.2}, {beyond} of {count} beyond 4 SE (worst {:.1} at patch {})",
+            "{method:?} on {name} ({level:?}): mean z² {mean_z2:.2}, {beyond} of {count} beyond 4 SE (worst {:.1} at {})",
             worst.0, worst.1
         );
         eprintln!("{verdict}");
@@ -151,7 +176,8 @@ fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
     check_against_reference(
         Subdivision::None,
         "cornell-box-faces.csv",
-        &METHODS,
+        Level::Patches,
+        &Method::ALL,
         1_000_000,
         8,
     );
@@ -160,17 +186,42 @@ fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
 #[test]
 fn every_method_agrees_with_the_reference_on_the_cornell_box_2k() {
     // 1940 patches; reference made with `--max-edge 0.033 --visibility-tolerance 5e-4`.
-    // Only the methods that do not gather direct light: with 1M rays over 1940 patches a
-    // gathering patch casts a few hundred rays, of which a handful hit the small light, and
-    // the per-patch distribution over 6 seeds is too skewed for this t statistic (gather,
-    // two-pass, progressive-gather and progressive-two-pass score mean z² 6-39 here). Whether
-    // that is skew or bias is open (issue #4); the split two-pass gathers only indirect light.
+    // Per patch, the methods that do not gather direct light with cosine rays.
     check_against_reference(
         Subdivision::MaxEdge(0.033),
         "cornell-box-2k.csv",
+        Level::Patches,
         &[Method::Shoot, Method::TwoPassSplit, Method::Prr],
         1_000_000,
         6,
+    );
+}
+
+#[test]
+fn every_method_agrees_with_the_reference_on_the_cornell_box_2k_faces() {
+    // Every method, on the 2k mesh, per input face (the area-weighted mean of its ~100
+    // patches). Why not per patch for the methods that gather direct light with cosine rays:
+    // their per-patch value has a rare-event part that the t statistic cannot judge over a few
+    // seeds. Floor patch 26 sits in the short block's penumbra and sees the light from 0.12% of
+    // its hemisphere (measured with 2e5 rays: gathering from the reference there gives the
+    // reference to 2.5%, so the estimator is right). A Jacobi round of 1e7 / 10 rays casts 515
+    // rays from it, which miss the light altogether with probability e^-0.62 = 0.54; seeds
+    // 100-105 all missed, giving 0.070 ± 0.001 against the reference's 0.117 (z = 72). With 1e6
+    // rays, mean z² over the patches is 38.5 (gather), 6.2 (two-pass), 8.6 (progressive-gather)
+    // and 9.5 (progressive-two-pass); with 1e7 rays it falls to 4.1, 2.0, 1.8 and 2.0. A bias
+    // would grow with the rays (z ∝ sqrt(rays)); skew fades, as here. A face's mean sums ~100
+    // such parts and is close to normal, so there the statistic holds. Faces are still a little
+    // skewed (shooting's ceiling next to the light: +3.2% in one of 48 seeds, sd 1.1%), so this
+    // test takes 12 seeds (t with 11 dof: P(|t| > 4) = 0.2%) rather than 8 (0.5%): with 8 seeds
+    // shooting once scored z = 7.3 there, a chance run of high seeds (48 other seeds: mean
+    // +0.23% ± 0.16%, lag-1 correlation between consecutive seeds 0.03).
+    check_against_reference(
+        Subdivision::MaxEdge(0.033),
+        "cornell-box-2k.csv",
+        Level::Faces,
+        &Method::ALL,
+        600_000,
+        12,
     );
 }
 
