@@ -33,6 +33,9 @@ pub enum Method {
     ProgressiveGather,
     /// Progressive two-pass (Algorithm 3): refined shooting, regathered each pass.
     ProgressiveTwoPass,
+    /// Iterative combined shooting and gathering (Algorithm 4), merged per patch by inverse
+    /// variance.
+    Combined,
     /// Deterministic reference: explicit form factors and Gauss-Seidel (up to 10k patches);
     /// --rays does not apply.
     Reference,
@@ -52,6 +55,7 @@ impl Method {
             Method::Prr => M::Prr,
             Method::ProgressiveGather => M::ProgressiveGather,
             Method::ProgressiveTwoPass => M::ProgressiveTwoPass,
+            Method::Combined => M::Combined,
         })
     }
 

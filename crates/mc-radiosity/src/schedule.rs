@@ -17,6 +17,8 @@ use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 
+mod combined;
+
 /// The solution methods a schedule can run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -40,11 +42,16 @@ pub enum Method {
     /// Progressive two-pass (Algorithm 3): shooting refined pass by pass as in PRR, each
     /// refinement regathered with doubling rays per patch; gathers merged by rays per patch.
     ProgressiveTwoPass,
+    /// Iterative combined shooting and gathering (Algorithm 4): each pass shoots (merged as in
+    /// PRR), gathers from the current combination with the direct/indirect split (merged by
+    /// rays), and combines the two per patch and channel by inverse variance, the shooting
+    /// share of the next pass chosen to minimise the expected error (see `combined.rs`).
+    Combined,
 }
 
 impl Method {
     /// Every method, in the order experiments list them.
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 8] = [
         Method::Shoot,
         Method::Gather,
         Method::TwoPass,
@@ -52,6 +59,7 @@ impl Method {
         Method::Prr,
         Method::ProgressiveGather,
         Method::ProgressiveTwoPass,
+        Method::Combined,
     ];
 
     /// The name used on the command line and in statistics.
@@ -64,6 +72,7 @@ impl Method {
             Method::Prr => "prr",
             Method::ProgressiveGather => "progressive-gather",
             Method::ProgressiveTwoPass => "progressive-two-pass",
+            Method::Combined => "combined",
         }
     }
 }
@@ -164,6 +173,7 @@ pub fn run<C: RayCaster>(
         Method::Prr => run_prr(mesh, caster, config, observer),
         Method::ProgressiveGather => run_progressive_gather(mesh, caster, config, observer),
         Method::ProgressiveTwoPass => run_progressive_two_pass(mesh, caster, config, observer),
+        Method::Combined => combined::run_combined(mesh, caster, config, observer),
     }
 }
 
@@ -314,6 +324,11 @@ impl Doubling {
         let n = self.next.min(self.left);
         if self.left - n < n { self.left } else { n }
     }
+
+    /// Rays left in the budget after the passes taken so far.
+    pub(crate) fn remaining(&self) -> u64 {
+        self.left
+    }
 }
 
 impl Iterator for Doubling {
@@ -445,6 +460,17 @@ impl Progressive {
         observer: &mut Observer,
     ) -> Result<bool, ScheduleError> {
         let merged = accumulate(self.merged.take(), estimate, Rule::ByWork)?;
+        self.replace(merged, next_rays, observer)
+    }
+
+    /// Makes `merged` the solution (merged by the caller), counts the step and shows it to the
+    /// observer. `Ok(false)` when the observer stops the run.
+    fn replace(
+        &mut self,
+        merged: Estimate,
+        next_rays: u64,
+        observer: &mut Observer,
+    ) -> Result<bool, ScheduleError> {
         self.steps += 1;
         let step = Step {
             index: self.steps,

@@ -186,12 +186,17 @@ fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
 #[test]
 fn every_method_agrees_with_the_reference_on_the_cornell_box_2k() {
     // 1940 patches; reference made with `--max-edge 0.033 --visibility-tolerance 5e-4`.
-    // Per patch, the methods that do not gather direct light with cosine rays.
+    // Per patch, the methods that do not gather direct light with cosine rays (see below).
     check_against_reference(
         Subdivision::MaxEdge(0.033),
         "cornell-box-2k.csv",
         Level::Patches,
-        &[Method::Shoot, Method::TwoPassSplit, Method::Prr],
+        &[
+            Method::Shoot,
+            Method::TwoPassSplit,
+            Method::Prr,
+            Method::Combined,
+        ],
         1_000_000,
         6,
     );

@@ -1,0 +1,299 @@
+//! Algorithm 4 of the paper, with the weighting it left open: iterative combined shooting and
+//! gathering, merged per patch and channel by inverse variance.
+//!
+//! Pass `k` (budgets doubling as in the other progressive methods) does three things:
+//!
+//! 1. **Shoot** with a share `f_k` of its rays; the passes merge by their rays (Algorithm 1)
+//!    into the shooting estimate `S`.
+//! 2. **Gather** with the rest from the current combined solution `C` (from `S` in the first
+//!    pass), with the direct/indirect split: direct light by sampling the emitters, indirect
+//!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
+//!    (Algorithm 3) into the gathering estimate `G`.
+//! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with
+//!    `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights of two independent unbiased
+//!    estimates ([`Rule::InverseVariance`]).
+//!
+//! **The variances.** A gather's is its sample variance (`rho² s²/n` for the indirect part,
+//! the emitter-sampling variance for the direct part). A shooting estimate's is a sum over the
+//! hits of the deposits' squares, `V^S_i = sum x² / A_i²`. That one is correlated with the
+//! estimate: a patch that caught more rays than its share has both a higher value and a higher
+//! variance, so weighting by it would favour low draws and bias the result low. mcrad weights
+//! by the *expected* shooting variance instead: with `m_i = sum x² / sum x` the mean deposit
+//! (W, per channel), `V^S_i = sum x² / A_i² = m_i (S_i - E_i) / A_i`, and the expectation
+//! replaces the patch's own reflected radiosity `S_i - E_i` by the gather's `G_i - E_i`, which
+//! does not depend on how many shooting rays this patch happened to catch. A patch no shooting
+//! ray reached has no deposits; its `m_i` is `rho_i` times the mean power of a shooting ray
+//! (what one hit would have deposited), so zero hits mean an honest "unknown", not a zero
+//! variance that would take all the weight. The gathering variance has the same kind of
+//! correlation in principle, but its samples are emitter samples and gathered reflected light,
+//! both nearly symmetric, and the unbiasedness test over seeds
+//! (`tests/methods.rs`) sees no bias from it.
+//!
+//! **The budget.** The first pass shoots with half its rays. Later passes choose the share
+//! `f` in `[0.1, 0.9]` that minimises the area-weighted variance the final combination is
+//! expected to reach: with per-ray constants `c^S_i = V^S_i n_S` and `c^G_i = V^G_i n_G` from
+//! the run so far, the remaining budget `R` would give
+//! `sum_i A_i / ((n_S + f R)/c^S_i + (n_G + (1 - f) R)/c^G_i)`. The rays go where they reduce
+//! the total error most: to shooting where the scene's patches are mostly lit directly and
+//! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
+
+use super::{
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
+    accumulate, per_patch, shoot_config, unshot_fraction,
+};
+use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::rng::derive_seed;
+use crate::shoot::shoot;
+use crate::surface::SurfaceSampler;
+use glam::DVec3;
+use mcrad_combine::{Estimate, Rule, merge};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::RayCaster;
+use std::ops::ControlFlow;
+
+/// Bounds of the shooting share of a pass.
+const SHARE: (f64, f64) = (0.1, 0.9);
+
+/// The shooting estimate with what its expected variance needs.
+struct Shots {
+    /// Passes merged by rays (Algorithm 1).
+    merged: Estimate,
+    /// Mean power carried by a shooting ray, weighted as the merge weights the passes:
+    /// `sum_k w_k² p_k` with `w_k = n_k / n` (W per channel).
+    ray_power: DVec3,
+}
+
+/// Algorithm 4: see the [module documentation](self).
+pub(super) fn run_combined<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    let patches = mesh.patches();
+    // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
+    // shooting share.
+    let min_pass = 8 * patches.len() as u64;
+    let first = Doubling::new(config).peek().max(min_pass);
+    let mut passes = Doubling::new(&ScheduleConfig {
+        first_pass_rays: Some(first),
+        ..config.clone()
+    });
+    let sampler = SurfaceSampler::new(mesh);
+    let mut run = Progressive::default();
+    let mut shots: Option<Shots> = None;
+    let mut gathered: Option<Estimate> = None;
+    let mut combined: Option<Estimate> = None;
+    let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
+    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        let k = run.steps as u64;
+        let share = match (&shots, &gathered, &combined) {
+            (Some(s), Some(g), Some(c)) => {
+                let r = reflected(mesh, c);
+                best_share(
+                    mesh,
+                    &shooting_variance(mesh, s, &r)?,
+                    shot_rays,
+                    &gathering_variance(mesh, g, &r)?,
+                    gather_rays,
+                    budget + passes.remaining(),
+                )
+            }
+            _ => 0.5,
+        };
+        let shoot_budget = ((budget as f64 * share) as u64).max(1);
+        let s = shoot(
+            mesh,
+            caster,
+            &shoot_config(config, shoot_budget, derive_seed(config.seed, k)),
+            &mut |_| ControlFlow::Continue(()),
+        )?;
+        run.escaped_rays += s.stats.escaped_rays;
+        run.unshot_fraction = unshot_fraction(&s);
+        let pass_rays = s.stats.rays;
+        let ray_power = s.stats.shot / pass_rays.max(1) as f64;
+        shot_rays += pass_rays;
+        shots = Some(match shots.take() {
+            None => Shots {
+                merged: s.estimate,
+                ray_power,
+            },
+            Some(old) => {
+                let w = pass_rays as f64 / shot_rays as f64;
+                Shots {
+                    merged: accumulate(Some(old.merged), s.estimate, Rule::ByWork)?,
+                    ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
+                }
+            }
+        });
+        let shots_now = shots.as_ref().expect("just set");
+        run.rays += pass_rays;
+
+        // Gather from the best solution so far: the combination, or the shooting at first.
+        let input = combined.as_ref().unwrap_or(&shots_now.merged);
+        let gather_budget = budget.saturating_sub(pass_rays);
+        let split = SplitConfig {
+            rays_per_patch: per_patch(mesh, gather_budget / 2),
+            samples_per_patch: per_patch(mesh, gather_budget / 4),
+            sampling: DirectSampling::EmittersAndCosine,
+        };
+        let g = two_pass_split(
+            mesh,
+            &sampler,
+            caster,
+            input.radiosity(),
+            &split,
+            derive_seed(config.seed, GATHER_TAG + k),
+            0,
+        )?;
+        gather_rays += g.rays();
+        run.rays += g.rays();
+        let g = accumulate(gathered.take(), g, Rule::ByWork)?;
+        let c = combine(mesh, shots_now, &g, combined.as_ref())?;
+        gathered = Some(g);
+        combined = Some(c.clone());
+        if !run.replace(c, passes.peek(), observer)? {
+            break;
+        }
+    }
+    run.finish(config.rays)
+}
+
+/// The reflected radiosity `R_i = (B_i - E_i)^+` the expected variances scale with (W/m²),
+/// from `proxy`: the previous combination, or the shooting estimate before there is one.
+fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
+    mesh.patches()
+        .iter()
+        .zip(proxy.radiosity())
+        .map(|(p, b)| (*b - p.emission.as_dvec3()).max(DVec3::ZERO))
+        .collect()
+}
+
+/// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
+/// ((W/m²)²), with `m_i` the mean deposit (module documentation).
+fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, ScheduleError> {
+    let s = &shots.merged;
+    let v = s
+        .variance()
+        .ok_or(mcrad_combine::EstimateError::MissingVariance)?;
+    Ok(mesh
+        .patches()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let own = s.radiosity()[i] - p.emission.as_dvec3();
+            let fallback = p.reflectance.as_dvec3() * shots.ray_power;
+            let deposit = DVec3::new(
+                mean_deposit(v[i].x, own.x, p.area, fallback.x),
+                mean_deposit(v[i].y, own.y, p.area, fallback.y),
+                mean_deposit(v[i].z, own.z, p.area, fallback.z),
+            );
+            deposit * r[i] / p.area
+        })
+        .collect())
+}
+
+/// `m = sum x² / sum x = V A / (S - E)` (W), or `fallback` where nothing was deposited.
+fn mean_deposit(variance: f64, reflected: f64, area: f64, fallback: f64) -> f64 {
+    if reflected > 0.0 && variance > 0.0 {
+        variance * area / reflected
+    } else {
+        fallback
+    }
+}
+
+/// The expected variance of the gathering estimate per patch and channel, `k_f R_i²`
+/// ((W/m²)²): `k_f = sum V_j / sum (G_j - E_j)²` over the patches `j` of the input face `f` of
+/// patch `i`, the gather's relative variance pooled over the face, so a patch whose few rays
+/// all saw the same value (a sample variance of zero) is not taken as exact.
+fn gathering_variance(
+    mesh: &Mesh,
+    gathered: &Estimate,
+    r: &[DVec3],
+) -> Result<Vec<DVec3>, ScheduleError> {
+    let v = gathered
+        .variance()
+        .ok_or(mcrad_combine::EstimateError::MissingVariance)?;
+    let patches = mesh.patches();
+    let faces = patches
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let (mut var, mut square) = (vec![DVec3::ZERO; faces], vec![DVec3::ZERO; faces]);
+    for (i, p) in patches.iter().enumerate() {
+        let g = (gathered.radiosity()[i] - p.emission.as_dvec3()).max(DVec3::ZERO);
+        var[p.face as usize] += v[i];
+        square[p.face as usize] += g * g;
+    }
+    Ok(patches
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let f = p.face as usize;
+            let k = DVec3::select(
+                square[f].cmpgt(DVec3::ZERO),
+                var[f] / square[f],
+                DVec3::ZERO,
+            );
+            k * r[i] * r[i]
+        })
+        .collect())
+}
+
+/// `S` and `G` merged by inverse variance, both weighted by their expected variances at the
+/// reflected radiosity of `previous` (the last combination; `S` in the first pass).
+fn combine(
+    mesh: &Mesh,
+    shots: &Shots,
+    gathered: &Estimate,
+    previous: Option<&Estimate>,
+) -> Result<Estimate, ScheduleError> {
+    let r = reflected(mesh, previous.unwrap_or(&shots.merged));
+    let s = Estimate::new(
+        shots.merged.radiosity().to_vec(),
+        Some(shooting_variance(mesh, shots, &r)?),
+        shots.merged.rays(),
+    )?;
+    let g = Estimate::new(
+        gathered.radiosity().to_vec(),
+        Some(gathering_variance(mesh, gathered, &r)?),
+        gathered.rays(),
+    )?;
+    Ok(merge(&s, &g, Rule::InverseVariance)?)
+}
+
+/// The shooting share `f` in [`SHARE`] of the next `remaining` rays that minimises the expected
+/// area-weighted variance of the final combination (module documentation), on a grid of 0.05.
+fn best_share(
+    mesh: &Mesh,
+    shooting_variance: &[DVec3],
+    shot_rays: u64,
+    gv: &[DVec3],
+    gather_rays: u64,
+    remaining: u64,
+) -> f64 {
+    let (ns, ng, r) = (shot_rays as f64, gather_rays as f64, remaining as f64);
+    let expected = |f: f64| -> f64 {
+        mesh.patches()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let cs = shooting_variance[i] * ns;
+                let cg = gv[i] * ng;
+                let mut v = 0.0;
+                for c in 0..3 {
+                    let precision = |c_: f64, n: f64| if c_ > 0.0 { n / c_ } else { f64::INFINITY };
+                    let total = precision(cs[c], ns + f * r) + precision(cg[c], ng + (1.0 - f) * r);
+                    v += if total.is_finite() { 1.0 / total } else { 0.0 };
+                }
+                p.area * v
+            })
+            .sum()
+    };
+    let steps = ((SHARE.1 - SHARE.0) / 0.05).round() as usize;
+    (0..=steps)
+        .map(|s| SHARE.0 + 0.05 * s as f64)
+        .min_by(|a, b| expected(*a).total_cmp(&expected(*b)))
+        .unwrap_or(0.5)
+}
