@@ -12,8 +12,15 @@
 //! ([`Rule::InverseVariance`]); when variances are unknown, weights proportional to the work
 //! behind each estimate ([`Rule::ByWork`]) are what Feda and Purgathofer's progressive ray
 //! refinement and progressive gathering use (Balog, sections 2.1-2.2).
+//!
+//! Inverse-variance weights are only as good as the variances: [`expected`] has the models the
+//! combined method (Algorithm 4) weights by, and why an estimate's own sample variance biases
+//! the merge. Self-emission `E_i` is exact and the same in every estimate; since the weights
+//! sum to one, `w_a (E + a) + w_b (E + b) = E + w_a a + w_b b`: merging combines the reflected
+//! parts and carries the emission through (tested with [`merge`]).
 
 mod estimate;
+pub mod expected;
 mod measure;
 mod rule;
 

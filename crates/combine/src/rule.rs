@@ -153,6 +153,19 @@ mod tests {
     }
 
     #[test]
+    fn emission_passes_through_a_merge_exactly() {
+        // Reflected parts 1 and 3 on an emitter of 1000 W/m²: the merge is 1000 + the merged
+        // reflected part, whatever the weights.
+        let a = est(&[1001.0], Some(&[1.0]), 4);
+        let b = est(&[1003.0], Some(&[3.0]), 4);
+        for rule in [Rule::ByWork, Rule::InverseVariance] {
+            let w = rule.weights(4, 1.0, 4, 3.0);
+            let m = merge(&a, &b, rule).unwrap();
+            assert!((m.radiosity()[0].x - (1000.0 + w.a * 1.0 + w.b * 3.0)).abs() < 1e-12);
+        }
+    }
+
+    #[test]
     fn merging_checks_shapes() {
         let a = est(&[1.0, 2.0], None, 1);
         let b = est(&[1.0], None, 1);

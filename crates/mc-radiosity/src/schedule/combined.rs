@@ -13,21 +13,15 @@
 //!    `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights of two independent unbiased
 //!    estimates ([`Rule::InverseVariance`]).
 //!
-//! **The variances.** A gather's is its sample variance (`rho² s²/n` for the indirect part,
-//! the emitter-sampling variance for the direct part). A shooting estimate's is a sum over the
-//! hits of the deposits' squares, `V^S_i = sum x² / A_i²`. That one is correlated with the
-//! estimate: a patch that caught more rays than its share has both a higher value and a higher
-//! variance, so weighting by it would favour low draws and bias the result low. mcrad weights
-//! by the *expected* shooting variance instead: with `m_i = sum x² / sum x` the mean deposit
-//! (W, per channel), `V^S_i = sum x² / A_i² = m_i (S_i - E_i) / A_i`, and the expectation
-//! replaces the patch's own reflected radiosity `S_i - E_i` by the gather's `G_i - E_i`, which
-//! does not depend on how many shooting rays this patch happened to catch. A patch no shooting
-//! ray reached has no deposits; its `m_i` is `rho_i` times the mean power of a shooting ray
-//! (what one hit would have deposited), so zero hits mean an honest "unknown", not a zero
-//! variance that would take all the weight. The gathering variance has the same kind of
-//! correlation in principle, but its samples are emitter samples and gathered reflected light,
-//! both nearly symmetric, and the unbiasedness test over seeds
-//! (`tests/methods.rs`) sees no bias from it.
+//! **The variances.** Weights by the estimates' own sample variances bias the merge (they are
+//! computed from the samples they weight; see [`mcrad_combine::expected`], measured there at
+//! 0.5-3.8% low per face of the 2k-patch Cornell box). The weights use *expected* variances at
+//! the reflected radiosity `R_i` of the previous combination (of `S` in the first pass):
+//! shooting's shot noise `m_i R_i / A_i`, `m_i` the mean deposit (W), and gathering's relative
+//! variance pooled over the patch's input face times `R_i²`. A patch no shooting ray reached
+//! gets `m_i = rho_i ×` the mean ray power (what one hit would have deposited), and a patch
+//! whose few gathering rays all saw the same value gets its face's relative variance: zero
+//! samples mean "unknown", never a zero variance that would take all the weight.
 //!
 //! **The budget.** The first pass shoots with half its rays. Later passes choose the share
 //! `f` in `[0.1, 0.9]` that minimises the area-weighted variance the final combination is
@@ -46,7 +40,8 @@ use crate::rng::derive_seed;
 use crate::shoot::shoot;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
-use mcrad_combine::{Estimate, Rule, merge};
+use mcrad_combine::expected::{pooled_relative, shot_noise};
+use mcrad_combine::{Estimate, EstimateError, Rule, merge};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
@@ -170,75 +165,46 @@ fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
 }
 
 /// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
-/// ((W/m²)²), with `m_i` the mean deposit (module documentation).
+/// ((W/m²)², [`shot_noise`]), with `m_i` the mean deposit, or `rho_i` times the mean ray power
+/// where no ray landed.
 fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, ScheduleError> {
     let s = &shots.merged;
-    let v = s
-        .variance()
-        .ok_or(mcrad_combine::EstimateError::MissingVariance)?;
+    let v = s.variance().ok_or(EstimateError::MissingVariance)?;
     Ok(mesh
         .patches()
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let own = s.radiosity()[i] - p.emission.as_dvec3();
-            let fallback = p.reflectance.as_dvec3() * shots.ray_power;
-            let deposit = DVec3::new(
-                mean_deposit(v[i].x, own.x, p.area, fallback.x),
-                mean_deposit(v[i].y, own.y, p.area, fallback.y),
-                mean_deposit(v[i].z, own.z, p.area, fallback.z),
-            );
-            deposit * r[i] / p.area
+            shot_noise(
+                v[i],
+                s.radiosity()[i] - p.emission.as_dvec3(),
+                p.area,
+                p.reflectance.as_dvec3() * shots.ray_power,
+                r[i],
+            )
         })
         .collect())
 }
 
-/// `m = sum x² / sum x = V A / (S - E)` (W), or `fallback` where nothing was deposited.
-fn mean_deposit(variance: f64, reflected: f64, area: f64, fallback: f64) -> f64 {
-    if reflected > 0.0 && variance > 0.0 {
-        variance * area / reflected
-    } else {
-        fallback
-    }
-}
-
 /// The expected variance of the gathering estimate per patch and channel, `k_f R_i²`
-/// ((W/m²)²): `k_f = sum V_j / sum (G_j - E_j)²` over the patches `j` of the input face `f` of
-/// patch `i`, the gather's relative variance pooled over the face, so a patch whose few rays
-/// all saw the same value (a sample variance of zero) is not taken as exact.
+/// ((W/m²)²), with `k_f` the gather's relative variance pooled over the input face `f` of the
+/// patch ([`pooled_relative`]), so a patch whose few rays all saw the same value (a sample
+/// variance of zero) is not taken as exact.
 fn gathering_variance(
     mesh: &Mesh,
     gathered: &Estimate,
     r: &[DVec3],
 ) -> Result<Vec<DVec3>, ScheduleError> {
-    let v = gathered
-        .variance()
-        .ok_or(mcrad_combine::EstimateError::MissingVariance)?;
+    let v = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let patches = mesh.patches();
-    let faces = patches
+    let face: Vec<usize> = patches.iter().map(|p| p.face as usize).collect();
+    let reflected: Vec<DVec3> = patches
         .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let (mut var, mut square) = (vec![DVec3::ZERO; faces], vec![DVec3::ZERO; faces]);
-    for (i, p) in patches.iter().enumerate() {
-        let g = (gathered.radiosity()[i] - p.emission.as_dvec3()).max(DVec3::ZERO);
-        var[p.face as usize] += v[i];
-        square[p.face as usize] += g * g;
-    }
-    Ok(patches
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let f = p.face as usize;
-            let k = DVec3::select(
-                square[f].cmpgt(DVec3::ZERO),
-                var[f] / square[f],
-                DVec3::ZERO,
-            );
-            k * r[i] * r[i]
-        })
-        .collect())
+        .zip(gathered.radiosity())
+        .map(|(p, g)| *g - p.emission.as_dvec3())
+        .collect();
+    let k = pooled_relative(&face, v, &reflected);
+    Ok(face.iter().zip(r).map(|(f, r)| k[*f] * *r * *r).collect())
 }
 
 /// `S` and `G` merged by inverse variance, both weighted by their expected variances at the
