@@ -36,6 +36,9 @@ pub enum Method {
     /// Iterative combined shooting and gathering (Algorithm 4), merged per patch by inverse
     /// variance.
     Combined,
+    /// RenderPark's alternative to combined: every ray used for shooting and gathering,
+    /// weighted by the balance heuristic.
+    Bidirectional,
     /// Deterministic reference: explicit form factors and Gauss-Seidel (up to 10k patches);
     /// --rays does not apply.
     Reference,
@@ -56,6 +59,7 @@ impl Method {
             Method::ProgressiveGather => M::ProgressiveGather,
             Method::ProgressiveTwoPass => M::ProgressiveTwoPass,
             Method::Combined => M::Combined,
+            Method::Bidirectional => M::Bidirectional,
         })
     }
 

@@ -17,6 +17,7 @@ use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 
+mod bidirectional;
 mod combined;
 
 /// The solution methods a schedule can run.
@@ -47,11 +48,15 @@ pub enum Method {
     /// rays), and combines the two per patch and channel by inverse variance, the shooting
     /// share of the next pass chosen to minimise the expected error (see `combined.rs`).
     Combined,
+    /// RenderPark's alternative to [`Method::Combined`]: every ray used for both shooting and
+    /// gathering, weighted by the balance heuristic (bidirectional stochastic Jacobi steps from
+    /// the solution so far, merged by rays; see `bidirectional.rs`).
+    Bidirectional,
 }
 
 impl Method {
     /// Every method, in the order experiments list them.
-    pub const ALL: [Method; 8] = [
+    pub const ALL: [Method; 9] = [
         Method::Shoot,
         Method::Gather,
         Method::TwoPass,
@@ -60,6 +65,7 @@ impl Method {
         Method::ProgressiveGather,
         Method::ProgressiveTwoPass,
         Method::Combined,
+        Method::Bidirectional,
     ];
 
     /// The name used on the command line and in statistics.
@@ -73,6 +79,7 @@ impl Method {
             Method::ProgressiveGather => "progressive-gather",
             Method::ProgressiveTwoPass => "progressive-two-pass",
             Method::Combined => "combined",
+            Method::Bidirectional => "bidirectional",
         }
     }
 }
@@ -174,6 +181,7 @@ pub fn run<C: RayCaster>(
         Method::ProgressiveGather => run_progressive_gather(mesh, caster, config, observer),
         Method::ProgressiveTwoPass => run_progressive_two_pass(mesh, caster, config, observer),
         Method::Combined => combined::run_combined(mesh, caster, config, observer),
+        Method::Bidirectional => bidirectional::run_bidirectional(mesh, caster, config, observer),
     }
 }
 

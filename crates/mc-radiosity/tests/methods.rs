@@ -173,13 +173,16 @@ fn check_against_reference(
 
 #[test]
 fn every_method_agrees_with_the_reference_on_the_cornell_box_faces() {
+    // 16 seeds: the small dim faces of the blocks have right-skewed estimates (bidirectional:
+    // 8 seeds once all fell below the mean, z = -8 on face 13, where 200 seeds measure -0.23% ±
+    // 0.13%).
     check_against_reference(
         Subdivision::None,
         "cornell-box-faces.csv",
         Level::Patches,
         &Method::ALL,
         1_000_000,
-        8,
+        16,
     );
 }
 
@@ -196,6 +199,7 @@ fn every_method_agrees_with_the_reference_on_the_cornell_box_2k() {
             Method::TwoPassSplit,
             Method::Prr,
             Method::Combined,
+            Method::Bidirectional,
         ],
         1_000_000,
         6,

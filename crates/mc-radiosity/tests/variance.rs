@@ -10,7 +10,8 @@
 //!
 //! Measured (200k rays, seeds 1000-1031), median / sums: shoot 1.16 / 1.24, gather 0.73 / 0.98,
 //! two-pass 0.80 / 0.83, two-pass-split 0.90 / 1.09, prr 1.04 / 1.18, progressive-gather
-//! 0.93 / 1.11, progressive-two-pass 0.86 / 1.13, combined 0.89 / 1.05. The gathering
+//! 0.93 / 1.11, progressive-two-pass 0.86 / 1.13, combined 0.89 / 1.05,
+//! bidirectional 0.79 / 0.77. The gathering
 //! variances are conditional on their input (the noise of the solution gathered from is left
 //! out) and shooting's is conditional on the powers shot; on this scene both effects stay
 //! within 30%.
