@@ -74,7 +74,7 @@ pub struct Solve {
     /// The scene: .obj (with the .mtl files it names), .gltf or .glb.
     pub scene: PathBuf,
     /// Solution method.
-    #[arg(long, value_enum, default_value_t = Method::Shoot)]
+    #[arg(long, value_enum, default_value_t = Method::Combined)]
     pub method: Method,
     /// Total ray budget over all passes (accepts 2000000 and 2e6). Default: 2e6, or no limit
     /// with --time.

@@ -38,7 +38,7 @@ fn run() -> Result<()> {
         Some("regress") => {
             let bless = std::env::args().nth(2).as_deref() == Some("--bless");
             cargo(&["build", "--release", "--bin", "mcrad"])?;
-            regress::run(&root(), &root().join("target/release/mcrad"), bless)
+            regress::run(&root(), &target_dir().join("release/mcrad"), bless)
         }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
         Some("help" | "-h" | "--help") | None => {
@@ -54,6 +54,15 @@ fn root() -> PathBuf {
         .parent()
         .expect("xtask lives in the workspace")
         .to_path_buf()
+}
+
+/// Cargo's target directory: `CARGO_TARGET_DIR` when set (relative to the workspace root),
+/// else `target/` in the workspace.
+fn target_dir() -> PathBuf {
+    match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => root().join(dir),
+        None => root().join("target"),
+    }
 }
 
 fn cargo(args: &[&str]) -> Result<()> {

@@ -276,3 +276,25 @@ fn progressive_methods_refine() {
         );
     }
 }
+
+#[test]
+fn combined_spends_a_tiny_budget_on_shooting() {
+    // 100 rays cannot gather at 19 patches (8 rays each): the run shoots instead, and still
+    // returns a complete, lit solution.
+    let (mesh, bvh) = cornell(Subdivision::None);
+    let config = ScheduleConfig {
+        rays: 100,
+        seed: 1,
+        ..Default::default()
+    };
+    let s = run(Method::Combined, &mesh, &bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    assert!(
+        s.estimate.rays() >= 90 && s.estimate.rays() <= 200,
+        "{}",
+        s.estimate.rays()
+    );
+    assert!(s.estimate.radiosity()[0].x > 0.0, "the floor is lit");
+}

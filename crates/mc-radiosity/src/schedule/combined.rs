@@ -23,7 +23,8 @@
 //! whose few gathering rays all saw the same value gets its face's relative variance: zero
 //! samples mean "unknown", never a zero variance that would take all the weight.
 //!
-//! **The budget.** The first pass shoots with half its rays. Later passes choose the share
+//! **The budget.** A budget under 8 rays per patch (too few to gather everywhere) is spent on
+//! shooting alone. Otherwise the first pass shoots with half its rays. Later passes choose the share
 //! `f` in `[0.1, 0.9]` that minimises the area-weighted variance the final combination is
 //! expected to reach: with per-ray constants `c^S_i = V^S_i n_S` and `c^G_i = V^G_i n_G` from
 //! the run so far, the remaining budget `R` would give
@@ -69,6 +70,10 @@ pub(super) fn run_combined<C: RayCaster>(
     // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
     // shooting share.
     let min_pass = 8 * patches.len() as u64;
+    if config.rays < min_pass {
+        // Too few rays to gather at every patch even once: shooting alone is the best use.
+        return super::run_shoot(mesh, caster, config, observer);
+    }
     let first = Doubling::new(config).peek().max(min_pass);
     let mut passes = Doubling::new(&ScheduleConfig {
         first_pass_rays: Some(first),
