@@ -327,6 +327,15 @@ impl Doubling {
         }
     }
 
+    /// Passes as [`Doubling::new`] makes them, the first at least `min_pass` rays.
+    pub(crate) fn at_least(config: &ScheduleConfig, min_pass: u64) -> Doubling {
+        let first = Doubling::new(config).peek().max(min_pass);
+        Doubling::new(&ScheduleConfig {
+            first_pass_rays: Some(first),
+            ..config.clone()
+        })
+    }
+
     /// The next pass's rays without taking it (0 when the budget is spent).
     pub(crate) fn peek(&self) -> u64 {
         let n = self.next.min(self.left);
@@ -576,11 +585,7 @@ fn run_progressive_two_pass<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     let min_pass = 4 * mesh.patches().len() as u64;
-    let first = Doubling::new(config).peek().max(min_pass);
-    let mut passes = Doubling::new(&ScheduleConfig {
-        first_pass_rays: Some(first),
-        ..config.clone()
-    });
+    let mut passes = Doubling::at_least(config, min_pass);
     let sampler = SurfaceSampler::new(mesh);
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();

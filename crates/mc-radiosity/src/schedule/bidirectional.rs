@@ -55,11 +55,7 @@ pub(super) fn run_bidirectional<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     let min_pass = 2 * mesh.patches().len() as u64;
-    let first = Doubling::new(config).peek().max(min_pass);
-    let mut passes = Doubling::new(&ScheduleConfig {
-        first_pass_rays: Some(first),
-        ..config.clone()
-    });
+    let mut passes = Doubling::at_least(config, min_pass);
     let sampler = SurfaceSampler::new(mesh);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {

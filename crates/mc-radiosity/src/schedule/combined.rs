@@ -74,11 +74,7 @@ pub(super) fn run_combined<C: RayCaster>(
         // Too few rays to gather at every patch even once: shooting alone is the best use.
         return super::run_shoot(mesh, caster, config, observer);
     }
-    let first = Doubling::new(config).peek().max(min_pass);
-    let mut passes = Doubling::new(&ScheduleConfig {
-        first_pass_rays: Some(first),
-        ..config.clone()
-    });
+    let mut passes = Doubling::at_least(config, min_pass);
     let sampler = SurfaceSampler::new(mesh);
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
