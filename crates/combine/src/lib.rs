@@ -26,4 +26,4 @@ mod rule;
 
 pub use estimate::{Estimate, EstimateError};
 pub use measure::rms_rel;
-pub use rule::{Rule, Weights, merge};
+pub use rule::{Rule, Weights, merge, merge_weighted};

@@ -95,6 +95,54 @@ pub fn merge(a: &Estimate, b: &Estimate, rule: Rule) -> Result<Estimate, Estimat
     Estimate::new(value, variance, a.rays() + b.rays())
 }
 
+/// Merges two independent estimates of the same patches by inverse variance, the weights taken
+/// from *other* variances than the estimates' own: `weigh_a` and `weigh_b` (one per patch,
+/// (W/m²)², e.g. the expected variances of [`crate::expected`]), so the weights need not be
+/// computed from the samples they weight. Per patch and channel `w_a = Wb / (Wa + Wb)`
+/// ([`Rule::InverseVariance`]'s weights for `Wa`, `Wb`); the result's variance is
+/// `w_a² V_a + w_b² V_b` with the estimates' own `V` (their best estimate of their noise), and its
+/// rays the sum.
+///
+/// Errors: patch counts differ, a variance vector has the wrong length, or an estimate has no
+/// variance.
+pub fn merge_weighted(
+    a: &Estimate,
+    b: &Estimate,
+    weigh_a: &[DVec3],
+    weigh_b: &[DVec3],
+) -> Result<Estimate, EstimateError> {
+    if a.len() != b.len() {
+        return Err(EstimateError::PatchCountMismatch {
+            a: a.len(),
+            b: b.len(),
+        });
+    }
+    for w in [weigh_a, weigh_b] {
+        if w.len() != a.len() {
+            return Err(EstimateError::VarianceLength {
+                patches: a.len(),
+                variances: w.len(),
+            });
+        }
+    }
+    let (Some(va), Some(vb)) = (a.variance(), b.variance()) else {
+        return Err(EstimateError::MissingVariance);
+    };
+    let n = a.len();
+    let (mut value, mut variance) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let (mut x, mut v) = (DVec3::ZERO, DVec3::ZERO);
+        for c in 0..3 {
+            let w = Rule::InverseVariance.weights(a.rays(), weigh_a[i][c], b.rays(), weigh_b[i][c]);
+            x[c] = w.a * a.radiosity()[i][c] + w.b * b.radiosity()[i][c];
+            v[c] = w.a * w.a * va[i][c] + w.b * w.b * vb[i][c];
+        }
+        value.push(x);
+        variance.push(v);
+    }
+    Estimate::new(value, Some(variance), a.rays() + b.rays())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,6 +211,20 @@ mod tests {
             let m = merge(&a, &b, rule).unwrap();
             assert!((m.radiosity()[0].x - (1000.0 + w.a * 1.0 + w.b * 3.0)).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn weighted_merge_takes_weights_from_the_given_variances_and_reports_its_own() {
+        let a = est(&[10.0], Some(&[4.0]), 4);
+        let b = est(&[13.0], Some(&[1.0]), 4);
+        // Weigh as if a had variance 1 and b 2: w_a = 2/3.
+        let m = merge_weighted(&a, &b, &[DVec3::ONE], &[DVec3::splat(2.0)]).unwrap();
+        assert!((m.radiosity()[0].x - 11.0).abs() < 1e-12);
+        // Reported: (2/3)² 4 + (1/3)² 1 = 17/9.
+        assert!((m.variance().unwrap()[0].x - 17.0 / 9.0).abs() < 1e-12);
+        assert_eq!(m.rays(), 8);
+        assert!(merge_weighted(&a, &b, &[], &[DVec3::ONE]).is_err());
+        assert!(merge_weighted(&a, &est(&[1.0], None, 1), &[DVec3::ONE], &[DVec3::ONE]).is_err());
     }
 
     #[test]

@@ -56,7 +56,7 @@
 //! `s²` the sample variance of `f`.
 
 use crate::gather::{
-    DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round, jobs,
+    DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round_from, jobs,
 };
 use crate::rng::Stream;
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
@@ -282,7 +282,8 @@ pub struct SplitConfig {
 
 /// The second pass of two-pass radiosity with the direct/indirect split (Balog, section 1.5;
 /// Shirley and Wang 1991), from a first-pass solution `shooting` (radiosity per patch, W/m²,
-/// e.g. a shooting estimate, with the ambient term added if wanted):
+/// e.g. a shooting estimate, with the ambient term added if wanted, and its variance, which
+/// the gathered variance propagates as [`gather_round_from`] does):
 ///
 /// ```text
 /// B_i = E_i + D_i + rho_i sum_j F_ij (B_shoot,j - E_j),
@@ -292,26 +293,32 @@ pub struct SplitConfig {
 /// `input = B_shoot - E` with [`Emission::Exclude`]. Gathering rays never score emission, so a
 /// small light they miss costs nothing: only light reflected at least once is gathered. The two
 /// parts use independent streams (same `seed` and `pass`), so the variance is their sum,
-/// `Var D_i + rho_i² s_i² / n` (conditional on `shooting`); `rays` counts both.
+/// `Var D_i + rho_i² s_i² / n + rho_i² sum_j F_ij² V_j` (`V` the input's variance); `rays`
+/// counts both.
 ///
 /// Errors: `shooting` not one finite value per patch, or fewer than 2 rays or samples.
 pub fn two_pass_split<C: RayCaster>(
     mesh: &Mesh,
     sampler: &SurfaceSampler,
     caster: &C,
-    shooting: &[DVec3],
+    shooting: &Estimate,
     config: &SplitConfig,
     seed: u64,
     pass: u64,
 ) -> Result<Estimate, GatherError> {
-    check_input(mesh, shooting)?;
+    check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
-    let indirect_input: Vec<DVec3> = shooting
-        .iter()
-        .zip(patches)
-        .map(|(b, p)| *b - p.emission.as_dvec3())
-        .collect();
-    let indirect = gather_round(
+    let indirect_input = Estimate::new(
+        shooting
+            .radiosity()
+            .iter()
+            .zip(patches)
+            .map(|(b, p)| *b - p.emission.as_dvec3())
+            .collect(),
+        shooting.variance().map(<[DVec3]>::to_vec),
+        shooting.rays(),
+    )?;
+    let indirect = gather_round_from(
         mesh,
         sampler,
         caster,

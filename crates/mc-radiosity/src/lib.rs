@@ -40,7 +40,7 @@ pub use ambient::{AmbientError, ambient, mean_reflectance, with_ambient};
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
 pub use gather::{
     CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
-    Gathering, gather, gather_corners, gather_round,
+    Gathering, gather, gather_corners, gather_round, gather_round_from,
 };
 pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
 pub use surface::SurfaceSampler;

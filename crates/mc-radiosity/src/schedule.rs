@@ -7,7 +7,7 @@
 
 use crate::ambient::AmbientError;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round};
+use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round_from};
 use crate::rng::derive_seed;
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
 use crate::surface::SurfaceSampler;
@@ -410,21 +410,13 @@ fn run_two_pass<C: RayCaster>(
             samples_per_patch: per_patch(mesh, gather_budget / 4),
             sampling: DirectSampling::EmittersAndCosine,
         };
-        two_pass_split(
-            mesh,
-            &sampler,
-            caster,
-            shooting.radiosity(),
-            &split,
-            seed,
-            0,
-        )?
+        two_pass_split(mesh, &sampler, caster, &shooting, &split, seed, 0)?
     } else {
-        let r = gather_round(
+        let r = gather_round_from(
             mesh,
             &sampler,
             caster,
-            shooting.radiosity(),
+            &shooting,
             Emission::Include,
             per_patch(mesh, gather_budget),
             seed,
@@ -557,11 +549,11 @@ fn run_progressive_gather<C: RayCaster>(
     });
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let seed = derive_seed(config.seed, GATHER_TAG + run.steps as u64);
-        let r = gather_round(
+        let r = gather_round_from(
             mesh,
             &sampler,
             caster,
-            shooting.radiosity(),
+            &shooting,
             Emission::Include,
             per_patch(mesh, budget),
             seed,
@@ -606,11 +598,11 @@ fn run_progressive_two_pass<C: RayCaster>(
             Rule::ByWork,
         )?;
         let seed = derive_seed(config.seed, GATHER_TAG + k);
-        let r = gather_round(
+        let r = gather_round_from(
             mesh,
             &sampler,
             caster,
-            refined.radiosity(),
+            &refined,
             Emission::Include,
             per_patch(mesh, budget / 2),
             seed,

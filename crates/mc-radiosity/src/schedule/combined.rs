@@ -42,7 +42,7 @@ use crate::shoot::shoot;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
-use mcrad_combine::{Estimate, EstimateError, Rule, merge};
+use mcrad_combine::{Estimate, EstimateError, Rule, merge_weighted};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
@@ -137,7 +137,7 @@ pub(super) fn run_combined<C: RayCaster>(
             mesh,
             &sampler,
             caster,
-            input.radiosity(),
+            input,
             &split,
             derive_seed(config.seed, GATHER_TAG + k),
             0,
@@ -208,8 +208,9 @@ fn gathering_variance(
     Ok(face.iter().zip(r).map(|(f, r)| k[*f] * *r * *r).collect())
 }
 
-/// `S` and `G` merged by inverse variance, both weighted by their expected variances at the
-/// reflected radiosity of `previous` (the last combination; `S` in the first pass).
+/// `S` and `G` merged by inverse variance, weighted by their expected variances at the
+/// reflected radiosity of `previous` (the last combination; `S` in the first pass); the
+/// variance reported is the merge's with the estimates' own variances.
 fn combine(
     mesh: &Mesh,
     shots: &Shots,
@@ -217,17 +218,12 @@ fn combine(
     previous: Option<&Estimate>,
 ) -> Result<Estimate, ScheduleError> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
-    let s = Estimate::new(
-        shots.merged.radiosity().to_vec(),
-        Some(shooting_variance(mesh, shots, &r)?),
-        shots.merged.rays(),
-    )?;
-    let g = Estimate::new(
-        gathered.radiosity().to_vec(),
-        Some(gathering_variance(mesh, gathered, &r)?),
-        gathered.rays(),
-    )?;
-    Ok(merge(&s, &g, Rule::InverseVariance)?)
+    Ok(merge_weighted(
+        &shots.merged,
+        gathered,
+        &shooting_variance(mesh, shots, &r)?,
+        &gathering_variance(mesh, gathered, &r)?,
+    )?)
 }
 
 /// The shooting share `f` in [`SHARE`] of the next `remaining` rays that minimises the expected
