@@ -13,6 +13,7 @@ use obvhs::{
     splits::split_aabbs_preset,
     triangle::Triangle,
 };
+use rayon::prelude::*;
 
 use crate::{
     BuildError, Hit, Ray, RayCaster, SurfacePoint, batch, exact,
@@ -97,7 +98,7 @@ impl Bvh {
         let bounds = frame::validate(triangles, ids)?;
         let frame = Frame::new(bounds.0, bounds.1);
         let canonical: Vec<Triangle> = triangles
-            .iter()
+            .par_iter()
             .map(|t| Triangle {
                 v0: frame.canonical(t[0]).into(),
                 v1: frame.canonical(t[1]).into(),
@@ -114,7 +115,7 @@ impl Bvh {
         // With spatial pre-splits a triangle may appear in several slots; that is fine.
         let tris = cwbvh
             .primitive_indices
-            .iter()
+            .par_iter()
             .map(|&i| Tri::new(&RtTriangle::from(&canonical[i as usize]), ids[i as usize]))
             .collect();
         // The leaves index `tris` directly: the map back to input order is not needed.
@@ -230,7 +231,7 @@ thread_local! {
 /// of at least half a window. The cost is nil for scenes near the origin (`2^-10` canonical
 /// units).
 fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> CwBvh {
-    let mut aabbs: Vec<Aabb> = triangles.iter().map(Triangle::aabb).collect();
+    let mut aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
     if params.pre_split {
         let half_areas = aabbs.iter().map(Aabb::half_area);
@@ -239,9 +240,9 @@ fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) 
         split_aabbs_preset(&mut aabbs, &mut indices, triangles, average, largest);
     }
     let pad = Vec3A::splat(pad);
-    for aabb in &mut aabbs {
-        *aabb = Aabb::new(aabb.min - pad, aabb.max + pad);
-    }
+    aabbs
+        .par_iter_mut()
+        .for_each(|aabb| *aabb = Aabb::new(aabb.min - pad, aabb.max + pad));
     let mut bvh2 = PlocBuilder::with_capacity(aabbs.len()).build(
         params.ploc_search_distance,
         &aabbs,
@@ -251,7 +252,8 @@ fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) 
     );
     bvh2.uses_spatial_splits = params.pre_split;
     ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-    bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false)
+    // children are not put in ray-octant order: our traversal sorts them by distance per ray
+    bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), false, false)
 }
 
 /// Crossings of a plane passing within this distance (canonical units) of a query's origin,

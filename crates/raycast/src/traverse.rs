@@ -266,16 +266,8 @@ pub(crate) fn closest<T>(
         for &(_, item) in &kids[..n] {
             prefetch_item(nodes, leaves, item);
         }
-        // nearest last, so that it is popped first
-        let kids = &mut kids[..n];
-        for i in 1..n {
-            let mut j = i;
-            while j > 0 && kids[j - 1].0 < kids[j].0 {
-                kids.swap(j - 1, j);
-                j -= 1;
-            }
-        }
-        stack[sp..sp + n].copy_from_slice(kids);
+        sort_far_to_near(&mut kids[..n]);
+        stack[sp..sp + n].copy_from_slice(&kids[..n]);
         sp += n;
         loop {
             if sp == 0 {
@@ -302,7 +294,8 @@ pub(crate) fn closest<T>(
     }
 }
 
-/// Any hit: `true` as soon as `test(slot)` does. `stack` as for [`closest`].
+/// Any hit: `true` as soon as `test(slot)` does. Visits children nearest first too (a
+/// blocker near the start ends the search early). `stack` as for [`closest`].
 #[inline(always)]
 pub(crate) fn any<T>(
     nodes: &[CwBvhNode],
@@ -319,18 +312,35 @@ pub(crate) fn any<T>(
         for &(_, item) in &kids[..n] {
             prefetch_item(nodes, leaves, item);
         }
-        for &(_, item) in &kids[..n] {
+        sort_far_to_near(&mut kids[..n]);
+        stack[sp..sp + n].copy_from_slice(&kids[..n]);
+        sp += n;
+        loop {
+            if sp == 0 {
+                return false;
+            }
+            sp -= 1;
+            let item = stack[sp].1;
             if item & LEAF == 0 {
-                stack[sp] = (0.0, item);
-                sp += 1;
-            } else if slots(item).any(&mut test) {
+                current = item;
+                break;
+            }
+            if slots(item).any(&mut test) {
                 return true;
             }
         }
-        if sp == 0 {
-            return false;
+    }
+}
+
+/// Insertion sort of a node's hit children by decreasing entry distance (the nearest is pushed
+/// last and popped first).
+#[inline(always)]
+fn sort_far_to_near(kids: &mut [Entry]) {
+    for i in 1..kids.len() {
+        let mut j = i;
+        while j > 0 && kids[j - 1].0 < kids[j].0 {
+            kids.swap(j - 1, j);
+            j -= 1;
         }
-        sp -= 1;
-        current = stack[sp].1;
     }
 }
