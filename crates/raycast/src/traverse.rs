@@ -208,15 +208,18 @@ fn prefetch_item<T>(nodes: &[CwBvhNode], leaves: &[T], item: u32) {
     }
 }
 
-/// Prefetches the first and the last cache line of `value` (at most 3 lines apart here: an
-/// 80-byte node, or up to three 64-byte triangles, and the line in between is usually
-/// brought in by the hardware's adjacent-line prefetcher).
+/// Prefetches every cache line of `value` (an 80-byte node spans 2 or 3 lines, a leaf's run of
+/// 64-byte, line-aligned triangles 1 to 3).
 #[inline(always)]
 fn prefetch_lines<T: ?Sized>(value: &T) {
     let first = std::ptr::from_ref(value).cast::<i8>();
-    let last = first.wrapping_add(size_of_val(value).saturating_sub(1));
+    let size = size_of_val(value);
     prefetch(first);
-    prefetch(last);
+    if size > 64 {
+        // (for up to 192 bytes these three addresses touch every line)
+        prefetch(first.wrapping_add(64));
+        prefetch(first.wrapping_add(size - 1));
+    }
 }
 
 /// A prefetch hint for the cache line holding `p`.
@@ -225,8 +228,7 @@ fn prefetch(p: *const i8) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: `_mm_prefetch` only hints the cache: it never faults, whatever the address, and
     // has no effect the program can observe. Its only requirement is the SSE target feature,
-    // which every x86_64 target has. `p` points into (or one byte before the end of) a live
-    // slice anyway.
+    // which every x86_64 target has. `p` points into a live value anyway.
     #[allow(unsafe_code)]
     unsafe {
         use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
