@@ -12,7 +12,8 @@ cargo xtask <task>
 
 tasks:
   ci      what CI runs: cargo fmt --check, clippy -D warnings, the release test suite
-  bench   the shooting benchmark (criterion), then a table of its medians in Mrays/s
+  bench   the shooting and ray-casting benchmarks (criterion), then tables of their medians;
+          `bench shooting` or `bench raycast` runs one of them
   regress golden-image regression of the bundled scenes (scenes/golden/);
           `regress --bless` re-renders the goldens and re-measures their noise thresholds
   experiment figure2
@@ -34,7 +35,16 @@ fn run() -> Result<()> {
     let task = std::env::args().nth(1);
     match task.as_deref() {
         Some("ci") => ci(),
-        Some("bench") => bench(),
+        Some("bench") => {
+            let which = std::env::args().nth(2);
+            if which.as_deref() != Some("raycast") {
+                bench()?;
+            }
+            if which.as_deref() != Some("shooting") {
+                bench_raycast()?;
+            }
+            Ok(())
+        }
         Some("regress") => {
             let bless = std::env::args().nth(2).as_deref() == Some("--bless");
             cargo(&["build", "--release", "--bin", "mcrad"])?;
@@ -96,7 +106,7 @@ fn ci() -> Result<()> {
 /// solver's ratio to the bare obvhs loop.
 fn bench() -> Result<()> {
     cargo(&["bench", "-p", "mcrad-mc-radiosity", "--bench", "shooting"])?;
-    let dir = root().join("target/criterion");
+    let dir = target_dir().join("criterion");
     let mut groups: Vec<PathBuf> = std::fs::read_dir(&dir)
         .with_context(|| format!("no criterion results in {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -112,6 +122,39 @@ fn bench() -> Result<()> {
             "| {} | {shoot:.2} | {mine:.2} | {bare:.2} | {:.2} |",
             g.file_name().unwrap_or_default().to_string_lossy(),
             shoot / bare
+        );
+    }
+    Ok(())
+}
+
+/// Runs the ray-casting benchmark (`crates/raycast/benches/scenes.rs`) and prints, per scene,
+/// the median throughputs of closest-hit (one by one and batched) and occlusion queries, the
+/// BVH build time and its memory per triangle.
+fn bench_raycast() -> Result<()> {
+    cargo(&["bench", "-p", "mcrad-raycast", "--bench", "scenes"])?;
+    let dir = target_dir().join("criterion");
+    let memory: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("raycast-memory.json"))
+            .context("the benchmark wrote no raycast-memory.json")?,
+    )?;
+    println!();
+    println!(
+        "| scene | triangles | closest Mrays/s | closest_batch Mrays/s | occluded Mrays/s | build ms | BVH bytes/triangle |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for scene in ["cornell", "room100k", "room1m"] {
+        let g = dir.join(format!("raycast-{scene}"));
+        let rate = |f: &str| throughput(&g.join(f));
+        let tris = memory[scene]["triangles"].as_f64().unwrap_or(f64::NAN);
+        let bytes = memory[scene]["bytes"].as_f64().unwrap_or(f64::NAN);
+        // build throughput is in triangles per microsecond: time = triangles / rate
+        let build_ms = tris / rate("build")? * 1e-3;
+        println!(
+            "| {scene} | {tris} | {:.2} | {:.2} | {:.2} | {build_ms:.1} | {:.1} |",
+            rate("closest")?,
+            rate("closest_batch")?,
+            rate("occluded")?,
+            bytes / tris
         );
     }
     Ok(())

@@ -36,4 +36,11 @@ pub enum BuildError {
         /// Index of the triangle in the input list.
         triangle: usize,
     },
+    /// The hierarchy would hold more triangle slots than the traversal can address
+    /// (`2^29`, counting triangles that spatial splits put in several leaves).
+    #[error("{slots} triangle slots in the BVH: at most 2^29 are supported")]
+    TooManyTriangles {
+        /// Number of slots the build produced.
+        slots: usize,
+    },
 }

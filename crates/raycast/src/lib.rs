@@ -4,7 +4,8 @@
 //! id (many triangles may share one id: a polygonal patch made of several coplanar triangles),
 //! and answers two questions through the [`RayCaster`] trait: *what does this ray hit first?*
 //! and *is anything between these two surface points?* [`Bvh`] answers them fast (an obvhs
-//! compressed 8-wide BVH); [`BruteForce`] answers them slowly in `f64` and is the test oracle.
+//! compressed 8-wide BVH, walked by this crate's own traversal: see *Speed* below);
+//! [`BruteForce`] answers them slowly in `f64` and is the test oracle.
 //! Both report hits on either side of a triangle ([`Hit::front`] tells which) and never report
 //! the id a query excludes.
 //!
@@ -69,7 +70,8 @@
 //! # Other obvhs pitfalls handled here
 //!
 //! * The traversal starts two windows behind the origin, so that boxes holding crossings in the
-//!   window are not skipped by the `1e-4` node cut-off.
+//!   window are entered whatever the rounding of the box test (obvhs's own traversal also
+//!   skipped boxes entered before `t = 1e-4`; ours does not).
 //! * Primitive boxes are padded by the scene's largest window: a ray from the very corner of a
 //!   room touches the flat box of a wall only in a point, which the `f32` box test may miss.
 //! * A `-0.0` direction component makes obvhs's box test swap entry and exit (`-Vec3::Y` missed
@@ -77,8 +79,21 @@
 //! * The `±f32::EPSILON` drift above makes an axis-parallel ray from a camera far away miss the
 //!   scene: an origin far outside the scene's box is first moved along the ray to near the box.
 //! * An infinite vertex panics the obvhs build: builds reject non-finite vertices first.
-//! * obvhs keeps its traversal stack in 32 fixed entries; a pathologically deep BVH (millions
-//!   of triangles piled in one spot) could overflow it and lose hits (without a panic).
+//! * obvhs keeps its traversal stack in 32 fixed entries, which a pathologically deep BVH could
+//!   overflow; our traversal sizes its stack from the depth of the hierarchy.
+//!
+//! # Speed
+//!
+//! The fast path is memory- and instruction-bound on large scenes (see `ARCHITECTURE.md` for
+//! measurements). [`Bvh`] keeps obvhs's builder and its 80-byte quantised nodes but walks them
+//! itself: children are visited nearest first, every stack entry carries its entry distance so
+//! that subtrees behind the closest hit so far are dropped without being fetched, the eight
+//! child boxes are tested with SSE2, and the child nodes and leaf triangles that will be visited
+//! are prefetched. Triangles are stored in leaf order, one 64-byte cache line each with their
+//! id (no index array). Among crossings at exactly the same distance the lowest id wins, so the
+//! answer does not depend on the visiting order. The batch entry points
+//! ([`RayCaster::closest_hit_batch`], [`RayCaster::occluded_batch`]) visit their queries sorted
+//! by origin and direction, which keeps the caches warm (same answers as one by one).
 //!
 //! # Watertightness is counted, not promised
 //!
@@ -112,11 +127,14 @@
 //! ```
 #![deny(missing_docs)]
 
+mod batch;
 mod brute;
 mod bvh;
 mod error;
 mod exact;
 mod frame;
+mod traverse;
+mod tri;
 
 use glam::Vec3;
 
