@@ -1,7 +1,9 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
 mod experiment;
+mod gen_scenes;
 mod regress;
+mod speed;
 
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -41,6 +43,11 @@ fn run() -> Result<()> {
             regress::run(&root(), &root().join("target/release/mcrad"), bless)
         }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
+        Some("gen-scenes") => gen_scenes::run(&root()),
+        Some("gen-references") => {
+            let names: Vec<String> = std::env::args().skip(2).collect();
+            speed::scenes::generate(&root(), &names)
+        }
         Some("help" | "-h" | "--help") | None => {
             print!("{HELP}");
             Ok(())
