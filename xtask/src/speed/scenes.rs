@@ -15,8 +15,8 @@ pub struct ExpScene {
     pub name: &'static str,
     /// Scene file under `scenes/`.
     pub file: &'static str,
-    /// Subdivision: no patch edge longer than this (m).
-    pub max_edge: f32,
+    /// Subdivision: no patch edge longer than this (m); `None`: one patch per face.
+    pub max_edge: Option<f32>,
     /// Reference solution under `scenes/reference/` (patch CSV in mesh order).
     pub reference: &'static str,
     /// Visibility tolerance the reference was (or is) made with.
@@ -30,7 +30,7 @@ pub const SCENES: [ExpScene; 4] = [
     ExpScene {
         name: "cornell-2k",
         file: "cornell-box.obj",
-        max_edge: 0.033,
+        max_edge: Some(0.033),
         reference: "cornell-box-2k.csv",
         visibility_tolerance: 5e-4,
         what: "the Cornell box at about 2k patches",
@@ -38,7 +38,7 @@ pub const SCENES: [ExpScene; 4] = [
     ExpScene {
         name: "cornell-20k",
         file: "cornell-box.obj",
-        max_edge: 0.01,
+        max_edge: Some(0.01),
         reference: "cornell-box-20k.csv",
         visibility_tolerance: 2e-3,
         what: "the Cornell box at about 20k patches",
@@ -46,7 +46,7 @@ pub const SCENES: [ExpScene; 4] = [
     ExpScene {
         name: "small-light",
         file: "cornell-small-light.obj",
-        max_edge: 0.033,
+        max_edge: Some(0.033),
         reference: "cornell-small-light-2k.csv",
         visibility_tolerance: 5e-4,
         what: "the Cornell box lit by a light of 1/16 the area and 16x the radiosity",
@@ -54,7 +54,7 @@ pub const SCENES: [ExpScene; 4] = [
     ExpScene {
         name: "boxes-room",
         file: "boxes-room.obj",
-        max_edge: 0.15,
+        max_edge: Some(0.15),
         reference: "boxes-room.csv",
         visibility_tolerance: 2e-3,
         what: "a room with a few hundred small boxes (many small patches), two ceiling lights",
@@ -83,7 +83,10 @@ impl ExpScene {
         let scene = mcrad_scene_io::load(&path)
             .with_context(|| format!("could not load {}", path.display()))?
             .scene;
-        let mesh = Mesh::build(&scene, Subdivision::MaxEdge(self.max_edge))?;
+        let subdivision = self
+            .max_edge
+            .map_or(Subdivision::None, Subdivision::MaxEdge);
+        let mesh = Mesh::build(&scene, subdivision)?;
         let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
         Ok(Loaded {
             mesh,
