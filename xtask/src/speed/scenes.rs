@@ -2,9 +2,12 @@
 
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
+use mcrad_combine::rms_rel;
 use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
+use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
+use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -19,11 +22,55 @@ pub struct ExpScene {
     pub max_edge: Option<f32>,
     /// Reference solution under `scenes/reference/` (patch CSV in mesh order).
     pub reference: &'static str,
-    /// Visibility tolerance the reference was (or is) made with.
-    pub visibility_tolerance: f64,
+    /// How the reference is made.
+    pub how: Made,
     /// One line for docs/results.md.
     pub what: &'static str,
 }
+
+/// How a reference solution is made.
+#[derive(Debug, Clone, Copy)]
+pub enum Made {
+    /// The deterministic reference solver at this visibility tolerance (its quadrature and
+    /// residual at their defaults).
+    Solver {
+        /// Visibility error per row relative to the row sum (one standard deviation).
+        visibility_tolerance: f64,
+    },
+    /// Too big for the reference solver: the mean of two shooting runs of `rays` rays each
+    /// (unshot threshold 1e-5) with `seeds`, seeds no experiment run uses.
+    Shooting {
+        /// Rays per run.
+        rays: u64,
+        /// The runs' seeds.
+        seeds: [u64; 2],
+        /// The mean's own rms_rel noise, `rms_rel(run 1, run 2) / 2` (printed by
+        /// `gen-references`, recorded here).
+        noise: f64,
+    },
+}
+
+impl Made {
+    /// One line for results.md.
+    pub fn describe(&self) -> String {
+        match *self {
+            Made::Solver {
+                visibility_tolerance,
+            } => format!("reference solver, visibility tolerance {visibility_tolerance:e}"),
+            Made::Shooting { rays, seeds, noise } => format!(
+                "mean of two shooting runs of {:.0e} rays (seeds {} and {}, unshot threshold \
+                 1e-5); its own noise: {:.2}% rms_rel",
+                rays as f64,
+                seeds[0],
+                seeds[1],
+                100.0 * noise
+            ),
+        }
+    }
+}
+
+/// The noise of the 20k Cornell reference, from `cargo xtask gen-references cornell-20k`.
+pub const CORNELL_20K_NOISE: f64 = f64::NAN;
 
 /// Every scene, in report order.
 pub const SCENES: [ExpScene; 4] = [
@@ -32,7 +79,9 @@ pub const SCENES: [ExpScene; 4] = [
         file: "cornell-box.obj",
         max_edge: Some(0.033),
         reference: "cornell-box-2k.csv",
-        visibility_tolerance: 5e-4,
+        how: Made::Solver {
+            visibility_tolerance: 5e-4,
+        },
         what: "the Cornell box at about 2k patches",
     },
     ExpScene {
@@ -40,7 +89,11 @@ pub const SCENES: [ExpScene; 4] = [
         file: "cornell-box.obj",
         max_edge: Some(0.01),
         reference: "cornell-box-20k.csv",
-        visibility_tolerance: 2e-3,
+        how: Made::Shooting {
+            rays: 300_000_000,
+            seeds: [1_000_000, 1_000_001],
+            noise: CORNELL_20K_NOISE,
+        },
         what: "the Cornell box at about 20k patches",
     },
     ExpScene {
@@ -48,7 +101,9 @@ pub const SCENES: [ExpScene; 4] = [
         file: "cornell-small-light.obj",
         max_edge: Some(0.033),
         reference: "cornell-small-light-2k.csv",
-        visibility_tolerance: 5e-4,
+        how: Made::Solver {
+            visibility_tolerance: 5e-4,
+        },
         what: "the Cornell box lit by a light of 1/16 the area and 16x the radiosity",
     },
     ExpScene {
@@ -56,14 +111,12 @@ pub const SCENES: [ExpScene; 4] = [
         file: "boxes-room.obj",
         max_edge: Some(0.15),
         reference: "boxes-room.csv",
-        visibility_tolerance: 2e-3,
+        how: Made::Solver {
+            visibility_tolerance: 2e-3,
+        },
         what: "a room with a few hundred small boxes (many small patches), two ceiling lights",
     },
 ];
-
-/// The largest mesh the references are made for (the solver's default stops at 10k; the
-/// 20k Cornell box takes about 20 minutes and 7 GB).
-pub const MAX_REFERENCE_PATCHES: usize = 25_000;
 
 /// A loaded scene: mesh, BVH and the reference.
 pub struct Loaded {
@@ -117,8 +170,9 @@ impl ExpScene {
     }
 }
 
-/// `cargo xtask gen-references [names]`: solves the named scenes (all but cornell-2k, which
-/// has its own, if none are named) with the reference solver and writes their CSVs.
+/// `cargo xtask gen-references [names]`: makes the references of the named scenes (all but
+/// cornell-2k, which has its own, if none are named) as their [`Made`] says and writes their
+/// CSVs (a few minutes each for the solver; about 15 minutes on 2 cores for the 20k box).
 pub fn generate(root: &Path, names: &[String]) -> Result<()> {
     for s in SCENES.iter().filter(|s| {
         if names.is_empty() {
@@ -129,31 +183,18 @@ pub fn generate(root: &Path, names: &[String]) -> Result<()> {
     }) {
         let loaded = s.load(root)?;
         let n = loaded.mesh.patches().len();
-        eprintln!("{}: {n} patches, reference solver ...", s.name);
         let start = Instant::now();
-        let done = AtomicUsize::new(0);
-        let config = ReferenceConfig {
-            max_patches: MAX_REFERENCE_PATCHES,
-            visibility_tolerance: s.visibility_tolerance,
-            ..ReferenceConfig::default()
+        eprintln!("{}: {n} patches, {} ...", s.name, s.how.describe());
+        let radiosity = match s.how {
+            Made::Solver {
+                visibility_tolerance,
+            } => solver(&loaded, visibility_tolerance)?,
+            Made::Shooting { rays, seeds, .. } => shooting(&loaded, rays, seeds)?,
         };
-        let progress = |rows: usize| {
-            let tenth = rows * 10 / n.max(1);
-            if done.fetch_max(tenth, Ordering::Relaxed) < tenth {
-                eprintln!(
-                    "  {}0% of the form-factor rows, {:.0} s",
-                    tenth,
-                    start.elapsed().as_secs_f64()
-                );
-            }
-        };
-        let r = reference(&loaded.mesh, &loaded.bvh, &config, &progress)?;
         let path = root.join("scenes/reference").join(s.reference);
         let file = std::fs::File::create(&path)
             .with_context(|| format!("could not write {}", path.display()))?;
-        let rows = r
-            .estimate
-            .radiosity()
+        let rows = radiosity
             .iter()
             .zip(loaded.mesh.patches())
             .enumerate()
@@ -165,12 +206,79 @@ pub fn generate(root: &Path, names: &[String]) -> Result<()> {
             });
         mcrad_export::write_patch_csv(std::io::BufWriter::new(file), rows)?;
         eprintln!(
-            "{}: wrote {} in {:.0} s (residual {:.1e})",
+            "{}: wrote {} in {:.0} s",
             s.name,
             path.display(),
-            start.elapsed().as_secs_f64(),
-            r.stats.residual
+            start.elapsed().as_secs_f64()
         );
     }
     Ok(())
+}
+
+/// The reference solver's solution, printing progress by tenths of the rows.
+fn solver(loaded: &Loaded, visibility_tolerance: f64) -> Result<Vec<DVec3>> {
+    let n = loaded.mesh.patches().len();
+    let start = Instant::now();
+    let done = AtomicUsize::new(0);
+    let config = ReferenceConfig {
+        visibility_tolerance,
+        ..ReferenceConfig::default()
+    };
+    let progress = |rows: usize| {
+        let tenth = rows * 10 / n.max(1);
+        if done.fetch_max(tenth, Ordering::Relaxed) < tenth {
+            eprintln!(
+                "  {tenth}0% of the form-factor rows, {:.0} s",
+                start.elapsed().as_secs_f64()
+            );
+        }
+    };
+    let r = reference(&loaded.mesh, &loaded.bvh, &config, &progress)?;
+    eprintln!("  residual {:.1e}", r.stats.residual);
+    Ok(r.estimate.radiosity().to_vec())
+}
+
+/// The mean of two shooting runs; prints its noise estimate `rms_rel(a, b) / 2` (the
+/// difference of two runs has twice a run's variance, the mean half of it).
+fn shooting(loaded: &Loaded, rays: u64, seeds: [u64; 2]) -> Result<Vec<DVec3>> {
+    let mut runs = Vec::new();
+    for seed in seeds {
+        let config = ScheduleConfig {
+            rays,
+            seed,
+            unshot_threshold: 1e-5,
+            ambient: false,
+            first_pass_rays: None,
+        };
+        let s = run(
+            Method::Shoot,
+            &loaded.mesh,
+            &loaded.bvh,
+            &config,
+            &mut |_| ControlFlow::Continue(()),
+        )?;
+        runs.push(s.estimate.radiosity().to_vec());
+    }
+    let mean: Vec<DVec3> = runs[0]
+        .iter()
+        .zip(&runs[1])
+        .map(|(a, b)| 0.5 * (a + b))
+        .collect();
+    let area: Vec<f64> = loaded.mesh.patches().iter().map(|p| p.area).collect();
+    let emission: Vec<DVec3> = loaded
+        .mesh
+        .patches()
+        .iter()
+        .map(|p| p.emission.as_dvec3())
+        .collect();
+    // rms_rel of run a against run b, with the mean's reflected light as the denominator.
+    let diff: Vec<DVec3> = runs[0]
+        .iter()
+        .zip(&runs[1])
+        .zip(&mean)
+        .map(|((a, b), m)| m + (a - b))
+        .collect();
+    let noise = rms_rel(&area, &emission, &diff, &mean) / 2.0;
+    eprintln!("  the mean's own noise: {:.3}% rms_rel", 100.0 * noise);
+    Ok(mean)
 }
