@@ -1,7 +1,9 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
 mod experiment;
+mod gen_scenes;
 mod regress;
+mod speed;
 
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -19,6 +21,16 @@ tasks:
   experiment figure2
           the paper's Figure 2: gathering from refining shooting, with and without the
           ambient term; writes docs/figure2.csv and docs/figure2.png
+  experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
+                            [--time S] [--out DIR]
+          every method on every experiment scene, error against time; writes
+          docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
+          (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)
+  gen-scenes
+          writes the generated experiment scene scenes/boxes-room.obj (+ .mtl)
+  gen-references [scene ...]
+          reference solutions of the experiment scenes (default: all but cornell-2k)
+          into scenes/reference/
 ";
 
 fn main() -> std::process::ExitCode {
@@ -50,7 +62,16 @@ fn run() -> Result<()> {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             regress::run(&root(), &target_dir().join("release/mcrad"), bless)
         }
+        Some("experiment") if std::env::args().nth(2).as_deref() == Some("speed-vs-error") => {
+            let args: Vec<String> = std::env::args().skip(3).collect();
+            speed::run(&root(), &args)
+        }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
+        Some("gen-scenes") => gen_scenes::run(&root()),
+        Some("gen-references") => {
+            let names: Vec<String> = std::env::args().skip(2).collect();
+            speed::scenes::generate(&root(), &names)
+        }
         Some("help" | "-h" | "--help") | None => {
             print!("{HELP}");
             Ok(())

@@ -36,14 +36,18 @@ pub const HEIGHT: u32 = 600;
 /// The font family name the embedded font is registered under.
 const FONT: &str = "sans-serif";
 
-/// Colours of the series, in order (Tableau 10's first six); repeated past six series.
-const COLOURS: [RGBColor; 6] = [
+/// Colours of the series, in order (Tableau 10); repeated past ten series.
+const COLOURS: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
     RGBColor(255, 127, 14),
     RGBColor(148, 103, 189),
     RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
 ];
 
 /// What to plot.
@@ -514,6 +518,15 @@ mod tests {
         let err = line_plot(&path, &empty).unwrap_err().to_string();
         assert!(err.contains("nothing to plot"), "{err}");
         assert!(!path.exists());
+    }
+
+    #[test]
+    fn ten_series_get_ten_distinct_colours() {
+        for (i, a) in COLOURS.iter().enumerate() {
+            for b in &COLOURS[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
     }
 
     #[test]
