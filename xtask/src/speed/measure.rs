@@ -1,9 +1,9 @@
 //! Measuring one method on one scene with one seed: a curve of (seconds, rays, rms_rel) points.
 //!
 //! Two ways, by what a method's intermediate solutions are:
-//! - **progressive** (`prr`, `progressive-two-pass`): every step is a complete solution of all
-//!   the rays so far, so one unbounded run (passes doubling from `first` rays) gives the curve:
-//!   one point per step, time from the start of the run.
+//! - **progressive** (`prr`, `progressive-two-pass`, `combined`, `bidirectional`): every step
+//!   is a complete solution of all the rays so far, so one unbounded run (passes doubling from
+//!   `first` rays) gives the curve: one point per step, time from the start of the run.
 //! - **ladder** (every other method, and any method added later): a step of `shoot` is a wave
 //!   (not a converged solution until the last), `gather` iterates from `B = E`, and the
 //!   two-pass methods and `progressive-gather` size their parts from the budget. So each point
@@ -87,7 +87,10 @@ impl<'a> Problem<'a> {
 
 /// True for the methods measured by one unbounded run.
 pub fn progressive(method: Method) -> bool {
-    matches!(method, Method::Prr | Method::ProgressiveTwoPass)
+    matches!(
+        method,
+        Method::Prr | Method::ProgressiveTwoPass | Method::Combined | Method::Bidirectional
+    )
 }
 
 fn config(rays: u64, seed: u64, first: Option<u64>) -> ScheduleConfig {
