@@ -50,7 +50,7 @@ impl Options {
         let mut o = Options {
             seeds: if quick { 1 } else { 3 },
             limits: Limits {
-                seconds: if quick { 1.0 } else { 12.0 },
+                seconds: if quick { 1.0 } else { 20.0 },
                 target: 0.005,
                 max_points: 24,
             },
