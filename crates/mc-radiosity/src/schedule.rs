@@ -492,6 +492,28 @@ impl Progressive {
         Ok(!self.stopped)
     }
 
+    /// A complete shooting pass of `rays` rays, seeded by `tag`, its rays, escapes and unshot
+    /// power counted in the run.
+    fn shoot<C: RayCaster>(
+        &mut self,
+        mesh: &Mesh,
+        caster: &C,
+        config: &ScheduleConfig,
+        rays: u64,
+        tag: u64,
+    ) -> Result<Shooting, ScheduleError> {
+        let s = shoot(
+            mesh,
+            caster,
+            &shoot_config(config, rays, derive_seed(config.seed, tag)),
+            &mut |_| ControlFlow::Continue(()),
+        )?;
+        self.rays += s.stats.rays;
+        self.escaped_rays += s.stats.escaped_rays;
+        self.unshot_fraction = unshot_fraction(&s);
+        Ok(s)
+    }
+
     /// The solution: the merged estimate, its work counted as every ray the run cast.
     fn finish(self, budget: u64) -> Result<Solution, ScheduleError> {
         let m = self.merged.ok_or(ScheduleError::BudgetTooSmall(budget))?;
@@ -583,15 +605,7 @@ fn run_progressive_two_pass<C: RayCaster>(
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let s = shoot(
-            mesh,
-            caster,
-            &shoot_config(config, budget / 2, derive_seed(config.seed, k)),
-            &mut |_| ControlFlow::Continue(()),
-        )?;
-        run.rays += s.stats.rays;
-        run.escaped_rays += s.stats.escaped_rays;
-        run.unshot_fraction = unshot_fraction(&s);
+        let s = run.shoot(mesh, caster, config, budget / 2, k)?;
         let refined = accumulate(
             shooting.take(),
             with_ambient(mesh, config, s)?,
@@ -628,16 +642,7 @@ fn run_prr<C: RayCaster>(
     let mut passes = Doubling::new(config);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
-        let seed = derive_seed(config.seed, run.steps as u64);
-        let s = shoot(
-            mesh,
-            caster,
-            &shoot_config(config, budget, seed),
-            &mut |_| ControlFlow::Continue(()),
-        )?;
-        run.rays += s.stats.rays;
-        run.escaped_rays += s.stats.escaped_rays;
-        run.unshot_fraction = unshot_fraction(&s);
+        let s = run.shoot(mesh, caster, config, budget, run.steps as u64)?;
         if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
             break;
         }

@@ -31,14 +31,12 @@ use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Schedul
 use crate::gather::{GatherError, check_input};
 use crate::rng::{Stream, derive_seed};
 use crate::sampling::stochastic_round;
-use crate::shoot::shoot;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
-use std::ops::ControlFlow;
 
 /// Rays per job: the unit of parallel work and of random streams.
 const JOB_RAYS: u64 = 4096;
@@ -61,27 +59,20 @@ pub(super) fn run_bidirectional<C: RayCaster>(
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let estimate = match &run.merged {
-            None => {
-                let s = shoot(
+            None => run.shoot(mesh, caster, config, budget, k)?.estimate,
+            Some(solution) => {
+                let e = step(
                     mesh,
+                    &sampler,
                     caster,
-                    &super::shoot_config(config, budget, derive_seed(config.seed, k)),
-                    &mut |_| ControlFlow::Continue(()),
+                    solution.radiosity(),
+                    budget,
+                    derive_seed(config.seed, GATHER_TAG + k),
                 )?;
-                run.escaped_rays += s.stats.escaped_rays;
-                run.unshot_fraction = super::unshot_fraction(&s);
-                s.estimate
+                run.rays += e.rays();
+                e
             }
-            Some(solution) => step(
-                mesh,
-                &sampler,
-                caster,
-                solution.radiosity(),
-                budget,
-                derive_seed(config.seed, GATHER_TAG + k),
-            )?,
         };
-        run.rays += estimate.rays();
         if !run.step(estimate, passes.peek(), observer)? {
             break;
         }

@@ -34,18 +34,16 @@
 
 use super::{
     Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
-    accumulate, per_patch, shoot_config, unshot_fraction,
+    accumulate, per_patch,
 };
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::rng::derive_seed;
-use crate::shoot::shoot;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, Rule, merge_weighted};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
-use std::ops::ControlFlow;
 
 /// Bounds of the shooting share of a pass.
 const SHARE: (f64, f64) = (0.1, 0.9);
@@ -79,11 +77,10 @@ pub(super) fn run_combined<C: RayCaster>(
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
-    let mut combined: Option<Estimate> = None;
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let share = match (&shots, &gathered, &combined) {
+        let share = match (&shots, &gathered, &run.merged) {
             (Some(s), Some(g), Some(c)) => {
                 let r = reflected(mesh, c);
                 best_share(
@@ -98,14 +95,7 @@ pub(super) fn run_combined<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = shoot(
-            mesh,
-            caster,
-            &shoot_config(config, shoot_budget, derive_seed(config.seed, k)),
-            &mut |_| ControlFlow::Continue(()),
-        )?;
-        run.escaped_rays += s.stats.escaped_rays;
-        run.unshot_fraction = unshot_fraction(&s);
+        let s = run.shoot(mesh, caster, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         shot_rays += pass_rays;
@@ -123,10 +113,9 @@ pub(super) fn run_combined<C: RayCaster>(
             }
         });
         let shots_now = shots.as_ref().expect("just set");
-        run.rays += pass_rays;
 
         // Gather from the best solution so far: the combination, or the shooting at first.
-        let input = combined.as_ref().unwrap_or(&shots_now.merged);
+        let input = run.merged.as_ref().unwrap_or(&shots_now.merged);
         let gather_budget = budget.saturating_sub(pass_rays);
         let split = SplitConfig {
             rays_per_patch: per_patch(mesh, gather_budget / 2),
@@ -145,9 +134,8 @@ pub(super) fn run_combined<C: RayCaster>(
         gather_rays += g.rays();
         run.rays += g.rays();
         let g = accumulate(gathered.take(), g, Rule::ByWork)?;
-        let c = combine(mesh, shots_now, &g, combined.as_ref())?;
+        let c = combine(mesh, shots_now, &g, run.merged.as_ref())?;
         gathered = Some(g);
-        combined = Some(c.clone());
         if !run.replace(c, passes.peek(), observer)? {
             break;
         }
