@@ -20,16 +20,14 @@ use mcrad_mc_radiosity::{
     two_pass_split, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};
 use std::ops::ControlFlow;
 
+mod common;
+use common::{box_faces, bvh, furnace, material};
+
 const RUNS: u64 = 16;
 const K: f64 = 4.5;
-
-fn material(name: &str, rho: f32, e: f32) -> Material {
-    material_rgb(name, Vec3::splat(rho), e)
-}
 
 fn material_rgb(name: &str, rho: Vec3, e: f32) -> Material {
     Material {
@@ -39,48 +37,10 @@ fn material_rgb(name: &str, rho: Vec3, e: f32) -> Material {
     }
 }
 
-/// The six inward-facing faces of the box `[0, 1]³` (counter-clockwise seen from inside), in the
-/// order z = 0, z = 1, y = 0, y = 1, x = 0, x = 1, with the material indices given.
-fn box_faces(positions: &mut Vec<Vec3>, faces: &mut Vec<Face>, materials: [u32; 6]) {
-    let base = positions.len() as u32;
-    for k in 0..8u32 {
-        positions.push(Vec3::new(
-            (k & 1) as f32,
-            (k >> 1 & 1) as f32,
-            (k >> 2) as f32,
-        ));
-    }
-    let quads = [
-        [1, 3, 2, 0],
-        [6, 7, 5, 4],
-        [4, 5, 1, 0],
-        [3, 7, 6, 2],
-        [2, 6, 4, 0],
-        [5, 7, 3, 1],
-    ];
-    for (q, m) in quads.iter().zip(materials) {
-        let source = faces.len() as u32;
-        faces.push(Face {
-            vertices: q.iter().map(|i| base + i).collect(),
-            material: m,
-            source,
-        });
-    }
-}
-
-/// A closed unit cube, every face emitting `E = 1` W/m² with reflectance `rho`: `B = 1/(1 - rho)`.
-fn furnace(rho: f32) -> Scene {
-    let (mut p, mut f) = (Vec::new(), Vec::new());
-    box_faces(&mut p, &mut f, [0; 6]);
-    Scene::new(p, f, vec![material("furnace", rho, 1.0)])
-        .unwrap()
-        .0
-}
-
 /// A closed cube lit by its floor, with walls of different colours.
 fn lit_box() -> Scene {
     let (mut p, mut f) = (Vec::new(), Vec::new());
-    box_faces(&mut p, &mut f, [0, 1, 1, 2, 3, 1]);
+    box_faces(1.0, &mut p, &mut f, [0, 1, 1, 2, 3, 1]);
     let materials = vec![
         material("lamp", 0.3, 1.0),
         material("white", 0.7, 0.0),
@@ -93,7 +53,7 @@ fn lit_box() -> Scene {
 /// An open box (no y = 1 wall) lit by its floor, with an inner panel whose back faces the light.
 fn open_box() -> Scene {
     let (mut p, mut f) = (Vec::new(), Vec::new());
-    box_faces(&mut p, &mut f, [1, 0, 0, 0, 0, 0]);
+    box_faces(1.0, &mut p, &mut f, [1, 0, 0, 0, 0, 0]);
     f.remove(3);
     let b = p.len() as u32;
     p.extend([
@@ -156,10 +116,6 @@ fn two_squares(parallel: bool) -> Mesh {
     .unwrap()
     .0;
     Mesh::build(&scene, Subdivision::None).unwrap()
-}
-
-fn bvh(mesh: &Mesh) -> Bvh {
-    Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap()
 }
 
 /// Mean and standard error of the mean of `xs`.
