@@ -8,13 +8,13 @@
 //! over the patches and channels and the ratio of the sums (area-weighted), each within
 //! `FACTOR` of 1.
 //!
-//! Measured (200k rays, seeds 1000-1031), median / sums: shoot 1.16 / 1.24, gather 0.73 / 0.98,
-//! two-pass 0.80 / 0.83, two-pass-split 0.90 / 1.09, prr 1.04 / 1.18, progressive-gather
-//! 0.93 / 1.11, progressive-two-pass 0.86 / 1.13, combined 0.89 / 1.05,
-//! bidirectional 0.79 / 0.77. The gathering
-//! variances are conditional on their input (the noise of the solution gathered from is left
-//! out) and shooting's is conditional on the powers shot; on this scene both effects stay
-//! within 30%.
+//! Measured (200k rays, seeds 1000-1031), median / sums: shoot 1.16 / 1.24, gather 1.26 / 1.05,
+//! two-pass 0.97 / 0.83, two-pass-split 1.07 / 1.12, prr 1.04 / 1.18, progressive-gather
+//! 0.94 / 1.11, progressive-two-pass 0.92 / 1.13, combined 0.93 / 1.08, bidirectional
+//! 0.79 / 0.77. Gathering variances include the noise of the solution gathered from
+//! (`gather_round_from`; without it gather scored 0.73 / 0.98 and two-pass 0.80 / 0.83);
+//! shooting's is conditional on the powers shot, and bidirectional's sums its contributions'
+//! squares, leaving out the noise of its input.
 
 use glam::DVec3;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
