@@ -1,4 +1,5 @@
-//! The fast caster: an obvhs CWBVH over the canonical-frame triangles.
+//! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
+//! mcrad's 8-wide layout ([`crate::wide`]).
 
 use std::cell::Cell;
 
@@ -6,20 +7,19 @@ use glam::{Vec3, Vec3A};
 use obvhs::{
     BvhBuildParams,
     aabb::Aabb,
-    bvh2::reinsertion::ReinsertionOptimizer,
-    cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh},
+    bvh2::{Bvh2, reinsertion::ReinsertionOptimizer},
     ploc::PlocBuilder,
-    rt_triangle::RtTriangle,
     splits::split_aabbs_preset,
     triangle::Triangle,
 };
 use rayon::prelude::*;
 
 use crate::{
-    BuildError, Hit, Ray, RayCaster, SurfacePoint, batch, exact,
-    frame::{self, CanonicalRay, CanonicalSegment, Frame, WorldRay},
+    BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
+    frame::{self, CanonicalRay, CanonicalSegment, Frame},
+    query::{Query, crossings, near_end_point},
     traverse::{self, NodeRay},
-    tri::Tri,
+    wide::{self, LANES, Lane, Wide, lane_mask},
 };
 
 /// How much build time to spend on BVH quality (obvhs presets).
@@ -52,30 +52,26 @@ impl BvhPreset {
     }
 }
 
-/// A bounding volume hierarchy over tagged triangles (obvhs 8-wide compressed BVH), built in
-/// the canonical frame (see the crate documentation). Immutable once built; `Send + Sync`.
+/// A bounding volume hierarchy over tagged triangles (obvhs's PLOC build, collapsed into an
+/// 8-wide BVH with leaves of 4-triangle packets), built in the canonical frame (see the crate
+/// documentation). Immutable once built; `Send + Sync`.
 pub struct Bvh {
-    /// The hierarchy; its leaves index `tris` directly (BVH order). Its `primitive_indices`
-    /// are dropped after the build.
-    cwbvh: CwBvh,
-    /// Canonical triangles with their ids, in BVH order (slot `i` is leaf slot `i`).
-    tris: Vec<Tri>,
+    /// The hierarchy, with the canonical triangles and their ids in its leaf packets.
+    wide: Wide,
     /// World <-> canonical map.
     frame: Frame,
     /// World bounds (min, max) of all input vertices.
     bounds: (Vec3, Vec3),
     /// Number of input triangles.
     triangle_count: usize,
-    /// Traversal stack entries needed (see [`traverse::stack_bound`]).
-    stack: usize,
 }
 
 impl std::fmt::Debug for Bvh {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Bvh")
             .field("triangles", &self.triangle_count)
-            .field("slots", &self.tris.len())
-            .field("nodes", &self.cwbvh.nodes.len())
+            .field("packets", &self.wide.packets.len())
+            .field("nodes", &self.wide.nodes.len())
             .field("bounds", &self.bounds)
             .field("scale", &self.frame.scale())
             .finish()
@@ -110,26 +106,17 @@ impl Bvh {
             })
             .collect();
         let pad = frame.max_lift(bounds.0, bounds.1) as f32;
-        let mut cwbvh = build_cwbvh_padded(&canonical, preset.params(), pad);
-        if cwbvh.primitive_indices.len() > traverse::MAX_SLOTS {
+        let bvh2 = build_bvh2_padded(&canonical, preset.params(), pad);
+        let mut wide = Wide::new(&bvh2, &canonical, ids);
+        drop(bvh2);
+        if wide.packets.len() > wide::MAX_PACKETS {
             return Err(BuildError::TooManyTriangles {
-                slots: cwbvh.primitive_indices.len(),
+                slots: wide.packets.len() * LANES,
             });
         }
-        // With spatial pre-splits a triangle may appear in several slots; that is fine.
-        let tris = cwbvh
-            .primitive_indices
-            .par_iter()
-            .map(|&i| Tri::new(&RtTriangle::from(&canonical[i as usize]), ids[i as usize]))
-            .collect();
-        // The leaves index `tris` directly: the map back to input order is not needed.
-        cwbvh.primitive_indices = Vec::new();
-        cwbvh.nodes.shrink_to_fit();
-        let stack = traverse::stack_bound(&cwbvh.nodes);
+        wide.shrink_to_fit();
         Ok(Bvh {
-            stack,
-            cwbvh,
-            tris,
+            wide,
             frame,
             bounds,
             triangle_count: triangles.len(),
@@ -148,25 +135,16 @@ impl Bvh {
 
     /// Number of 8-wide BVH nodes (a size and quality statistic).
     pub fn node_count(&self) -> usize {
-        self.cwbvh.nodes.len()
+        self.wide.nodes.len()
     }
 
-    /// Bytes of memory the caster holds for intersection: the BVH nodes (80 bytes each), the
-    /// triangle records (64 bytes per leaf slot, id included) and any index arrays (none are
-    /// kept after the build), counted by allocated capacity, plus the struct itself. Divide by
-    /// [`Bvh::triangle_count`] for the footprint per triangle (about 72 bytes). The per-thread
-    /// traversal stack (a few hundred bytes) is not counted.
+    /// Bytes of memory the caster holds for intersection: the BVH nodes (256 bytes each, up
+    /// to 8 children), the triangle packets (160 bytes per 4 triangles, ids included, and a
+    /// count byte), counted by allocated capacity, plus the struct itself. Divide by
+    /// [`Bvh::triangle_count`] for the footprint per triangle. The per-thread traversal stack
+    /// (a few hundred bytes) is not counted.
     pub fn memory_bytes(&self) -> usize {
-        use std::mem::size_of_val;
-        size_of_val(self)
-            + self.cwbvh.nodes.capacity() * size_of::<obvhs::cwbvh::node::CwBvhNode>()
-            + self.cwbvh.primitive_indices.capacity() * size_of::<u32>()
-            + self
-                .cwbvh
-                .exact_node_aabbs
-                .as_ref()
-                .map_or(0, |v| v.capacity() * size_of::<Aabb>())
-            + self.tris.capacity() * size_of::<Tri>()
+        size_of_val(self) + self.wide.memory_bytes()
     }
 
     /// Whether nodes and triangles are small enough to stay in the caches, where sorting a
@@ -181,7 +159,8 @@ impl Bvh {
         self.frame.world_epsilon() as f32
     }
 
-    /// Closest hit in canonical units: (BVH slot, distance from the lifted origin).
+    /// Closest hit in canonical units: (packet slot `packet * 4 + lane`, distance from the
+    /// lifted origin).
     #[inline]
     fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
         let CanonicalRay {
@@ -195,18 +174,36 @@ impl Bvh {
         let shift = 2.0 * window;
         let r = NodeRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let test = |slot: usize| {
-            let tri = &self.tris[slot];
-            let id = tri.id();
-            if id == exclude {
-                (f32::INFINITY, id)
-            } else {
-                let t = candidate::<false>(tri, &q).map_or(f32::INFINITY, |t| t + shift);
-                (t, id)
+        let Wide {
+            nodes,
+            packets,
+            counts,
+            ..
+        } = &self.wide;
+        let test = |p: usize, best: &mut traverse::Best| {
+            let packet = &packets[p];
+            let mut lanes = lane_mask(counts, p);
+            for (j, &id) in packet.ids.iter().enumerate() {
+                lanes &= !(((id == exclude) as u32) << j);
+            }
+            let c = crossings::<false>(packet, &q, lanes);
+            let mut hot = c.hot;
+            while hot != 0 {
+                let j = hot.trailing_zeros() as usize;
+                hot &= hot - 1;
+                best.offer(c.t[j] + shift, packet.ids[j], p * LANES + j);
+            }
+            let mut cold = c.cold;
+            while cold != 0 {
+                let j = cold.trailing_zeros() as usize;
+                cold &= cold - 1;
+                if let Some(t) = near_end_point(&packet.lane(j), &q, c.t[j]) {
+                    best.offer(t + shift, packet.ids[j], p * LANES + j);
+                }
             }
         };
-        let found = self
-            .with_stack(|stack| traverse::closest(&self.cwbvh.nodes, &self.tris, &r, stack, test));
+        let best = self.with_stack(|stack| traverse::closest(nodes, packets, &r, stack, test));
+        let found = (best.slot != usize::MAX).then_some((best.slot, best.t));
         found.map(|(slot, t)| (slot, (t - shift).max(0.0)))
     }
 
@@ -216,8 +213,8 @@ impl Bvh {
     fn with_stack<R>(&self, f: impl FnOnce(&mut [traverse::Entry]) -> R) -> R {
         STACK.with(|cell| {
             let mut stack = cell.take();
-            if stack.len() < self.stack {
-                stack.resize(self.stack, (0.0, 0));
+            if stack.len() < self.wide.stack {
+                stack.resize(self.wide.stack, (0.0, 0));
             }
             let result = f(&mut stack);
             cell.set(stack);
@@ -231,8 +228,8 @@ thread_local! {
     static STACK: Cell<Vec<traverse::Entry>> = const { Cell::new(Vec::new()) };
 }
 
-/// `obvhs::cwbvh::builder::build_cwbvh_from_tris` (PLOC, reinsertion, BVH2 -> CWBVH, optional
-/// spatial pre-splits) with every primitive box padded by `pad` canonical units.
+/// The binary part of `obvhs::cwbvh::builder::build_cwbvh_from_tris` (optional spatial
+/// pre-splits, PLOC, reinsertion) with every primitive box padded by `pad` canonical units.
 ///
 /// The padding is the largest window of the scene (see [`exact::ray_rule`]): a ray starting
 /// exactly at a corner of flat, axis-aligned boxes (a room's corner) only touches them in a
@@ -240,7 +237,7 @@ thread_local! {
 /// on. Padded, every box whose triangle is crossed within a window holds a stretch of the ray
 /// of at least half a window. The cost is nil for scenes near the origin (`2^-10` canonical
 /// units).
-fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> CwBvh {
+fn build_bvh2_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> Bvh2 {
     let mut aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
     if params.pre_split {
@@ -262,148 +259,19 @@ fn build_cwbvh_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) 
     );
     bvh2.uses_spatial_splits = params.pre_split;
     ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
-    // children are not put in ray-octant order: our traversal sorts them by distance per ray
-    bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), false, false)
-}
-
-/// Crossings of a plane passing within this distance (canonical units) of a query's origin,
-/// or this close (in `t`) to a segment's end, are re-decided in `f64` (64 surface offsets,
-/// about `6e-5` of the scene), and always within twice the query's windows.
-const NEAR: f32 = 1.0 / 16.0;
-
-/// Barycentric slack of the `f32` test within which a near crossing is re-decided in `f64`.
-const SLACK: f32 = 1.0 / 256.0;
-
-/// A ray (`len` infinite) or segment in canonical units, with the windows at its ends (see
-/// [`exact::ray_rule`]) and the distances within which crossings are re-decided exactly.
-#[derive(Clone, Copy, Debug)]
-struct Query {
-    origin: Vec3A,
-    dir: Vec3A,
-    len: f32,
-    window_start: f32,
-    window_end: f32,
-    near_start: f32,
-    near_end: f32,
-}
-
-impl Query {
-    fn new(origin: Vec3A, dir: Vec3A, len: f32, window_start: f32, window_end: f32) -> Query {
-        let near_start = NEAR.max(2.0 * window_start);
-        let near_end = NEAR.max(2.0 * window_end);
-        Query {
-            origin,
-            dir,
-            len,
-            window_start,
-            window_end,
-            near_start,
-            near_end,
-        }
-    }
-}
-
-/// One triangle against a query, in canonical units: the distance of a crossing that counts,
-/// or `None`.
-///
-/// `SEGMENT` is `false` for a ray (`len` infinite, no end window), which drops the tests at the
-/// end: `|t - len| < 2 * window_end` never holds for it, and `|t - len| >= near_end` holds for
-/// every `t` that can reach that test (finite or `-inf`; a `+inf` is rejected either way).
-///
-/// This is obvhs's `f32` Möller-Trumbore (`RtTriangle::intersect`, closed edges) for crossings
-/// away from the query's end points. Next to them `f32` errors are systematic rather than
-/// measure-zero: an origin on a patch edge next to another surface sits within rounding of
-/// that surface's plane, and for a ray almost parallel to a plane the `f32` barycentrics err by
-/// about `2^-24 * size / cos`. So a crossing of a plane that passes near the origin (or near
-/// the segment's end), within `SLACK` of the triangle or within the windows, is re-decided
-/// exactly with the rules of [`exact::ray_rule`] and [`exact::segment_rule`].
-#[inline(always)]
-fn candidate<const SEGMENT: bool>(tri: &Tri, q: &Query) -> Option<f32> {
-    let ng = tri.ng();
-    let c = tri.v0() - q.origin;
-    let r = q.dir.cross(c);
-    let inv_det = 1.0 / ng.dot(q.dir);
-    let u = r.dot(tri.e2()) * inv_det;
-    let v = r.dot(tri.e1()) * inv_det;
-    let w = 1.0 - u - v;
-    // signed distance of the origin to the plane, times |ng|
-    let plane = ng.dot(c);
-    let t = plane * inv_det;
-    if !((u > -SLACK) & (v > -SLACK) & (w > -SLACK)) {
-        // clearly outside (the common case): only the windows look beyond the triangle
-        let in_window =
-            t.abs() < 2.0 * q.window_start || (SEGMENT && (t - q.len).abs() < 2.0 * q.window_end);
-        return if in_window {
-            near_end_point(tri, q, t)
-        } else {
-            None
-        };
-    }
-    let near_plane = plane * plane < q.near_start * q.near_start * ng.length_squared();
-    if !near_plane && (!SEGMENT || (t - q.len).abs() >= q.near_end) {
-        // |t| >= near_start > window_start, |t - len| >= near_end: no window rule applies
-        let inside = u >= 0.0 && v >= 0.0 && w >= 0.0;
-        return (inside && t > 0.0 && t < q.len).then_some(t);
-    }
-    near_end_point(tri, q, t)
-}
-
-/// [`candidate`] for a crossing near one of the query's end points (or of a plane passing near
-/// its origin). Skips what the rules reject whatever the exact numbers: crossings well behind
-/// the start or past the end, back-facing ones in the start's window and front-facing ones in
-/// the end's window (the `f32` side is wrong only when the ray is almost parallel to the
-/// plane). Re-decides the rest exactly.
-#[cold]
-#[inline(never)]
-fn near_end_point(tri: &Tri, q: &Query, t: f32) -> Option<f32> {
-    let (ws, we) = (q.window_start, q.window_end);
-    if t <= -2.0 * ws || t >= q.len + 2.0 * we {
-        return None;
-    }
-    // RtTriangle::ng is minus the counter-clockwise normal
-    let front = tri.ng().dot(q.dir) > 0.0;
-    let in_start = t < 2.0 * ws;
-    let in_end = t > q.len - 2.0 * we;
-    if (in_start && !front && t < 0.5 * ws) || (in_end && front && t > q.len - 0.5 * we) {
-        return None;
-    }
-    refine(tri, q)
-}
-
-/// The exact re-check of [`candidate`] on the same canonical data.
-#[cold]
-#[inline(never)]
-fn refine(tri: &Tri, q: &Query) -> Option<f32> {
-    let ray = WorldRay {
-        origin: q.origin.as_dvec3(),
-        dir: q.dir.as_dvec3(),
-        len: q.len as f64,
-        window_start: q.window_start as f64,
-        window_end: q.window_end as f64,
-    };
-    // RtTriangle: e1 = v0 - v1, e2 = v2 - v0
-    let (v0, e1, e2) = (
-        tri.v0().as_dvec3(),
-        -tri.e1().as_dvec3(),
-        tri.e2().as_dvec3(),
-    );
-    if q.len.is_finite() {
-        exact::blocker(v0, e1, e2, &ray).map(|_| 0.0)
-    } else {
-        exact::ray_candidate(v0, e1, e2, &ray).map(|(t, _)| t as f32)
-    }
+    bvh2
 }
 
 impl RayCaster for Bvh {
     fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
         let c = self.frame.canonical_ray(ray)?;
         let (slot, t) = self.trace(&c, ray.exclude)?;
-        let tri = &self.tris[slot];
-        // RtTriangle::ng = (v0 - v1) x (v2 - v0) = -(counter-clockwise normal)
+        let tri: Lane = self.wide.packets[slot / LANES].lane(slot % LANES);
+        // Lane::ng = (v0 - v1) x (v2 - v0) = -(counter-clockwise normal)
         let front = c.dir.dot(tri.ng()) > 0.0;
         let canonical_point = c.origin.as_dvec3() + c.dir.as_dvec3() * t as f64;
         Some(Hit {
-            id: tri.id(),
+            id: tri.id,
             distance: ((c.skip + t as f64) * self.frame.inv_scale()) as f32,
             point: self.frame.world(canonical_point),
             front,
@@ -471,11 +339,33 @@ impl RayCaster for Bvh {
             len + window_end + 2.0 * shift,
         );
         let (ia, ib) = (a.id, b.id);
-        let test = |slot: usize| {
-            let id = self.tris[slot].id();
-            id != ia && id != ib && candidate::<true>(&self.tris[slot], &q).is_some()
+        let Wide {
+            nodes,
+            packets,
+            counts,
+            ..
+        } = &self.wide;
+        let test = |p: usize| {
+            let packet = &packets[p];
+            let mut lanes = lane_mask(counts, p);
+            for (j, &id) in packet.ids.iter().enumerate() {
+                lanes &= !((((id == ia) | (id == ib)) as u32) << j);
+            }
+            let c = crossings::<true>(packet, &q, lanes);
+            if c.hot != 0 {
+                return true;
+            }
+            let mut cold = c.cold;
+            while cold != 0 {
+                let j = cold.trailing_zeros() as usize;
+                cold &= cold - 1;
+                if near_end_point(&packet.lane(j), &q, c.t[j]).is_some() {
+                    return true;
+                }
+            }
+            false
         };
-        self.with_stack(|stack| traverse::any(&self.cwbvh.nodes, &self.tris, &r, stack, test))
+        self.with_stack(|stack| traverse::any(nodes, packets, &r, stack, test))
     }
 }
 

@@ -133,8 +133,9 @@ mod bvh;
 mod error;
 mod exact;
 mod frame;
+mod query;
 mod traverse;
-mod tri;
+mod wide;
 
 use glam::Vec3;
 

@@ -1,0 +1,72 @@
+//! Casts the seeded rays of the ray-casting benchmark on one scene, one thread, and prints
+//! Mrays/s, the BVH's size and build time: a quick look, and a fixed workload to count
+//! instructions with `valgrind --tool=callgrind` (which, unlike a clock, does not depend on
+//! what else the machine is doing).
+//!
+//! `cargo run --release -p mcrad-raycast --example cast -- SCENE QUERY RAYS`, with SCENE one of
+//! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch` or `occluded`.
+
+use std::time::Instant;
+
+use mcrad_raycast::{Bvh, RayCaster};
+
+#[path = "../benches/common/scenes.rs"]
+mod scenes;
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let scene = args.first().map_or("room100k", String::as_str);
+    let query = args.get(1).map_or("closest", String::as_str);
+    let rays: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(200_000);
+    let tris = match scene {
+        "cornell" => scenes::cornell(),
+        "room100k" => scenes::cluttered_room(100_000, 1),
+        "room1m" => scenes::cluttered_room(1_000_000, 2),
+        other => {
+            eprintln!("error: unknown scene {other:?} (cornell, room100k, room1m)");
+            std::process::exit(2);
+        }
+    };
+    let ids: Vec<u32> = (0..tris.len() as u32).collect();
+    let start = Instant::now();
+    let preset = match std::env::var("PRESET").as_deref() {
+        Ok("medium") => mcrad_raycast::BvhPreset::Medium,
+        Ok("slow") => mcrad_raycast::BvhPreset::Slow,
+        _ => mcrad_raycast::BvhPreset::Fast,
+    };
+    let bvh = Bvh::build_with(&tris, &ids, preset).expect("the seeded scenes are valid");
+    let build = start.elapsed().as_secs_f64();
+    let surface = scenes::surface_rays(&tris, rays, 42);
+    let pairs = scenes::point_pairs(&tris, rays, 43);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let start = Instant::now();
+    let found = pool.install(|| match query {
+        "closest" => surface
+            .iter()
+            .filter(|r| bvh.closest_hit(r).is_some())
+            .count(),
+        "batch" => {
+            let mut hits = vec![None; surface.len()];
+            bvh.closest_hit_batch(&surface, &mut hits);
+            hits.iter().filter(|h| h.is_some()).count()
+        }
+        "occluded" => pairs.iter().filter(|(p, q)| bvh.occluded(p, q)).count(),
+        other => {
+            eprintln!("error: unknown query {other:?} (closest, batch, occluded)");
+            std::process::exit(2);
+        }
+    });
+    let seconds = start.elapsed().as_secs_f64();
+    println!(
+        "{scene} {query}: {:.3} Mrays/s ({found} of {rays} hit), {} triangles, {} nodes, \
+         {:.1} bytes/triangle, build {:.1} ms",
+        rays as f64 / seconds / 1e6,
+        tris.len(),
+        bvh.node_count(),
+        bvh.memory_bytes() as f64 / tris.len() as f64,
+        build * 1e3,
+    );
+}

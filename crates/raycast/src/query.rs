@@ -1,0 +1,188 @@
+//! The triangle test of the fast caster: four triangles of a [`Packet`] against a ray or
+//! segment at once, with the window rules of [`crate::exact`] at the query's end points.
+
+use glam::{Vec3A, Vec4};
+
+use crate::{
+    exact,
+    frame::WorldRay,
+    wide::{LANES, Lane, Packet},
+};
+
+/// Crossings of a plane passing within this distance (canonical units) of a query's origin,
+/// or this close (in `t`) to a segment's end, are re-decided in `f64` (64 surface offsets,
+/// about `6e-5` of the scene), and always within twice the query's windows.
+const NEAR: f32 = 1.0 / 16.0;
+
+/// Barycentric slack of the `f32` test within which a near crossing is re-decided in `f64`.
+const SLACK: f32 = 1.0 / 256.0;
+
+/// A ray (`len` infinite) or segment in canonical units, with the windows at its ends (see
+/// [`exact::ray_rule`]) and the distances within which crossings are re-decided exactly.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Query {
+    origin: Vec3A,
+    dir: Vec3A,
+    len: f32,
+    window_start: f32,
+    window_end: f32,
+    /// The same numbers splatted over the lanes of a packet test.
+    lanes: QueryLanes,
+}
+
+/// [`Query`]'s numbers in all four lanes.
+#[derive(Clone, Copy, Debug)]
+struct QueryLanes {
+    origin: [Vec4; 3],
+    dir: [Vec4; 3],
+    len: Vec4,
+    window_start2: Vec4,
+    window_end2: Vec4,
+    near_start2: Vec4,
+    near_end: Vec4,
+}
+
+impl Query {
+    /// The query from `origin` along the unit `dir` for `t` in `(0, len)` (`len` infinite: a
+    /// ray), with windows of half-width `window_start` and `window_end` at its ends.
+    #[inline(always)]
+    pub(crate) fn new(
+        origin: Vec3A,
+        dir: Vec3A,
+        len: f32,
+        window_start: f32,
+        window_end: f32,
+    ) -> Query {
+        let near_start = NEAR.max(2.0 * window_start);
+        let near_end = NEAR.max(2.0 * window_end);
+        let lanes = QueryLanes {
+            origin: [0, 1, 2].map(|k| Vec4::splat(origin[k])),
+            dir: [0, 1, 2].map(|k| Vec4::splat(dir[k])),
+            len: Vec4::splat(len),
+            window_start2: Vec4::splat(2.0 * window_start),
+            window_end2: Vec4::splat(2.0 * window_end),
+            near_start2: Vec4::splat(near_start * near_start),
+            near_end: Vec4::splat(near_end),
+        };
+        Query {
+            origin,
+            dir,
+            len,
+            window_start,
+            window_end,
+            lanes,
+        }
+    }
+}
+
+/// What a packet test found: the distance of each lane's plane crossing, the lanes whose
+/// crossing counts as it is (`hot`), and the lanes whose crossing must be re-decided by
+/// [`near_end_point`] (`cold`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Crossings {
+    pub(crate) t: [f32; LANES],
+    pub(crate) hot: u32,
+    pub(crate) cold: u32,
+}
+
+/// The lanes of `lanes` (a bit mask) of packet `p` against query `q`, in canonical units.
+///
+/// `SEGMENT` is `false` for a ray (`len` infinite, no end window), which drops the tests at the
+/// end: `|t - len| < 2 * window_end` never holds for it, and `|t - len| >= near_end` holds for
+/// every `t` that can reach that test.
+///
+/// Per lane this is obvhs's `f32` Möller-Trumbore (`RtTriangle::intersect`, closed edges) for
+/// crossings away from the query's end points. Next to them `f32` errors are systematic rather
+/// than measure-zero: an origin on a patch edge next to another surface sits within rounding of
+/// that surface's plane, and for a ray almost parallel to a plane the `f32` barycentrics err by
+/// about `2^-24 * size / cos`. So a crossing of a plane that passes near the origin (or near
+/// the segment's end), within `SLACK` of the triangle or within the windows, is marked cold:
+/// [`near_end_point`] re-decides it with the rules of [`exact::ray_rule`] and
+/// [`exact::segment_rule`].
+#[inline(always)]
+pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) -> Crossings {
+    let l = &q.lanes;
+    let [dx, dy, dz] = l.dir;
+    let [e1x, e1y, e1z] = p.e1;
+    let [e2x, e2y, e2z] = p.e2;
+    // c = v0 - origin, r = dir x c, ng = e1 x e2
+    let (cx, cy, cz) = (
+        p.v0[0] - l.origin[0],
+        p.v0[1] - l.origin[1],
+        p.v0[2] - l.origin[2],
+    );
+    let (rx, ry, rz) = (dy * cz - dz * cy, dz * cx - dx * cz, dx * cy - dy * cx);
+    let (nx, ny, nz) = (
+        e1y * e2z - e1z * e2y,
+        e1z * e2x - e1x * e2z,
+        e1x * e2y - e1y * e2x,
+    );
+    let inv_det = (nx * dx + ny * dy + nz * dz).recip();
+    let u = (rx * e2x + ry * e2y + rz * e2z) * inv_det;
+    let v = (rx * e1x + ry * e1y + rz * e1z) * inv_det;
+    let w = Vec4::ONE - u - v;
+    // signed distance of the origin to the plane, times |ng|
+    let plane = nx * cx + ny * cy + nz * cz;
+    let t = plane * inv_det;
+    let slack = Vec4::splat(-SLACK);
+    let maybe = (u.cmpgt(slack) & v.cmpgt(slack) & w.cmpgt(slack)).bitmask();
+    // clearly outside (the common case): only the windows look beyond the triangle
+    let mut in_window = t.abs().cmplt(l.window_start2).bitmask();
+    let mut near = (plane * plane)
+        .cmplt(l.near_start2 * (nx * nx + ny * ny + nz * nz))
+        .bitmask();
+    if SEGMENT {
+        let to_end = (t - l.len).abs();
+        in_window |= to_end.cmplt(l.window_end2).bitmask();
+        near |= to_end.cmplt(l.near_end).bitmask();
+    }
+    let zero = Vec4::ZERO;
+    let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(l.len));
+    Crossings {
+        t: t.to_array(),
+        hot: lanes & maybe & !near & inside.bitmask(),
+        cold: lanes & ((!maybe & in_window) | (maybe & near)),
+    }
+}
+
+/// A crossing near one of the query's end points (or of a plane passing near its origin), at
+/// `t` by the packet test. Skips what the rules reject whatever the exact numbers: crossings
+/// well behind the start or past the end, back-facing ones in the start's window and
+/// front-facing ones in the end's window (the `f32` side is wrong only when the ray is almost
+/// parallel to the plane). Re-decides the rest exactly.
+#[cold]
+#[inline(never)]
+pub(crate) fn near_end_point(tri: &Lane, q: &Query, t: f32) -> Option<f32> {
+    let (ws, we) = (q.window_start, q.window_end);
+    if t <= -2.0 * ws || t >= q.len + 2.0 * we {
+        return None;
+    }
+    // `Lane::ng` is minus the counter-clockwise normal
+    let front = tri.ng().dot(q.dir) > 0.0;
+    let in_start = t < 2.0 * ws;
+    let in_end = t > q.len - 2.0 * we;
+    if (in_start && !front && t < 0.5 * ws) || (in_end && front && t > q.len - 0.5 * we) {
+        return None;
+    }
+    refine(tri, q)
+}
+
+/// The exact re-check of a crossing on the same canonical data.
+#[cold]
+#[inline(never)]
+fn refine(tri: &Lane, q: &Query) -> Option<f32> {
+    let ray = WorldRay {
+        origin: q.origin.as_dvec3(),
+        dir: q.dir.as_dvec3(),
+        len: q.len as f64,
+        window_start: q.window_start as f64,
+        window_end: q.window_end as f64,
+    };
+    // e1 = v0 - v1, e2 = v2 - v0
+    let (v0, e1, e2) = (tri.v0.as_dvec3(), -tri.e1.as_dvec3(), tri.e2.as_dvec3());
+    if q.len.is_finite() {
+        exact::blocker(v0, e1, e2, &ray).map(|_| 0.0)
+    } else {
+        exact::ray_candidate(v0, e1, e2, &ray).map(|(t, _)| t as f32)
+    }
+}

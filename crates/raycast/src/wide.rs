@@ -1,0 +1,390 @@
+//! mcrad's own 8-wide BVH, made from obvhs's binary BVH: float child boxes in SIMD-ready
+//! layout and leaves of triangle packets.
+//!
+//! obvhs builds the hierarchy (PLOC and reinsertion, see `bvh.rs`); this module only
+//! re-arranges it for single-ray traversal on a CPU:
+//! * **Nodes** hold up to 8 children with their boxes as `f32` planes, four children per SSE
+//!   register ([`Node`]): the slab test of 8 children is a dozen vector operations with no
+//!   decoding (obvhs's compressed nodes store 8-bit boxes that must be dequantised first).
+//! * **Leaves** are runs of [`Packet`]s of up to 4 triangles in structure-of-arrays order, so
+//!   one vector test intersects 4 triangles (see `query.rs`).
+//!
+//! The collapse of the binary tree chooses leaves by the surface-area heuristic (a subtree of
+//! at most [`LEAF_MAX`] triangles becomes a leaf when testing its triangles is expected to cost
+//! less than descending into it), and fills each node by repeatedly opening the child with
+//! the largest surface area, as Embree's and most wide-BVH builders do.
+
+use glam::{Vec3A, Vec4};
+use obvhs::{aabb::Aabb, bvh2::Bvh2, triangle::Triangle};
+
+use crate::NO_ID;
+
+/// Children per node.
+pub(crate) const WIDTH: usize = 8;
+
+/// Triangles per packet.
+pub(crate) const LANES: usize = 4;
+
+/// Most triangles in one leaf (two packets).
+pub(crate) const LEAF_MAX: usize = 8;
+
+/// Flag of an item (a child slot or stack entry) that is a leaf: a run of packets.
+pub(crate) const LEAF: u32 = 1 << 31;
+
+/// Bits of a leaf item holding its first packet (the run length minus one sits in bits 29-30).
+const PACKET_MASK: u32 = (1 << 29) - 1;
+
+/// Number of packets leaf items can address: the build rejects more.
+pub(crate) const MAX_PACKETS: usize = 1 << 29;
+
+/// An empty child slot (its box is empty, so no ray enters it).
+const EMPTY: u32 = LEAF;
+
+/// Surface-area-heuristic cost of testing one packet, relative to one binary level of node
+/// traversal ([`NODE_COST`]).
+const PACKET_COST: f32 = 1.0;
+
+/// Surface-area-heuristic cost of one binary level of traversal: an 8-wide node does the work
+/// of about three binary levels at once, so a level is cheap against a packet test.
+const NODE_COST: f32 = 0.4;
+
+/// A node of the 8-wide BVH (256 bytes, four cache lines).
+///
+/// `planes[2k][h]` holds the lower bounds on axis `k` (x, y, z) of children `4h..4h+4`, and
+/// `planes[2k + 1][h]` their upper bounds, in canonical units; an empty slot has the empty box
+/// `[+inf, -inf]`, which every slab test rejects. `items[i]` is child `i`: a node index, or
+/// [`LEAF`] with the run of packets (see [`leaf_item`]).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub(crate) struct Node {
+    pub(crate) planes: [[Vec4; 2]; 6],
+    pub(crate) items: [u32; WIDTH],
+}
+
+const _: () = assert!(size_of::<Node>() == 256);
+
+impl Node {
+    /// A node with no children.
+    fn empty() -> Node {
+        let lo = [Vec4::INFINITY; 2];
+        let hi = [Vec4::NEG_INFINITY; 2];
+        Node {
+            planes: [lo, hi, lo, hi, lo, hi],
+            items: [EMPTY; WIDTH],
+        }
+    }
+
+    /// Sets child `i` to `item` with box `aabb`.
+    fn set(&mut self, i: usize, aabb: &Aabb, item: u32) {
+        let (h, lane) = (i / 4, i % 4);
+        for k in 0..3 {
+            self.planes[2 * k][h][lane] = aabb.min[k];
+            self.planes[2 * k + 1][h][lane] = aabb.max[k];
+        }
+        self.items[i] = item;
+    }
+}
+
+/// Up to four canonical-frame triangles in structure-of-arrays order (160 bytes): lane `j`
+/// holds `v0`, `e1 = v0 - v1` and `e2 = v2 - v0` (obvhs's `RtTriangle` edges, so that
+/// `e1 x e2` is minus the counter-clockwise normal) and the caller's id. Unused lanes hold
+/// a degenerate triangle at the origin with id [`NO_ID`], and are masked off by the leaf's
+/// triangle count anyway.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+pub(crate) struct Packet {
+    pub(crate) v0: [Vec4; 3],
+    pub(crate) e1: [Vec4; 3],
+    pub(crate) e2: [Vec4; 3],
+    pub(crate) ids: [u32; LANES],
+}
+
+const _: () = assert!(size_of::<Packet>() == 160);
+
+/// One triangle of a packet, as scalar vectors (the data of the exact re-check and of the hit
+/// record).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Lane {
+    pub(crate) v0: Vec3A,
+    pub(crate) e1: Vec3A,
+    pub(crate) e2: Vec3A,
+    pub(crate) id: u32,
+}
+
+impl Lane {
+    /// `e1 x e2` (minus the counter-clockwise normal, length twice the area), by the same
+    /// arithmetic as the packet test.
+    #[inline(always)]
+    pub(crate) fn ng(&self) -> Vec3A {
+        let (a, b) = (self.e1, self.e2);
+        Vec3A::new(
+            a.y * b.z - a.z * b.y,
+            a.z * b.x - a.x * b.z,
+            a.x * b.y - a.y * b.x,
+        )
+    }
+}
+
+impl Packet {
+    fn empty() -> Packet {
+        Packet {
+            v0: [Vec4::ZERO; 3],
+            e1: [Vec4::ZERO; 3],
+            e2: [Vec4::ZERO; 3],
+            ids: [NO_ID; LANES],
+        }
+    }
+
+    /// Puts triangle `t` (canonical) with `id` in lane `j`.
+    fn set(&mut self, j: usize, t: &Triangle, id: u32) {
+        let (e1, e2) = (t.v0 - t.v1, t.v2 - t.v0);
+        for k in 0..3 {
+            self.v0[k][j] = t.v0[k];
+            self.e1[k][j] = e1[k];
+            self.e2[k][j] = e2[k];
+        }
+        self.ids[j] = id;
+    }
+
+    /// Lane `j`.
+    #[inline(always)]
+    pub(crate) fn lane(&self, j: usize) -> Lane {
+        let get = |v: &[Vec4; 3]| Vec3A::new(v[0][j], v[1][j], v[2][j]);
+        Lane {
+            v0: get(&self.v0),
+            e1: get(&self.e1),
+            e2: get(&self.e2),
+            id: self.ids[j],
+        }
+    }
+}
+
+/// The item of a leaf: `packets` (1 to 4) packets from `first` on.
+fn leaf_item(first: usize, packets: usize) -> u32 {
+    LEAF | (((packets - 1) as u32) << 29) | first as u32
+}
+
+/// The packets of a leaf item.
+#[inline(always)]
+pub(crate) fn packets(item: u32) -> std::ops::Range<usize> {
+    let first = (item & PACKET_MASK) as usize;
+    first..first + ((item >> 29) & 3) as usize + 1
+}
+
+/// The lanes of packet `p` holding triangles, as a bit mask.
+#[inline(always)]
+pub(crate) fn lane_mask(counts: &[u8], p: usize) -> u32 {
+    (1 << counts[p]) - 1
+}
+
+/// The 8-wide BVH.
+#[derive(Clone, Debug)]
+pub(crate) struct Wide {
+    /// Nodes; the root is node 0.
+    pub(crate) nodes: Vec<Node>,
+    /// Triangle packets in leaf order.
+    pub(crate) packets: Vec<Packet>,
+    /// Triangles held by each packet (1 to 4).
+    pub(crate) counts: Vec<u8>,
+    /// Traversal stack entries a query needs (see [`Wide::stack_bound`]).
+    pub(crate) stack: usize,
+}
+
+/// What the collapse decided for a binary node.
+#[derive(Clone, Copy)]
+struct Plan {
+    /// Triangles below.
+    count: u32,
+    /// The subtree becomes one leaf.
+    leaf: bool,
+}
+
+impl Wide {
+    /// The 8-wide BVH of `bvh2`, whose leaves index `tris` (and `ids`) through
+    /// `bvh2.primitive_indices`.
+    pub(crate) fn new(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Wide {
+        let plans = plan(bvh2);
+        let mut wide = Wide {
+            nodes: vec![Node::empty()],
+            packets: Vec::with_capacity(tris.len() / 2 + 1),
+            counts: Vec::with_capacity(tris.len() / 2 + 1),
+            stack: 0,
+        };
+        // (binary node, wide node to fill)
+        let mut todo = vec![(0usize, 0usize)];
+        let mut children = Vec::with_capacity(WIDTH);
+        let mut prims = Vec::with_capacity(LEAF_MAX);
+        let mut depth = vec![1usize];
+        while let Some((b, w)) = todo.pop() {
+            children.clear();
+            if plans[b].leaf {
+                children.push(b);
+            } else {
+                let first = bvh2.nodes[b].first_index as usize;
+                children.extend([first, first + 1]);
+                while children.len() < WIDTH {
+                    // open the inner child of largest surface area
+                    let open = (0..children.len())
+                        .filter(|&i| !plans[children[i]].leaf)
+                        .max_by(|&i, &j| {
+                            let area = |i: usize| bvh2.nodes[children[i]].aabb.half_area();
+                            area(i).total_cmp(&area(j))
+                        });
+                    let Some(i) = open else { break };
+                    let first = bvh2.nodes[children[i]].first_index as usize;
+                    children[i] = first;
+                    children.push(first + 1);
+                }
+            }
+            // inner children get consecutive node indices, so siblings share pages
+            for (i, &c) in children.iter().enumerate() {
+                let aabb = bvh2.nodes[c].aabb;
+                let item = if plans[c].leaf {
+                    prims.clear();
+                    collect_prims(bvh2, c, &mut prims);
+                    wide.leaf(&prims, tris, ids)
+                } else {
+                    let index = wide.nodes.len();
+                    wide.nodes.push(Node::empty());
+                    depth.push(depth[w] + 1);
+                    todo.push((c, index));
+                    index as u32
+                };
+                wide.nodes[w].set(i, &aabb, item);
+            }
+        }
+        let max_depth = depth.into_iter().max().unwrap_or(1);
+        // each node pushes at most 8 entries and pops one
+        wide.stack = (WIDTH - 1) * max_depth + WIDTH;
+        wide
+    }
+
+    /// Appends the packets of a leaf holding triangles `prims`; returns its item.
+    fn leaf(&mut self, prims: &[u32], tris: &[Triangle], ids: &[u32]) -> u32 {
+        // (PLOC's binary leaves hold one triangle each, and plans join at most LEAF_MAX)
+        assert!(
+            prims.len() <= LEAF_MAX,
+            "a leaf of {} triangles",
+            prims.len()
+        );
+        let first = self.packets.len();
+        for chunk in prims.chunks(LANES) {
+            let mut packet = Packet::empty();
+            for (j, &p) in chunk.iter().enumerate() {
+                packet.set(j, &tris[p as usize], ids[p as usize]);
+            }
+            self.packets.push(packet);
+            self.counts.push(chunk.len() as u8);
+        }
+        leaf_item(first, self.packets.len() - first)
+    }
+
+    /// Bytes held: nodes, packets and counts, by allocated capacity.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        self.nodes.capacity() * size_of::<Node>()
+            + self.packets.capacity() * size_of::<Packet>()
+            + self.counts.capacity()
+    }
+
+    /// Releases spare capacity.
+    pub(crate) fn shrink_to_fit(&mut self) {
+        self.nodes.shrink_to_fit();
+        self.packets.shrink_to_fit();
+        self.counts.shrink_to_fit();
+    }
+}
+
+/// The triangles (input indices) below binary node `b`.
+fn collect_prims(bvh2: &Bvh2, b: usize, out: &mut Vec<u32>) {
+    let mut todo = vec![b];
+    while let Some(n) = todo.pop() {
+        let node = &bvh2.nodes[n];
+        if node.prim_count == 0 {
+            let first = node.first_index as usize;
+            todo.extend([first + 1, first]);
+        } else {
+            let first = node.first_index as usize;
+            out.extend(&bvh2.primitive_indices[first..first + node.prim_count as usize]);
+        }
+    }
+}
+
+/// The surface-area-heuristic plan of every binary node: a subtree of at most [`LEAF_MAX`]
+/// triangles becomes a leaf when `PACKET_COST * packets * area` is no more than descending
+/// (`NODE_COST * area` plus the children's costs). Binary leaves (one triangle each from
+/// obvhs's PLOC) are leaves.
+fn plan(bvh2: &Bvh2) -> Vec<Plan> {
+    let n = bvh2.nodes.len();
+    let mut plans = vec![
+        Plan {
+            count: 0,
+            leaf: false
+        };
+        n
+    ];
+    if n == 0 {
+        return plans;
+    }
+    let mut cost = vec![0.0f32; n];
+    // pre-order, then children before parents by walking it backwards
+    let mut order = Vec::with_capacity(n);
+    let mut todo = vec![0usize];
+    while let Some(b) = todo.pop() {
+        order.push(b);
+        let node = &bvh2.nodes[b];
+        if node.prim_count == 0 {
+            let first = node.first_index as usize;
+            todo.extend([first, first + 1]);
+        }
+    }
+    for &b in order.iter().rev() {
+        let node = &bvh2.nodes[b];
+        let area = node.aabb.half_area().max(0.0);
+        if node.prim_count != 0 {
+            let count = node.prim_count;
+            plans[b] = Plan { count, leaf: true };
+            cost[b] = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
+            continue;
+        }
+        let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
+        let count = plans[l].count + plans[r].count;
+        let descend = NODE_COST * area + cost[l] + cost[r];
+        let as_leaf = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
+        let leaf = count as usize <= LEAF_MAX && as_leaf <= descend;
+        plans[b] = Plan { count, leaf };
+        cost[b] = if leaf { as_leaf } else { descend };
+    }
+    plans
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn leaf_items_round_trip() {
+        for (first, n) in [(0, 1), (5, 2), (MAX_PACKETS - 4, 4)] {
+            let item = leaf_item(first, n);
+            assert!(item & LEAF != 0);
+            assert_eq!(packets(item), first..first + n);
+        }
+    }
+
+    #[test]
+    fn lanes_round_trip() {
+        let t = Triangle {
+            v0: Vec3A::new(1.0, 2.0, 3.0),
+            v1: Vec3A::new(4.0, 5.0, 7.0),
+            v2: Vec3A::new(-1.0, 0.5, 2.0),
+        };
+        let mut p = Packet::empty();
+        p.set(2, &t, 0x8000_0000);
+        let lane = p.lane(2);
+        assert_eq!(lane.v0, t.v0);
+        assert_eq!(lane.e1, t.v0 - t.v1);
+        assert_eq!(lane.e2, t.v2 - t.v0);
+        assert_eq!(lane.id, 0x8000_0000);
+        assert_eq!(lane.ng(), (t.v0 - t.v1).cross(t.v2 - t.v0));
+        assert_eq!(p.lane(0).id, NO_ID);
+    }
+}
