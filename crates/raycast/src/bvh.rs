@@ -14,12 +14,14 @@ use obvhs::{
 };
 use rayon::prelude::*;
 
+#[cfg(target_arch = "x86_64")]
+use crate::traverse::Avx2;
 use crate::{
     BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
     query::{Query, crossings, near_end_point},
-    traverse::{self, NodeRay},
-    wide::{self, LANES, Lane, Wide, lane_mask},
+    traverse::{self, LeafTest, NodeRay, NodeTest, Sse},
+    wide::{self, LANES, Lane, Wide},
 };
 
 /// How much build time to spend on BVH quality (obvhs presets).
@@ -58,6 +60,9 @@ impl BvhPreset {
 pub struct Bvh {
     /// The hierarchy, with the canonical triangles and their ids in its leaf packets.
     wide: Wide,
+    /// The AVX2 node test, when this processor has it.
+    #[cfg(target_arch = "x86_64")]
+    avx2: Option<Avx2>,
     /// World <-> canonical map.
     frame: Frame,
     /// World bounds (min, max) of all input vertices.
@@ -117,6 +122,8 @@ impl Bvh {
         wide.shrink_to_fit();
         Ok(Bvh {
             wide,
+            #[cfg(target_arch = "x86_64")]
+            avx2: Avx2::detect(),
             frame,
             bounds,
             triangle_count: triangles.len(),
@@ -160,9 +167,43 @@ impl Bvh {
     }
 
     /// Closest hit in canonical units: (packet slot `packet * 4 + lane`, distance from the
-    /// lifted origin).
+    /// lifted origin), with the fastest node test this processor runs.
     #[inline]
     fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
+        self.with_stack(|stack| {
+            #[cfg(target_arch = "x86_64")]
+            if let Some(isa) = self.avx2 {
+                // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
+                // `trace_avx2` is compiled for.
+                #[allow(unsafe_code)]
+                return unsafe { self.trace_avx2(isa, ray, exclude, stack) };
+            }
+            self.trace_with(Sse, ray, exclude, stack)
+        })
+    }
+
+    /// [`Bvh::trace`] compiled for AVX2 and FMA (the whole traversal is inlined here).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn trace_avx2(
+        &self,
+        isa: Avx2,
+        ray: &CanonicalRay,
+        exclude: u32,
+        stack: &mut [traverse::Entry],
+    ) -> Option<(usize, f32)> {
+        self.trace_with(isa, ray, exclude, stack)
+    }
+
+    /// [`Bvh::trace`] with the node test `isa`.
+    #[inline(always)]
+    fn trace_with(
+        &self,
+        isa: impl NodeTest,
+        ray: &CanonicalRay,
+        exclude: u32,
+        stack: &mut [traverse::Entry],
+    ) -> Option<(usize, f32)> {
         let CanonicalRay {
             origin,
             dir,
@@ -174,35 +215,14 @@ impl Bvh {
         let shift = 2.0 * window;
         let r = NodeRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let Wide {
-            nodes,
+        let Wide { nodes, packets, .. } = &self.wide;
+        let mut leaves = Leaves {
             packets,
-            counts,
-            ..
-        } = &self.wide;
-        let test = |p: usize, best: &mut traverse::Best| {
-            let packet = &packets[p];
-            let mut lanes = lane_mask(counts, p);
-            for (j, &id) in packet.ids.iter().enumerate() {
-                lanes &= !(((id == exclude) as u32) << j);
-            }
-            let c = crossings::<false>(packet, &q, lanes);
-            let mut hot = c.hot;
-            while hot != 0 {
-                let j = hot.trailing_zeros() as usize;
-                hot &= hot - 1;
-                best.offer(c.t[j] + shift, packet.ids[j], p * LANES + j);
-            }
-            let mut cold = c.cold;
-            while cold != 0 {
-                let j = cold.trailing_zeros() as usize;
-                cold &= cold - 1;
-                if let Some(t) = near_end_point(&packet.lane(j), &q, c.t[j]) {
-                    best.offer(t + shift, packet.ids[j], p * LANES + j);
-                }
-            }
+            q: &q,
+            shift,
+            ids: (exclude, exclude),
         };
-        let best = self.with_stack(|stack| traverse::closest(nodes, packets, &r, stack, test));
+        let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
         let found = (best.slot != usize::MAX).then_some((best.slot, best.t));
         found.map(|(slot, t)| (slot, (t - shift).max(0.0)))
     }
@@ -322,13 +342,51 @@ impl RayCaster for Bvh {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
+        self.with_stack(|stack| {
+            #[cfg(target_arch = "x86_64")]
+            if let Some(isa) = self.avx2 {
+                // SAFETY: as in `Bvh::trace`.
+                #[allow(unsafe_code)]
+                return unsafe { self.blocked_avx2(isa, &s, a.id, b.id, stack) };
+            }
+            self.blocked_with(Sse, &s, a.id, b.id, stack)
+        })
+    }
+}
+
+impl Bvh {
+    /// [`Bvh::blocked_with`] compiled for AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn blocked_avx2(
+        &self,
+        isa: Avx2,
+        s: &CanonicalSegment,
+        ia: u32,
+        ib: u32,
+        stack: &mut [traverse::Entry],
+    ) -> bool {
+        self.blocked_with(isa, s, ia, ib, stack)
+    }
+
+    /// Whether a triangle with neither id `ia` nor `ib` blocks the canonical segment `s`, with
+    /// the node test `isa`.
+    #[inline(always)]
+    fn blocked_with(
+        &self,
+        isa: impl NodeTest,
+        s: &CanonicalSegment,
+        ia: u32,
+        ib: u32,
+        stack: &mut [traverse::Entry],
+    ) -> bool {
         let CanonicalSegment {
             origin,
             dir,
             len,
             window_start,
             window_end,
-        } = s;
+        } = *s;
         let q = Query::new(origin, dir, len, window_start, window_end);
         // as in `trace`: start behind the origin; any blocker reports `shift` (< tmax)
         let shift = 2.0 * window_start;
@@ -338,35 +396,86 @@ impl RayCaster for Bvh {
             0.0,
             len + window_end + 2.0 * shift,
         );
-        let (ia, ib) = (a.id, b.id);
-        let Wide {
-            nodes,
+        let Wide { nodes, packets, .. } = &self.wide;
+        let mut leaves = Leaves {
             packets,
-            counts,
-            ..
-        } = &self.wide;
-        let test = |p: usize| {
-            let packet = &packets[p];
-            let mut lanes = lane_mask(counts, p);
-            for (j, &id) in packet.ids.iter().enumerate() {
-                lanes &= !((((id == ia) | (id == ib)) as u32) << j);
+            q: &q,
+            shift,
+            ids: (ia, ib),
+        };
+        traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
+    }
+}
+
+/// Every lane of a packet (unused lanes never pass the test, see [`wide::Packet`]).
+const ALL_LANES: u32 = (1 << LANES) - 1;
+
+/// The packet tests of one query.
+struct Leaves<'a> {
+    packets: &'a [wide::Packet],
+    q: &'a Query,
+    /// How far the traversal starts behind the query's origin (added to crossing distances).
+    shift: f32,
+    /// The ids that never count (a ray's `exclude` twice, or a segment's two end points').
+    ids: (u32, u32),
+}
+
+impl LeafTest for Leaves<'_> {
+    #[inline(always)]
+    fn closest(&mut self, p: usize, best: &mut traverse::Best) {
+        let packet = &self.packets[p];
+        let c = crossings::<false>(packet, self.q, ALL_LANES);
+        if c.hot | c.cold == 0 {
+            return;
+        }
+        let keep = !excluded(packet, self.ids.0, self.ids.1);
+        let mut hot = c.hot & keep;
+        while hot != 0 {
+            let j = hot.trailing_zeros() as usize;
+            hot &= hot - 1;
+            best.offer(c.t[j] + self.shift, packet.ids[j], p * LANES + j);
+        }
+        let mut cold = c.cold & keep;
+        while cold != 0 {
+            let j = cold.trailing_zeros() as usize;
+            cold &= cold - 1;
+            if let Some(t) = near_end_point(&packet.lane(j), self.q, c.t[j]) {
+                best.offer(t + self.shift, packet.ids[j], p * LANES + j);
             }
-            let c = crossings::<true>(packet, &q, lanes);
-            if c.hot != 0 {
+        }
+    }
+
+    #[inline(always)]
+    fn any(&mut self, p: usize) -> bool {
+        let packet = &self.packets[p];
+        let c = crossings::<true>(packet, self.q, ALL_LANES);
+        if c.hot | c.cold == 0 {
+            return false;
+        }
+        let keep = !excluded(packet, self.ids.0, self.ids.1);
+        if c.hot & keep != 0 {
+            return true;
+        }
+        let mut cold = c.cold & keep;
+        while cold != 0 {
+            let j = cold.trailing_zeros() as usize;
+            cold &= cold - 1;
+            if near_end_point(&packet.lane(j), self.q, c.t[j]).is_some() {
                 return true;
             }
-            let mut cold = c.cold;
-            while cold != 0 {
-                let j = cold.trailing_zeros() as usize;
-                cold &= cold - 1;
-                if near_end_point(&packet.lane(j), &q, c.t[j]).is_some() {
-                    return true;
-                }
-            }
-            false
-        };
-        self.with_stack(|stack| traverse::any(nodes, packets, &r, stack, test))
+        }
+        false
     }
+}
+
+/// The lanes of `packet` whose id is `a` or `b`, as a bit mask.
+#[inline(always)]
+fn excluded(packet: &wide::Packet, a: u32, b: u32) -> u32 {
+    let mut mask = 0;
+    for (j, &id) in packet.ids.iter().enumerate() {
+        mask |= (((id == a) | (id == b)) as u32) << j;
+    }
+    mask
 }
 
 // `Bvh` is shared across threads by reference.

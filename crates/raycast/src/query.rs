@@ -86,6 +86,10 @@ pub(crate) struct Crossings {
 }
 
 /// The lanes of `lanes` (a bit mask) of packet `p` against query `q`, in canonical units.
+/// The tests compare barycentrics and distance scaled by `|det|` (no division): a lane whose
+/// determinant is 0 (a degenerate triangle, or an unused lane) is in neither mask, as its
+/// scaled barycentrics cannot all exceed `-SLACK * 0` while summing to 0, and its window
+/// bound is 0.
 ///
 /// `SEGMENT` is `false` for a ray (`len` infinite, no end window), which drops the tests at the
 /// end: `|t - len| < 2 * window_end` never holds for it, and `|t - len| >= near_end` holds for
@@ -117,29 +121,41 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         e1z * e2x - e1x * e2z,
         e1x * e2y - e1y * e2x,
     );
-    let inv_det = (nx * dx + ny * dy + nz * dz).recip();
-    let u = (rx * e2x + ry * e2y + rz * e2z) * inv_det;
-    let v = (rx * e1x + ry * e1y + rz * e1z) * inv_det;
-    let w = Vec4::ONE - u - v;
+    let det = nx * dx + ny * dy + nz * dz;
+    // Every test is on the barycentrics and distance times |det| (exact sign flips, no
+    // division): u' = u |det|, v' = v |det|, w' = w |det|, t' = t |det|.
+    let (sign, abs_det) = (det.signum(), det.abs());
+    let u = (rx * e2x + ry * e2y + rz * e2z) * sign;
+    let v = (rx * e1x + ry * e1y + rz * e1z) * sign;
+    let w = abs_det - u - v;
     // signed distance of the origin to the plane, times |ng|
     let plane = nx * cx + ny * cy + nz * cz;
-    let t = plane * inv_det;
-    let slack = Vec4::splat(-SLACK);
+    let t = plane * sign;
+    let slack = abs_det * Vec4::splat(-SLACK);
     let maybe = (u.cmpgt(slack) & v.cmpgt(slack) & w.cmpgt(slack)).bitmask();
     // clearly outside (the common case): only the windows look beyond the triangle
-    let mut in_window = t.abs().cmplt(l.window_start2).bitmask();
+    let mut in_window = plane.abs().cmplt(l.window_start2 * abs_det).bitmask();
+    let len = l.len * abs_det;
+    if SEGMENT {
+        in_window |= (t - len).abs().cmplt(l.window_end2 * abs_det).bitmask();
+    }
+    if lanes & (maybe | in_window) == 0 {
+        return Crossings {
+            t: [0.0; LANES],
+            hot: 0,
+            cold: 0,
+        };
+    }
     let mut near = (plane * plane)
         .cmplt(l.near_start2 * (nx * nx + ny * ny + nz * nz))
         .bitmask();
     if SEGMENT {
-        let to_end = (t - l.len).abs();
-        in_window |= to_end.cmplt(l.window_end2).bitmask();
-        near |= to_end.cmplt(l.near_end).bitmask();
+        near |= (t - len).abs().cmplt(l.near_end * abs_det).bitmask();
     }
     let zero = Vec4::ZERO;
-    let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(l.len));
+    let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(len));
     Crossings {
-        t: t.to_array(),
+        t: (plane / det).to_array(),
         hot: lanes & maybe & !near & inside.bitmask(),
         cold: lanes & ((!maybe & in_window) | (maybe & near)),
     }

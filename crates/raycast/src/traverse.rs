@@ -13,7 +13,7 @@
 use glam::{Vec3A, Vec4};
 use obvhs::ray::safe_inverse;
 
-use crate::wide::{LEAF, Node, WIDTH, packets};
+use crate::wide::{LEAF, Node, Packet, WIDTH, packets};
 
 /// A ray as the node test sees it: origin, reciprocal direction, and the interval of `t`.
 #[derive(Clone, Copy, Debug)]
@@ -21,6 +21,9 @@ pub(crate) struct NodeRay {
     /// `-origin * inv`, per axis, in all lanes: the plane `q` is reached at `q * inv + this`.
     offset: [Vec4; 3],
     inv: [Vec4; 3],
+    /// `offset` and `inv` as scalars.
+    offset1: [f32; 3],
+    inv1: [f32; 3],
     /// Index in [`Node::planes`] of the near and far plane on each axis (lower bounds for a
     /// positive direction, upper bounds for a negative one).
     near: [usize; 3],
@@ -43,6 +46,8 @@ impl NodeRay {
         NodeRay {
             offset: [0, 1, 2].map(|k| Vec4::splat(offset[k])),
             inv: [0, 1, 2].map(|k| Vec4::splat(inv[k])),
+            offset1: offset.into(),
+            inv1: inv.into(),
             near: [0, 1, 2].map(|k| 2 * k + neg[k] as usize),
             far: [0, 1, 2].map(|k| 2 * k + 1 - neg[k] as usize),
             tmin,
@@ -54,47 +59,150 @@ impl NodeRay {
 /// A stack entry: the distance at which the ray enters the box, and a node index or a leaf.
 pub(crate) type Entry = (f32, u32);
 
-/// The children of `node` whose box the ray enters before `tmax`: their entry distances
-/// and the mask of them (bit `i` for child `i`).
+/// A node test: the children of `node` whose box the ray enters before `tmax`, with their
+/// entry distances (lane `i` for child `i`) and the mask of them (bit `i` for child `i`).
+///
+/// Implemented for SSE ([`Sse`], every target through glam's `Vec4`) and for AVX2 with FMA
+/// ([`Avx2`], x86_64 processors that have them). Both compute `q * inv + offset` per plane, the
+/// second with one rounding instead of two, so their entry distances may differ in the last
+/// bit; what is hit does not depend on it (boxes are padded, see `bvh.rs`, and the closest hit
+/// is that of all triangles whatever the visiting order).
+pub(crate) trait NodeTest: Copy {
+    /// The test of `node`.
+    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32);
+}
+
+/// The node test on four children at a time, with SSE on x86_64 (scalar elsewhere).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sse;
+
+impl NodeTest for Sse {
+    #[inline(always)]
+    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        let t0 = Vec4::splat(ray.tmin);
+        let t1 = Vec4::splat(tmax);
+        let p = &node.planes;
+        let half = |h: usize| {
+            let at = |plane: usize, k: usize| p[plane][h] * ray.inv[k] + ray.offset[k];
+            let enter = at(ray.near[0], 0)
+                .max(at(ray.near[1], 1))
+                .max(at(ray.near[2], 2).max(t0));
+            let leave = at(ray.far[0], 0)
+                .min(at(ray.far[1], 1))
+                .min(at(ray.far[2], 2).min(t1));
+            (enter.to_array(), enter.cmple(leave).bitmask())
+        };
+        let (a, m0) = half(0);
+        let (b, m1) = half(1);
+        (
+            [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]],
+            m0 | (m1 << 4),
+        )
+    }
+}
+
+/// The node test on all eight children at once, with AVX2 and FMA. Only [`Avx2::detect`]
+/// makes one, so holding one proves the processor has them.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Avx2(());
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2 {
+    /// `Some` when this processor runs AVX2 and FMA.
+    pub(crate) fn detect() -> Option<Avx2> {
+        (is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")).then_some(Avx2(()))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for Avx2 {
+    /// Meant to be inlined into a function compiled with `#[target_feature(enable =
+    /// "avx2,fma")]` (see `Bvh::trace`); elsewhere each intrinsic is a call.
+    #[inline(always)]
+    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        let mut enter_out = [0.0f32; WIDTH];
+        // SAFETY: `self` exists only if `Avx2::detect` found AVX2 and FMA on this processor, so
+        // the intrinsics' target features are present. `plane_times` reads the 8 floats of one
+        // `[Vec4; 2]` plane row of `node` (32 bytes, in bounds, any alignment accepted by
+        // `loadu`), and the store writes the 8 floats of `enter_out`.
+        #[allow(unsafe_code)]
+        let mask = unsafe {
+            // (no closures here: they would not inherit the target features)
+            let ix = _mm256_set1_ps(ray.inv1[0]);
+            let iy = _mm256_set1_ps(ray.inv1[1]);
+            let iz = _mm256_set1_ps(ray.inv1[2]);
+            let ox = _mm256_set1_ps(ray.offset1[0]);
+            let oy = _mm256_set1_ps(ray.offset1[1]);
+            let oz = _mm256_set1_ps(ray.offset1[2]);
+            let p = &node.planes;
+            let enter = _mm256_max_ps(
+                _mm256_max_ps(
+                    plane_times(&p[ray.near[0]], ix, ox),
+                    plane_times(&p[ray.near[1]], iy, oy),
+                ),
+                _mm256_max_ps(
+                    plane_times(&p[ray.near[2]], iz, oz),
+                    _mm256_set1_ps(ray.tmin),
+                ),
+            );
+            let leave = _mm256_min_ps(
+                _mm256_min_ps(
+                    plane_times(&p[ray.far[0]], ix, ox),
+                    plane_times(&p[ray.far[1]], iy, oy),
+                ),
+                _mm256_min_ps(plane_times(&p[ray.far[2]], iz, oz), _mm256_set1_ps(tmax)),
+            );
+            _mm256_storeu_ps(enter_out.as_mut_ptr(), enter);
+            _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u32
+        };
+        (enter_out, mask)
+    }
+}
+
+/// `plane * inv + offset` in 8 lanes, rounded once.
+///
+/// # Safety
+/// The processor must have AVX2 and FMA (and the caller be compiled for them, or this is slow).
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn intersect_node(node: &Node, ray: &NodeRay, tmax: f32) -> ([Vec4; 2], u32) {
-    let t0 = Vec4::splat(ray.tmin);
-    let t1 = Vec4::splat(tmax);
-    let p = &node.planes;
-    let half = |h: usize| {
-        let at = |plane: usize, k: usize| p[plane][h] * ray.inv[k] + ray.offset[k];
-        let enter = at(ray.near[0], 0)
-            .max(at(ray.near[1], 1))
-            .max(at(ray.near[2], 2).max(t0));
-        let leave = at(ray.far[0], 0)
-            .min(at(ray.far[1], 1))
-            .min(at(ray.far[2], 2).min(t1));
-        (enter, enter.cmple(leave).bitmask())
-    };
-    let (e0, m0) = half(0);
-    let (e1, m1) = half(1);
-    ([e0, e1], m0 | (m1 << 4))
+#[allow(unsafe_code)]
+unsafe fn plane_times(
+    plane: &[Vec4; 2],
+    inv: std::arch::x86_64::__m256,
+    offset: std::arch::x86_64::__m256,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees the features; the load reads the 32 bytes of `plane`.
+    unsafe { _mm256_fmadd_ps(_mm256_loadu_ps(plane.as_ptr().cast::<f32>()), inv, offset) }
 }
 
 /// Asks the CPU to start loading the cache lines of `item` (a node, or a leaf's packets)
 /// while the traversal goes on.
 #[inline(always)]
-fn prefetch_item<P>(nodes: &[Node], packs: &[P], item: u32) {
+fn prefetch_item(nodes: &[Node], packs: &[Packet], item: u32) {
     // (address arithmetic only: no bounds checks, nothing is dereferenced)
-    let (first, bytes) = if item & LEAF == 0 {
-        let node = nodes.as_ptr().wrapping_add(item as usize);
-        (node.cast::<i8>(), size_of::<Node>())
+    if item & LEAF == 0 {
+        // a node: four aligned lines
+        let node = nodes.as_ptr().wrapping_add(item as usize).cast::<i8>();
+        for line in 0..4 {
+            prefetch(node.wrapping_add(64 * line));
+        }
     } else {
+        // packets are 160 bytes at 32-byte alignment: three lines from the start cover one
         let run = packets(item);
-        let first = packs.as_ptr().wrapping_add(run.start);
-        (first.cast::<i8>(), run.len() * size_of::<P>())
-    };
-    let mut offset = 0;
-    while offset < bytes {
-        prefetch(first.wrapping_add(offset));
-        offset += 64;
+        let first = packs.as_ptr().wrapping_add(run.start).cast::<i8>();
+        for line in 0..3 {
+            prefetch(first.wrapping_add(64 * line));
+        }
+        if run.len() > 1 {
+            let rest = first.wrapping_add(size_of::<Packet>() * (run.len() - 1));
+            for line in 0..3 {
+                prefetch(rest.wrapping_add(64 * line));
+            }
+        }
     }
-    prefetch(first.wrapping_add(bytes - 1));
 }
 
 /// A prefetch hint for the cache line holding `p`.
@@ -142,28 +250,45 @@ impl Best {
     }
 }
 
-/// The hit children of a node test, nearest last, pushed on the stack.
+/// The leaf test of a traversal.
+pub(crate) trait LeafTest {
+    /// Offers the crossings of packet `p` that count to `best` (closest hit).
+    fn closest(&mut self, p: usize, best: &mut Best);
+    /// Whether a crossing of packet `p` counts (any hit).
+    fn any(&mut self, p: usize) -> bool;
+}
+
+/// The hit children of a node test (`mask` of them, entry distances `enter`), prefetched: the
+/// nearest is returned, the others are pushed on the stack nearest last (popped first).
 #[inline(always)]
-fn push_hits<P>(
+fn visit_hits(
     nodes: &[Node],
-    packs: &[P],
+    packs: &[Packet],
     node: &Node,
-    enter: [Vec4; 2],
+    enter: [f32; WIDTH],
     mut mask: u32,
     stack: &mut [Entry],
     sp: &mut usize,
-) {
-    let enter: [f32; WIDTH] = {
-        let (a, b) = (enter[0].to_array(), enter[1].to_array());
-        [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]]
-    };
+) -> Option<Entry> {
+    if mask == 0 {
+        return None;
+    }
+    let i = mask.trailing_zeros() as usize;
+    mask &= mask - 1;
+    let first = (enter[i], node.items[i]);
+    prefetch_item(nodes, packs, first.1);
+    if mask == 0 {
+        return Some(first);
+    }
+    // two or more: sorted insertion by decreasing distance above `start`
     let start = *sp;
+    stack[start] = first;
+    *sp += 1;
     while mask != 0 {
         let i = mask.trailing_zeros() as usize;
         mask &= mask - 1;
         let item = node.items[i];
         prefetch_item(nodes, packs, item);
-        // insertion by decreasing distance (the nearest is popped first)
         let t = enter[i];
         let mut j = *sp;
         while j > start && stack[j - 1].0 < t {
@@ -173,74 +298,85 @@ fn push_hits<P>(
         stack[j] = (t, item);
         *sp += 1;
     }
+    *sp -= 1;
+    Some(stack[*sp])
 }
 
-/// Closest hit: `test(packet, &mut best)` offers the packet's crossings to `best`. Returns the
-/// best crossing before `ray.tmax`. `stack` has at least [`crate::wide::Wide::stack`] entries.
+/// Closest hit: `leaves.closest` offers the crossings of each packet reached to the best so
+/// far. Returns the best crossing before `ray.tmax`. `stack` has at least
+/// [`crate::wide::Wide::stack`] entries.
 #[inline(always)]
-pub(crate) fn closest<P>(
+pub(crate) fn closest(
+    isa: impl NodeTest,
     nodes: &[Node],
-    packs: &[P],
+    packs: &[Packet],
     ray: &NodeRay,
     stack: &mut [Entry],
-    mut test: impl FnMut(usize, &mut Best),
+    leaves: &mut impl LeafTest,
 ) -> Best {
     let mut best = Best::new(ray.tmax);
     let mut sp = 0;
-    let mut current = 0u32;
+    let mut next = Some((ray.tmin, 0u32));
     loop {
-        let node = &nodes[current as usize];
-        let (enter, mask) = intersect_node(node, ray, best.t);
-        push_hits(nodes, packs, node, enter, mask, stack, &mut sp);
-        loop {
-            if sp == 0 {
-                return best;
-            }
-            sp -= 1;
-            let (t, item) = stack[sp];
-            if t > best.t {
-                continue;
-            }
-            if item & LEAF == 0 {
-                current = item;
-                break;
-            }
+        let item = match next.take() {
+            Some((_, item)) => item,
+            None => loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                let (t, item) = stack[sp];
+                if t <= best.t {
+                    break item;
+                }
+            },
+        };
+        if item & LEAF != 0 {
             for p in packets(item) {
-                test(p, &mut best);
+                leaves.closest(p, &mut best);
             }
+            continue;
         }
+        let node = &nodes[item as usize];
+        let (enter, mask) = isa.intersect(node, ray, best.t);
+        next = visit_hits(nodes, packs, node, enter, mask, stack, &mut sp);
     }
 }
 
-/// Any hit: `true` as soon as `test(packet)` does. Visits children nearest first too (a
-/// blocker near the start ends the search early). `stack` as for [`closest`].
+/// Any hit: `true` as soon as `leaves.any` is for a packet reached. Visits children nearest
+/// first too (a blocker near the start ends the search early). `stack` as for [`closest`].
 #[inline(always)]
-pub(crate) fn any<P>(
+pub(crate) fn any(
+    isa: impl NodeTest,
     nodes: &[Node],
-    packs: &[P],
+    packs: &[Packet],
     ray: &NodeRay,
     stack: &mut [Entry],
-    mut test: impl FnMut(usize) -> bool,
+    leaves: &mut impl LeafTest,
 ) -> bool {
     let mut sp = 0;
-    let mut current = 0u32;
+    let mut next = Some((ray.tmin, 0u32));
     loop {
-        let node = &nodes[current as usize];
-        let (enter, mask) = intersect_node(node, ray, ray.tmax);
-        push_hits(nodes, packs, node, enter, mask, stack, &mut sp);
-        loop {
-            if sp == 0 {
-                return false;
+        let item = match next.take() {
+            Some((_, item)) => item,
+            None => {
+                if sp == 0 {
+                    return false;
+                }
+                sp -= 1;
+                stack[sp].1
             }
-            sp -= 1;
-            let item = stack[sp].1;
-            if item & LEAF == 0 {
-                current = item;
-                break;
+        };
+        if item & LEAF != 0 {
+            for p in packets(item) {
+                if leaves.any(p) {
+                    return true;
+                }
             }
-            if packets(item).any(&mut test) {
-                return true;
-            }
+            continue;
         }
+        let node = &nodes[item as usize];
+        let (enter, mask) = isa.intersect(node, ray, ray.tmax);
+        next = visit_hits(nodes, packs, node, enter, mask, stack, &mut sp);
     }
 }

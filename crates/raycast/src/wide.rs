@@ -88,8 +88,9 @@ impl Node {
 /// Up to four canonical-frame triangles in structure-of-arrays order (160 bytes): lane `j`
 /// holds `v0`, `e1 = v0 - v1` and `e2 = v2 - v0` (obvhs's `RtTriangle` edges, so that
 /// `e1 x e2` is minus the counter-clockwise normal) and the caller's id. Unused lanes hold
-/// a degenerate triangle at the origin with id [`NO_ID`], and are masked off by the leaf's
-/// triangle count anyway.
+/// the triangle with all vertices at the origin and id [`NO_ID`]: its determinant is 0, so
+/// the packet test computes NaN barycentrics and distances for it, which no test passes (see
+/// `query::crossings`), like any degenerate input triangle.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(32))]
 pub(crate) struct Packet {
@@ -149,11 +150,11 @@ impl Packet {
     /// Lane `j`.
     #[inline(always)]
     pub(crate) fn lane(&self, j: usize) -> Lane {
-        let get = |v: &[Vec4; 3]| Vec3A::new(v[0][j], v[1][j], v[2][j]);
+        let (v0, e1, e2) = (&self.v0, &self.e1, &self.e2);
         Lane {
-            v0: get(&self.v0),
-            e1: get(&self.e1),
-            e2: get(&self.e2),
+            v0: Vec3A::new(v0[0][j], v0[1][j], v0[2][j]),
+            e1: Vec3A::new(e1[0][j], e1[1][j], e1[2][j]),
+            e2: Vec3A::new(e2[0][j], e2[1][j], e2[2][j]),
             id: self.ids[j],
         }
     }
@@ -171,12 +172,6 @@ pub(crate) fn packets(item: u32) -> std::ops::Range<usize> {
     first..first + ((item >> 29) & 3) as usize + 1
 }
 
-/// The lanes of packet `p` holding triangles, as a bit mask.
-#[inline(always)]
-pub(crate) fn lane_mask(counts: &[u8], p: usize) -> u32 {
-    (1 << counts[p]) - 1
-}
-
 /// The 8-wide BVH.
 #[derive(Clone, Debug)]
 pub(crate) struct Wide {
@@ -184,8 +179,6 @@ pub(crate) struct Wide {
     pub(crate) nodes: Vec<Node>,
     /// Triangle packets in leaf order.
     pub(crate) packets: Vec<Packet>,
-    /// Triangles held by each packet (1 to 4).
-    pub(crate) counts: Vec<u8>,
     /// Traversal stack entries a query needs (see [`Wide::stack_bound`]).
     pub(crate) stack: usize,
 }
@@ -207,7 +200,6 @@ impl Wide {
         let mut wide = Wide {
             nodes: vec![Node::empty()],
             packets: Vec::with_capacity(tris.len() / 2 + 1),
-            counts: Vec::with_capacity(tris.len() / 2 + 1),
             stack: 0,
         };
         // (binary node, wide node to fill)
@@ -274,23 +266,19 @@ impl Wide {
                 packet.set(j, &tris[p as usize], ids[p as usize]);
             }
             self.packets.push(packet);
-            self.counts.push(chunk.len() as u8);
         }
         leaf_item(first, self.packets.len() - first)
     }
 
     /// Bytes held: nodes, packets and counts, by allocated capacity.
     pub(crate) fn memory_bytes(&self) -> usize {
-        self.nodes.capacity() * size_of::<Node>()
-            + self.packets.capacity() * size_of::<Packet>()
-            + self.counts.capacity()
+        self.nodes.capacity() * size_of::<Node>() + self.packets.capacity() * size_of::<Packet>()
     }
 
     /// Releases spare capacity.
     pub(crate) fn shrink_to_fit(&mut self) {
         self.nodes.shrink_to_fit();
         self.packets.shrink_to_fit();
-        self.counts.shrink_to_fit();
     }
 }
 
