@@ -54,6 +54,14 @@ fn main() {
             hits.iter().filter(|h| h.is_some()).count()
         }
         "occluded" => pairs.iter().filter(|(p, q)| bvh.occluded(p, q)).count(),
+        "lifted" => surface
+            .iter()
+            .filter(|r| {
+                let mut r = **r;
+                r.origin += r.origin_normal * 1e-3;
+                bvh.closest_hit(&r).is_some()
+            })
+            .count(),
         other => {
             eprintln!("error: unknown query {other:?} (closest, batch, occluded)");
             std::process::exit(2);

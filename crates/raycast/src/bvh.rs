@@ -130,6 +130,17 @@ impl Bvh {
         })
     }
 
+    /// This BVH with the portable node test (four children at a time, SSE on x86_64) even
+    /// where the processor runs the AVX2 one: for tests and comparisons. The answers are the
+    /// same; only the speed differs.
+    pub fn with_portable_node_test(self) -> Bvh {
+        Bvh {
+            #[cfg(target_arch = "x86_64")]
+            avx2: None,
+            ..self
+        }
+    }
+
     /// Number of input triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangle_count

@@ -38,6 +38,8 @@ struct QueryLanes {
     len: Vec4,
     window_start2: Vec4,
     window_end2: Vec4,
+    window_start_half: Vec4,
+    window_end_half: Vec4,
     near_start2: Vec4,
     near_end: Vec4,
 }
@@ -61,6 +63,8 @@ impl Query {
             len: Vec4::splat(len),
             window_start2: Vec4::splat(2.0 * window_start),
             window_end2: Vec4::splat(2.0 * window_end),
+            window_start_half: Vec4::splat(0.5 * window_start),
+            window_end_half: Vec4::splat(0.5 * window_end),
             near_start2: Vec4::splat(near_start * near_start),
             near_end: Vec4::splat(near_end),
         };
@@ -154,10 +158,23 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
     }
     let zero = Vec4::ZERO;
     let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(len));
+    let mut cold = lanes & ((!maybe & in_window) | (maybe & near));
+    if cold != 0 {
+        // what `near_end_point` rejects whatever the exact numbers, in all lanes at once:
+        // well behind the start, or past the end; leaving the start's window backwards
+        // (`front` is `det > 0`), or arriving in the end's window front first
+        let mut rejected = t.cmple(-l.window_start2 * abs_det)
+            | (t.cmplt(l.window_start_half * abs_det) & det.cmple(zero));
+        if SEGMENT {
+            rejected |= t.cmpge(len + l.window_end2 * abs_det)
+                | (t.cmpgt(len - l.window_end_half * abs_det) & det.cmpgt(zero));
+        }
+        cold &= !rejected.bitmask();
+    }
     Crossings {
         t: (plane / det).to_array(),
         hot: lanes & maybe & !near & inside.bitmask(),
-        cold: lanes & ((!maybe & in_window) | (maybe & near)),
+        cold,
     }
 }
 

@@ -145,3 +145,26 @@ fn own_id_is_never_reported_even_when_leaving_backwards() {
         }
     }
 }
+
+#[test]
+fn portable_node_test_matches_oracle_and_the_fast_one() {
+    // On a processor with AVX2 the other tests exercise the AVX2 node test; this one checks the
+    // portable (SSE) one, and that both give the very same answers.
+    let s = room_with_boxes(3, 12);
+    let fast = Bvh::build(&s.tris, &s.ids).unwrap();
+    let portable = Bvh::build(&s.tris, &s.ids)
+        .unwrap()
+        .with_portable_node_test();
+    check_scene("room, portable node test", &s, &portable, 3);
+    let mut rng = Rng::new(21);
+    for _ in 0..RAYS {
+        let r = surface_ray(&s, Spot::Uniform, false, &mut rng);
+        assert_eq!(fast.closest_hit(&r), portable.closest_hit(&r), "{r:?}");
+        let (a, b) = (surface_point(&s, &mut rng), surface_point(&s, &mut rng));
+        assert_eq!(
+            fast.occluded(&a, &b),
+            portable.occluded(&a, &b),
+            "{a:?} {b:?}"
+        );
+    }
+}
