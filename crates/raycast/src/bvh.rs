@@ -238,10 +238,18 @@ impl Bvh {
         found.map(|(slot, t)| (slot, (t - shift).max(0.0)))
     }
 
-    /// Runs `f` with a traversal stack of at least `self.stack` entries: a per-thread buffer,
-    /// reused, so that no query allocates or clears one.
+    /// Runs `f` with a traversal stack of at least `self.wide.stack` entries: an array on the
+    /// call stack when [`LOCAL_STACK`] entries are enough (hierarchies up to 12 levels deep),
+    /// otherwise a per-thread buffer, reused, so that no query allocates.
     #[inline(always)]
     fn with_stack<R>(&self, f: impl FnOnce(&mut [traverse::Entry]) -> R) -> R {
+        // (zeroing the array is the cost: the smaller one when it is enough)
+        if self.wide.stack <= LOCAL_STACK / 2 {
+            return f(&mut [(0.0, 0); LOCAL_STACK / 2]);
+        }
+        if self.wide.stack <= LOCAL_STACK {
+            return f(&mut [(0.0, 0); LOCAL_STACK]);
+        }
         STACK.with(|cell| {
             let mut stack = cell.take();
             if stack.len() < self.wide.stack {
@@ -253,6 +261,9 @@ impl Bvh {
         })
     }
 }
+
+/// Traversal stack entries kept on the call stack (768 bytes).
+const LOCAL_STACK: usize = 96;
 
 thread_local! {
     /// The traversal stack of this thread's queries (see [`Bvh::with_stack`]).
