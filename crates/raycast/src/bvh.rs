@@ -77,6 +77,7 @@ impl std::fmt::Debug for Bvh {
             .field("triangles", &self.triangle_count)
             .field("packets", &self.wide.packets.len())
             .field("nodes", &self.wide.nodes.len())
+            .field("stack", &self.wide.stack)
             .field("bounds", &self.bounds)
             .field("scale", &self.frame.scale())
             .finish()
@@ -239,34 +240,30 @@ impl Bvh {
     }
 
     /// Runs `f` with a traversal stack of at least `self.wide.stack` entries: an array on the
-    /// call stack when [`LOCAL_STACK`] entries are enough (hierarchies up to 12 levels deep),
-    /// otherwise a per-thread buffer, reused, so that no query allocates.
+    /// call stack when one of up to 128 entries is enough (zeroing it is the cost, so the
+    /// smallest that is), otherwise a per-thread buffer, reused, so that no query allocates.
     #[inline(always)]
     fn with_stack<R>(&self, f: impl FnOnce(&mut [traverse::Entry]) -> R) -> R {
-        // (zeroing the array is the cost: the smaller one when it is enough)
-        if self.wide.stack <= LOCAL_STACK / 2 {
-            return f(&mut [(0.0, 0); LOCAL_STACK / 2]);
+        match self.wide.stack {
+            0..=32 => f(&mut [(0.0, 0); 32]),
+            33..=64 => f(&mut [(0.0, 0); 64]),
+            65..=128 => f(&mut [(0.0, 0); 128]),
+            _ => STACK.with(|cell| {
+                let mut stack = cell.take();
+                if stack.len() < self.wide.stack {
+                    stack.resize(self.wide.stack, (0.0, 0));
+                }
+                let result = f(&mut stack);
+                cell.set(stack);
+                result
+            }),
         }
-        if self.wide.stack <= LOCAL_STACK {
-            return f(&mut [(0.0, 0); LOCAL_STACK]);
-        }
-        STACK.with(|cell| {
-            let mut stack = cell.take();
-            if stack.len() < self.wide.stack {
-                stack.resize(self.wide.stack, (0.0, 0));
-            }
-            let result = f(&mut stack);
-            cell.set(stack);
-            result
-        })
     }
 }
 
-/// Traversal stack entries kept on the call stack (768 bytes).
-const LOCAL_STACK: usize = 96;
-
 thread_local! {
-    /// The traversal stack of this thread's queries (see [`Bvh::with_stack`]).
+    /// The traversal stack of this thread's queries on deep hierarchies (see
+    /// [`Bvh::with_stack`]).
     static STACK: Cell<Vec<traverse::Entry>> = const { Cell::new(Vec::new()) };
 }
 

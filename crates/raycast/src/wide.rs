@@ -179,7 +179,11 @@ pub(crate) struct Wide {
     pub(crate) nodes: Vec<Node>,
     /// Triangle packets in leaf order.
     pub(crate) packets: Vec<Packet>,
-    /// Traversal stack entries a query needs (see [`Wide::stack_bound`]).
+    /// Traversal stack entries a query needs: a traversal keeps the nearest hit child of a
+    /// node and pushes the others, so the stack holds pending siblings of the current node's
+    /// ancestors; while a node's hit children are sorted they all sit on it. So this is the
+    /// largest, over nodes, of the node's children count plus the children counts minus one
+    /// of its ancestors.
     pub(crate) stack: usize,
 }
 
@@ -206,7 +210,9 @@ impl Wide {
         let mut todo = vec![(0usize, 0usize)];
         let mut children = Vec::with_capacity(WIDTH);
         let mut prims = Vec::with_capacity(LEAF_MAX);
-        let mut depth = vec![1usize];
+        // entries on the traversal stack below a node's own (see `Wide::stack`)
+        let mut load = vec![0usize];
+        let mut stack = 0;
         while let Some((b, w)) = todo.pop() {
             children.clear();
             if plans[b].leaf {
@@ -228,6 +234,9 @@ impl Wide {
                     children.push(first + 1);
                 }
             }
+            // the node's children go on top of the siblings of its ancestors
+            stack = stack.max(load[w] + children.len());
+            let below = load[w] + children.len() - 1;
             // inner children get consecutive node indices, so siblings share pages
             for (i, &c) in children.iter().enumerate() {
                 let aabb = bvh2.nodes[c].aabb;
@@ -238,16 +247,14 @@ impl Wide {
                 } else {
                     let index = wide.nodes.len();
                     wide.nodes.push(Node::empty());
-                    depth.push(depth[w] + 1);
+                    load.push(below);
                     todo.push((c, index));
                     index as u32
                 };
                 wide.nodes[w].set(i, &aabb, item);
             }
         }
-        let max_depth = depth.into_iter().max().unwrap_or(1);
-        // each node pushes at most 8 entries and pops one
-        wide.stack = (WIDTH - 1) * max_depth + WIDTH;
+        wide.stack = stack;
         wide
     }
 
