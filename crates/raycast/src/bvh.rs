@@ -89,7 +89,7 @@ impl Bvh {
     /// front), triangle `i` tagged with `ids[i]`, using [`BvhPreset::Fast`] (the default).
     ///
     /// Errors: empty input, `ids.len() != triangles.len()`, a NaN or infinite vertex, an id
-    /// equal to [`NO_ID`]. Degenerate triangles are accepted (and never hit).
+    /// equal to [`NO_ID`](crate::NO_ID). Degenerate triangles are accepted (and never hit).
     pub fn build(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<Bvh, BuildError> {
         Bvh::build_with(triangles, ids, BvhPreset::default())
     }

@@ -3,8 +3,9 @@
 //! This crate knows nothing of radiosity. It holds triangles, each tagged with a caller's `u32`
 //! id (many triangles may share one id: a polygonal patch made of several coplanar triangles),
 //! and answers two questions through the [`RayCaster`] trait: *what does this ray hit first?*
-//! and *is anything between these two surface points?* [`Bvh`] answers them fast (an obvhs
-//! compressed 8-wide BVH, walked by this crate's own traversal: see *Speed* below);
+//! and *is anything between these two surface points?* [`Bvh`] answers them fast (obvhs's
+//! PLOC build, collapsed into this crate's 8-wide BVH with 4-triangle leaf packets and walked
+//! by its own SIMD traversal: see *Speed* below);
 //! [`BruteForce`] answers them slowly in `f64` and is the test oracle.
 //! Both report hits on either side of a triangle ([`Hit::front`] tells which) and never report
 //! the id a query excludes.
@@ -80,25 +81,36 @@
 //!   scene: an origin far outside the scene's box is first moved along the ray to near the box.
 //! * An infinite vertex panics the obvhs build: builds reject non-finite vertices first.
 //! * obvhs keeps its traversal stack in 32 fixed entries, which a pathologically deep BVH could
-//!   overflow; our traversal sizes its stack from the depth of the hierarchy.
+//!   overflow; our traversal sizes its stack from the hierarchy (the most pending siblings
+//!   along any root-to-leaf path).
 //!
 //! # Speed
 //!
 //! The fast path is memory- and instruction-bound on large scenes (see `ARCHITECTURE.md` for
-//! measurements). [`Bvh`] keeps obvhs's builder and its 80-byte quantised nodes but walks them
-//! itself: children are visited nearest first, every stack entry carries its entry distance so
-//! that subtrees behind the closest hit so far are dropped without being fetched, the eight
-//! child boxes are tested with SSE2, and the child nodes and leaf triangles that will be visited
-//! are prefetched. Triangles are stored in leaf order, one 64-byte cache line each with their
-//! id (no index array). Among crossings at exactly the same distance the lowest id wins, so the
-//! answer does not depend on the visiting order. The batch entry points
+//! measurements against Embree). [`Bvh`] keeps obvhs's builder (PLOC and reinsertion over
+//! padded triangle boxes) and re-arranges its binary tree for single-ray traversal on a CPU:
+//! * an 8-wide BVH with `f32` child boxes in structure-of-arrays order (256-byte nodes): the
+//!   slab test of all 8 children is one AVX2/FMA sequence where the processor has it (detected
+//!   at build time; the whole traversal is compiled for it), or two SSE halves;
+//! * leaves of 4-triangle packets (160 bytes with their ids), tested 4 at a time; the leaves
+//!   and the collapse are chosen by the surface-area heuristic;
+//! * children visited nearest first, every stack entry carrying its entry distance so that
+//!   subtrees behind the closest hit so far are dropped without being fetched; the nearest hit
+//!   child goes on without touching the stack; any-hit queries skip the sorting;
+//! * the nodes and packets a node test finds are prefetched at once.
+//!
+//! Memory: about 75 bytes per triangle ([`Bvh::memory_bytes`]). Among crossings at exactly the
+//! same distance the lowest id wins, so the answer does not depend on the visiting order (nor
+//! on the node test: both give the same hits). The batch entry points
 //! ([`RayCaster::closest_hit_batch`], [`RayCaster::occluded_batch`]) visit their queries sorted
 //! by origin and direction, which keeps the caches warm (same answers as one by one).
 //!
 //! # Watertightness is counted, not promised
 //!
-//! Away from its end points a ray is tested with obvhs's `f32` Möller-Trumbore, which is not
-//! watertight: a ray can slip through the shared edge of two triangles. Measured with obvhs
+//! Away from its end points a ray is tested with `f32` Möller-Trumbore (obvhs's arithmetic,
+//! four triangles at a time, with comparisons scaled by the determinant instead of a
+//! division), which is not watertight: a ray can slip through the shared edge of two
+//! triangles. Measured with obvhs
 //! alone: about one ray in three million inside a closed, tessellated room escapes. The test
 //! suite bounds the escape fraction at `1e-5` for rays from uniform surface points and from
 //! interior points of closed boxes. Callers that need a hit (radiosity in a closed scene) must

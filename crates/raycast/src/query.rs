@@ -90,10 +90,10 @@ pub(crate) struct Crossings {
 }
 
 /// The lanes of `lanes` (a bit mask) of packet `p` against query `q`, in canonical units.
-/// The tests compare barycentrics and distance scaled by `|det|` (no division): a lane whose
-/// determinant is 0 (a degenerate triangle, or an unused lane) is in neither mask, as its
-/// scaled barycentrics cannot all exceed `-SLACK * 0` while summing to 0, and its window
-/// bound is 0.
+/// The tests compare barycentrics and distance scaled by `det^2` (no division; canonical
+/// coordinates below 1024 keep the products far from `f32` overflow): a lane whose determinant
+/// is 0 (a degenerate triangle, or an unused lane) is in neither mask, as its scaled
+/// barycentrics are all 0, which is not above `-SLACK * 0`, and its window bound is 0.
 ///
 /// `SEGMENT` is `false` for a ray (`len` infinite, no end window), which drops the tests at the
 /// end: `|t - len| < 2 * window_end` never holds for it, and `|t - len| >= near_end` holds for
@@ -126,22 +126,22 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         e1x * e2y - e1y * e2x,
     );
     let det = nx * dx + ny * dy + nz * dz;
-    // Every test is on the barycentrics and distance times |det| (exact sign flips, no
-    // division): u' = u |det|, v' = v |det|, w' = w |det|, t' = t |det|.
-    let (sign, abs_det) = (det.signum(), det.abs());
-    let u = (rx * e2x + ry * e2y + rz * e2z) * sign;
-    let v = (rx * e1x + ry * e1y + rz * e1z) * sign;
-    let w = abs_det - u - v;
+    // Every test is on the barycentrics and distance times det^2 (no division, no sign
+    // extraction): u' = u det^2 = (r . e2) det, likewise v', w', t'.
+    let d2 = det * det;
+    let u = (rx * e2x + ry * e2y + rz * e2z) * det;
+    let v = (rx * e1x + ry * e1y + rz * e1z) * det;
+    let w = d2 - u - v;
     // signed distance of the origin to the plane, times |ng|
     let plane = nx * cx + ny * cy + nz * cz;
-    let t = plane * sign;
-    let slack = abs_det * Vec4::splat(-SLACK);
+    let t = plane * det;
+    let slack = d2 * Vec4::splat(-SLACK);
     let maybe = (u.cmpgt(slack) & v.cmpgt(slack) & w.cmpgt(slack)).bitmask();
     // clearly outside (the common case): only the windows look beyond the triangle
-    let mut in_window = plane.abs().cmplt(l.window_start2 * abs_det).bitmask();
-    let len = l.len * abs_det;
+    let mut in_window = t.abs().cmplt(l.window_start2 * d2).bitmask();
+    let len = l.len * d2;
     if SEGMENT {
-        in_window |= (t - len).abs().cmplt(l.window_end2 * abs_det).bitmask();
+        in_window |= (t - len).abs().cmplt(l.window_end2 * d2).bitmask();
     }
     if lanes & (maybe | in_window) == 0 {
         return Crossings {
@@ -154,7 +154,7 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         .cmplt(l.near_start2 * (nx * nx + ny * ny + nz * nz))
         .bitmask();
     if SEGMENT {
-        near |= (t - len).abs().cmplt(l.near_end * abs_det).bitmask();
+        near |= (t - len).abs().cmplt(l.near_end * d2).bitmask();
     }
     let zero = Vec4::ZERO;
     let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(len));
@@ -163,11 +163,11 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         // what `near_end_point` rejects whatever the exact numbers, in all lanes at once:
         // well behind the start, or past the end; leaving the start's window backwards
         // (`front` is `det > 0`), or arriving in the end's window front first
-        let mut rejected = t.cmple(-l.window_start2 * abs_det)
-            | (t.cmplt(l.window_start_half * abs_det) & det.cmple(zero));
+        let mut rejected =
+            t.cmple(-l.window_start2 * d2) | (t.cmplt(l.window_start_half * d2) & det.cmple(zero));
         if SEGMENT {
-            rejected |= t.cmpge(len + l.window_end2 * abs_det)
-                | (t.cmpgt(len - l.window_end_half * abs_det) & det.cmpgt(zero));
+            rejected |= t.cmpge(len + l.window_end2 * d2)
+                | (t.cmpgt(len - l.window_end_half * d2) & det.cmpgt(zero));
         }
         cold &= !rejected.bitmask();
     }

@@ -88,7 +88,7 @@ impl Node {
 /// Up to four canonical-frame triangles in structure-of-arrays order (160 bytes): lane `j`
 /// holds `v0`, `e1 = v0 - v1` and `e2 = v2 - v0` (obvhs's `RtTriangle` edges, so that
 /// `e1 x e2` is minus the counter-clockwise normal) and the caller's id. Unused lanes hold
-/// the triangle with all vertices at the origin and id [`NO_ID`]: its determinant is 0, so
+/// the triangle with all vertices at the origin and id [`NO_ID`](crate::NO_ID): its determinant is 0, so
 /// the packet test computes NaN barycentrics and distances for it, which no test passes (see
 /// `query::crossings`), like any degenerate input triangle.
 #[derive(Clone, Copy, Debug)]
