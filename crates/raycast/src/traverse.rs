@@ -273,19 +273,34 @@ fn visit_hits(
     if mask == 0 {
         return None;
     }
-    let i = mask.trailing_zeros() as usize;
+    let i = mask.trailing_zeros() as usize & (WIDTH - 1);
     mask &= mask - 1;
     let first = (enter[i], node.items[i]);
     prefetch_item(nodes, packs, first.1);
     if mask == 0 {
         return Some(first);
     }
-    // two or more: sorted insertion by decreasing distance above `start`
+    let i = mask.trailing_zeros() as usize & (WIDTH - 1);
+    mask &= mask - 1;
+    let second = (enter[i], node.items[i]);
+    prefetch_item(nodes, packs, second.1);
+    let (near, far) = if second.0 < first.0 {
+        (second, first)
+    } else {
+        (first, second)
+    };
+    if mask == 0 {
+        stack[*sp] = far;
+        *sp += 1;
+        return Some(near);
+    }
+    // three or more: sorted insertion by decreasing distance above `start`
     let start = *sp;
-    stack[start] = first;
-    *sp += 1;
+    stack[start] = far;
+    stack[start + 1] = near;
+    *sp += 2;
     while mask != 0 {
-        let i = mask.trailing_zeros() as usize;
+        let i = mask.trailing_zeros() as usize & (WIDTH - 1);
         mask &= mask - 1;
         let item = node.items[i];
         prefetch_item(nodes, packs, item);
