@@ -15,7 +15,13 @@
 //! the largest surface area, as Embree's and most wide-BVH builders do.
 
 use glam::{Vec3A, Vec4};
-use obvhs::{aabb::Aabb, bvh2::Bvh2, triangle::Triangle};
+use obvhs::{
+    aabb::Aabb,
+    bvh2::{Bvh2, node::Bvh2Node},
+    triangle::Triangle,
+};
+
+use rayon::prelude::*;
 
 use crate::NO_ID;
 
@@ -37,8 +43,10 @@ const PACKET_MASK: u32 = (1 << 29) - 1;
 /// Number of packets leaf items can address: the build rejects more.
 pub(crate) const MAX_PACKETS: usize = 1 << 29;
 
-/// An empty child slot (its box is empty, so no ray enters it).
-const EMPTY: u32 = LEAF;
+/// An empty child slot (its box is empty, so no ray enters it). As a leaf item it would be a
+/// run of 4 packets from the last addressable one, which no leaf is (leaves hold at most
+/// [`LEAF_MAX`] triangles, two packets).
+const EMPTY: u32 = u32::MAX;
 
 /// Surface-area-heuristic cost of testing one packet, relative to one binary level of node
 /// traversal ([`NODE_COST`]).
@@ -196,76 +204,163 @@ struct Plan {
     leaf: bool,
 }
 
+/// Subtrees the top of the collapse hands to the rayon pool (a fixed number, so that the
+/// layout does not depend on the thread count).
+const TOP_JOBS: usize = 64;
+
+/// The inputs of the collapse.
+struct Collapse<'a> {
+    bvh2: &'a Bvh2,
+    plans: &'a [Plan],
+    tris: &'a [Triangle],
+    ids: &'a [u32],
+}
+
+/// A wide node still to fill: from binary node `binary` into `node`, whose ancestors leave
+/// `load` entries on the traversal stack.
+#[derive(Clone, Copy)]
+struct Pending {
+    binary: usize,
+    node: usize,
+    load: usize,
+}
+
+impl Collapse<'_> {
+    /// Fills `pending.node` of `part` (its children chosen from the binary subtree), appending
+    /// its leaves' packets and empty nodes for its inner children, which go to `todo`.
+    fn fill(&self, part: &mut Wide, pending: Pending, todo: &mut Vec<Pending>) {
+        let (bvh2, plans) = (self.bvh2, self.plans);
+        let mut children = [0usize; WIDTH];
+        let b = pending.binary;
+        let mut n = 1;
+        if plans[b].leaf {
+            children[0] = b;
+        } else {
+            let first = bvh2.nodes[b].first_index as usize;
+            children[..2].copy_from_slice(&[first, first + 1]);
+            n = 2;
+            while n < WIDTH {
+                // open the inner child of largest surface area
+                let open = (0..n)
+                    .filter(|&i| !plans[children[i]].leaf)
+                    .max_by(|&i, &j| {
+                        let area = |i: usize| bvh2.nodes[children[i]].aabb.half_area();
+                        area(i).total_cmp(&area(j))
+                    });
+                let Some(i) = open else { break };
+                let first = bvh2.nodes[children[i]].first_index as usize;
+                children[i] = first;
+                children[n] = first + 1;
+                n += 1;
+            }
+        }
+        // the node's children go on top of the siblings of its ancestors
+        part.stack = part.stack.max(pending.load + n);
+        let load = pending.load + n - 1;
+        let mut prims = [0u32; LEAF_MAX];
+        // inner children get consecutive node indices, so siblings share pages
+        for (i, &c) in children[..n].iter().enumerate() {
+            let item = if plans[c].leaf {
+                let count = collect_prims(bvh2, c, &mut prims);
+                part.leaf(&prims[..count], self.tris, self.ids)
+            } else {
+                let node = part.nodes.len();
+                part.nodes.push(Node::empty());
+                todo.push(Pending {
+                    binary: c,
+                    node,
+                    load,
+                });
+                node as u32
+            };
+            part.nodes[pending.node].set(i, &bvh2.nodes[c].aabb, item);
+        }
+    }
+
+    /// The part of the wide BVH below `root`: its node 0 is `root.node`'s (indices local).
+    fn part(&self, root: Pending) -> Wide {
+        let mut part = Wide {
+            nodes: vec![Node::empty()],
+            packets: Vec::new(),
+            stack: 0,
+        };
+        let mut todo = vec![Pending { node: 0, ..root }];
+        while let Some(pending) = todo.pop() {
+            self.fill(&mut part, pending, &mut todo);
+        }
+        part
+    }
+}
+
 impl Wide {
     /// The 8-wide BVH of `bvh2`, whose leaves index `tris` (and `ids`) through
-    /// `bvh2.primitive_indices`.
+    /// `bvh2.primitive_indices`, built on the current rayon pool: the top nodes in breadth-
+    /// first order until there is work for every thread, then the subtrees below them in
+    /// parallel, joined in a fixed order (the result does not depend on the thread count).
     pub(crate) fn new(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Wide {
         let plans = plan(bvh2);
+        let collapse = Collapse {
+            bvh2,
+            plans: &plans,
+            tris,
+            ids,
+        };
         let mut wide = Wide {
             nodes: vec![Node::empty()],
             packets: Vec::with_capacity(tris.len() / 2 + 1),
             stack: 0,
         };
-        // (binary node, wide node to fill)
-        let mut todo = vec![(0usize, 0usize)];
-        let mut children = Vec::with_capacity(WIDTH);
-        let mut prims = Vec::with_capacity(LEAF_MAX);
-        // entries on the traversal stack below a node's own (see `Wide::stack`)
-        let mut load = vec![0usize];
-        let mut stack = 0;
-        while let Some((b, w)) = todo.pop() {
-            children.clear();
-            if plans[b].leaf {
-                children.push(b);
-            } else {
-                let first = bvh2.nodes[b].first_index as usize;
-                children.extend([first, first + 1]);
-                while children.len() < WIDTH {
-                    // open the inner child of largest surface area
-                    let open = (0..children.len())
-                        .filter(|&i| !plans[children[i]].leaf)
-                        .max_by(|&i, &j| {
-                            let area = |i: usize| bvh2.nodes[children[i]].aabb.half_area();
-                            area(i).total_cmp(&area(j))
-                        });
-                    let Some(i) = open else { break };
-                    let first = bvh2.nodes[children[i]].first_index as usize;
-                    children[i] = first;
-                    children.push(first + 1);
+        // breadth first over the top (the order of `todo` is fixed: no thread count in it)
+        let mut todo = std::collections::VecDeque::from([Pending {
+            binary: 0,
+            node: 0,
+            load: 0,
+        }]);
+        let mut next = Vec::with_capacity(WIDTH);
+        while todo.len() < TOP_JOBS {
+            let Some(pending) = todo.pop_front() else {
+                break;
+            };
+            collapse.fill(&mut wide, pending, &mut next);
+            todo.extend(next.drain(..));
+        }
+        let parts: Vec<Wide> = todo
+            .par_iter()
+            .map(|&pending| collapse.part(pending))
+            .collect();
+        for (pending, part) in todo.iter().zip(parts) {
+            wide.join(pending.node, part);
+        }
+        wide
+    }
+
+    /// Puts `part` (the subtree of node `at`, with local indices) into this BVH.
+    fn join(&mut self, at: usize, part: Wide) {
+        // local node 0 is `at`, local node k > 0 goes to `base + k - 1`
+        let base = self.nodes.len() as u32;
+        let first_packet = self.packets.len() as u32;
+        let remap = |mut node: Node| {
+            for item in &mut node.items {
+                if *item == EMPTY {
+                } else if *item & LEAF != 0 {
+                    *item += first_packet;
+                } else {
+                    *item += base - 1;
                 }
             }
-            // the node's children go on top of the siblings of its ancestors
-            stack = stack.max(load[w] + children.len());
-            let below = load[w] + children.len() - 1;
-            // inner children get consecutive node indices, so siblings share pages
-            for (i, &c) in children.iter().enumerate() {
-                let aabb = bvh2.nodes[c].aabb;
-                let item = if plans[c].leaf {
-                    prims.clear();
-                    collect_prims(bvh2, c, &mut prims);
-                    wide.leaf(&prims, tris, ids)
-                } else {
-                    let index = wide.nodes.len();
-                    wide.nodes.push(Node::empty());
-                    load.push(below);
-                    todo.push((c, index));
-                    index as u32
-                };
-                wide.nodes[w].set(i, &aabb, item);
-            }
+            node
+        };
+        let mut nodes = part.nodes.into_iter();
+        if let Some(root) = nodes.next() {
+            self.nodes[at] = remap(root);
         }
-        wide.stack = stack;
-        wide
+        self.nodes.extend(nodes.map(remap));
+        self.packets.extend(part.packets);
+        self.stack = self.stack.max(part.stack);
     }
 
     /// Appends the packets of a leaf holding triangles `prims`; returns its item.
     fn leaf(&mut self, prims: &[u32], tris: &[Triangle], ids: &[u32]) -> u32 {
-        // (PLOC's binary leaves hold one triangle each, and plans join at most LEAF_MAX)
-        assert!(
-            prims.len() <= LEAF_MAX,
-            "a leaf of {} triangles",
-            prims.len()
-        );
         let first = self.packets.len();
         for chunk in prims.chunks(LANES) {
             let mut packet = Packet::empty();
@@ -289,25 +384,36 @@ impl Wide {
     }
 }
 
-/// The triangles (input indices) below binary node `b`.
-fn collect_prims(bvh2: &Bvh2, b: usize, out: &mut Vec<u32>) {
-    let mut todo = vec![b];
-    while let Some(n) = todo.pop() {
-        let node = &bvh2.nodes[n];
+/// The triangles (input indices) below binary node `b`, written to `out`; returns how many
+/// (the plans make leaves of at most [`LEAF_MAX`]).
+fn collect_prims(bvh2: &Bvh2, b: usize, out: &mut [u32; LEAF_MAX]) -> usize {
+    let mut todo = [0usize; LEAF_MAX];
+    todo[0] = b;
+    let (mut pending, mut n) = (1, 0);
+    while pending > 0 {
+        pending -= 1;
+        let node = &bvh2.nodes[todo[pending]];
+        let first = node.first_index as usize;
         if node.prim_count == 0 {
-            let first = node.first_index as usize;
-            todo.extend([first + 1, first]);
+            // (a subtree of at most LEAF_MAX leaves has fewer pending nodes than that)
+            todo[pending] = first + 1;
+            todo[pending + 1] = first;
+            pending += 2;
         } else {
-            let first = node.first_index as usize;
-            out.extend(&bvh2.primitive_indices[first..first + node.prim_count as usize]);
+            for &p in &bvh2.primitive_indices[first..first + node.prim_count as usize] {
+                out[n] = p;
+                n += 1;
+            }
         }
     }
+    n
 }
 
 /// The surface-area-heuristic plan of every binary node: a subtree of at most [`LEAF_MAX`]
 /// triangles becomes a leaf when `PACKET_COST * packets * area` is no more than descending
 /// (`NODE_COST * area` plus the children's costs). Binary leaves (one triangle each from
-/// obvhs's PLOC) are leaves.
+/// obvhs's PLOC) are leaves. The subtrees below the top [`TOP_JOBS`] nodes (breadth first)
+/// are planned in parallel.
 fn plan(bvh2: &Bvh2) -> Vec<Plan> {
     let n = bvh2.nodes.len();
     let mut plans = vec![
@@ -317,13 +423,50 @@ fn plan(bvh2: &Bvh2) -> Vec<Plan> {
         };
         n
     ];
+    let mut cost = vec![0.0f32; n];
     if n == 0 {
         return plans;
     }
-    let mut cost = vec![0.0f32; n];
-    // pre-order, then children before parents by walking it backwards
-    let mut order = Vec::with_capacity(n);
-    let mut todo = vec![0usize];
+    // the top, breadth first (children after parents), and the subtree roots below it
+    let mut top = Vec::new();
+    let mut roots = std::collections::VecDeque::from([0usize]);
+    while roots.len() < TOP_JOBS {
+        let Some(b) = roots.pop_front() else { break };
+        let node = &bvh2.nodes[b];
+        if node.prim_count == 0 {
+            top.push(b);
+            let first = node.first_index as usize;
+            roots.extend([first, first + 1]);
+        } else {
+            roots.push_back(b);
+            if roots.iter().all(|&r| bvh2.nodes[r].prim_count != 0) {
+                break;
+            }
+        }
+    }
+    let parts: Vec<Vec<(u32, Plan, f32)>> = roots
+        .par_iter()
+        .map(|&root| plan_subtree(bvh2, root))
+        .collect();
+    for (b, p, c) in parts.into_iter().flatten() {
+        plans[b as usize] = p;
+        cost[b as usize] = c;
+    }
+    for &b in top.iter().rev() {
+        let node = &bvh2.nodes[b];
+        let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
+        let (p, c) = plan_node(node, (plans[l].count, cost[l]), (plans[r].count, cost[r]));
+        plans[b] = p;
+        cost[b] = c;
+    }
+    plans
+}
+
+/// The plans and costs of the binary subtree of `root`, node by node.
+fn plan_subtree(bvh2: &Bvh2, root: usize) -> Vec<(u32, Plan, f32)> {
+    // pre-order; walked backwards every node comes after its subtree, the left one last
+    let mut order = Vec::new();
+    let mut todo = vec![root];
     while let Some(b) = todo.pop() {
         order.push(b);
         let node = &bvh2.nodes[b];
@@ -332,24 +475,39 @@ fn plan(bvh2: &Bvh2) -> Vec<Plan> {
             todo.extend([first, first + 1]);
         }
     }
+    // (count, cost) of the subtrees done and not yet joined to their parent
+    let mut values: Vec<(u32, f32)> = Vec::new();
+    let mut out = Vec::with_capacity(order.len());
     for &b in order.iter().rev() {
         let node = &bvh2.nodes[b];
-        let area = node.aabb.half_area().max(0.0);
-        if node.prim_count != 0 {
+        let (plan, cost) = if node.prim_count != 0 {
+            let area = node.aabb.half_area().max(0.0);
             let count = node.prim_count;
-            plans[b] = Plan { count, leaf: true };
-            cost[b] = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
-            continue;
-        }
-        let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
-        let count = plans[l].count + plans[r].count;
-        let descend = NODE_COST * area + cost[l] + cost[r];
-        let as_leaf = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
-        let leaf = count as usize <= LEAF_MAX && as_leaf <= descend;
-        plans[b] = Plan { count, leaf };
-        cost[b] = if leaf { as_leaf } else { descend };
+            let cost = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
+            (Plan { count, leaf: true }, cost)
+        } else {
+            // (the pop order does not matter: counts and costs add)
+            let (a, c) = (values.pop(), values.pop());
+            let (Some(a), Some(c)) = (a, c) else {
+                unreachable!("an inner node comes after its two subtrees");
+            };
+            plan_node(node, a, c)
+        };
+        values.push((plan.count, cost));
+        out.push((b as u32, plan, cost));
     }
-    plans
+    out
+}
+
+/// The plan and cost of an inner binary node from the triangle counts and costs of its two
+/// children.
+fn plan_node(node: &Bvh2Node, (nl, cl): (u32, f32), (nr, cr): (u32, f32)) -> (Plan, f32) {
+    let area = node.aabb.half_area().max(0.0);
+    let count = nl + nr;
+    let descend = NODE_COST * area + cl + cr;
+    let as_leaf = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
+    let leaf = count as usize <= LEAF_MAX && as_leaf <= descend;
+    (Plan { count, leaf }, if leaf { as_leaf } else { descend })
 }
 
 #[cfg(test)]

@@ -168,3 +168,29 @@ fn portable_node_test_matches_oracle_and_the_fast_one() {
         );
     }
 }
+
+#[test]
+fn the_build_does_not_depend_on_the_thread_count() {
+    // the collapse hands subtrees to the pool and joins them in a fixed order
+    let s = room_with_boxes(8, 60);
+    let build = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| Bvh::build(&s.tris, &s.ids).unwrap())
+    };
+    let (one, three) = (build(1), build(3));
+    assert!(
+        one.node_count() > 64,
+        "{} nodes: too few to split",
+        one.node_count()
+    );
+    assert_eq!(one.node_count(), three.node_count());
+    assert_eq!(one.memory_bytes(), three.memory_bytes());
+    let mut rng = Rng::new(22);
+    for _ in 0..RAYS {
+        let r = surface_ray(&s, Spot::Uniform, false, &mut rng);
+        assert_eq!(one.closest_hit(&r), three.closest_hit(&r), "{r:?}");
+    }
+}
