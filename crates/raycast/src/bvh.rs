@@ -502,3 +502,65 @@ const _: () = {
     const fn send_sync<T: Send + Sync>() {}
     send_sync::<Bvh>();
 };
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grid of `n x n` unit quads on the floor and a ceiling above, and rays from the floor.
+    fn floor_and_rays(n: usize) -> (Bvh, Vec<Ray>) {
+        let mut tris = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                let (x, z) = (i as f32, j as f32);
+                let (a, b) = (Vec3::new(x, 0.0, z), Vec3::new(x + 1.0, 0.0, z));
+                let (c, d) = (Vec3::new(x + 1.0, 0.0, z + 1.0), Vec3::new(x, 0.0, z + 1.0));
+                tris.extend([[a, d, c], [a, c, b]]);
+                let up = Vec3::Y * (1.0 + (i + j) as f32 * 0.01);
+                tris.extend([[a + up, b + up, c + up], [a + up, c + up, d + up]]);
+            }
+        }
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        let bvh = Bvh::build(&tris, &ids).unwrap();
+        let rays = (0..2000)
+            .map(|k| {
+                let (u, v) = ((k % 97) as f32 / 97.0, (k % 89) as f32 / 89.0);
+                let p = Vec3::new(u * n as f32, 0.0, v * n as f32);
+                let dir = Vec3::new(u - 0.5, 1.0, v - 0.5).normalize();
+                let id = 4
+                    * ((p.x as u32).min(n as u32 - 1) * n as u32 + (p.z as u32).min(n as u32 - 1));
+                Ray::from_surface(p, Vec3::Y, dir, id)
+            })
+            .collect();
+        (bvh, rays)
+    }
+
+    #[test]
+    fn deep_hierarchies_take_the_thread_local_stack_with_the_same_answers() {
+        let (bvh, rays) = floor_and_rays(12);
+        assert!(bvh.wide.stack <= 32, "stack bound {}", bvh.wide.stack);
+        let mut deep = Bvh {
+            wide: bvh.wide.clone(),
+            ..bvh
+        };
+        // a bound above the largest array makes every query use the per-thread buffer
+        deep.wide.stack = 1000;
+        let (shallow, _) = floor_and_rays(12);
+        let mut hits = 0;
+        for r in &rays {
+            let (a, b) = (shallow.closest_hit(r), deep.closest_hit(r));
+            assert_eq!(a, b, "{r:?}");
+            hits += a.is_some() as usize;
+        }
+        assert!(hits > 1000, "{hits} hits");
+        STACK.with(|cell| {
+            let stack = cell.take();
+            assert!(
+                stack.len() >= 1000,
+                "the buffer has {} entries",
+                stack.len()
+            );
+            cell.set(stack);
+        });
+    }
+}
