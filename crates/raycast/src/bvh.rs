@@ -158,8 +158,8 @@ impl Bvh {
     }
 
     /// Bytes of memory the caster holds for intersection: the BVH nodes (256 bytes each, up
-    /// to 8 children), the triangle packets (160 bytes per 4 triangles, ids included, and a
-    /// count byte), counted by allocated capacity, plus the struct itself. Divide by
+    /// to 8 children) and the triangle packets (160 bytes per 4 triangles, ids included),
+    /// counted by allocated capacity, plus the struct itself. Divide by
     /// [`Bvh::triangle_count`] for the footprint per triangle. The per-thread traversal stack
     /// (a few hundred bytes) is not counted.
     pub fn memory_bytes(&self) -> usize {

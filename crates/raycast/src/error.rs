@@ -37,8 +37,9 @@ pub enum BuildError {
         triangle: usize,
     },
     /// The hierarchy would hold more triangle slots than the traversal can address
-    /// (`2^29`, counting triangles that spatial splits put in several leaves).
-    #[error("{slots} triangle slots in the BVH: at most 2^29 are supported")]
+    /// (`2^29` packets of 4, counting triangles that spatial splits put in several leaves and
+    /// the unused lanes of packets).
+    #[error("{slots} triangle slots in the BVH: at most 2^31 are supported")]
     TooManyTriangles {
         /// Number of slots the build produced.
         slots: usize,

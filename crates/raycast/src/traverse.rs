@@ -6,8 +6,9 @@
 //! order. The child nodes and packets a node test finds are prefetched at once: on a large
 //! scene each is a cache miss, and they are independent loads.
 //!
-//! The slab test runs on four children per SSE register (through glam's `Vec4`), with the
-//! reciprocal direction of `obvhs::ray::safe_inverse` (no infinities, so an empty box
+//! The slab test ([`NodeTest`]) runs on all eight children at once with AVX2 and FMA where
+//! the processor has them, otherwise on four per SSE register (through glam's `Vec4`), with
+//! the reciprocal direction of `obvhs::ray::safe_inverse` (no infinities, so an empty box
 //! `[+inf, -inf]` never passes and no lane computes a NaN).
 
 use glam::{Vec3A, Vec4};

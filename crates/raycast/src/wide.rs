@@ -3,16 +3,18 @@
 //!
 //! obvhs builds the hierarchy (PLOC and reinsertion, see `bvh.rs`); this module only
 //! re-arranges it for single-ray traversal on a CPU:
-//! * **Nodes** hold up to 8 children with their boxes as `f32` planes, four children per SSE
-//!   register ([`Node`]): the slab test of 8 children is a dozen vector operations with no
-//!   decoding (obvhs's compressed nodes store 8-bit boxes that must be dequantised first).
+//! * **Nodes** hold up to 8 children with their boxes as `f32` planes, eight children per
+//!   AVX register or four per SSE one ([`Node`]): the slab test of 8 children is a dozen
+//!   vector operations with no decoding (obvhs's compressed nodes store 8-bit boxes that must
+//!   be dequantised first).
 //! * **Leaves** are runs of [`Packet`]s of up to 4 triangles in structure-of-arrays order, so
 //!   one vector test intersects 4 triangles (see `query.rs`).
 //!
 //! The collapse of the binary tree chooses leaves by the surface-area heuristic (a subtree of
 //! at most [`LEAF_MAX`] triangles becomes a leaf when testing its triangles is expected to cost
 //! less than descending into it), and fills each node by repeatedly opening the child with
-//! the largest surface area, as Embree's and most wide-BVH builders do.
+//! the largest surface area, as Embree's and most wide-BVH builders do. Below the top 64
+//! subtrees both run in parallel (see [`Wide::new`]).
 
 use glam::{Vec3A, Vec4};
 use obvhs::{
