@@ -4,7 +4,9 @@
 //! what else the machine is doing).
 //!
 //! `cargo run --release -p mcrad-raycast --example cast -- SCENE QUERY RAYS`, with SCENE one of
-//! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch` or `occluded`.
+//! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch`, `occluded` or `lifted` (closest
+//! hit with the origins raised 1e-3 off the surface, as the Embree comparison's ray files
+//! have them). `PRESET=medium` or `PRESET=slow` picks the build preset.
 
 use std::time::Instant;
 
@@ -63,7 +65,7 @@ fn main() {
             })
             .count(),
         other => {
-            eprintln!("error: unknown query {other:?} (closest, batch, occluded)");
+            eprintln!("error: unknown query {other:?} (closest, batch, occluded, lifted)");
             std::process::exit(2);
         }
     });
