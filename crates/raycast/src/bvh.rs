@@ -19,7 +19,7 @@ use crate::traverse::Avx2;
 use crate::{
     BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
-    query::{Query, crossings, near_end_point},
+    query::{Query, crossings, refine},
     traverse::{self, LeafTest, NodeRay, NodeTest, Sse},
     wide::{self, LANES, Lane, Wide},
 };
@@ -458,7 +458,7 @@ impl LeafTest for Leaves<'_> {
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
-            if let Some(t) = near_end_point(&packet.lane(j), self.q, c.t[j]) {
+            if let Some(t) = refine(&packet.lane(j), self.q) {
                 best.offer(t + self.shift, packet.ids[j], p * LANES + j);
             }
         }
@@ -479,7 +479,7 @@ impl LeafTest for Leaves<'_> {
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
-            if near_end_point(&packet.lane(j), self.q, c.t[j]).is_some() {
+            if refine(&packet.lane(j), self.q).is_some() {
                 return true;
             }
         }

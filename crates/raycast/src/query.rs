@@ -81,7 +81,7 @@ impl Query {
 
 /// What a packet test found: the distance of each lane's plane crossing, the lanes whose
 /// crossing counts as it is (`hot`), and the lanes whose crossing must be re-decided by
-/// [`near_end_point`] (`cold`).
+/// [`refine`] (`cold`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Crossings {
     pub(crate) t: [f32; LANES],
@@ -105,7 +105,7 @@ pub(crate) struct Crossings {
 /// that surface's plane, and for a ray almost parallel to a plane the `f32` barycentrics err by
 /// about `2^-24 * size / cos`. So a crossing of a plane that passes near the origin (or near
 /// the segment's end), within `SLACK` of the triangle or within the windows, is marked cold:
-/// [`near_end_point`] re-decides it with the rules of [`exact::ray_rule`] and
+/// [`refine`] re-decides it with the rules of [`exact::ray_rule`] and
 /// [`exact::segment_rule`].
 #[inline(always)]
 pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) -> Crossings {
@@ -160,9 +160,10 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
     let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(len));
     let mut cold = lanes & ((!maybe & in_window) | (maybe & near));
     if cold != 0 {
-        // what `near_end_point` rejects whatever the exact numbers, in all lanes at once:
-        // well behind the start, or past the end; leaving the start's window backwards
-        // (`front` is `det > 0`), or arriving in the end's window front first
+        // what the window rules reject whatever the exact numbers (the `f32` side is wrong
+        // only for a ray almost parallel to the plane, the distance by rounding): well behind
+        // the start, or past the end; leaving the start's window backwards (`front` is
+        // `det > 0`), or arriving in the end's window front first
         let mut rejected =
             t.cmple(-l.window_start2 * d2) | (t.cmplt(l.window_start_half * d2) & det.cmple(zero));
         if SEGMENT {
@@ -178,32 +179,12 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
     }
 }
 
-/// A crossing near one of the query's end points (or of a plane passing near its origin), at
-/// `t` by the packet test. Skips what the rules reject whatever the exact numbers: crossings
-/// well behind the start or past the end, back-facing ones in the start's window and
-/// front-facing ones in the end's window (the `f32` side is wrong only when the ray is almost
-/// parallel to the plane). Re-decides the rest exactly.
+/// The exact re-check of a cold crossing (see [`crossings`]) on the same canonical data, by
+/// the rules of [`exact::ray_rule`] and [`exact::segment_rule`]: the distance of a crossing
+/// that counts, or `None`.
 #[cold]
 #[inline(never)]
-pub(crate) fn near_end_point(tri: &Lane, q: &Query, t: f32) -> Option<f32> {
-    let (ws, we) = (q.window_start, q.window_end);
-    if t <= -2.0 * ws || t >= q.len + 2.0 * we {
-        return None;
-    }
-    // `Lane::ng` is minus the counter-clockwise normal
-    let front = tri.ng().dot(q.dir) > 0.0;
-    let in_start = t < 2.0 * ws;
-    let in_end = t > q.len - 2.0 * we;
-    if (in_start && !front && t < 0.5 * ws) || (in_end && front && t > q.len - 0.5 * we) {
-        return None;
-    }
-    refine(tri, q)
-}
-
-/// The exact re-check of a crossing on the same canonical data.
-#[cold]
-#[inline(never)]
-fn refine(tri: &Lane, q: &Query) -> Option<f32> {
+pub(crate) fn refine(tri: &Lane, q: &Query) -> Option<f32> {
     let ray = WorldRay {
         origin: q.origin.as_dvec3(),
         dir: q.dir.as_dvec3(),

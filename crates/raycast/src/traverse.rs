@@ -19,12 +19,9 @@ use crate::wide::{LEAF, Node, Packet, WIDTH, packets};
 /// A ray as the node test sees it: origin, reciprocal direction, and the interval of `t`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct NodeRay {
-    /// `-origin * inv`, per axis, in all lanes: the plane `q` is reached at `q * inv + this`.
-    offset: [Vec4; 3],
-    inv: [Vec4; 3],
-    /// `offset` and `inv` as scalars.
-    offset1: [f32; 3],
-    inv1: [f32; 3],
+    /// `-origin * inv`, per axis: the plane `q` is reached at `q * inv + offset`.
+    offset: [f32; 3],
+    inv: [f32; 3],
     /// Index in [`Node::planes`] of the near and far plane on each axis (lower bounds for a
     /// positive direction, upper bounds for a negative one).
     near: [usize; 3],
@@ -45,10 +42,8 @@ impl NodeRay {
         let offset = -origin * inv;
         let neg = [inv.x < 0.0, inv.y < 0.0, inv.z < 0.0];
         NodeRay {
-            offset: [0, 1, 2].map(|k| Vec4::splat(offset[k])),
-            inv: [0, 1, 2].map(|k| Vec4::splat(inv[k])),
-            offset1: offset.into(),
-            inv1: inv.into(),
+            offset: offset.into(),
+            inv: inv.into(),
             near: [0, 1, 2].map(|k| 2 * k + neg[k] as usize),
             far: [0, 1, 2].map(|k| 2 * k + 1 - neg[k] as usize),
             tmin,
@@ -84,7 +79,9 @@ impl NodeTest for Sse {
         let t1 = Vec4::splat(tmax);
         let p = &node.planes;
         let half = |h: usize| {
-            let at = |plane: usize, k: usize| p[plane][h] * ray.inv[k] + ray.offset[k];
+            let at = |plane: usize, k: usize| {
+                p[plane][h] * Vec4::splat(ray.inv[k]) + Vec4::splat(ray.offset[k])
+            };
             let enter = at(ray.near[0], 0)
                 .max(at(ray.near[1], 1))
                 .max(at(ray.near[2], 2).max(t0));
@@ -131,12 +128,12 @@ impl NodeTest for Avx2 {
         #[allow(unsafe_code)]
         let mask = unsafe {
             // (no closures here: they would not inherit the target features)
-            let ix = _mm256_set1_ps(ray.inv1[0]);
-            let iy = _mm256_set1_ps(ray.inv1[1]);
-            let iz = _mm256_set1_ps(ray.inv1[2]);
-            let ox = _mm256_set1_ps(ray.offset1[0]);
-            let oy = _mm256_set1_ps(ray.offset1[1]);
-            let oz = _mm256_set1_ps(ray.offset1[2]);
+            let ix = _mm256_set1_ps(ray.inv[0]);
+            let iy = _mm256_set1_ps(ray.inv[1]);
+            let iz = _mm256_set1_ps(ray.inv[2]);
+            let ox = _mm256_set1_ps(ray.offset[0]);
+            let oy = _mm256_set1_ps(ray.offset[1]);
+            let oz = _mm256_set1_ps(ray.offset[2]);
             let p = &node.planes;
             let enter = _mm256_max_ps(
                 _mm256_max_ps(
