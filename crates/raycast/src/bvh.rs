@@ -113,14 +113,13 @@ impl Bvh {
             .collect();
         let pad = frame.max_lift(bounds.0, bounds.1) as f32;
         let bvh2 = build_bvh2_padded(&canonical, preset.params(), pad);
-        let mut wide = Wide::new(&bvh2, &canonical, ids);
+        let wide = Wide::new(&bvh2, &canonical, ids);
         drop(bvh2);
         if wide.packets.len() > wide::MAX_PACKETS {
             return Err(BuildError::TooManyTriangles {
                 slots: wide.packets.len() * LANES,
             });
         }
-        wide.shrink_to_fit();
         Ok(Bvh {
             wide,
             #[cfg(target_arch = "x86_64")]

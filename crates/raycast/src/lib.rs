@@ -145,6 +145,7 @@ mod bvh;
 mod error;
 mod exact;
 mod frame;
+mod pages;
 mod query;
 mod traverse;
 mod wide;

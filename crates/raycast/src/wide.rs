@@ -25,7 +25,7 @@ use obvhs::{
 
 use rayon::prelude::*;
 
-use crate::NO_ID;
+use crate::{NO_ID, pages::Pages};
 
 /// Children per node.
 pub(crate) const WIDTH: usize = 8;
@@ -182,19 +182,28 @@ pub(crate) fn packets(item: u32) -> std::ops::Range<usize> {
     first..first + ((item >> 29) & 3) as usize + 1
 }
 
-/// The 8-wide BVH.
+/// The 8-wide BVH, in memory of its own (on huge pages where the system has them, see
+/// [`Pages`]).
 #[derive(Clone, Debug)]
 pub(crate) struct Wide {
     /// Nodes; the root is node 0.
-    pub(crate) nodes: Vec<Node>,
+    pub(crate) nodes: Pages<Node>,
     /// Triangle packets in leaf order.
-    pub(crate) packets: Vec<Packet>,
+    pub(crate) packets: Pages<Packet>,
     /// Traversal stack entries a query needs: a traversal keeps the nearest hit child of a
     /// node and pushes the others, so the stack holds pending siblings of the current node's
     /// ancestors; while a node's hit children are sorted they all sit on it. So this is the
     /// largest, over nodes, of the node's children count plus the children counts minus one
     /// of its ancestors.
     pub(crate) stack: usize,
+}
+
+/// A wide BVH while the collapse grows it (or one subtree of it, with local indices), with
+/// the fields of [`Wide`].
+struct Part {
+    nodes: Vec<Node>,
+    packets: Vec<Packet>,
+    stack: usize,
 }
 
 /// What the collapse decided for a binary node.
@@ -230,7 +239,7 @@ struct Pending {
 impl Collapse<'_> {
     /// Fills `pending.node` of `part` (its children chosen from the binary subtree), appending
     /// its leaves' packets and empty nodes for its inner children, which go to `todo`.
-    fn fill(&self, part: &mut Wide, pending: Pending, todo: &mut Vec<Pending>) {
+    fn fill(&self, part: &mut Part, pending: Pending, todo: &mut Vec<Pending>) {
         let (bvh2, plans) = (self.bvh2, self.plans);
         let mut children = [0usize; WIDTH];
         let b = pending.binary;
@@ -280,8 +289,8 @@ impl Collapse<'_> {
     }
 
     /// The part of the wide BVH below `root`: its node 0 is `root.node`'s (indices local).
-    fn part(&self, root: Pending) -> Wide {
-        let mut part = Wide {
+    fn part(&self, root: Pending) -> Part {
+        let mut part = Part {
             nodes: vec![Node::empty()],
             packets: Vec::new(),
             stack: 0,
@@ -307,7 +316,7 @@ impl Wide {
             tris,
             ids,
         };
-        let mut wide = Wide {
+        let mut wide = Part {
             nodes: vec![Node::empty()],
             packets: Vec::with_capacity(tris.len() / 2 + 1),
             stack: 0,
@@ -326,18 +335,29 @@ impl Wide {
             collapse.fill(&mut wide, pending, &mut next);
             todo.extend(next.drain(..));
         }
-        let parts: Vec<Wide> = todo
+        let parts: Vec<Part> = todo
             .par_iter()
             .map(|&pending| collapse.part(pending))
             .collect();
         for (pending, part) in todo.iter().zip(parts) {
             wide.join(pending.node, part);
         }
-        wide
+        Wide {
+            nodes: Pages::copy_of(&wide.nodes),
+            packets: Pages::copy_of(&wide.packets),
+            stack: wide.stack,
+        }
     }
 
+    /// Bytes held by nodes and packets.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        size_of_val(&self.nodes[..]) + size_of_val(&self.packets[..])
+    }
+}
+
+impl Part {
     /// Puts `part` (the subtree of node `at`, with local indices) into this BVH.
-    fn join(&mut self, at: usize, part: Wide) {
+    fn join(&mut self, at: usize, part: Part) {
         // local node 0 is `at`, local node k > 0 goes to `base + k - 1`
         let base = self.nodes.len() as u32;
         let first_packet = self.packets.len() as u32;
@@ -372,17 +392,6 @@ impl Wide {
             self.packets.push(packet);
         }
         leaf_item(first, self.packets.len() - first)
-    }
-
-    /// Bytes held: nodes, packets and counts, by allocated capacity.
-    pub(crate) fn memory_bytes(&self) -> usize {
-        self.nodes.capacity() * size_of::<Node>() + self.packets.capacity() * size_of::<Packet>()
-    }
-
-    /// Releases spare capacity.
-    pub(crate) fn shrink_to_fit(&mut self) {
-        self.nodes.shrink_to_fit();
-        self.packets.shrink_to_fit();
     }
 }
 
