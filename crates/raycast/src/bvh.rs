@@ -20,9 +20,46 @@ use crate::{
     BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
     query::{Query, crossings, refine},
-    traverse::{self, LeafTest, NodeRay, NodeTest, Sse},
+    traverse::{self, LeafTest, NodeRay, NodeTest, Sse, Stack},
     wide::{self, LANES, Lane, Wide},
 };
+
+/// Evaluates `$body` with `$stack` bound to a traversal stack of at least `$bvh.wide.stack`
+/// entries: an array on the call stack when one of up to 128 entries is enough (zeroing it is
+/// the cost, so the smallest that is; arrays index without bounds checks, see
+/// [`traverse::Stack`]), otherwise a per-thread buffer, reused, so that no query allocates.
+/// A macro rather than a function taking a closure, so that `$body` is compiled for each kind
+/// of stack.
+macro_rules! with_stack {
+    ($bvh:expr, $stack:ident => $body:expr) => {
+        match $bvh.wide.stack {
+            0..=32 => {
+                let $stack = &mut [(0.0f32, 0u32); 32];
+                $body
+            }
+            33..=64 => {
+                let $stack = &mut [(0.0f32, 0u32); 64];
+                $body
+            }
+            65..=128 => {
+                let $stack = &mut [(0.0f32, 0u32); 128];
+                $body
+            }
+            _ => STACK.with(|cell| {
+                let mut buffer = cell.take();
+                if buffer.len() < $bvh.wide.stack {
+                    buffer.resize($bvh.wide.stack, (0.0, 0));
+                }
+                let result = {
+                    let $stack = &mut buffer[..];
+                    $body
+                };
+                cell.set(buffer);
+                result
+            }),
+        }
+    };
+}
 
 /// How much build time to spend on BVH quality (obvhs presets).
 ///
@@ -181,16 +218,25 @@ impl Bvh {
     /// lifted origin), with the fastest node test this processor runs.
     #[inline]
     fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
-        self.with_stack(|stack| {
-            #[cfg(target_arch = "x86_64")]
-            if let Some(isa) = self.avx2 {
-                // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
-                // `trace_avx2` is compiled for.
-                #[allow(unsafe_code)]
-                return unsafe { self.trace_avx2(isa, ray, exclude, stack) };
-            }
-            self.trace_with(Sse, ray, exclude, stack)
-        })
+        with_stack!(self, stack => self.trace_on(ray, exclude, stack))
+    }
+
+    /// [`Bvh::trace`] on `stack`.
+    #[inline(always)]
+    fn trace_on(
+        &self,
+        ray: &CanonicalRay,
+        exclude: u32,
+        stack: &mut (impl Stack + ?Sized),
+    ) -> Option<(usize, f32)> {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(isa) = self.avx2 {
+            // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
+            // `trace_avx2` is compiled for.
+            #[allow(unsafe_code)]
+            return unsafe { self.trace_avx2(isa, ray, exclude, stack) };
+        }
+        self.trace_with(Sse, ray, exclude, stack)
     }
 
     /// [`Bvh::trace`] compiled for AVX2 and FMA (the whole traversal is inlined here).
@@ -201,7 +247,7 @@ impl Bvh {
         isa: Avx2,
         ray: &CanonicalRay,
         exclude: u32,
-        stack: &mut [traverse::Entry],
+        stack: &mut (impl Stack + ?Sized),
     ) -> Option<(usize, f32)> {
         self.trace_with(isa, ray, exclude, stack)
     }
@@ -213,7 +259,7 @@ impl Bvh {
         isa: impl NodeTest,
         ray: &CanonicalRay,
         exclude: u32,
-        stack: &mut [traverse::Entry],
+        stack: &mut (impl Stack + ?Sized),
     ) -> Option<(usize, f32)> {
         let CanonicalRay {
             origin,
@@ -236,27 +282,6 @@ impl Bvh {
         let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
         let found = (best.slot != usize::MAX).then_some((best.slot, best.t));
         found.map(|(slot, t)| (slot, (t - shift).max(0.0)))
-    }
-
-    /// Runs `f` with a traversal stack of at least `self.wide.stack` entries: an array on the
-    /// call stack when one of up to 128 entries is enough (zeroing it is the cost, so the
-    /// smallest that is), otherwise a per-thread buffer, reused, so that no query allocates.
-    #[inline(always)]
-    fn with_stack<R>(&self, f: impl FnOnce(&mut [traverse::Entry]) -> R) -> R {
-        match self.wide.stack {
-            0..=32 => f(&mut [(0.0, 0); 32]),
-            33..=64 => f(&mut [(0.0, 0); 64]),
-            65..=128 => f(&mut [(0.0, 0); 128]),
-            _ => STACK.with(|cell| {
-                let mut stack = cell.take();
-                if stack.len() < self.wide.stack {
-                    stack.resize(self.wide.stack, (0.0, 0));
-                }
-                let result = f(&mut stack);
-                cell.set(stack);
-                result
-            }),
-        }
     }
 }
 
@@ -360,19 +385,29 @@ impl RayCaster for Bvh {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
-        self.with_stack(|stack| {
-            #[cfg(target_arch = "x86_64")]
-            if let Some(isa) = self.avx2 {
-                // SAFETY: as in `Bvh::trace`.
-                #[allow(unsafe_code)]
-                return unsafe { self.blocked_avx2(isa, &s, a.id, b.id, stack) };
-            }
-            self.blocked_with(Sse, &s, a.id, b.id, stack)
-        })
+        with_stack!(self, stack => self.blocked_on(&s, a.id, b.id, stack))
     }
 }
 
 impl Bvh {
+    /// [`Bvh::blocked_with`] on `stack`, with the fastest node test this processor runs.
+    #[inline(always)]
+    fn blocked_on(
+        &self,
+        s: &CanonicalSegment,
+        ia: u32,
+        ib: u32,
+        stack: &mut (impl Stack + ?Sized),
+    ) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(isa) = self.avx2 {
+            // SAFETY: as in `Bvh::trace_on`.
+            #[allow(unsafe_code)]
+            return unsafe { self.blocked_avx2(isa, s, ia, ib, stack) };
+        }
+        self.blocked_with(Sse, s, ia, ib, stack)
+    }
+
     /// [`Bvh::blocked_with`] compiled for AVX2 and FMA.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
@@ -382,7 +417,7 @@ impl Bvh {
         s: &CanonicalSegment,
         ia: u32,
         ib: u32,
-        stack: &mut [traverse::Entry],
+        stack: &mut (impl Stack + ?Sized),
     ) -> bool {
         self.blocked_with(isa, s, ia, ib, stack)
     }
@@ -396,7 +431,7 @@ impl Bvh {
         s: &CanonicalSegment,
         ia: u32,
         ib: u32,
-        stack: &mut [traverse::Entry],
+        stack: &mut (impl Stack + ?Sized),
     ) -> bool {
         let CanonicalSegment {
             origin,

@@ -55,6 +55,32 @@ impl NodeRay {
 /// A stack entry: the distance at which the ray enters the box, and a node index or a leaf.
 pub(crate) type Entry = (f32, u32);
 
+/// A traversal stack: entries `0..len` for a `len` of at least [`crate::wide::Wide::stack`],
+/// which no traversal exceeds.
+pub(crate) trait Stack {
+    /// Entry `i`, for `i < len`.
+    fn at(&mut self, i: usize) -> &mut Entry;
+}
+
+/// An array of a power-of-two length `N`: entry `i` is the one at `i mod N`, which is `i`
+/// itself for every `i` a traversal uses (no bounds check, and no unsafe code: an index past
+/// `N` could only wrap around, never leave the array).
+impl<const N: usize> Stack for [Entry; N] {
+    #[inline(always)]
+    fn at(&mut self, i: usize) -> &mut Entry {
+        const { assert!(N.is_power_of_two()) };
+        &mut self[i & (N - 1)]
+    }
+}
+
+/// A buffer of any length, bounds checked.
+impl Stack for [Entry] {
+    #[inline(always)]
+    fn at(&mut self, i: usize) -> &mut Entry {
+        &mut self[i]
+    }
+}
+
 /// A node test: the children of `node` whose box the ray enters before `tmax`, with their
 /// entry distances (lane `i` for child `i`) and the mask of them (bit `i` for child `i`).
 ///
@@ -265,7 +291,7 @@ fn visit_hits(
     node: &Node,
     enter: [f32; WIDTH],
     mut mask: u32,
-    stack: &mut [Entry],
+    stack: &mut (impl Stack + ?Sized),
     sp: &mut usize,
 ) -> Option<Entry> {
     if mask == 0 {
@@ -288,14 +314,14 @@ fn visit_hits(
         (first, second)
     };
     if mask == 0 {
-        stack[*sp] = far;
+        *stack.at(*sp) = far;
         *sp += 1;
         return Some(near);
     }
     // three or more: sorted insertion by decreasing distance above `start`
     let start = *sp;
-    stack[start] = far;
-    stack[start + 1] = near;
+    *stack.at(start) = far;
+    *stack.at(start + 1) = near;
     *sp += 2;
     while mask != 0 {
         let i = mask.trailing_zeros() as usize & (WIDTH - 1);
@@ -304,15 +330,15 @@ fn visit_hits(
         prefetch_item(nodes, packs, item);
         let t = enter[i];
         let mut j = *sp;
-        while j > start && stack[j - 1].0 < t {
-            stack[j] = stack[j - 1];
+        while j > start && stack.at(j - 1).0 < t {
+            *stack.at(j) = *stack.at(j - 1);
             j -= 1;
         }
-        stack[j] = (t, item);
+        *stack.at(j) = (t, item);
         *sp += 1;
     }
     *sp -= 1;
-    Some(stack[*sp])
+    Some(*stack.at(*sp))
 }
 
 /// Closest hit: `leaves.closest` offers the crossings of each packet reached to the best so
@@ -324,7 +350,7 @@ pub(crate) fn closest(
     nodes: &[Node],
     packs: &[Packet],
     ray: &NodeRay,
-    stack: &mut [Entry],
+    stack: &mut (impl Stack + ?Sized),
     leaves: &mut impl LeafTest,
 ) -> Best {
     let mut best = Best::new(ray.tmax);
@@ -338,7 +364,7 @@ pub(crate) fn closest(
                     return best;
                 }
                 sp -= 1;
-                let (t, item) = stack[sp];
+                let (t, item) = *stack.at(sp);
                 if t <= best.t {
                     break item;
                 }
@@ -365,7 +391,7 @@ pub(crate) fn any(
     nodes: &[Node],
     packs: &[Packet],
     ray: &NodeRay,
-    stack: &mut [Entry],
+    stack: &mut (impl Stack + ?Sized),
     leaves: &mut impl LeafTest,
 ) -> bool {
     let mut sp = 0;
@@ -378,7 +404,7 @@ pub(crate) fn any(
                     return false;
                 }
                 sp -= 1;
-                stack[sp].1
+                stack.at(sp).1
             }
         };
         if item & LEAF != 0 {
@@ -404,7 +430,7 @@ pub(crate) fn any(
             mask &= mask - 1;
             let item = node.items[i];
             prefetch_item(nodes, packs, item);
-            stack[sp] = (0.0, item);
+            *stack.at(sp) = (0.0, item);
             sp += 1;
         }
         next = Some((0.0, first));
