@@ -353,32 +353,71 @@ pub(crate) fn closest(
     stack: &mut (impl Stack + ?Sized),
     leaves: &mut impl LeafTest,
 ) -> Best {
-    let mut best = Best::new(ray.tmax);
-    let mut sp = 0;
-    let mut next = Some((ray.tmin, 0u32));
-    loop {
-        let item = match next.take() {
+    let mut walk = Walk::new(ray);
+    while walk.step(isa, nodes, packs, ray, stack, leaves) {}
+    walk.best
+}
+
+/// A closest-hit traversal in progress, advanced one node or leaf at a time by
+/// [`Walk::step`]. (Written as a state machine, the loop compiles to 5% fewer instructions per
+/// ray than as one function. Interleaving the steps of four rays, to overlap their cache
+/// misses, was tried: 40% more instructions per ray and slower on every benchmark scene.)
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Walk {
+    /// The closest crossing so far.
+    pub(crate) best: Best,
+    /// Entries on the stack.
+    sp: usize,
+    /// The item to visit next without going through the stack.
+    next: Option<Entry>,
+}
+
+impl Walk {
+    /// The traversal of `ray`, at the root.
+    #[inline(always)]
+    pub(crate) fn new(ray: &NodeRay) -> Walk {
+        Walk {
+            best: Best::new(ray.tmax),
+            sp: 0,
+            next: Some((ray.tmin, 0)),
+        }
+    }
+
+    /// Visits the next node or leaf of the traversal of `ray` (on its own `stack`); `false`
+    /// when there is none left, and `best` is the closest hit.
+    #[inline(always)]
+    pub(crate) fn step(
+        &mut self,
+        isa: impl NodeTest,
+        nodes: &[Node],
+        packs: &[Packet],
+        ray: &NodeRay,
+        stack: &mut (impl Stack + ?Sized),
+        leaves: &mut impl LeafTest,
+    ) -> bool {
+        let item = match self.next.take() {
             Some((_, item)) => item,
             None => loop {
-                if sp == 0 {
-                    return best;
+                if self.sp == 0 {
+                    return false;
                 }
-                sp -= 1;
-                let (t, item) = *stack.at(sp);
-                if t <= best.t {
+                self.sp -= 1;
+                let (t, item) = *stack.at(self.sp);
+                if t <= self.best.t {
                     break item;
                 }
             },
         };
         if item & LEAF != 0 {
             for p in packets(item) {
-                leaves.closest(p, &mut best);
+                leaves.closest(p, &mut self.best);
             }
-            continue;
+            return true;
         }
         let node = &nodes[item as usize];
-        let (enter, mask) = isa.intersect(node, ray, best.t);
-        next = visit_hits(nodes, packs, node, enter, mask, stack, &mut sp);
+        let (enter, mask) = isa.intersect(node, ray, self.best.t);
+        self.next = visit_hits(nodes, packs, node, enter, mask, stack, &mut self.sp);
+        true
     }
 }
 
