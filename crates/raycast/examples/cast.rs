@@ -6,11 +6,16 @@
 //! `cargo run --release -p mcrad-raycast --example cast -- SCENE QUERY RAYS`, with SCENE one of
 //! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch`, `occluded` or `lifted` (closest
 //! hit with the origins raised 1e-3 off the surface, as the Embree comparison's ray files
-//! have them). `PRESET=medium` or `PRESET=slow` picks the build preset.
+//! have them). `PRESET=medium` or `PRESET=slow` picks the build preset; `SIMD=portable`,
+//! `SIMD=avx2` or `SIMD=avx512` caps the traversal's instruction sets (see `Bvh::with_simd`).
+//!
+//! `AB=portable|avx2|avx512` compares the default traversal with the capped one instead: the
+//! rays are cast in chunks of 20k, alternating between the two, and the ratio of their times is
+//! printed (alternating within one process keeps the machine's drift out of the ratio).
 
 use std::time::Instant;
 
-use mcrad_raycast::{Bvh, RayCaster};
+use mcrad_raycast::{Bvh, RayCaster, Simd};
 
 #[path = "../benches/common/scenes.rs"]
 mod scenes;
@@ -38,12 +43,50 @@ fn main() {
     };
     let bvh = Bvh::build_with(&tris, &ids, preset).expect("the seeded scenes are valid");
     let build = start.elapsed().as_secs_f64();
+    let simd = |var: &str| match std::env::var(var).as_deref() {
+        Ok("portable") => Some(Simd::Portable),
+        Ok("avx2") => Some(Simd::Avx2),
+        Ok("avx512") => Some(Simd::Avx512),
+        _ => None,
+    };
+    let bvh = match simd("SIMD") {
+        Some(most) => bvh.with_simd(most),
+        None => bvh,
+    };
     let surface = scenes::surface_rays(&tris, rays, 42);
     let pairs = scenes::point_pairs(&tris, rays, 43);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .unwrap();
+    if let Some(most) = simd("AB") {
+        let other = Bvh::build_with(&tris, &ids, preset)
+            .expect("the seeded scenes are valid")
+            .with_simd(most);
+        let (mut a, mut b) = (0.0, 0.0);
+        pool.install(|| {
+            for chunk in surface.chunks(20_000) {
+                for (bvh, time) in [(&bvh, &mut a), (&other, &mut b)] {
+                    let start = Instant::now();
+                    let hits = chunk
+                        .iter()
+                        .filter(|r| bvh.closest_hit(r).is_some())
+                        .count();
+                    *time += start.elapsed().as_secs_f64();
+                    std::hint::black_box(hits);
+                }
+            }
+        });
+        println!(
+            "{scene} closest: {:?} {:.3} Mrays/s, {:?} {:.3} Mrays/s, ratio {:.3}",
+            bvh.simd(),
+            rays as f64 / a / 1e6,
+            other.simd(),
+            rays as f64 / b / 1e6,
+            a / b,
+        );
+        return;
+    }
     let start = Instant::now();
     let found = pool.install(|| match query {
         "closest" => surface

@@ -91,15 +91,59 @@ impl BvhPreset {
     }
 }
 
+/// The instruction sets a [`Bvh`]'s traversal is compiled for, slowest first. The answers do
+/// not depend on it (the same operations on the same numbers, see [`Bvh::with_simd`]); only
+/// the speed does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Simd {
+    /// Four children or triangles per SSE register (glam's `Vec4`; scalar code off x86_64):
+    /// every processor.
+    Portable,
+    /// Eight children per node test with AVX2 and FMA (x86_64 processors that have them).
+    Avx2,
+    /// The AVX2 traversal compiled with AVX-512F and VL as well: the same operations, with 32
+    /// vector registers instead of 16 (x86_64 processors that have them).
+    Avx512,
+}
+
+/// The traversal a [`Bvh`] runs, holding the proof that the processor can.
+#[derive(Clone, Copy, Debug)]
+enum NodeTestChoice {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2(Avx2),
+    /// The AVX2 node test, on a processor that also has AVX-512F and VL.
+    #[cfg(target_arch = "x86_64")]
+    Avx512(Avx2),
+}
+
+impl NodeTestChoice {
+    /// The fastest this processor runs, up to `most`.
+    fn fastest(most: Simd) -> NodeTestChoice {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(isa) = Avx2::detect() {
+            let avx512 =
+                is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx512vl");
+            if most >= Simd::Avx512 && avx512 {
+                return NodeTestChoice::Avx512(isa);
+            }
+            if most >= Simd::Avx2 {
+                return NodeTestChoice::Avx2(isa);
+            }
+        }
+        let _ = most;
+        NodeTestChoice::Portable
+    }
+}
+
 /// A bounding volume hierarchy over tagged triangles (obvhs's PLOC build, collapsed into an
 /// 8-wide BVH with leaves of 4-triangle packets), built in the canonical frame (see the crate
 /// documentation). Immutable once built; `Send + Sync`.
 pub struct Bvh {
     /// The hierarchy, with the canonical triangles and their ids in its leaf packets.
     wide: Wide,
-    /// The AVX2 node test, when this processor has it.
-    #[cfg(target_arch = "x86_64")]
-    avx2: Option<Avx2>,
+    /// The traversal in use.
+    node_test: NodeTestChoice,
     /// World <-> canonical map.
     frame: Frame,
     /// World bounds (min, max) of all input vertices.
@@ -159,8 +203,7 @@ impl Bvh {
         }
         Ok(Bvh {
             wide,
-            #[cfg(target_arch = "x86_64")]
-            avx2: Avx2::detect(),
+            node_test: NodeTestChoice::fastest(Simd::Avx512),
             frame,
             bounds,
             triangle_count: triangles.len(),
@@ -168,13 +211,30 @@ impl Bvh {
     }
 
     /// This BVH with the portable node test (four children at a time, SSE on x86_64) even
-    /// where the processor runs the AVX2 one: for tests and comparisons. The answers are the
-    /// same; only the speed differs.
+    /// where the processor runs a faster one: for tests and comparisons. The answers are the
+    /// same; only the speed differs. The same as `with_simd(Simd::Portable)`.
     pub fn with_portable_node_test(self) -> Bvh {
+        self.with_simd(Simd::Portable)
+    }
+
+    /// This BVH with the fastest traversal this processor runs among those up to `most` (a
+    /// new BVH gets the fastest of all): for tests and comparisons. The answers are the same;
+    /// only the speed differs.
+    pub fn with_simd(self, most: Simd) -> Bvh {
         Bvh {
-            #[cfg(target_arch = "x86_64")]
-            avx2: None,
+            node_test: NodeTestChoice::fastest(most),
             ..self
+        }
+    }
+
+    /// The instruction sets the traversal runs on.
+    pub fn simd(&self) -> Simd {
+        match self.node_test {
+            NodeTestChoice::Portable => Simd::Portable,
+            #[cfg(target_arch = "x86_64")]
+            NodeTestChoice::Avx2(_) => Simd::Avx2,
+            #[cfg(target_arch = "x86_64")]
+            NodeTestChoice::Avx512(_) => Simd::Avx512,
         }
     }
 
@@ -229,14 +289,33 @@ impl Bvh {
         exclude: u32,
         stack: &mut (impl Stack + ?Sized),
     ) -> Option<(usize, f32)> {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(isa) = self.avx2 {
+        match self.node_test {
             // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
-            // `trace_avx2` is compiled for.
+            // `trace_avx2` is compiled for, and `NodeTestChoice::Avx512` holds one only when
+            // it also has AVX-512F and VL, those `trace_avx512` adds.
+            #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
-            return unsafe { self.trace_avx2(isa, ray, exclude, stack) };
+            NodeTestChoice::Avx512(isa) => unsafe { self.trace_avx512(isa, ray, exclude, stack) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            NodeTestChoice::Avx2(isa) => unsafe { self.trace_avx2(isa, ray, exclude, stack) },
+            NodeTestChoice::Portable => self.trace_with(Sse, ray, exclude, stack),
         }
-        self.trace_with(Sse, ray, exclude, stack)
+    }
+
+    /// [`Bvh::trace_avx2`] compiled with AVX-512F and VL as well: the same operations, with
+    /// 32 vector registers to hold them instead of 16.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
+    fn trace_avx512(
+        &self,
+        isa: Avx2,
+        ray: &CanonicalRay,
+        exclude: u32,
+        stack: &mut (impl Stack + ?Sized),
+    ) -> Option<(usize, f32)> {
+        self.trace_with(isa, ray, exclude, stack)
     }
 
     /// [`Bvh::trace`] compiled for AVX2 and FMA (the whole traversal is inlined here).
@@ -399,13 +478,31 @@ impl Bvh {
         ib: u32,
         stack: &mut (impl Stack + ?Sized),
     ) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(isa) = self.avx2 {
+        match self.node_test {
             // SAFETY: as in `Bvh::trace_on`.
+            #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
-            return unsafe { self.blocked_avx2(isa, s, ia, ib, stack) };
+            NodeTestChoice::Avx512(isa) => unsafe { self.blocked_avx512(isa, s, ia, ib, stack) },
+            // SAFETY: as in `Bvh::trace_on`.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            NodeTestChoice::Avx2(isa) => unsafe { self.blocked_avx2(isa, s, ia, ib, stack) },
+            NodeTestChoice::Portable => self.blocked_with(Sse, s, ia, ib, stack),
         }
-        self.blocked_with(Sse, s, ia, ib, stack)
+    }
+
+    /// [`Bvh::blocked_with`] compiled for AVX2, FMA, AVX-512F and VL (see `trace_avx512`).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
+    fn blocked_avx512(
+        &self,
+        isa: Avx2,
+        s: &CanonicalSegment,
+        ia: u32,
+        ib: u32,
+        stack: &mut (impl Stack + ?Sized),
+    ) -> bool {
+        self.blocked_with(isa, s, ia, ib, stack)
     }
 
     /// [`Bvh::blocked_with`] compiled for AVX2 and FMA.

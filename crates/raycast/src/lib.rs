@@ -153,7 +153,7 @@ mod wide;
 use glam::Vec3;
 
 pub use brute::BruteForce;
-pub use bvh::{Bvh, BvhPreset};
+pub use bvh::{Bvh, BvhPreset, Simd};
 pub use error::BuildError;
 
 /// The "no primitive" id: rays that exclude nothing, points on no surface. No triangle may carry

@@ -8,7 +8,7 @@
 mod common;
 
 use common::*;
-use mcrad_raycast::{BruteForce, Bvh, BvhPreset, Ray, RayCaster};
+use mcrad_raycast::{BruteForce, Bvh, BvhPreset, Ray, RayCaster, Simd};
 
 const RAYS: usize = 10_000;
 
@@ -147,26 +147,35 @@ fn own_id_is_never_reported_even_when_leaving_backwards() {
 }
 
 #[test]
-fn portable_node_test_matches_oracle_and_the_fast_one() {
-    // On a processor with AVX2 the other tests exercise the AVX2 node test; this one checks the
-    // portable (SSE) one, and that both give the very same answers.
+fn every_simd_level_matches_the_oracle_and_the_fastest() {
+    // The other tests exercise the fastest traversal this processor runs (AVX-512 or AVX2 where
+    // it has them); this one checks the slower ones too, and that all give the very same
+    // answers. (A level the processor lacks falls back to the next one down.)
     let s = room_with_boxes(3, 12);
-    let fast = Bvh::build(&s.tris, &s.ids).unwrap();
-    let portable = Bvh::build(&s.tris, &s.ids)
-        .unwrap()
-        .with_portable_node_test();
-    check_scene("room, portable node test", &s, &portable, 3);
-    let mut rng = Rng::new(21);
-    for _ in 0..RAYS {
-        let r = surface_ray(&s, Spot::Uniform, false, &mut rng);
-        assert_eq!(fast.closest_hit(&r), portable.closest_hit(&r), "{r:?}");
-        let (a, b) = (surface_point(&s, &mut rng), surface_point(&s, &mut rng));
-        assert_eq!(
-            fast.occluded(&a, &b),
-            portable.occluded(&a, &b),
-            "{a:?} {b:?}"
-        );
+    let fastest = Bvh::build(&s.tris, &s.ids).unwrap();
+    for most in [Simd::Portable, Simd::Avx2] {
+        let capped = Bvh::build(&s.tris, &s.ids).unwrap().with_simd(most);
+        assert!(capped.simd() <= most && capped.simd() <= fastest.simd());
+        check_scene(&format!("room, {:?}", capped.simd()), &s, &capped, 3);
+        let mut rng = Rng::new(21);
+        for _ in 0..RAYS {
+            let r = surface_ray(&s, Spot::Uniform, false, &mut rng);
+            assert_eq!(fastest.closest_hit(&r), capped.closest_hit(&r), "{r:?}");
+            let (a, b) = (surface_point(&s, &mut rng), surface_point(&s, &mut rng));
+            assert_eq!(
+                fastest.occluded(&a, &b),
+                capped.occluded(&a, &b),
+                "{a:?} {b:?}"
+            );
+        }
     }
+    assert_eq!(
+        Bvh::build(&s.tris, &s.ids)
+            .unwrap()
+            .with_portable_node_test()
+            .simd(),
+        Simd::Portable
+    );
 }
 
 #[test]
