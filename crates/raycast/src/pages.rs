@@ -4,9 +4,10 @@
 //! million triangles (75 MB) spans 18k pages, far beyond what the processor's address
 //! translation cache holds, so most node visits also miss in it and walk the page tables (under
 //! a hypervisor, two of them). On 2 MiB pages the same BVH spans 36. Measured on the rooms of
-//! the Embree comparison (one thread, AVX2 traversal, Xeon under KVM): closest hit 28% faster at
-//! 100k triangles and 40% faster at 1M. Embree's BVH sits on huge pages too (its allocator
-//! advises them).
+//! the Embree comparison (closest hit, one thread, this crate's `cast` example with and without
+//! the advice, alternating, best of 7-9 runs; a Xeon under KVM): 14-16% faster at 100k
+//! triangles and 21% faster at 1M. Embree's BVH sits on huge pages too: during its part of the
+//! benchmark the process holds 64 MiB of `AnonHugePages`, and none during mcrad's before this.
 //!
 //! So [`Pages`] allocates arrays of 2 MiB or more at 2 MiB alignment and, on Linux, advises
 //! the kernel to back them with transparent huge pages (`madvise(MADV_HUGEPAGE)`), before the
