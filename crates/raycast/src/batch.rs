@@ -3,10 +3,11 @@
 //! Rays cast one after another from random places of a large scene each walk a different part
 //! of the hierarchy, and on a scene whose nodes and triangles do not fit in the caches most of
 //! their time goes to cache misses. Rays that start close together and head the same way walk
-//! the same nodes. So the batch entry points of [`Bvh`](crate::Bvh) visit their queries sorted
-//! by the Morton code of the origin (the cell of a `2^16` grid over the scene's bounds), then
-//! by direction octant, and write each answer to its own slot. A query's answer does not depend
+//! the same nodes. So the closest-hit batch of [`Bvh`](crate::Bvh) visits its rays sorted by
+//! the Morton code of the origin (the cell of a `2^16` grid over the scene's bounds), then by
+//! direction octant, and writes each answer to its own slot. A query's answer does not depend
 //! on the order (same ray, same hit), so the results are those of the one-by-one loop.
+//! (Occlusion batches are not sorted: there the sort cost as much as it saved, see `bvh.rs`.)
 
 use glam::Vec3;
 

@@ -97,13 +97,17 @@
 //! * children visited nearest first, every stack entry carrying its entry distance so that
 //!   subtrees behind the closest hit so far are dropped without being fetched; the nearest hit
 //!   child goes on without touching the stack; any-hit queries skip the sorting;
-//! * the nodes and packets a node test finds are prefetched at once.
+//! * the nodes and packets a node test finds are prefetched at once;
+//! * nodes and packets sit on 2 MiB pages where the system offers transparent huge pages
+//!   (a large scene's visits would otherwise mostly miss the address-translation cache too);
+//! * on processors with AVX-512F/VL the AVX2 traversal is also compiled with them, for their
+//!   32 vector registers ([`Simd`], [`Bvh::with_simd`]).
 //!
 //! Memory: about 75 bytes per triangle ([`Bvh::memory_bytes`]). Among crossings at exactly the
 //! same distance the lowest id wins, so the answer does not depend on the visiting order (nor
-//! on the node test: both give the same hits). The batch entry points
-//! ([`RayCaster::closest_hit_batch`], [`RayCaster::occluded_batch`]) visit their queries sorted
-//! by origin and direction, which keeps the caches warm (same answers as one by one).
+//! on the instruction sets: every [`Simd`] level gives the same hits). The closest-hit batch
+//! ([`RayCaster::closest_hit_batch`]) visits its rays sorted by origin and direction, which
+//! keeps the caches warm on large scenes (same answers as one by one).
 //!
 //! # Watertightness is counted, not promised
 //!
