@@ -24,43 +24,6 @@ use crate::{
     wide::{self, LANES, Lane, Wide},
 };
 
-/// Evaluates `$body` with `$stack` bound to a traversal stack of at least `$bvh.wide.stack`
-/// entries: an array on the call stack when one of up to 128 entries is enough (zeroing it is
-/// the cost, so the smallest that is; arrays index without bounds checks, see
-/// [`traverse::Stack`]), otherwise a per-thread buffer, reused, so that no query allocates.
-/// A macro rather than a function taking a closure, so that `$body` is compiled for each kind
-/// of stack.
-macro_rules! with_stack {
-    ($bvh:expr, $stack:ident => $body:expr) => {
-        match $bvh.wide.stack {
-            0..=32 => {
-                let $stack = &mut [(0.0f32, 0u32); 32];
-                $body
-            }
-            33..=64 => {
-                let $stack = &mut [(0.0f32, 0u32); 64];
-                $body
-            }
-            65..=128 => {
-                let $stack = &mut [(0.0f32, 0u32); 128];
-                $body
-            }
-            _ => STACK.with(|cell| {
-                let mut buffer = cell.take();
-                if buffer.len() < $bvh.wide.stack {
-                    buffer.resize($bvh.wide.stack, (0.0, 0));
-                }
-                let result = {
-                    let $stack = &mut buffer[..];
-                    $body
-                };
-                cell.set(buffer);
-                result
-            }),
-        }
-    };
-}
-
 /// How much build time to spend on BVH quality (obvhs presets).
 ///
 /// With this crate's traversal the presets give the same speed on the scenes of the Embree
@@ -276,88 +239,107 @@ impl Bvh {
     }
 
     /// Closest hit in canonical units: (packet slot `packet * 4 + lane`, distance from the
-    /// lifted origin), with the fastest node test this processor runs.
+    /// lifted origin).
     #[inline]
     fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
-        with_stack!(self, stack => self.trace_on(ray, exclude, stack))
+        self.run(Closest { ray, exclude })
     }
 
-    /// [`Bvh::trace`] on `stack`.
+    /// Runs `task` with the fastest node test this processor runs, on a traversal stack of at
+    /// least `self.wide.stack` entries: an array on the call stack when one of up to 128
+    /// entries is enough (zeroing it is the cost, so the smallest that is; arrays index
+    /// without bounds checks, see [`traverse::Stack`]), otherwise a per-thread buffer, reused,
+    /// so that no query allocates.
     #[inline(always)]
-    fn trace_on(
-        &self,
-        ray: &CanonicalRay,
-        exclude: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> Option<(usize, f32)> {
-        match self.node_test {
-            // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
-            // `trace_avx2` is compiled for, and `NodeTestChoice::Avx512` holds one only when
-            // it also has AVX-512F and VL, those `trace_avx512` adds.
-            #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
-            NodeTestChoice::Avx512(isa) => unsafe { self.trace_avx512(isa, ray, exclude, stack) },
-            // SAFETY: as above.
-            #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
-            NodeTestChoice::Avx2(isa) => unsafe { self.trace_avx2(isa, ray, exclude, stack) },
-            NodeTestChoice::Portable => self.trace_with(Sse, ray, exclude, stack),
+    fn run<T: Task>(&self, task: T) -> T::Out {
+        match self.wide.stack {
+            0..=32 => self.run_on(task, &mut [(0.0, 0); 32]),
+            33..=64 => self.run_on(task, &mut [(0.0, 0); 64]),
+            65..=128 => self.run_on(task, &mut [(0.0, 0); 128]),
+            _ => STACK.with(|cell| {
+                let mut buffer = cell.take();
+                if buffer.len() < self.wide.stack {
+                    buffer.resize(self.wide.stack, (0.0, 0));
+                }
+                let result = self.run_on(task, &mut buffer[..]);
+                cell.set(buffer);
+                result
+            }),
         }
     }
 
-    /// [`Bvh::trace_avx2`] compiled with AVX-512F and VL as well: the same operations, with
-    /// 32 vector registers to hold them instead of 16.
+    /// [`Bvh::run`] on `stack`.
+    #[inline(always)]
+    fn run_on<T: Task>(&self, task: T, stack: &mut (impl Stack + ?Sized)) -> T::Out {
+        match self.node_test {
+            // SAFETY: `isa` exists only when the processor has AVX2 and FMA, the features
+            // `run_avx2` is compiled for, and `NodeTestChoice::Avx512` holds one only when it
+            // also has AVX-512F and VL, those `run_avx512` adds.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            NodeTestChoice::Avx512(isa) => unsafe { self.run_avx512(isa, task, stack) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            NodeTestChoice::Avx2(isa) => unsafe { self.run_avx2(isa, task, stack) },
+            NodeTestChoice::Portable => task.run(self, Sse, stack),
+        }
+    }
+
+    /// [`Task::run`] compiled for AVX2 and FMA with AVX-512F and VL as well: the same
+    /// operations, with 32 vector registers to hold them instead of 16.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
-    fn trace_avx512(
-        &self,
-        isa: Avx2,
-        ray: &CanonicalRay,
-        exclude: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> Option<(usize, f32)> {
-        self.trace_with(isa, ray, exclude, stack)
+    fn run_avx512<T: Task>(&self, isa: Avx2, task: T, stack: &mut (impl Stack + ?Sized)) -> T::Out {
+        task.run(self, isa, stack)
     }
 
-    /// [`Bvh::trace`] compiled for AVX2 and FMA (the whole traversal is inlined here).
+    /// [`Task::run`] compiled for AVX2 and FMA (the whole traversal is inlined here).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    fn trace_avx2(
-        &self,
-        isa: Avx2,
-        ray: &CanonicalRay,
-        exclude: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> Option<(usize, f32)> {
-        self.trace_with(isa, ray, exclude, stack)
+    fn run_avx2<T: Task>(&self, isa: Avx2, task: T, stack: &mut (impl Stack + ?Sized)) -> T::Out {
+        task.run(self, isa, stack)
     }
+}
 
-    /// [`Bvh::trace`] with the node test `isa`.
+/// A query [`Bvh::run`] compiles once per node test and stack (a trait rather than a closure:
+/// a closure could be generic over neither, nor inherit the entry points' target features).
+trait Task {
+    /// The answer.
+    type Out;
+    /// The query on `bvh` with node test `isa` and a stack of at least `bvh.wide.stack`
+    /// entries.
+    fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> Self::Out;
+}
+
+/// The closest hit of `ray`, never `exclude` (see [`Bvh::trace`]).
+struct Closest<'a> {
+    ray: &'a CanonicalRay,
+    exclude: u32,
+}
+
+impl Task for Closest<'_> {
+    type Out = Option<(usize, f32)>;
+
     #[inline(always)]
-    fn trace_with(
-        &self,
-        isa: impl NodeTest,
-        ray: &CanonicalRay,
-        exclude: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> Option<(usize, f32)> {
+    fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> Self::Out {
         let CanonicalRay {
             origin,
             dir,
             window,
             ..
-        } = *ray;
+        } = *self.ray;
         // Start the traversal behind the origin so that the boxes of crossings in the window
         // around it are entered whatever the rounding. Returned values are `t + shift`.
         let shift = 2.0 * window;
         let r = NodeRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let Wide { nodes, packets, .. } = &self.wide;
+        let Wide { nodes, packets, .. } = &bvh.wide;
         let mut leaves = Leaves {
             packets,
             q: &q,
             shift,
-            ids: (exclude, exclude),
+            ids: (self.exclude, self.exclude),
         };
         let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
         let found = (best.slot != usize::MAX).then_some((best.slot, best.t));
@@ -365,9 +347,47 @@ impl Bvh {
     }
 }
 
+/// Whether a triangle with neither id `ia` nor `ib` blocks the canonical segment `segment`.
+struct Blocked<'a> {
+    segment: &'a CanonicalSegment,
+    ia: u32,
+    ib: u32,
+}
+
+impl Task for Blocked<'_> {
+    type Out = bool;
+
+    #[inline(always)]
+    fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
+        let CanonicalSegment {
+            origin,
+            dir,
+            len,
+            window_start,
+            window_end,
+        } = *self.segment;
+        let q = Query::new(origin, dir, len, window_start, window_end);
+        // as in `Closest`: start behind the origin; any blocker reports `shift` (< tmax)
+        let shift = 2.0 * window_start;
+        let r = NodeRay::new(
+            origin - dir * shift,
+            dir,
+            0.0,
+            len + window_end + 2.0 * shift,
+        );
+        let Wide { nodes, packets, .. } = &bvh.wide;
+        let mut leaves = Leaves {
+            packets,
+            q: &q,
+            shift,
+            ids: (self.ia, self.ib),
+        };
+        traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
+    }
+}
+
 thread_local! {
-    /// The traversal stack of this thread's queries on deep hierarchies (see
-    /// [`Bvh::with_stack`]).
+    /// The traversal stack of this thread's queries on deep hierarchies (see [`Bvh::run`]).
     static STACK: Cell<Vec<traverse::Entry>> = const { Cell::new(Vec::new()) };
 }
 
@@ -451,96 +471,11 @@ impl RayCaster for Bvh {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
-        with_stack!(self, stack => self.blocked_on(&s, a.id, b.id, stack))
-    }
-}
-
-impl Bvh {
-    /// [`Bvh::blocked_with`] on `stack`, with the fastest node test this processor runs.
-    #[inline(always)]
-    fn blocked_on(
-        &self,
-        s: &CanonicalSegment,
-        ia: u32,
-        ib: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> bool {
-        match self.node_test {
-            // SAFETY: as in `Bvh::trace_on`.
-            #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
-            NodeTestChoice::Avx512(isa) => unsafe { self.blocked_avx512(isa, s, ia, ib, stack) },
-            // SAFETY: as in `Bvh::trace_on`.
-            #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
-            NodeTestChoice::Avx2(isa) => unsafe { self.blocked_avx2(isa, s, ia, ib, stack) },
-            NodeTestChoice::Portable => self.blocked_with(Sse, s, ia, ib, stack),
-        }
-    }
-
-    /// [`Bvh::blocked_with`] compiled for AVX2, FMA, AVX-512F and VL (see `trace_avx512`).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma,avx512f,avx512vl")]
-    fn blocked_avx512(
-        &self,
-        isa: Avx2,
-        s: &CanonicalSegment,
-        ia: u32,
-        ib: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> bool {
-        self.blocked_with(isa, s, ia, ib, stack)
-    }
-
-    /// [`Bvh::blocked_with`] compiled for AVX2 and FMA.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn blocked_avx2(
-        &self,
-        isa: Avx2,
-        s: &CanonicalSegment,
-        ia: u32,
-        ib: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> bool {
-        self.blocked_with(isa, s, ia, ib, stack)
-    }
-
-    /// Whether a triangle with neither id `ia` nor `ib` blocks the canonical segment `s`, with
-    /// the node test `isa`.
-    #[inline(always)]
-    fn blocked_with(
-        &self,
-        isa: impl NodeTest,
-        s: &CanonicalSegment,
-        ia: u32,
-        ib: u32,
-        stack: &mut (impl Stack + ?Sized),
-    ) -> bool {
-        let CanonicalSegment {
-            origin,
-            dir,
-            len,
-            window_start,
-            window_end,
-        } = *s;
-        let q = Query::new(origin, dir, len, window_start, window_end);
-        // as in `trace`: start behind the origin; any blocker reports `shift` (< tmax)
-        let shift = 2.0 * window_start;
-        let r = NodeRay::new(
-            origin - dir * shift,
-            dir,
-            0.0,
-            len + window_end + 2.0 * shift,
-        );
-        let Wide { nodes, packets, .. } = &self.wide;
-        let mut leaves = Leaves {
-            packets,
-            q: &q,
-            shift,
-            ids: (ia, ib),
-        };
-        traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
+        self.run(Blocked {
+            segment: &s,
+            ia: a.id,
+            ib: b.id,
+        })
     }
 }
 

@@ -361,9 +361,9 @@ pub(crate) fn closest(
 /// ray than as one function. Interleaving the steps of four rays, to overlap their cache
 /// misses, was tried: 40% more instructions per ray and slower on every benchmark scene.)
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Walk {
+struct Walk {
     /// The closest crossing so far.
-    pub(crate) best: Best,
+    best: Best,
     /// Entries on the stack.
     sp: usize,
     /// The item to visit next without going through the stack.
@@ -373,7 +373,7 @@ pub(crate) struct Walk {
 impl Walk {
     /// The traversal of `ray`, at the root.
     #[inline(always)]
-    pub(crate) fn new(ray: &NodeRay) -> Walk {
+    fn new(ray: &NodeRay) -> Walk {
         Walk {
             best: Best::new(ray.tmax),
             sp: 0,
@@ -384,7 +384,7 @@ impl Walk {
     /// Visits the next node or leaf of the traversal of `ray` (on its own `stack`); `false`
     /// when there is none left, and `best` is the closest hit.
     #[inline(always)]
-    pub(crate) fn step(
+    fn step(
         &mut self,
         isa: impl NodeTest,
         nodes: &[Node],
