@@ -739,8 +739,8 @@ mod tests {
             let mut prims = [[0u32; LEAF_MAX]; WIDTH];
             let mut next = 0;
             for (i, &n) in sizes.iter().enumerate() {
-                for k in 0..n {
-                    prims[i][k] = next;
+                for slot in &mut prims[i][..n] {
+                    *slot = next;
                     next += 1;
                 }
             }
