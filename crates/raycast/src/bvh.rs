@@ -1,7 +1,7 @@
 //! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
 //! mcrad's 8-wide layout ([`crate::wide`]).
 
-use std::cell::Cell;
+use std::{cell::Cell, ops::Range};
 
 use glam::{Vec3, Vec3A};
 use obvhs::{
@@ -494,12 +494,26 @@ struct Leaves<'a> {
 
 impl LeafTest for Leaves<'_> {
     #[inline(always)]
-    fn closest(&mut self, p: usize, best: &mut traverse::Best) {
-        let packet = &self.packets[p];
-        let c = crossings::<false>(packet, self.q, ALL_LANES);
-        if c.hot | c.cold == 0 {
-            return;
+    fn closest(&mut self, run: Range<usize>, best: &mut traverse::Best) {
+        let first = run.start;
+        for (k, packet) in self.packets[run].iter().enumerate() {
+            self.closest_in(first + k, packet, best);
         }
+    }
+
+    #[inline(always)]
+    fn any(&mut self, run: Range<usize>) -> bool {
+        self.packets[run].iter().any(|packet| self.any_in(packet))
+    }
+}
+
+impl Leaves<'_> {
+    /// [`LeafTest::closest`] for one packet: `packet`, number `p`.
+    #[inline(always)]
+    fn closest_in(&self, p: usize, packet: &wide::Packet, best: &mut traverse::Best) {
+        let Some(c) = crossings::<false>(packet, self.q, ALL_LANES) else {
+            return;
+        };
         let keep = !excluded(packet, self.ids.0, self.ids.1);
         let mut hot = c.hot & keep;
         while hot != 0 {
@@ -517,13 +531,12 @@ impl LeafTest for Leaves<'_> {
         }
     }
 
+    /// [`LeafTest::any`] for one packet.
     #[inline(always)]
-    fn any(&mut self, p: usize) -> bool {
-        let packet = &self.packets[p];
-        let c = crossings::<true>(packet, self.q, ALL_LANES);
-        if c.hot | c.cold == 0 {
+    fn any_in(&self, packet: &wide::Packet) -> bool {
+        let Some(c) = crossings::<true>(packet, self.q, ALL_LANES) else {
             return false;
-        }
+        };
         let keep = !excluded(packet, self.ids.0, self.ids.1);
         if c.hot & keep != 0 {
             return true;

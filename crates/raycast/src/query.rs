@@ -89,7 +89,8 @@ pub(crate) struct Crossings {
     pub(crate) cold: u32,
 }
 
-/// The lanes of `lanes` (a bit mask) of packet `p` against query `q`, in canonical units.
+/// The lanes of `lanes` (a bit mask) of packet `p` against query `q`, in canonical units;
+/// `None` when no crossing counts or needs a re-check (the common case).
 /// The tests compare barycentrics and distance scaled by `det^2` (no division; canonical
 /// coordinates below 1024 keep the products far from `f32` overflow): a lane whose determinant
 /// is 0 (a degenerate triangle, or an unused lane) is in neither mask, as its scaled
@@ -108,7 +109,11 @@ pub(crate) struct Crossings {
 /// [`refine`] re-decides it with the rules of [`exact::ray_rule`] and
 /// [`exact::segment_rule`].
 #[inline(always)]
-pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) -> Crossings {
+pub(crate) fn crossings<const SEGMENT: bool>(
+    p: &Packet,
+    q: &Query,
+    lanes: u32,
+) -> Option<Crossings> {
     let l = &q.lanes;
     let [dx, dy, dz] = l.dir;
     let [e1x, e1y, e1z] = p.e1;
@@ -144,11 +149,7 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         in_window |= (t - len).abs().cmplt(l.window_end2 * d2).bitmask();
     }
     if lanes & (maybe | in_window) == 0 {
-        return Crossings {
-            t: [0.0; LANES],
-            hot: 0,
-            cold: 0,
-        };
+        return None;
     }
     let mut near = (plane * plane)
         .cmplt(l.near_start2 * (nx * nx + ny * ny + nz * nz))
@@ -172,11 +173,12 @@ pub(crate) fn crossings<const SEGMENT: bool>(p: &Packet, q: &Query, lanes: u32) 
         }
         cold &= !rejected.bitmask();
     }
-    Crossings {
+    let hot = lanes & maybe & !near & inside.bitmask();
+    (hot | cold != 0).then(|| Crossings {
         t: (plane / det).to_array(),
-        hot: lanes & maybe & !near & inside.bitmask(),
+        hot,
         cold,
-    }
+    })
 }
 
 /// The exact re-check of a cold crossing (see [`crossings`]) on the same canonical data, by

@@ -11,6 +11,8 @@
 //! the reciprocal direction of `obvhs::ray::safe_inverse` (no infinities, so an empty box
 //! `[+inf, -inf]` never passes and no lane computes a NaN).
 
+use std::ops::Range;
+
 use glam::{Vec3A, Vec4};
 use obvhs::ray::safe_inverse;
 
@@ -272,12 +274,13 @@ impl Best {
     }
 }
 
-/// The leaf test of a traversal.
+/// The leaf test of a traversal, on the run of packets of a leaf item (see
+/// [`crate::wide::packets`]).
 pub(crate) trait LeafTest {
-    /// Offers the crossings of packet `p` that count to `best` (closest hit).
-    fn closest(&mut self, p: usize, best: &mut Best);
-    /// Whether a crossing of packet `p` counts (any hit).
-    fn any(&mut self, p: usize) -> bool;
+    /// Offers the crossings of packets `run` that count to `best` (closest hit).
+    fn closest(&mut self, run: Range<usize>, best: &mut Best);
+    /// Whether a crossing of packets `run` counts (any hit).
+    fn any(&mut self, run: Range<usize>) -> bool;
 }
 
 /// The hit children of a node test (`mask` of them, entry distances `enter`), prefetched: the
@@ -407,9 +410,7 @@ impl Walk {
             },
         };
         if item & LEAF != 0 {
-            for p in packets(item) {
-                leaves.closest(p, &mut self.best);
-            }
+            leaves.closest(packets(item), &mut self.best);
             return true;
         }
         let node = &nodes[item as usize];
@@ -445,10 +446,8 @@ pub(crate) fn any(
             }
         };
         if item & LEAF != 0 {
-            for p in packets(item) {
-                if leaves.any(p) {
-                    return true;
-                }
+            if leaves.any(packets(item)) {
+                return true;
             }
             continue;
         }
