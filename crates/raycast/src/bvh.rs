@@ -21,7 +21,7 @@ use crate::{
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
     query::{Query, crossings, refine},
     traverse::{self, LeafTest, NodeRay, NodeTest, Sse, Stack},
-    wide::{self, LANES, Lane, Wide},
+    wide::{self, LANES, Wide},
 };
 
 /// How much build time to spend on BVH quality (obvhs presets).
@@ -238,10 +238,10 @@ impl Bvh {
         self.frame.world_epsilon() as f32
     }
 
-    /// Closest hit in canonical units: (packet slot `packet * 4 + lane`, distance from the
-    /// lifted origin).
+    /// Closest hit in canonical units: (distance from the lifted origin, the triangle's id,
+    /// whether the ray meets its front).
     #[inline]
-    fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(usize, f32)> {
+    fn trace(&self, ray: &CanonicalRay, exclude: u32) -> Option<(f32, u32, bool)> {
         self.run(Closest { ray, exclude })
     }
 
@@ -319,7 +319,7 @@ struct Closest<'a> {
 }
 
 impl Task for Closest<'_> {
-    type Out = Option<(usize, f32)>;
+    type Out = Option<(f32, u32, bool)>;
 
     #[inline(always)]
     fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> Self::Out {
@@ -342,8 +342,8 @@ impl Task for Closest<'_> {
             ids: (self.exclude, self.exclude),
         };
         let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
-        let found = (best.slot != usize::MAX).then_some((best.slot, best.t));
-        found.map(|(slot, t)| (slot, (t - shift).max(0.0)))
+        best.found()
+            .then_some(((best.t - shift).max(0.0), best.key, best.front))
     }
 }
 
@@ -428,13 +428,10 @@ fn build_bvh2_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -
 impl RayCaster for Bvh {
     fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
         let c = self.frame.canonical_ray(ray)?;
-        let (slot, t) = self.trace(&c, ray.exclude)?;
-        let tri: Lane = self.wide.packets[slot / LANES].lane(slot % LANES);
-        // Lane::ng = (v0 - v1) x (v2 - v0) = -(counter-clockwise normal)
-        let front = c.dir.dot(tri.ng()) > 0.0;
+        let (t, id, front) = self.trace(&c, ray.exclude)?;
         let canonical_point = c.origin.as_dvec3() + c.dir.as_dvec3() * t as f64;
         Some(Hit {
-            id: tri.id,
+            id,
             distance: ((c.skip + t as f64) * self.frame.inv_scale()) as f32,
             point: self.frame.world(canonical_point),
             front,
@@ -495,9 +492,8 @@ struct Leaves<'a> {
 impl LeafTest for Leaves<'_> {
     #[inline(always)]
     fn closest(&mut self, run: Range<usize>, best: &mut traverse::Best) {
-        let first = run.start;
-        for (k, packet) in self.packets[run].iter().enumerate() {
-            self.closest_in(first + k, packet, best);
+        for packet in &self.packets[run] {
+            self.closest_in(packet, best);
         }
     }
 
@@ -508,9 +504,9 @@ impl LeafTest for Leaves<'_> {
 }
 
 impl Leaves<'_> {
-    /// [`LeafTest::closest`] for one packet: `packet`, number `p`.
+    /// [`LeafTest::closest`] for one packet.
     #[inline(always)]
-    fn closest_in(&self, p: usize, packet: &wide::Packet, best: &mut traverse::Best) {
+    fn closest_in(&self, packet: &wide::Packet, best: &mut traverse::Best) {
         let Some(c) = crossings::<false>(packet, self.q, ALL_LANES) else {
             return;
         };
@@ -519,14 +515,14 @@ impl Leaves<'_> {
         while hot != 0 {
             let j = hot.trailing_zeros() as usize;
             hot &= hot - 1;
-            best.offer(c.t[j] + self.shift, packet.ids[j], p * LANES + j);
+            best.offer(c.t[j] + self.shift, packet.ids[j], c.front >> j & 1 != 0);
         }
         let mut cold = c.cold & keep;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
-            if let Some(t) = refine(&packet.lane(j), self.q) {
-                best.offer(t + self.shift, packet.ids[j], p * LANES + j);
+            if let Some((t, front)) = refine(&packet.lane(j), self.q) {
+                best.offer(t + self.shift, packet.ids[j], front);
             }
         }
     }

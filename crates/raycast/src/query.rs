@@ -80,11 +80,13 @@ impl Query {
 }
 
 /// What a packet test found: the distance of each lane's plane crossing, the lanes whose
-/// crossing counts as it is (`hot`), and the lanes whose crossing must be re-decided by
+/// triangle the query meets from the front (`det > 0`, see [`exact::crossing`]), the lanes
+/// whose crossing counts as it is (`hot`), and the lanes whose crossing must be re-decided by
 /// [`refine`] (`cold`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Crossings {
     pub(crate) t: [f32; LANES],
+    pub(crate) front: u32,
     pub(crate) hot: u32,
     pub(crate) cold: u32,
 }
@@ -176,6 +178,7 @@ pub(crate) fn crossings<const SEGMENT: bool>(
     let hot = lanes & maybe & !near & inside.bitmask();
     (hot | cold != 0).then(|| Crossings {
         t: (plane / det).to_array(),
+        front: det.cmpgt(zero).bitmask(),
         hot,
         cold,
     })
@@ -183,10 +186,11 @@ pub(crate) fn crossings<const SEGMENT: bool>(
 
 /// The exact re-check of a cold crossing (see [`crossings`]) on the same canonical data, by
 /// the rules of [`exact::ray_rule`] and [`exact::segment_rule`]: the distance of a crossing
-/// that counts, or `None`.
+/// that counts (0 for a segment's blocker) and whether the query meets the triangle's front,
+/// or `None`.
 #[cold]
 #[inline(never)]
-pub(crate) fn refine(tri: &Lane, q: &Query) -> Option<f32> {
+pub(crate) fn refine(tri: &Lane, q: &Query) -> Option<(f32, bool)> {
     let ray = WorldRay {
         origin: q.origin.as_dvec3(),
         dir: q.dir.as_dvec3(),
@@ -197,8 +201,8 @@ pub(crate) fn refine(tri: &Lane, q: &Query) -> Option<f32> {
     // e1 = v0 - v1, e2 = v2 - v0
     let (v0, e1, e2) = (tri.v0.as_dvec3(), -tri.e1.as_dvec3(), tri.e2.as_dvec3());
     if q.len.is_finite() {
-        exact::blocker(v0, e1, e2, &ray).map(|_| 0.0)
+        exact::blocker(v0, e1, e2, &ray).map(|(_, front)| (0.0, front))
     } else {
-        exact::ray_candidate(v0, e1, e2, &ray).map(|(t, _)| t as f32)
+        exact::ray_candidate(v0, e1, e2, &ray).map(|(t, front)| (t as f32, front))
     }
 }

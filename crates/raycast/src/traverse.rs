@@ -245,12 +245,13 @@ fn prefetch(p: *const i8) {
     let _ = p;
 }
 
-/// The closest crossing found so far: distance, tie-break key and slot (`usize::MAX`: none).
+/// The closest crossing found so far: distance, tie-break key (the triangle's id; `u32::MAX`,
+/// which no triangle has: none) and whether the ray meets the triangle's front.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Best {
     pub(crate) t: f32,
     pub(crate) key: u32,
-    pub(crate) slot: usize,
+    pub(crate) front: bool,
 }
 
 impl Best {
@@ -259,18 +260,23 @@ impl Best {
         Best {
             t: tmax,
             key: u32::MAX,
-            slot: usize::MAX,
+            front: false,
         }
     }
 
-    /// Keeps the crossing at `t` (key `key`, slot `slot`) if it is closer, or as close with a
+    /// Keeps the crossing at `t` (key `key`, `front`) if it is closer, or as close with a
     /// lower key: crossings clamped to distance 0 at a ray's origin tie exactly, and the rule
     /// makes the result independent of the visiting order.
     #[inline(always)]
-    pub(crate) fn offer(&mut self, t: f32, key: u32, slot: usize) {
-        if t < self.t || (t == self.t && self.slot != usize::MAX && key < self.key) {
-            *self = Best { t, key, slot };
+    pub(crate) fn offer(&mut self, t: f32, key: u32, front: bool) {
+        if t < self.t || (t == self.t && self.key != u32::MAX && key < self.key) {
+            *self = Best { t, key, front };
         }
+    }
+
+    /// Whether a crossing was kept.
+    pub(crate) fn found(&self) -> bool {
+        self.key != u32::MAX
     }
 }
 

@@ -119,28 +119,12 @@ pub(crate) struct Packet {
 
 const _: () = assert!(size_of::<Packet>() == 160);
 
-/// One triangle of a packet, as scalar vectors (the data of the exact re-check and of the hit
-/// record).
+/// One triangle of a packet, as scalar vectors (the data of the exact re-check).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Lane {
     pub(crate) v0: Vec3A,
     pub(crate) e1: Vec3A,
     pub(crate) e2: Vec3A,
-    pub(crate) id: u32,
-}
-
-impl Lane {
-    /// `e1 x e2` (minus the counter-clockwise normal, length twice the area), by the same
-    /// arithmetic as the packet test.
-    #[inline(always)]
-    pub(crate) fn ng(&self) -> Vec3A {
-        let (a, b) = (self.e1, self.e2);
-        Vec3A::new(
-            a.y * b.z - a.z * b.y,
-            a.z * b.x - a.x * b.z,
-            a.x * b.y - a.y * b.x,
-        )
-    }
 }
 
 impl Packet {
@@ -172,7 +156,6 @@ impl Packet {
             v0: Vec3A::new(v0[0][j], v0[1][j], v0[2][j]),
             e1: Vec3A::new(e1[0][j], e1[1][j], e1[2][j]),
             e2: Vec3A::new(e2[0][j], e2[1][j], e2[2][j]),
-            id: self.ids[j],
         }
     }
 }
@@ -807,8 +790,7 @@ mod tests {
         assert_eq!(lane.v0, t.v0);
         assert_eq!(lane.e1, t.v0 - t.v1);
         assert_eq!(lane.e2, t.v2 - t.v0);
-        assert_eq!(lane.id, 0x8000_0000);
-        assert_eq!(lane.ng(), (t.v0 - t.v1).cross(t.v2 - t.v0));
-        assert_eq!(p.lane(0).id, NO_ID);
+        assert_eq!(p.ids[2], 0x8000_0000);
+        assert_eq!(p.ids[0], NO_ID);
     }
 }
