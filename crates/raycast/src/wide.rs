@@ -196,21 +196,16 @@ struct Part {
     stack: usize,
 }
 
-/// What the collapse decided for a binary node: the surface-area-heuristic costs of the best
-/// ways to turn its subtree into `i` child slots of a wide node, for `i` from 1 to [`WIDTH`]
-/// (the optimal collapse of Ylitie, Karras and Laine 2017, "Efficient incoherent ray traversal
-/// on GPUs through compressed wide BVHs"), and how each is reached.
+/// What the collapse decided for a binary node, from the [`Costs`] of its subtree (the optimal
+/// collapse of Ylitie, Karras and Laine 2017, "Efficient incoherent ray traversal on GPUs
+/// through compressed wide BVHs"). 11 bytes: the costs themselves are dropped once the parent
+/// is planned, so that planning a million triangles holds about 55 MB at its peak, not 200.
 #[derive(Clone, Copy)]
 struct Plan {
-    /// Triangles below.
-    count: u32,
     /// One slot: the subtree becomes one leaf (else one wide node).
     leaf: bool,
-    /// `cost[i - 1]`: the cost of the best `i` slots or fewer (surface area times
-    /// [`PACKET_COST`] per packet and [`NODE_COST`] per wide node, summed).
-    cost: [f32; WIDTH],
-    /// `split[i - 1]` for `i >= 2`: `k` slots from the left child and `i - k` from the right,
-    /// or 0 where `i - 1` slots are as good.
+    /// `split[i - 1]` for `i >= 2`: the best `i` slots take `k` from the left child and
+    /// `i - k` from the right, or (0) `i - 1` slots are as good.
     split: [u8; WIDTH],
     /// As a wide node: its slots (2 to [`WIDTH`]) ...
     children: u8,
@@ -218,21 +213,38 @@ struct Plan {
     left: u8,
 }
 
+/// The surface-area-heuristic costs of a binary node's subtree as child slots of a wide node.
+#[derive(Clone, Copy)]
+struct Costs {
+    /// Triangles below.
+    count: u32,
+    /// `cost[i - 1]`: the cost of the best `i` slots or fewer (surface area times
+    /// [`PACKET_COST`] per packet and [`NODE_COST`] per wide node, summed).
+    cost: [f32; WIDTH],
+}
+
 impl Plan {
     /// The plan of a binary leaf of `count` triangles and surface area `area`.
-    fn leaf(count: u32, area: f32) -> Plan {
-        Plan {
-            count,
+    fn leaf(count: u32, area: f32) -> (Plan, Costs) {
+        let plan = Plan {
             leaf: true,
-            cost: [PACKET_COST * count.div_ceil(LANES as u32) as f32 * area; WIDTH],
             split: [0; WIDTH],
             children: 0,
             left: 0,
-        }
+        };
+        let cost = PACKET_COST * count.div_ceil(LANES as u32) as f32 * area;
+        (
+            plan,
+            Costs {
+                count,
+                cost: [cost; WIDTH],
+            },
+        )
     }
 
-    /// The plan of an inner binary node of surface area `area` with children `l` and `r`.
-    fn inner(area: f32, l: &Plan, r: &Plan) -> Plan {
+    /// The plan of an inner binary node of surface area `area` whose children's subtrees cost
+    /// `l` and `r`.
+    fn inner(area: f32, l: &Costs, r: &Costs) -> (Plan, Costs) {
         let count = l.count + r.count;
         // distribute[j]: the best j slots, some from each child
         let mut distribute = [(f32::INFINITY, 0u8); WIDTH + 1];
@@ -257,22 +269,24 @@ impl Plan {
             f32::INFINITY
         };
         let mut plan = Plan {
-            count,
             leaf: as_leaf <= as_node,
-            cost: [as_leaf.min(as_node); WIDTH],
             split: [0; WIDTH],
             children,
             left,
         };
+        let mut costs = Costs {
+            count,
+            cost: [as_leaf.min(as_node); WIDTH],
+        };
         for (i, &(c, k)) in distribute.iter().enumerate().skip(2) {
-            if c < plan.cost[i - 2] {
-                plan.cost[i - 1] = c;
+            if c < costs.cost[i - 2] {
+                costs.cost[i - 1] = c;
                 plan.split[i - 1] = k;
             } else {
-                plan.cost[i - 1] = plan.cost[i - 2];
+                costs.cost[i - 1] = costs.cost[i - 2];
             }
         }
-        plan
+        (plan, costs)
     }
 }
 
@@ -542,7 +556,7 @@ fn collect_prims(bvh2: &Bvh2, b: usize, out: &mut [u32; LEAF_MAX]) -> usize {
 /// (breadth first) are planned in parallel.
 fn plan(bvh2: &Bvh2) -> Vec<Plan> {
     let n = bvh2.nodes.len();
-    let mut plans = vec![Plan::leaf(0, 0.0); n];
+    let mut plans = vec![Plan::leaf(0, 0.0).0; n];
     if n == 0 {
         return plans;
     }
@@ -563,25 +577,32 @@ fn plan(bvh2: &Bvh2) -> Vec<Plan> {
             }
         }
     }
-    let parts: Vec<Vec<(u32, Plan)>> = roots
+    let parts: Vec<(Vec<(u32, Plan)>, Costs)> = roots
         .par_iter()
         .map(|&root| plan_subtree(bvh2, root))
         .collect();
-    for (b, p) in parts.into_iter().flatten() {
-        plans[b as usize] = p;
+    // the costs of the top nodes and of the roots below them (a few hundred at most)
+    let mut costs = std::collections::HashMap::new();
+    for (&root, (part, root_costs)) in roots.iter().zip(parts) {
+        for (b, p) in part {
+            plans[b as usize] = p;
+        }
+        costs.insert(root, root_costs);
     }
     for &b in top.iter().rev() {
         let node = &bvh2.nodes[b];
         let first = node.first_index as usize;
-        plans[b] = Plan::inner(area(node), &plans[first], &plans[first + 1]);
+        let (p, c) = Plan::inner(area(node), &costs[&first], &costs[&(first + 1)]);
+        plans[b] = p;
+        costs.insert(b, c);
     }
     plans
 }
 
-/// The plans of the binary subtree of `root`, node by node.
-fn plan_subtree(bvh2: &Bvh2, root: usize) -> Vec<(u32, Plan)> {
+/// The plans of the binary subtree of `root`, node by node, and the costs of `root`'s.
+fn plan_subtree(bvh2: &Bvh2, root: usize) -> (Vec<(u32, Plan)>, Costs) {
     // pre-order, the right child first; walked backwards every node comes after its subtree,
-    // whose plan is then on top of `done`, the right child's above the left's
+    // whose costs are then on top of `done`, the right child's above the left's
     let mut order = Vec::new();
     let mut todo = vec![root];
     while let Some(b) = todo.pop() {
@@ -592,11 +613,11 @@ fn plan_subtree(bvh2: &Bvh2, root: usize) -> Vec<(u32, Plan)> {
             todo.extend([first, first + 1]);
         }
     }
-    let mut done: Vec<Plan> = Vec::new();
+    let mut done: Vec<Costs> = Vec::new();
     let mut out = Vec::with_capacity(order.len());
     for &b in order.iter().rev() {
         let node = &bvh2.nodes[b];
-        let plan = if node.prim_count != 0 {
+        let (plan, costs) = if node.prim_count != 0 {
             Plan::leaf(node.prim_count, area(node))
         } else {
             let (r, l) = (done.pop(), done.pop());
@@ -605,10 +626,13 @@ fn plan_subtree(bvh2: &Bvh2, root: usize) -> Vec<(u32, Plan)> {
             };
             Plan::inner(area(node), &l, &r)
         };
-        done.push(plan);
+        done.push(costs);
         out.push((b as u32, plan));
     }
-    out
+    let Some(costs) = done.pop() else {
+        unreachable!("a subtree has a root");
+    };
+    (out, costs)
 }
 
 /// The surface area (halved) of a binary node's box.
@@ -671,10 +695,9 @@ mod tests {
             obvhs::ploc::SortPrecision::U64,
             1,
         );
-        let plans = plan(&bvh2);
         let wide = Wide::new(&bvh2, &tris, &ids);
-        let root = &plans[0];
-        assert!(!root.leaf);
+        let (root_plans, root) = plan_subtree(&bvh2, 0);
+        assert!(!root_plans.last().is_some_and(|(_, p)| p.leaf));
         let optimum = root.cost[0] as f64;
         let built = cost_of(&wide, 0, area(&bvh2.nodes[0]));
         assert!(
@@ -683,11 +706,14 @@ mod tests {
         );
         // and every other choice of the root's slots costs at least as much
         let first = bvh2.nodes[0].first_index as usize;
+        let (left, right) = (
+            plan_subtree(&bvh2, first).1,
+            plan_subtree(&bvh2, first + 1).1,
+        );
         for j in 2..=WIDTH {
             for k in 1..j {
-                let other = NODE_COST * area(&bvh2.nodes[0])
-                    + plans[first].cost[k - 1]
-                    + plans[first + 1].cost[j - k - 1];
+                let other =
+                    NODE_COST * area(&bvh2.nodes[0]) + left.cost[k - 1] + right.cost[j - k - 1];
                 assert!(other >= root.cost[0], "{j} slots, {k} left: {other}");
             }
         }
