@@ -104,9 +104,9 @@
 //! * on processors with AVX-512F/VL the AVX2 traversal is also compiled with them, for their
 //!   32 vector registers ([`Simd`], [`Bvh::with_simd`]).
 //!
-//! Memory: about 58 bytes per triangle on large scenes ([`Bvh::memory_bytes`]). Among crossings at exactly the
-//! same distance the lowest id wins, so the answer does not depend on the visiting order (nor
-//! on the instruction sets: every [`Simd`] level gives the same hits). The closest-hit batch
+//! Memory: about 58 bytes per triangle on large scenes ([`Bvh::memory_bytes`]). Among
+//! crossings at exactly the same distance the lowest id wins, so the answer does not depend on
+//! the visiting order (nor on the instruction sets: every [`Simd`] level gives the same hits). The closest-hit batch
 //! ([`RayCaster::closest_hit_batch`]) visits its rays sorted by origin and direction, which
 //! keeps the caches warm on large scenes (same answers as one by one).
 //!

@@ -322,15 +322,14 @@ impl Collapse<'_> {
             children[0] = b;
             1
         } else {
-            let (plan, first) = (&plans[b], bvh2.nodes[b].first_index as usize);
-            let k = plan.left as usize;
-            let n = slots(bvh2, plans, first, k, &mut children);
-            n + slots(
+            let plan = &plans[b];
+            spread(
                 bvh2,
                 plans,
-                first + 1,
-                plan.children as usize - k,
-                &mut children[n..],
+                b,
+                plan.left as usize,
+                plan.children as usize,
+                &mut children,
             )
         };
         // the node's children go on top of the siblings of its ancestors
@@ -389,7 +388,12 @@ fn slots(bvh2: &Bvh2, plans: &[Plan], b: usize, i: usize, out: &mut [usize]) -> 
         out[0] = b;
         return 1;
     }
-    let k = plans[b].split[i - 1] as usize;
+    spread(bvh2, plans, b, plans[b].split[i - 1] as usize, i, out)
+}
+
+/// Writes the best `k` slots of inner binary node `b`'s left child and the best `i - k` of its
+/// right child (or fewer, see [`slots`]) to `out`; returns how many.
+fn spread(bvh2: &Bvh2, plans: &[Plan], b: usize, k: usize, i: usize, out: &mut [usize]) -> usize {
     let first = bvh2.nodes[b].first_index as usize;
     let n = slots(bvh2, plans, first, k, out);
     n + slots(bvh2, plans, first + 1, i - k, &mut out[n..])
@@ -489,29 +493,29 @@ impl Part {
         ids: &[u32],
     ) -> [u32; WIDTH] {
         let mut items = [EMPTY; WIDTH];
-        let mut order: Vec<usize> = (0..counts.len()).filter(|&i| counts[i] > 0).collect();
+        let mut order = [0usize; WIDTH];
+        for (i, slot) in order.iter_mut().enumerate() {
+            *slot = i;
+        }
+        let order = &mut order[..counts.len()];
         order.sort_by_key(|&i| std::cmp::Reverse(counts[i]));
         let base = self.packets.len();
-        // lanes used in each packet of this node
-        let mut used: Vec<usize> = Vec::new();
-        for i in order {
+        // lanes used in each packet of this node (at most one packet per leaf and lane group)
+        let mut used = [0usize; WIDTH * LEAF_MAX / LANES];
+        let mut packets = 0;
+        for &i in order.iter().filter(|&&i| counts[i] > 0) {
             let leaf = &prims[i][..counts[i]];
-            let (first, lane) = if leaf.len() > LANES {
-                used.extend([0, 0]);
-                (used.len() - 2, 0)
-            } else {
-                let fits = (0..used.len())
-                    .filter(|&p| used[p] + leaf.len() <= LANES)
-                    .max_by_key(|&p| (used[p], std::cmp::Reverse(p)));
-                match fits {
-                    Some(p) => (p, used[p]),
-                    None => {
-                        used.push(0);
-                        (used.len() - 1, 0)
-                    }
+            let fits = (0..packets)
+                .filter(|&p| leaf.len() <= LANES && used[p] + leaf.len() <= LANES)
+                .max_by_key(|&p| (used[p], std::cmp::Reverse(p)));
+            let (first, lane) = match fits {
+                Some(p) => (p, used[p]),
+                None => {
+                    packets += leaf.len().div_ceil(LANES);
+                    (packets - leaf.len().div_ceil(LANES), 0)
                 }
             };
-            while self.packets.len() < base + used.len() {
+            while self.packets.len() < base + packets {
                 self.packets.push(Packet::empty());
             }
             for (k, &t) in leaf.iter().enumerate() {
