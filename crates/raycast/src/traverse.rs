@@ -1,4 +1,4 @@
-//! Single-ray traversal of the 8-wide BVH ([`crate::wide`]).
+//! Single-ray traversal of the 16-wide BVH ([`crate::wide`]).
 //!
 //! Every stack entry carries the distance at which the ray enters its box: children are
 //! visited nearest first and entries farther than the closest hit so far are dropped without
@@ -6,10 +6,10 @@
 //! order. The child nodes and packets a node test finds are prefetched at once: on a large
 //! scene each is a cache miss, and they are independent loads.
 //!
-//! The slab test ([`NodeTest`]) runs on all eight children at once with AVX2 and FMA where
-//! the processor has them, otherwise on four per SSE register (through glam's `Vec4`), with
-//! the reciprocal direction of `obvhs::ray::safe_inverse` (no infinities, so an empty box
-//! `[+inf, -inf]` never passes and no lane computes a NaN).
+//! The slab test ([`NodeTest`]) runs on all sixteen children at once with AVX-512, on eight at
+//! a time with AVX2 and FMA where the processor has those, otherwise on four per SSE register
+//! (through glam's `Vec4`), with the reciprocal direction of `obvhs::ray::safe_inverse` (no
+//! infinities, so an empty box `[+inf, -inf]` never passes and no lane computes a NaN).
 
 use std::ops::Range;
 
@@ -86,11 +86,12 @@ impl Stack for [Entry] {
 /// A node test: the children of `node` whose box the ray enters before `tmax`, with their
 /// entry distances (lane `i` for child `i`) and the mask of them (bit `i` for child `i`).
 ///
-/// Implemented for SSE ([`Sse`], every target through glam's `Vec4`) and for AVX2 with FMA
-/// ([`Avx2`], x86_64 processors that have them). Both compute `q * inv + offset` per plane, the
-/// second with one rounding instead of two, so their entry distances may differ in the last
-/// bit; what is hit does not depend on it (boxes are padded, see `bvh.rs`, and the closest hit
-/// is that of all triangles whatever the visiting order).
+/// Implemented for SSE ([`Sse`], every target through glam's `Vec4`), for AVX2 with FMA
+/// ([`Avx2`]) and for AVX-512 ([`Avx512`], x86_64 processors that have them). All compute
+/// `q * inv + offset` per plane, the last two with one rounding instead of two (the same
+/// numbers), so entry distances may differ in the last bit; what is hit does not depend on it
+/// (boxes are padded, see `bvh.rs`, and the closest hit is that of all triangles whatever the
+/// visiting order).
 pub(crate) trait NodeTest: Copy {
     /// The test of `node`.
     fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32);
@@ -106,7 +107,7 @@ impl NodeTest for Sse {
         let t0 = Vec4::splat(ray.tmin);
         let t1 = Vec4::splat(tmax);
         let p = &node.planes;
-        let half = |h: usize| {
+        let quarter = |h: usize| {
             let at = |plane: usize, k: usize| {
                 p[plane][h] * Vec4::splat(ray.inv[k]) + Vec4::splat(ray.offset[k])
             };
@@ -118,17 +119,19 @@ impl NodeTest for Sse {
                 .min(at(ray.far[2], 2).min(t1));
             (enter.to_array(), enter.cmple(leave).bitmask())
         };
-        let (a, m0) = half(0);
-        let (b, m1) = half(1);
-        (
-            [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]],
-            m0 | (m1 << 4),
-        )
+        let mut enter = [0.0; WIDTH];
+        let mut mask = 0;
+        for h in 0..WIDTH / 4 {
+            let (a, m) = quarter(h);
+            enter[4 * h..4 * h + 4].copy_from_slice(&a);
+            mask |= m << (4 * h);
+        }
+        (enter, mask)
     }
 }
 
-/// The node test on all eight children at once, with AVX2 and FMA. Only [`Avx2::detect`]
-/// makes one, so holding one proves the processor has them.
+/// The node test on eight children at a time, with AVX2 and FMA. Only [`Avx2::detect`] makes
+/// one, so holding one proves the processor has them.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Avx2(());
@@ -150,9 +153,9 @@ impl NodeTest for Avx2 {
         use std::arch::x86_64::*;
         let mut enter_out = [0.0f32; WIDTH];
         // SAFETY: `self` exists only if `Avx2::detect` found AVX2 and FMA on this processor, so
-        // the intrinsics' target features are present. `plane_times` reads the 8 floats of one
-        // `[Vec4; 2]` plane row of `node` (32 bytes, in bounds, any alignment accepted by
-        // `loadu`), and the store writes the 8 floats of `enter_out`.
+        // the intrinsics' target features are present. `plane_times` reads 8 floats of a plane
+        // row of `node` (in bounds, any alignment accepted by `loadu`), and each store writes
+        // 8 floats of `enter_out` (a bounds-checked slice).
         #[allow(unsafe_code)]
         let mask = unsafe {
             // (no closures here: they would not inherit the target features)
@@ -163,31 +166,116 @@ impl NodeTest for Avx2 {
             let oy = _mm256_set1_ps(ray.offset[1]);
             let oz = _mm256_set1_ps(ray.offset[2]);
             let p = &node.planes;
-            let enter = _mm256_max_ps(
-                _mm256_max_ps(
-                    plane_times(&p[ray.near[0]], ix, ox),
-                    plane_times(&p[ray.near[1]], iy, oy),
-                ),
-                _mm256_max_ps(
-                    plane_times(&p[ray.near[2]], iz, oz),
-                    _mm256_set1_ps(ray.tmin),
-                ),
-            );
-            let leave = _mm256_min_ps(
-                _mm256_min_ps(
-                    plane_times(&p[ray.far[0]], ix, ox),
-                    plane_times(&p[ray.far[1]], iy, oy),
-                ),
-                _mm256_min_ps(plane_times(&p[ray.far[2]], iz, oz), _mm256_set1_ps(tmax)),
-            );
-            _mm256_storeu_ps(enter_out.as_mut_ptr(), enter);
-            _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u32
+            let mut mask = 0;
+            for h in 0..WIDTH / 8 {
+                let enter = _mm256_max_ps(
+                    _mm256_max_ps(
+                        plane_times(&p[ray.near[0]], h, ix, ox),
+                        plane_times(&p[ray.near[1]], h, iy, oy),
+                    ),
+                    _mm256_max_ps(
+                        plane_times(&p[ray.near[2]], h, iz, oz),
+                        _mm256_set1_ps(ray.tmin),
+                    ),
+                );
+                let leave = _mm256_min_ps(
+                    _mm256_min_ps(
+                        plane_times(&p[ray.far[0]], h, ix, ox),
+                        plane_times(&p[ray.far[1]], h, iy, oy),
+                    ),
+                    _mm256_min_ps(plane_times(&p[ray.far[2]], h, iz, oz), _mm256_set1_ps(tmax)),
+                );
+                _mm256_storeu_ps(enter_out[8 * h..8 * h + 8].as_mut_ptr(), enter);
+                let hits = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u32;
+                mask |= hits << (8 * h);
+            }
+            mask
         };
         (enter_out, mask)
     }
 }
 
-/// `plane * inv + offset` in 8 lanes, rounded once.
+/// The node test on all sixteen children at once, with AVX-512F. Only [`Avx512::detect`]
+/// makes one, so holding one proves the processor has AVX-512F and VL as well as AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Avx512(());
+
+#[cfg(target_arch = "x86_64")]
+impl Avx512 {
+    /// `Some` when this processor runs AVX-512F and VL, AVX2 and FMA.
+    pub(crate) fn detect() -> Option<Avx512> {
+        (Avx2::detect().is_some()
+            && is_x86_feature_detected!("avx512f")
+            && is_x86_feature_detected!("avx512vl"))
+        .then_some(Avx512(()))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for Avx512 {
+    /// Meant to be inlined into a function compiled with `#[target_feature(enable =
+    /// "avx2,fma,avx512f,avx512vl")]` (see `Bvh::trace`); elsewhere each intrinsic is a call.
+    #[inline(always)]
+    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        let mut enter_out = [0.0f32; WIDTH];
+        // SAFETY: `self` exists only if `Avx512::detect` found AVX-512F on this processor, so
+        // the intrinsics' target features are present. `plane_times16` reads the 16 floats of
+        // one plane row of `node` (64 bytes, in bounds, any alignment accepted by `loadu`),
+        // and the store writes the 16 floats of `enter_out`.
+        #[allow(unsafe_code)]
+        let mask = unsafe {
+            // (no closures here: they would not inherit the target features)
+            let ix = _mm512_set1_ps(ray.inv[0]);
+            let iy = _mm512_set1_ps(ray.inv[1]);
+            let iz = _mm512_set1_ps(ray.inv[2]);
+            let ox = _mm512_set1_ps(ray.offset[0]);
+            let oy = _mm512_set1_ps(ray.offset[1]);
+            let oz = _mm512_set1_ps(ray.offset[2]);
+            let p = &node.planes;
+            let enter = _mm512_max_ps(
+                _mm512_max_ps(
+                    plane_times16(&p[ray.near[0]], ix, ox),
+                    plane_times16(&p[ray.near[1]], iy, oy),
+                ),
+                _mm512_max_ps(
+                    plane_times16(&p[ray.near[2]], iz, oz),
+                    _mm512_set1_ps(ray.tmin),
+                ),
+            );
+            let leave = _mm512_min_ps(
+                _mm512_min_ps(
+                    plane_times16(&p[ray.far[0]], ix, ox),
+                    plane_times16(&p[ray.far[1]], iy, oy),
+                ),
+                _mm512_min_ps(plane_times16(&p[ray.far[2]], iz, oz), _mm512_set1_ps(tmax)),
+            );
+            _mm512_storeu_ps(enter_out.as_mut_ptr(), enter);
+            _mm512_cmp_ps_mask::<_CMP_LE_OQ>(enter, leave) as u32
+        };
+        (enter_out, mask)
+    }
+}
+
+/// `plane * inv + offset` in 16 lanes (a whole plane row), rounded once.
+///
+/// # Safety
+/// The processor must have AVX-512F (and the caller be compiled for it, or this is slow).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(unsafe_code)]
+unsafe fn plane_times16(
+    plane: &[Vec4; WIDTH / 4],
+    inv: std::arch::x86_64::__m512,
+    offset: std::arch::x86_64::__m512,
+) -> std::arch::x86_64::__m512 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller guarantees the feature; the load reads the 64 bytes of `plane`.
+    unsafe { _mm512_fmadd_ps(_mm512_loadu_ps(plane.as_ptr().cast::<f32>()), inv, offset) }
+}
+
+/// `plane * inv + offset` in the 8 lanes of half `h` (0 or 1) of a plane row, rounded once.
 ///
 /// # Safety
 /// The processor must have AVX2 and FMA (and the caller be compiled for them, or this is slow).
@@ -195,26 +283,28 @@ impl NodeTest for Avx2 {
 #[inline(always)]
 #[allow(unsafe_code)]
 unsafe fn plane_times(
-    plane: &[Vec4; 2],
+    plane: &[Vec4; WIDTH / 4],
+    h: usize,
     inv: std::arch::x86_64::__m256,
     offset: std::arch::x86_64::__m256,
 ) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::*;
-    // SAFETY: the caller guarantees the features; the load reads the 32 bytes of `plane`.
-    unsafe { _mm256_fmadd_ps(_mm256_loadu_ps(plane.as_ptr().cast::<f32>()), inv, offset) }
+    let half = &plane[2 * h..2 * h + 2];
+    // SAFETY: the caller guarantees the features; the load reads the 32 bytes of `half`.
+    unsafe { _mm256_fmadd_ps(_mm256_loadu_ps(half.as_ptr().cast::<f32>()), inv, offset) }
 }
 
 /// Asks the CPU to start loading the cache lines of `item` (a node, or a leaf's first packet)
-/// while the traversal goes on. A second packet (a leaf of five to eight triangles, about one
-/// leaf in seven) is not prefetched: its loads follow the first packet's test closely anyway,
+/// while the traversal goes on. A second packet (a leaf of five to eight triangles) is not
+/// prefetched: its loads follow the first packet's test closely anyway,
 /// and checking the count cost more than it saved.
 #[inline(always)]
 fn prefetch_item(nodes: &[Node], packs: &[Packet], item: u32) {
     // (address arithmetic only: no bounds checks, nothing is dereferenced)
     if item & LEAF == 0 {
-        // a node: four aligned lines
+        // a node: seven aligned lines
         let node = nodes.as_ptr().wrapping_add(item as usize).cast::<i8>();
-        for line in 0..4 {
+        for line in 0..size_of::<Node>() / 64 {
             prefetch(node.wrapping_add(64 * line));
         }
     } else {
@@ -476,5 +566,96 @@ pub(crate) fn any(
             sp += 1;
         }
         next = Some((0.0, first));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use obvhs::aabb::Aabb;
+
+    /// A seeded stream of floats in `[0, 1)`.
+    fn uniform(seed: u64) -> impl FnMut() -> f32 {
+        let mut state = seed;
+        move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
+
+    /// Every node test finds the children that an `f64` slab test finds (where that is not
+    /// within rounding of a box's edge), and the fused ones (AVX2, AVX-512) the very same
+    /// children at the very same distances.
+    #[test]
+    fn node_tests_agree_with_each_other_and_with_f64() {
+        let mut next = uniform(7);
+        let (mut checked, mut hits) = (0, 0);
+        for round in 0..1000 {
+            let mut node = Node::empty();
+            let mut boxes = [None; WIDTH];
+            // some slots stay empty
+            for (i, slot) in boxes.iter_mut().enumerate() {
+                if (i + round) % 5 == 4 {
+                    continue;
+                }
+                let lo = Vec3A::new(next(), next(), next()) * 200.0 - 100.0;
+                let size = Vec3A::new(next(), next(), next()) * 100.0;
+                let aabb = Aabb::new(lo, lo + size);
+                node.set(i, &aabb, i as u32);
+                *slot = Some(aabb);
+            }
+            let origin = Vec3A::new(next(), next(), next()) * 300.0 - 150.0;
+            // towards the middle of the boxes
+            let target = Vec3A::new(next(), next(), next()) * 80.0 - 40.0;
+            let dir = (target - origin).normalize();
+            let tmax = if round % 3 == 0 { f32::INFINITY } else { 150.0 };
+            let ray = NodeRay::new(origin, dir, 0.0, tmax);
+            let (enter, mask) = Sse.intersect(&node, &ray, tmax);
+            for (i, slot) in boxes.iter().enumerate() {
+                let Some(aabb) = slot else {
+                    assert_eq!(mask >> i & 1, 0, "empty slot {i} hit");
+                    continue;
+                };
+                // the f64 slab test
+                let (mut t0, mut t1) = (0.0f64, tmax as f64);
+                for k in 0..3 {
+                    let inv = 1.0 / (dir[k] as f64);
+                    let a = (aabb.min[k] as f64 - origin[k] as f64) * inv;
+                    let b = (aabb.max[k] as f64 - origin[k] as f64) * inv;
+                    t0 = t0.max(a.min(b));
+                    t1 = t1.min(a.max(b));
+                }
+                if (t1 - t0).abs() < 1e-3 {
+                    continue;
+                }
+                checked += 1;
+                let hit = t0 <= t1;
+                hits += hit as usize;
+                assert_eq!(mask >> i & 1 == 1, hit, "round {round} child {i}");
+                if hit {
+                    assert!((enter[i] as f64 - t0).abs() < 1e-3, "{} {t0}", enter[i]);
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = Avx2::detect() {
+                let fused = avx2.intersect(&node, &ray, tmax);
+                assert_eq!(fused.1, mask, "round {round}: AVX2 and SSE");
+                if let Some(avx512) = Avx512::detect() {
+                    let wide = avx512.intersect(&node, &ray, tmax);
+                    assert_eq!(wide.1, fused.1, "round {round}: AVX-512 and AVX2");
+                    for i in 0..WIDTH {
+                        if fused.1 >> i & 1 == 1 {
+                            assert_eq!(wide.0[i].to_bits(), fused.0[i].to_bits());
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            checked > 10000 && hits > 800,
+            "{checked} checked, {hits} hits"
+        );
     }
 }

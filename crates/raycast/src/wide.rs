@@ -1,25 +1,31 @@
-//! mcrad's own 8-wide BVH, made from obvhs's binary BVH: float child boxes in SIMD-ready
+//! mcrad's own 16-wide BVH, made from obvhs's binary BVH: float child boxes in SIMD-ready
 //! layout and leaves of triangle packets.
 //!
 //! obvhs builds the hierarchy (PLOC and reinsertion, see `bvh.rs`); this module only
 //! re-arranges it for single-ray traversal on a CPU:
-//! * **Nodes** hold up to 8 children with their boxes as `f32` planes, eight children per
-//!   AVX register or four per SSE one ([`Node`]): the slab test of 8 children is a dozen
-//!   vector operations with no decoding (obvhs's compressed nodes store 8-bit boxes that must
-//!   be dequantised first).
+//! * **Nodes** hold up to 16 children with their boxes as `f32` planes, sixteen children per
+//!   AVX-512 register, eight per AVX one or four per SSE one ([`Node`]): the slab test of 16
+//!   children is a dozen vector operations with no decoding (obvhs's compressed nodes store
+//!   8-bit boxes that must be dequantised first). Sixteen children rather than eight make the
+//!   tree shallower: a ray visits fewer nodes, and the chain of dependent cache misses from
+//!   the root to a leaf is shorter. Measured in one process against the 8-wide tree,
+//!   alternating: 12-18% faster on the benchmark's 100k-triangle room, 19-28% on its 1M room,
+//!   7% on the Cornell box (AVX-512), and 12% on the 100k room with AVX2 only.
 //! * **Leaves** are runs of [`Packet`]s of up to 4 triangles in structure-of-arrays order, so
 //!   one vector test intersects 4 triangles (see `query.rs`). The leaves of one node share
 //!   packets where they fit ([`Part::pack`]): 57 instead of 69 bytes per triangle on the
-//!   benchmark rooms, and 4-8% faster on the 100k one (within 2% on the 1M one).
+//!   benchmark rooms, and 4-8% faster on the 100k one (within 2% on the 1M one), measured
+//!   with 8-wide nodes.
 //!
 //! The collapse of the binary tree is the optimal one for the surface-area heuristic given
 //! obvhs's binary tree (Ylitie, Karras and Laine's dynamic programme, see [`Plan`]): for each
-//! binary node it finds the cheapest way to spread its subtree over 1 to 8 child slots, so
-//! leaves (of up to [`LEAF_MAX`] triangles) and node contents are chosen together. Filling each
-//! node greedily instead, by opening the child of largest surface area as Embree's builders
-//! do, made 68% more nodes, and rays visited 8% more of them (15.0 against 13.9 per ray on the
-//! 100k room) and ran 7-14% slower there and 9-24% slower on the 1M room. Below the top 64
-//! subtrees both the plan and the collapse run in parallel (see [`Wide::new`]).
+//! binary node it finds the cheapest way to spread its subtree over 1 to 16 child slots, so
+//! leaves (of up to [`LEAF_MAX`] triangles) and node contents are chosen together. With 8-wide
+//! nodes, filling each node greedily instead, by opening the child of largest surface area as
+//! Embree's builders do, made 68% more nodes, and rays visited 8% more of them (15.0 against
+//! 13.9 per ray on the 100k room) and ran 7-14% slower there and 9-24% slower on the 1M room.
+//! Below the top 64 subtrees both the plan and the collapse run in parallel (see
+//! [`Wide::new`]).
 
 use glam::{Vec3A, Vec4};
 use obvhs::{
@@ -33,7 +39,7 @@ use rayon::prelude::*;
 use crate::{NO_ID, pages::Pages};
 
 /// Children per node.
-pub(crate) const WIDTH: usize = 8;
+pub(crate) const WIDTH: usize = 16;
 
 /// Triangles per packet.
 pub(crate) const LANES: usize = 4;
@@ -59,13 +65,15 @@ const EMPTY: u32 = u32::MAX;
 /// ([`NODE_COST`]).
 const PACKET_COST: f32 = 1.0;
 
-/// Surface-area-heuristic cost of testing one 8-wide node, relative to one packet test
-/// ([`PACKET_COST`]). A node test is the cheaper in instructions but reads four cache lines
-/// against three; measured on the benchmark rooms, 1.0 to 1.2 were fastest (0.6 and 2.0 were
-/// 5-10% slower), and 1.2 makes the fewest nodes of those.
-const NODE_COST: f32 = 1.2;
+/// Surface-area-heuristic cost of testing one 16-wide node, relative to one packet test
+/// ([`PACKET_COST`]). A node test takes about as many instructions as a packet test but reads
+/// seven cache lines against three. Measured on the benchmark rooms, alternating with the
+/// 8-wide tree in one process: 2.4 was fastest on both (100k room +13-18%, 1M room +19-28%);
+/// 1.2 gave +4-6% and +2-3%, 0.8 +8% and +7%, 3.2 +8-17% and +11-27%, 4.5 +16% and +9%. (With
+/// 8-wide nodes, four cache lines, 1.0 to 1.2 had been fastest.)
+const NODE_COST: f32 = 2.4;
 
-/// A node of the 8-wide BVH (256 bytes, four cache lines).
+/// A node of the 16-wide BVH (448 bytes, seven cache lines).
 ///
 /// `planes[2k][h]` holds the lower bounds on axis `k` (x, y, z) of children `4h..4h+4`, and
 /// `planes[2k + 1][h]` their upper bounds, in canonical units; an empty slot has the empty box
@@ -74,17 +82,17 @@ const NODE_COST: f32 = 1.2;
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 pub(crate) struct Node {
-    pub(crate) planes: [[Vec4; 2]; 6],
+    pub(crate) planes: [[Vec4; WIDTH / 4]; 6],
     pub(crate) items: [u32; WIDTH],
 }
 
-const _: () = assert!(size_of::<Node>() == 256);
+const _: () = assert!(size_of::<Node>() == 28 * WIDTH);
 
 impl Node {
     /// A node with no children.
-    fn empty() -> Node {
-        let lo = [Vec4::INFINITY; 2];
-        let hi = [Vec4::NEG_INFINITY; 2];
+    pub(crate) fn empty() -> Node {
+        let lo = [Vec4::INFINITY; WIDTH / 4];
+        let hi = [Vec4::NEG_INFINITY; WIDTH / 4];
         Node {
             planes: [lo, hi, lo, hi, lo, hi],
             items: [EMPTY; WIDTH],
@@ -92,7 +100,7 @@ impl Node {
     }
 
     /// Sets child `i` to `item` with box `aabb`.
-    fn set(&mut self, i: usize, aabb: &Aabb, item: u32) {
+    pub(crate) fn set(&mut self, i: usize, aabb: &Aabb, item: u32) {
         let (h, lane) = (i / 4, i % 4);
         for k in 0..3 {
             self.planes[2 * k][h][lane] = aabb.min[k];
@@ -172,7 +180,7 @@ pub(crate) fn packets(item: u32) -> std::ops::Range<usize> {
     first..first + ((item >> 29) & 3) as usize + 1
 }
 
-/// The 8-wide BVH, in memory of its own (on huge pages where the system has them, see
+/// The 16-wide BVH, in memory of its own (on huge pages where the system has them, see
 /// [`Pages`]).
 #[derive(Clone, Debug)]
 pub(crate) struct Wide {
@@ -198,8 +206,8 @@ struct Part {
 
 /// What the collapse decided for a binary node, from the [`Costs`] of its subtree (the optimal
 /// collapse of Ylitie, Karras and Laine 2017, "Efficient incoherent ray traversal on GPUs
-/// through compressed wide BVHs"). 11 bytes: the costs themselves are dropped once the parent
-/// is planned, so that planning a million triangles holds about 55 MB at its peak, not 200.
+/// through compressed wide BVHs"). 19 bytes: the costs themselves are dropped once the parent
+/// is planned, so that planning a million triangles holds about 95 MB at its peak, not 350.
 #[derive(Clone, Copy)]
 struct Plan {
     /// One slot: the subtree becomes one leaf (else one wide node).
@@ -221,6 +229,9 @@ struct Costs {
     /// `cost[i - 1]`: the cost of the best `i` slots or fewer (surface area times
     /// [`PACKET_COST`] per packet and [`NODE_COST`] per wide node, summed).
     cost: [f32; WIDTH],
+    /// The most slots that are cheaper than fewer: `cost[i - 1]` is the same for every
+    /// `i >= useful`.
+    useful: usize,
 }
 
 impl Plan {
@@ -238,6 +249,7 @@ impl Plan {
             Costs {
                 count,
                 cost: [cost; WIDTH],
+                useful: 1,
             },
         )
     }
@@ -246,20 +258,24 @@ impl Plan {
     /// `l` and `r`.
     fn inner(area: f32, l: &Costs, r: &Costs) -> (Plan, Costs) {
         let count = l.count + r.count;
-        // distribute[j]: the best j slots, some from each child
+        // distribute[j]: the best j slots, some from each child. More than `useful` slots of a
+        // child cost as much as `useful` (its costs do not increase with the slots), so only
+        // the useful ones are tried: near the leaves, where most binary nodes are, that is
+        // one or two instead of up to 15.
         let mut distribute = [(f32::INFINITY, 0u8); WIDTH + 1];
-        for (j, d) in distribute.iter_mut().enumerate().skip(2) {
-            for k in 1..j {
+        let most = WIDTH.min(l.useful + r.useful);
+        let (mut children, mut left, mut below) = (0u8, 0u8, f32::INFINITY);
+        for (j, slot) in distribute.iter_mut().enumerate().take(most + 1).skip(2) {
+            let mut best = (f32::INFINITY, 0u8);
+            for k in j.saturating_sub(r.useful).max(1)..=l.useful.min(j - 1) {
                 let c = l.cost[k - 1] + r.cost[j - k - 1];
-                if c < d.0 {
-                    *d = (c, k as u8);
+                if c < best.0 {
+                    best = (c, k as u8);
                 }
             }
-        }
-        let (mut children, mut left, mut below) = (2, distribute[2].1, distribute[2].0);
-        for (j, &(c, k)) in distribute.iter().enumerate().skip(3) {
-            if c < below {
-                (children, left, below) = (j as u8, k, c);
+            *slot = best;
+            if best.0 < below {
+                (children, left, below) = (j as u8, best.1, best.0);
             }
         }
         let as_node = NODE_COST * area + below;
@@ -277,15 +293,20 @@ impl Plan {
         let mut costs = Costs {
             count,
             cost: [as_leaf.min(as_node); WIDTH],
+            useful: 1,
         };
-        for (i, &(c, k)) in distribute.iter().enumerate().skip(2) {
+        for (i, &(c, k)) in distribute.iter().enumerate().take(most + 1).skip(2) {
             if c < costs.cost[i - 2] {
                 costs.cost[i - 1] = c;
+                costs.useful = i;
                 plan.split[i - 1] = k;
             } else {
                 costs.cost[i - 1] = costs.cost[i - 2];
             }
         }
+        // (no more slots are useful: they cost as much as `most`)
+        let last = costs.cost[most - 1];
+        costs.cost[most..].fill(last);
         (plan, costs)
     }
 }
@@ -400,7 +421,7 @@ fn spread(bvh2: &Bvh2, plans: &[Plan], b: usize, k: usize, i: usize, out: &mut [
 }
 
 impl Wide {
-    /// The 8-wide BVH of `bvh2`, whose leaves index `tris` (and `ids`) through
+    /// The 16-wide BVH of `bvh2`, whose leaves index `tris` (and `ids`) through
     /// `bvh2.primitive_indices`, built on the current rayon pool: the top nodes in breadth-
     /// first order until there is work for every thread, then the subtrees below them in
     /// parallel, joined in a fixed order (the result does not depend on the thread count).
