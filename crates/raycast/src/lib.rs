@@ -4,7 +4,7 @@
 //! id (many triangles may share one id: a polygonal patch made of several coplanar triangles),
 //! and answers two questions through the [`RayCaster`] trait: *what does this ray hit first?*
 //! and *is anything between these two surface points?* [`Bvh`] answers them fast (obvhs's
-//! PLOC build, collapsed into this crate's 8-wide BVH with 4-triangle leaf packets and walked
+//! PLOC build, collapsed into this crate's 16-wide BVH with 4-triangle leaf packets and walked
 //! by its own SIMD traversal: see *Speed* below);
 //! [`BruteForce`] answers them slowly in `f64` and is the test oracle.
 //! Both report hits on either side of a triangle ([`Hit::front`] tells which) and never report
@@ -89,9 +89,11 @@
 //! The fast path is memory- and instruction-bound on large scenes (see `ARCHITECTURE.md` for
 //! measurements against Embree). [`Bvh`] keeps obvhs's builder (PLOC and reinsertion over
 //! padded triangle boxes) and re-arranges its binary tree for single-ray traversal on a CPU:
-//! * an 8-wide BVH with `f32` child boxes in structure-of-arrays order (256-byte nodes): the
-//!   slab test of all 8 children is one AVX2/FMA sequence where the processor has it (detected
-//!   at build time; the whole traversal is compiled for it), or two SSE halves;
+//! * a 16-wide BVH with `f32` child boxes in structure-of-arrays order (448-byte nodes): the
+//!   slab test of all 16 children is one AVX-512 sequence where the processor has it, two
+//!   AVX2/FMA halves where it has those (detected at build time; the whole traversal is
+//!   compiled for it), or four SSE quarters. Sixteen children rather than eight make the tree
+//!   shallower, so a ray waits for fewer dependent cache misses on its way to a leaf;
 //! * leaves of 4-triangle packets (160 bytes with their ids), tested 4 at a time, which the
 //!   leaves of one node share where they fit; the leaves and the nodes' contents are the
 //!   optimal collapse of obvhs's binary tree for the surface-area heuristic;
@@ -101,10 +103,10 @@
 //! * the nodes and packets a node test finds are prefetched at once;
 //! * nodes and packets sit on 2 MiB pages where the system offers transparent huge pages
 //!   (a large scene's visits would otherwise mostly miss the address-translation cache too);
-//! * on processors with AVX-512F/VL the AVX2 traversal is also compiled with them, for their
-//!   32 vector registers ([`Simd`], [`Bvh::with_simd`]).
+//! * on processors with AVX-512F/VL the node test is one AVX-512 register and the rest of the
+//!   traversal is compiled for their 32 vector registers ([`Simd`], [`Bvh::with_simd`]).
 //!
-//! Memory: about 58 bytes per triangle on large scenes ([`Bvh::memory_bytes`]). Among
+//! Memory: about 53 bytes per triangle on large scenes ([`Bvh::memory_bytes`]). Among
 //! crossings at exactly the same distance the lowest id wins, so the answer does not depend on
 //! the visiting order (nor on the instruction sets: every [`Simd`] level gives the same hits). The closest-hit batch
 //! ([`RayCaster::closest_hit_batch`]) visits its rays sorted by origin and direction, which
