@@ -1,5 +1,5 @@
 //! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
-//! mcrad's 8-wide layout ([`crate::wide`]).
+//! mcrad's 16-wide layout ([`crate::wide`]).
 
 use std::{cell::Cell, ops::Range};
 
