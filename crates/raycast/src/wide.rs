@@ -69,8 +69,9 @@ const PACKET_COST: f32 = 1.0;
 /// ([`PACKET_COST`]). A node test takes about as many instructions as a packet test but reads
 /// seven cache lines against three. Measured on the benchmark rooms, alternating with the
 /// 8-wide tree in one process: 2.4 was fastest on both (100k room +13-18%, 1M room +19-28%);
-/// 1.2 gave +4-6% and +2-3%, 0.8 +8% and +7%, 3.2 +8-17% and +11-27%, 4.5 +16% and +9%. (With
-/// 8-wide nodes, four cache lines, 1.0 to 1.2 had been fastest.)
+/// 1.2 gave +4-6% and +2-3%, 0.8 +8% and +7%, 3.2 +8-17% and +11-27%, 4.5 +16% and +9%; 2.0
+/// and 2.8 were within 2% of 2.4 on the 100k room. (With 8-wide nodes, four cache lines, 1.0
+/// to 1.2 had been fastest.)
 const NODE_COST: f32 = 2.4;
 
 /// A node of the 16-wide BVH (448 bytes, seven cache lines).
