@@ -157,6 +157,19 @@ mod query;
 mod traverse;
 mod wide;
 
+/// Helpers of the unit tests.
+#[cfg(test)]
+mod testing {
+    use rand_core::Rng as _;
+    use rand_pcg::Pcg32;
+
+    /// A seeded stream of floats uniform in `[0, 1)`.
+    pub(crate) fn uniforms(seed: u64) -> impl FnMut() -> f32 {
+        let mut rng = Pcg32::new(seed, 0x0a02_bdbf_7bb3_c0a7);
+        move || (rng.next_u32() >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+    }
+}
+
 use glam::Vec3;
 
 pub use brute::BruteForce;

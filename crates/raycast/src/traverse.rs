@@ -296,8 +296,8 @@ unsafe fn plane_times(
 
 /// Asks the CPU to start loading the cache lines of `item` (a node, or a leaf's first packet)
 /// while the traversal goes on. A second packet (a leaf of five to eight triangles) is not
-/// prefetched: its loads follow the first packet's test closely anyway,
-/// and checking the count cost more than it saved.
+/// prefetched: its loads follow the first packet's test closely anyway, and checking the
+/// count cost more than it saved.
 #[inline(always)]
 fn prefetch_item(nodes: &[Node], packs: &[Packet], item: u32) {
     // (address arithmetic only: no bounds checks, nothing is dereferenced)
@@ -574,23 +574,12 @@ mod tests {
     use super::*;
     use obvhs::aabb::Aabb;
 
-    /// A seeded stream of floats in `[0, 1)`.
-    fn uniform(seed: u64) -> impl FnMut() -> f32 {
-        let mut state = seed;
-        move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
-
     /// Every node test finds the children that an `f64` slab test finds (where that is not
     /// within rounding of a box's edge), and the fused ones (AVX2, AVX-512) the very same
     /// children at the very same distances.
     #[test]
     fn node_tests_agree_with_each_other_and_with_f64() {
-        let mut next = uniform(7);
+        let mut next = crate::testing::uniforms(7);
         let (mut checked, mut hits) = (0, 0);
         for round in 0..1000 {
             let mut node = Node::empty();

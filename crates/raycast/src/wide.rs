@@ -515,10 +515,7 @@ impl Part {
         ids: &[u32],
     ) -> [u32; WIDTH] {
         let mut items = [EMPTY; WIDTH];
-        let mut order = [0usize; WIDTH];
-        for (i, slot) in order.iter_mut().enumerate() {
-            *slot = i;
-        }
+        let mut order: [usize; WIDTH] = std::array::from_fn(|i| i);
         let order = &mut order[..counts.len()];
         order.sort_by_key(|&i| std::cmp::Reverse(counts[i]));
         let base = self.packets.len();
@@ -694,13 +691,7 @@ mod tests {
     #[test]
     fn the_collapse_is_the_planned_optimum() {
         // a jumble of small triangles: leaves of every size and nodes of every width
-        let mut rng = 12345u64;
-        let mut next = || {
-            rng = rng
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (rng >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut next = crate::testing::uniforms(12345);
         let tris: Vec<Triangle> = (0..3000)
             .map(|_| {
                 let c = Vec3A::new(next(), next(), next()) * 100.0;
