@@ -139,11 +139,11 @@ fn solve_reference(
     bar.set_length(mesh.patches().len() as u64);
     bar.set_message("form-factor rows");
     let done = std::sync::atomic::AtomicU64::new(0);
-    let config = mcrad_mc_radiosity::reference::ReferenceConfig {
+    let config = mcrad_reference::ReferenceConfig {
         visibility_tolerance,
         ..Default::default()
     };
-    let r = mcrad_mc_radiosity::reference::reference(mesh, bvh, &config, &|rows| {
+    let r = mcrad_reference::reference(mesh, bvh, &config, &|rows| {
         let rows = done
             .fetch_max(rows as u64, std::sync::atomic::Ordering::Relaxed)
             .max(rows as u64);

@@ -21,12 +21,12 @@ use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use mcrad_combine::{Estimate, rms_rel};
 use mcrad_export::plot::{PlotSpec, Series, line_plot};
-use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
 use mcrad_mc_radiosity::{
     Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
+use mcrad_reference::{ReferenceConfig, reference};
 use std::fmt::Write as _;
 use std::ops::ControlFlow;
 use std::path::Path;

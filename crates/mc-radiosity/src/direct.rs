@@ -58,12 +58,12 @@
 use crate::gather::{
     DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round_from, jobs,
 };
-use crate::rng::Stream;
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::{Mesh, Patch};
+use mcrad_random::Stream;
 use mcrad_raycast::{NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};

@@ -64,15 +64,15 @@
 //! estimators run with the same `(seed, pass)` are independent. Chunks run in parallel and their
 //! moments are merged per item in chunk order, so a seed gives bit-identical results on any
 //! number of threads. A schedule must give every round it wants independent of the others its
-//! own `pass` (or its own seed, e.g. from [`rng::derive_seed`](crate::rng::derive_seed)).
+//! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
-use crate::rng::Stream;
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
 use crate::shoot::StopReason;
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::{Estimate, EstimateError};
 use mcrad_meshing::{CornerGroups, Mesh};
+use mcrad_random::Stream;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
 use rayon::prelude::*;
 use std::ops::ControlFlow;

@@ -20,17 +20,14 @@
 //! - [`schedule`]: the methods behind one interface — single-pass shooting, gathering and
 //!   two-pass, and the progressive Algorithms 1-3 — handing each complete intermediate solution
 //!   to an observer that may stop the run.
-//! - [`reference`]: the deterministic reference solver (explicit form factors, Gauss-Seidel).
 //!
-//! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`rng::Stream`]) and every
+//! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`mcrad_random::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
 //! This crate does no I/O.
 
 pub mod ambient;
 pub mod direct;
 pub mod gather;
-pub mod reference;
-pub mod rng;
 pub mod sampling;
 pub mod schedule;
 mod shoot;

@@ -230,7 +230,7 @@ pub(crate) mod tests_support {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rng::Stream;
+    use mcrad_random::Stream;
 
     /// alpha for one chi-square test: with fixed seeds the tests are deterministic, and a correct
     /// sampler fails a fresh seed with probability 1e-4.

@@ -8,12 +8,12 @@
 use crate::ambient::AmbientError;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round_from};
-use crate::rng::derive_seed;
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::{Estimate, EstimateError, Rule, merge};
 use mcrad_meshing::Mesh;
+use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 

@@ -32,12 +32,12 @@
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
 
-use crate::rng::Stream;
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
+use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 use std::ops::ControlFlow;

@@ -1,9 +1,9 @@
 //! Uniform points and cosine-distributed rays on patches.
 
-use crate::rng::Stream;
 use crate::sampling::{Frame, cosine_hemisphere_rejection, uniform_triangle};
 use glam::{Vec2, Vec3};
 use mcrad_meshing::Mesh;
+use mcrad_random::Stream;
 use mcrad_raycast::Ray;
 
 /// Per-patch tables for drawing uniform points (density `1/A_i` per unit area) and rays leaving

@@ -21,12 +21,12 @@
 
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
 use mcrad_mc_radiosity::{
     Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
+use mcrad_reference::{ReferenceConfig, reference};
 use std::ops::ControlFlow;
 use std::path::Path;
 

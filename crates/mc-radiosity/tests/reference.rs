@@ -7,13 +7,13 @@ mod common;
 use common::{bvh, furnace, material, quad};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::SurfaceSampler;
-use mcrad_mc_radiosity::reference::{
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_random::Stream;
+use mcrad_raycast::RayCaster;
+use mcrad_reference::{
     FormFactors, ReferenceConfig, ReferenceError, form_factors, point_polygon_form_factor,
     reference,
 };
-use mcrad_mc_radiosity::rng::Stream;
-use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::RayCaster;
 use mcrad_scene_io::Scene;
 
 /// Parallel unit squares one unit apart, facing each other (Hottel's crossed-strings value).

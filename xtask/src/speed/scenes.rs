@@ -3,10 +3,10 @@
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
+use mcrad_reference::{ReferenceConfig, reference};
 use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};

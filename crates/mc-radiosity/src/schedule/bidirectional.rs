@@ -29,12 +29,12 @@
 
 use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution};
 use crate::gather::{GatherError, check_input};
-use crate::rng::{Stream, derive_seed};
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
+use mcrad_random::{Stream, derive_seed};
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 

@@ -37,12 +37,12 @@ use super::{
     accumulate, per_patch,
 };
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::rng::derive_seed;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, Rule, merge_weighted};
 use mcrad_meshing::Mesh;
+use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
 
 /// Bounds of the shooting share of a pass.

@@ -1,5 +1,9 @@
 //! Independent random streams keyed by what they are for.
 //!
+//! Every random number mcrad draws comes from a [`Stream`]: the estimators' rays, the reference
+//! solver's shadow-ray jitter. A stream is a pure function of its key, so a result is the same
+//! on any number of threads and in any scheduling.
+//!
 //! A stream is a PCG32 generator whose state and increment are hashes of
 //! `(seed, pass, item, sub)`: the random numbers a patch uses in a pass do not depend on which
 //! thread runs it or on what ran before.

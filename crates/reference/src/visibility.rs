@@ -28,8 +28,8 @@
 
 use super::form_factor::contour;
 use super::quadrature::split;
-use crate::rng::Stream;
 use glam::{DVec3, Vec3};
+use mcrad_random::Stream;
 use mcrad_raycast::{RayCaster, SurfacePoint};
 
 /// One side of a pair: a patch id and its unit normal (f64 for the weights, f32 for the rays).

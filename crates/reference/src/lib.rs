@@ -2,12 +2,12 @@
 //!
 //! Monte Carlo estimators are judged against a reference solution of
 //! `B_i = E_i + ρ_i Σ_j F_ij B_j` (radiosity `B` and emission `E` in W/m², per RGB channel).
-//! This module computes one for scenes of up to about ten thousand patches (work and memory
+//! This crate computes one for scenes of up to about ten thousand patches (work and memory
 //! grow as the square of the patch count): the form factors `F_ij` ([`form_factors`]), then
 //! Gauss-Seidel to a residual `max |E + ρ F B - B| / max B` below `1e-9` ([`solve`]). The result
 //! is a [`combine::Estimate`](mcrad_combine::Estimate) without variance. Everything is a pure
 //! function of the mesh and the configuration: the shadow rays' jitter comes from
-//! [`Stream`](crate::rng::Stream)s keyed by the pair, and the answer does not depend on the
+//! [`Stream`](mcrad_random::Stream)s keyed by the pair, and the answer does not depend on the
 //! thread count.
 //!
 //! # Form factors
@@ -68,7 +68,7 @@
 //!
 //! ```
 //! use glam::Vec3;
-//! use mcrad_mc_radiosity::reference::{ReferenceConfig, reference};
+//! use mcrad_reference::{ReferenceConfig, reference};
 //! use mcrad_meshing::{Mesh, Subdivision};
 //! use mcrad_raycast::Bvh;
 //! use mcrad_scene_io::{Face, Material, Scene};
