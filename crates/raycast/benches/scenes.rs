@@ -1,7 +1,7 @@
 //! Ray-casting throughput and BVH build time on three seeded scenes of increasing size:
 //! `cornell` (32 triangles), `room100k` and `room1m` (a closed, tessellated room full of
 //! randomly rotated boxes and a few geodesic spheres: about 100k and 1M triangles). They are
-//! the scenes of the stand-alone Embree comparison (`/work/shared/bench/raycast`, `rbench gen`),
+//! the scenes of the stand-alone Embree comparison (`rbench gen`, see `benches/embree/`),
 //! rebuilt here with the same generator and seeds.
 //!
 //! `cargo bench -p mcrad-raycast --bench scenes` (or `cargo xtask bench`, which prints the

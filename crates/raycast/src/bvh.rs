@@ -27,7 +27,7 @@ use crate::{
 /// How much build time to spend on BVH quality (obvhs presets).
 ///
 /// With this crate's traversal the presets give the same speed on the scenes of the Embree
-/// comparison (`/work/shared/bench/raycast`, rooms of 100k and 1M triangles: the same node
+/// comparison (`benches/embree/`, rooms of 100k and 1M triangles: the same node
 /// visits and triangle tests per ray within 3%, the same Mrays/s within noise), while `Fast`
 /// builds about 15% faster than `Medium` (1M triangles, 2 threads). Hits do not depend on the
 /// preset: padded boxes and the order-independent tie rule make the closest hit that of all

@@ -15,7 +15,7 @@
 //!
 //! # The canonical frame
 //!
-//! obvhs 0.4 has unit-dependent behaviour (measured in `/work/shared/bench/raycast`): its CWBVH
+//! obvhs 0.4 has unit-dependent behaviour (measured in the Embree comparison, `benches/embree/`): its CWBVH
 //! node test clamps the entry distance to `t >= 1e-4` whatever the ray's `tmin`, so hits closer
 //! than `1e-4` *units* are lost (a Cornell box modelled in metres at millimetre scale loses
 //! hits, one in kilometres does not); and a ray starting on its own triangle with `tmin = 0`
@@ -86,7 +86,7 @@
 //!
 //! # Speed
 //!
-//! The fast path is memory- and instruction-bound on large scenes (see `ARCHITECTURE.md` for
+//! The fast path is memory- and instruction-bound on large scenes (see `PERFORMANCE.md` for
 //! measurements against Embree). [`Bvh`] keeps obvhs's builder (PLOC and reinsertion over
 //! padded triangle boxes) and re-arranges its binary tree for single-ray traversal on a CPU:
 //! * a 16-wide BVH with `f32` child boxes in structure-of-arrays order (448-byte nodes): the

@@ -1,7 +1,7 @@
 //! The seeded scenes and rays of the ray-casting benchmarks (`benches/scenes.rs`) and of the
 //! `cast` example: a Cornell box (32 triangles) and closed, tessellated rooms full of randomly
 //! rotated boxes and a few geodesic spheres (`cluttered_room`), built with the generator and
-//! seeds of the stand-alone Embree comparison (`/work/shared/bench/raycast`, `rbench gen`), so
+//! seeds of the stand-alone Embree comparison (`rbench gen`, see `benches/embree/`), so
 //! that they are the same triangles.
 #![allow(dead_code)]
 

@@ -4,19 +4,20 @@
 #
 #   crates/raycast/benches/embree/run.sh          # mcrad-raycast from this checkout
 #   MCRAD_RAYCAST=/path/to/crates/raycast ./run.sh   # another checkout (e.g. the HEAD snapshot)
-#   OUT=/tmp/x.txt ./run.sh                       # where the raw output goes (default results-<time>.txt)
+#   OUT=raw.txt ./run.sh                          # where the raw output goes (default results-<time>.txt)
 #   CORNELL="5 10000000" ROOM100K="3 3000000" ROOM1M="3 2000000" ./run.sh   # "rounds rays" per scene
 #   TABLE_ONLY=file ./run.sh                      # just print the table of an earlier raw output
 #
-# Never writes to the checkout: the build goes to $B/target (B=/tmp/raycast-bench by default).
-# The first run sets up $B: Debian's Embree 3 (libembree-dev), a copy of the shared benchmark
-# (/work/shared/bench/raycast) with mcrad-modes.patch applied, and the scenes and rays (~2 GB).
+# Never writes to the checkout: the build goes to $B/target (B: a scratch directory, required).
+# The first run sets up $B: Debian's Embree 3 (libembree-dev), a copy of the stand-alone benchmark
+# (RBENCH: its source directory, required then) with mcrad-modes.patch applied, and the scenes
+# and rays (~2 GB).
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
-B=${B:-/tmp/raycast-bench}
+B=${B:?set B to a scratch directory outside the checkout}
 if [ ! -d "$B/src" ]; then
   dpkg -s libembree-dev >/dev/null 2>&1 || { apt-get update && apt-get install -y libembree-dev; }
-  mkdir -p "$B" && cp -r /work/shared/bench/raycast "$B/src" && chmod -R u+w "$B/src"
+  mkdir -p "$B" && cp -r "${RBENCH:?set RBENCH to the stand-alone benchmark's source}" "$B/src" && chmod -R u+w "$B/src"
   patch -p1 -d "$B/src" < "$HERE/mcrad-modes.patch"
 fi
 table() {
