@@ -322,18 +322,13 @@ fn one_bvh_serves_many_threads_with_the_same_answers() {
 }
 
 #[test]
-fn building_100k_triangles_takes_well_under_a_second() {
-    if cfg!(debug_assertions) {
-        return; // timing means nothing in a debug build
-    }
+fn a_room_of_100k_triangles_builds_a_bvh_over_all_of_them() {
+    // How long the build takes is measured by `cargo xtask bench`, not asserted here.
     let s = room_with_boxes(12, 1_900);
     assert!(s.tris.len() > 100_000, "{}", s.tris.len());
-    let start = std::time::Instant::now();
     let bvh = Bvh::build(&s.tris, &s.ids).unwrap();
-    let seconds = start.elapsed().as_secs_f64();
     assert_eq!(bvh.triangle_count(), s.tris.len());
     assert!(bvh.node_count() > 0);
-    assert!(seconds < 1.0, "{} triangles: {seconds} s", s.tris.len());
 }
 
 #[test]
