@@ -13,7 +13,8 @@ const HELP: &str = "\
 cargo xtask <task>
 
 tasks:
-  ci      what CI runs: cargo fmt --check, clippy -D warnings, the release test suite
+  ci      what CI runs: cargo fmt --check, clippy -D warnings, cargo doc -D warnings, the
+          release test suite
   bench   the shooting and ray-casting benchmarks (criterion), then tables of their medians;
           `bench shooting` or `bench raycast` runs one of them
   regress golden-image regression of the bundled scenes (scenes/golden/);
@@ -119,6 +120,13 @@ fn ci() -> Result<()> {
         "--",
         "-D",
         "warnings",
+    ])?;
+    cargo(&[
+        "doc",
+        "--workspace",
+        "--no-deps",
+        "--config",
+        "build.rustdocflags=[\"-D\", \"warnings\"]",
     ])?;
     cargo(&["test", "--workspace", "--release"])
 }

@@ -3,7 +3,7 @@
 //! Each scene has a recipe `scenes/golden/<name>.json` (the `mcrad solve` arguments, the tile
 //! size and the threshold) and a golden render `scenes/golden/<name>.exr`. `regress` renders
 //! every recipe with seed 0 and compares it with its golden by
-//! [`tile_difference`](mcrad_export::compare::tile_difference): the largest relative difference
+//! [`tile_difference`]: the largest relative difference
 //! of tile means over tiles and channels. Monte Carlo noise sets the bar: `--bless` renders
 //! seeds 0..SEEDS, keeps seed 0 as the golden, measures the difference of every other seed
 //! from it, and records `threshold = MARGIN × the largest`. A change that only reshuffles
