@@ -2,7 +2,8 @@
 //! renders of the Cornell box with another seed pass against the stored golden, and a red wall
 //! 4% more reflective fails.
 
-use mcrad_export::compare::{read_exr, tile_difference};
+use mcrad_export::compare::tile_difference;
+use mcrad_render::read_exr;
 use std::path::Path;
 use std::process::Command;
 

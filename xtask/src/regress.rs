@@ -12,8 +12,9 @@
 //! `target/regress/` and their paths printed.
 
 use anyhow::{Context, Result, bail};
-use mcrad_export::compare::{difference_image, read_exr, tile_difference};
-use mcrad_export::render::{Exposure, Image, write_png};
+use mcrad_export::compare::{difference_image, tile_difference};
+use mcrad_render::read_exr;
+use mcrad_render::{Exposure, Image, write_png};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::Command;

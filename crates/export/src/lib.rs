@@ -7,7 +7,6 @@ pub mod compare;
 mod gltf_out;
 mod patches;
 pub mod plot;
-pub mod render;
 mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
