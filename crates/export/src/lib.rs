@@ -3,10 +3,8 @@
 //!
 //! Writers take any [`std::io::Write`] and never print; the caller owns files and messages.
 
-pub mod compare;
 mod gltf_out;
 mod patches;
-pub mod plot;
 mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
@@ -39,13 +37,6 @@ pub enum ExportError {
     #[error("could not write glTF: {reason}")]
     Gltf {
         /// What is wrong, with the offending values.
-        reason: String,
-    },
-    /// A plot could not be drawn: no data, a value that cannot be placed on its axis, or the
-    /// image could not be encoded.
-    #[error("could not plot: {reason}")]
-    Plot {
-        /// What is wrong, with the offending series and value.
         reason: String,
     },
 }
