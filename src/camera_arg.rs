@@ -1,18 +1,11 @@
-//! `--camera eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES]`.
+//! `--camera eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES]`, parsed into the renderer's camera.
 
 use glam::Vec3;
+use mcrad_render::Camera;
 
-/// A camera given on the command line, in scene units.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CameraArg {
-    pub eye: Vec3,
-    pub look: Vec3,
-    pub up: Vec3,
-    pub fov_y_degrees: f32,
-}
-
-/// Parses the `--camera` value. `up` defaults to +y and `fov` (vertical, degrees) to 40.
-pub fn parse_camera(s: &str) -> Result<CameraArg, String> {
+/// Parses the `--camera` value into a [`Camera`] (scene units). `up` defaults to +y and `fov`
+/// (vertical, degrees) to 40.
+pub fn parse_camera(s: &str) -> Result<Camera, String> {
     let mut fields: Vec<(String, Vec<f32>)> = Vec::new();
     for token in s.split(',').map(str::trim) {
         let value = match token.split_once('=') {
@@ -60,12 +53,7 @@ pub fn parse_camera(s: &str) -> Result<CameraArg, String> {
         Some(&[f]) => f,
         Some(v) => return Err(format!("fov= needs 1 number, got {}", v.len())),
     };
-    Ok(CameraArg {
-        eye,
-        look,
-        up,
-        fov_y_degrees,
-    })
+    Camera::look_at(eye, look, up, fov_y_degrees).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -75,11 +63,12 @@ mod tests {
     #[test]
     fn full_and_default_forms_parse() {
         let c = parse_camera("eye=0.278,0.273,-0.8,look=0.278,0.273,0,up=0,1,0,fov=39.3").unwrap();
-        assert_eq!(c.eye, Vec3::new(0.278, 0.273, -0.8));
-        assert_eq!(c.look, Vec3::new(0.278, 0.273, 0.0));
-        assert_eq!(c.fov_y_degrees, 39.3);
+        assert_eq!(c.eye(), Vec3::new(0.278, 0.273, -0.8));
+        assert_eq!(c.forward(), Vec3::Z);
+        assert_eq!(c.fov_y_degrees(), 39.3);
         let d = parse_camera("look=0,0,0, eye=1,2,3").unwrap();
-        assert_eq!((d.up, d.fov_y_degrees), (Vec3::Y, 40.0));
+        let expected = Camera::look_at(Vec3::new(1.0, 2.0, 3.0), Vec3::ZERO, Vec3::Y, 40.0);
+        assert_eq!(Ok(d), expected);
         for bad in [
             "",
             "eye=1,2",
@@ -90,6 +79,9 @@ mod tests {
             "eye=1,2,3,look=0,0,0,zoom=2",
             "eye=1,2,3,look=0,0,0,fov=1,2",
             "eye=inf,0,0,look=0,0,0",
+            "eye=0,0,0,look=0,0,0",
+            "eye=0,0,0,look=0,1,0",
+            "eye=1,2,3,look=0,0,0,fov=180",
         ] {
             assert!(parse_camera(bad).is_err(), "{bad}");
         }

@@ -1,7 +1,7 @@
 //! The command line (its flags are the contract of `ARCHITECTURE.md`).
 
 use clap::{Parser, Subcommand, ValueEnum};
-use mcrad_export::render::Exposure;
+use mcrad_render::Exposure;
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -135,7 +135,7 @@ pub struct Solve {
     /// Pinhole camera: eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES] (vertical fov, default 40).
     /// Default: the scene file's camera, else one framed automatically.
     #[arg(long, value_name = "SPEC", value_parser = crate::camera_arg::parse_camera, allow_hyphen_values = true)]
-    pub camera: Option<crate::camera_arg::CameraArg>,
+    pub camera: Option<mcrad_render::Camera>,
     /// Image size in pixels.
     #[arg(long, value_name = "WxH", default_value = "512x512", value_parser = parse_size)]
     pub size: (u32, u32),
@@ -220,7 +220,7 @@ fn parse_count(s: &str) -> Result<u64, String> {
 #[cfg(test)]
 mod tests {
     use super::{parse_count, parse_exposure, parse_size};
-    use mcrad_export::render::Exposure;
+    use mcrad_render::Exposure;
 
     #[test]
     fn sizes_and_exposures_parse() {

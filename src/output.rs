@@ -4,10 +4,10 @@ use crate::cli::{ShadingArg, Solve};
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use indicatif::ProgressBar;
-use mcrad_export::render::{Camera, RenderSettings, Shading, render, write_exr, write_png};
 use mcrad_export::{GltfOptions, write_glb};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
+use mcrad_render::{Camera, RenderSettings, Shading, render, write_exr, write_png};
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
@@ -64,8 +64,8 @@ fn camera(
     bvh: &Bvh,
 ) -> Result<Camera> {
     let camera = match (args.camera, from_file) {
-        (Some(c), _) => Camera::look_at(c.eye, c.look, c.up, c.fov_y_degrees),
-        (None, Some(c)) => Camera::look_at(c.eye, c.eye + c.forward, c.up, c.fov_y_degrees),
+        (Some(c), _) => return Ok(c),
+        (None, Some(c)) => Camera::from_scene(&c),
         (None, None) => Camera::frame_scene(mesh, bvh),
     };
     camera.context("--camera")

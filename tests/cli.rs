@@ -1,5 +1,6 @@
 //! End-to-end tests of the `mcrad` binary: the command-line contract, outputs and errors.
 
+use mcrad_export::{PatchRow, read_patch_csv};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -23,17 +24,9 @@ fn path(dir: &Path, name: &str) -> String {
     dir.join(name).to_string_lossy().into_owned()
 }
 
-/// Parses the patch CSV into (patch, area, rgb, variance).
-fn read_csv(file: &str) -> Vec<(u32, f64, [f64; 3], [f64; 3])> {
-    let text = std::fs::read_to_string(file).unwrap();
-    let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("patch,area,r,g,b,var_r,var_g,var_b"));
-    lines
-        .map(|l| {
-            let f: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
-            (f[0] as u32, f[1], [f[2], f[3], f[4]], [f[5], f[6], f[7]])
-        })
-        .collect()
+/// Reads the patch CSV with the one reader (`mcrad_export::read_patch_csv`).
+fn read_csv(file: &str) -> Vec<PatchRow> {
+    read_patch_csv(Path::new(file)).unwrap()
 }
 
 #[test]
@@ -62,22 +55,26 @@ fn solve_cornell_box_writes_patches_stats_and_a_summary() {
     assert_eq!(rows.len(), 19, "one patch per face of the Cornell box");
     // With --no-subdivide the patch column is the input face index, in file order.
     assert_eq!(
-        rows.iter().map(|r| r.0).collect::<Vec<_>>(),
+        rows.iter().map(|r| r.patch).collect::<Vec<_>>(),
         (0..19).collect::<Vec<_>>()
     );
     // The light (face 8) emits pi * (17, 12, 4); everything else only reflects.
-    let light = rows[8].2;
+    let light = rows[8].radiosity;
     assert!(
-        (light[0] - 17.0 * std::f64::consts::PI).abs() < 1.0,
+        (light.x - 17.0 * std::f64::consts::PI).abs() < 1.0,
         "{light:?}"
     );
     assert!(
         rows.iter()
-            .all(|r| r.1 > 0.0 && r.2.iter().all(|b| b.is_finite() && *b >= 0.0))
+            .all(|r| r.area > 0.0 && r.radiosity.is_finite() && r.radiosity.min_element() >= 0.0)
     );
     // The floor (face 0) is lit (about 0.36 W/m² red); the red wall (face 7) reflects more red than green.
-    assert!(rows[0].2[0] > 0.2, "{:?}", rows[0]);
-    assert!(rows[7].2[0] > 3.0 * rows[7].2[1]);
+    assert!(rows[0].radiosity.x > 0.2, "{:?}", rows[0]);
+    assert!(
+        rows.iter().all(|r| r.variance.is_some()),
+        "shooting writes variances"
+    );
+    assert!(rows[7].radiosity.x > 3.0 * rows[7].radiosity.y);
     let stats: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     for key in [
@@ -152,8 +149,8 @@ fn furnace_from_the_command_line_is_near_two() {
     let rows = read_csv(&csv);
     assert_eq!(rows.len(), 24);
     // Loose here (a few percent): the statistical test lives in mc-radiosity's tests.
-    let mean: f64 =
-        rows.iter().map(|r| r.2[0] * r.1).sum::<f64>() / rows.iter().map(|r| r.1).sum::<f64>();
+    let mean: f64 = rows.iter().map(|r| r.radiosity.x * r.area).sum::<f64>()
+        / rows.iter().map(|r| r.area).sum::<f64>();
     assert!((mean - 2.0).abs() < 0.02, "{mean}");
 }
 

@@ -2,34 +2,14 @@
 //! renders of the Cornell box with another seed pass against the stored golden, and a red wall
 //! 4% more reflective fails.
 
-use mcrad_export::compare::{read_exr, tile_difference};
+use mcrad_lab::recipe::Recipe;
+use mcrad_render::read_exr;
 use std::path::Path;
 use std::process::Command;
 
-struct Recipe {
-    args: Vec<String>,
-    tile: u32,
-    relative_floor: f32,
-    threshold: f32,
-}
-
 fn recipe() -> Recipe {
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.json"),
-    )
-    .unwrap();
-    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    Recipe {
-        args: v["args"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|a| a.as_str().unwrap().to_string())
-            .collect(),
-        tile: v["tile"].as_u64().unwrap() as u32,
-        relative_floor: v["relative_floor"].as_f64().unwrap() as f32,
-        threshold: v["threshold"].as_f64().unwrap() as f32,
-    }
+    Recipe::read(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.json"))
+        .unwrap()
 }
 
 /// Renders `scene` with the recipe's arguments and `seed`, returning the largest tile difference
@@ -49,9 +29,7 @@ fn difference(scene: &Path, seed: u64, out: &Path) -> f32 {
     let golden =
         read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/golden/cornell-box.exr"))
             .unwrap();
-    let sum: f32 = golden.pixels.iter().map(|p| p.x + p.y + p.z).sum();
-    let floor = r.relative_floor * sum / (3.0 * golden.pixels.len() as f32);
-    tile_difference(&read_exr(out).unwrap(), &golden, r.tile, floor)
+    r.difference(&read_exr(out).unwrap(), &golden)
         .unwrap()
         .max_relative
 }

@@ -19,8 +19,9 @@
 
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
-use mcrad_combine::{Estimate, rms_rel};
-use mcrad_export::plot::{PlotSpec, Series, line_plot};
+use mcrad_combine::Estimate;
+use mcrad_lab::plot::{PlotSpec, Series, line_plot};
+use mcrad_lab::trace::Reference;
 use mcrad_mc_radiosity::{
     Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
 };
@@ -103,10 +104,8 @@ struct Setup {
     mesh: Mesh,
     bvh: Bvh,
     sampler: SurfaceSampler,
-    exact: Vec<DVec3>,
+    exact: Reference,
     exact_reflected: f64,
-    area: Vec<f64>,
-    emission: Vec<DVec3>,
 }
 
 impl Setup {
@@ -164,7 +163,7 @@ impl Setup {
                 waves: stats.waves,
                 ambient: with,
                 seed,
-                rms_rel: rms_rel(&self.area, &self.emission, b, &self.exact),
+                rms_rel: self.exact.rms_rel(b),
                 reflected_ratio: reflected(&self.mesh, b) / self.exact_reflected,
                 unshot,
             })
@@ -186,19 +185,13 @@ fn figure2(root: &Path) -> Result<()> {
     let setup = Setup {
         sampler: SurfaceSampler::new(&mesh),
         exact_reflected: reflected(&mesh, &exact),
-        area: mesh.patches().iter().map(|p| p.area).collect(),
-        emission: mesh
-            .patches()
-            .iter()
-            .map(|p| p.emission.as_dvec3())
-            .collect(),
-        exact,
+        exact: Reference::new(&mesh, exact)?,
         mesh,
         bvh,
     };
     eprintln!(
         "cornell-box: {} patches; reference solution in {:.1} s (residual {:.1e})",
-        setup.area.len(),
+        setup.mesh.patches().len(),
         start.elapsed().as_secs_f64(),
         reference.stats.residual
     );

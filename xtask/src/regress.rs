@@ -3,7 +3,7 @@
 //! Each scene has a recipe `scenes/golden/<name>.json` (the `mcrad solve` arguments, the tile
 //! size and the threshold) and a golden render `scenes/golden/<name>.exr`. `regress` renders
 //! every recipe with seed 0 and compares it with its golden by
-//! [`tile_difference`]: the largest relative difference
+//! [`tile_difference`](mcrad_lab::compare::tile_difference): the largest relative difference
 //! of tile means over tiles and channels. Monte Carlo noise sets the bar: `--bless` renders
 //! seeds 0..SEEDS, keeps seed 0 as the golden, measures the difference of every other seed
 //! from it, and records `threshold = MARGIN × the largest`. A change that only reshuffles
@@ -12,9 +12,9 @@
 //! `target/regress/` and their paths printed.
 
 use anyhow::{Context, Result, bail};
-use mcrad_export::compare::{difference_image, read_exr, tile_difference};
-use mcrad_export::render::{Exposure, Image, write_png};
-use serde::{Deserialize, Serialize};
+use mcrad_lab::compare::difference_image;
+use mcrad_lab::recipe::Recipe;
+use mcrad_render::{Exposure, Image, read_exr, write_png};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -22,31 +22,6 @@ use std::process::Command;
 const SEEDS: u64 = 6;
 /// Threshold = MARGIN × the largest seed-to-seed difference seen when blessing.
 const MARGIN: f32 = 2.0;
-
-/// How one scene is rendered and judged; stored as `scenes/golden/<name>.json`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Recipe {
-    /// The scene file, relative to the workspace root.
-    pub scene: String,
-    /// Arguments of `mcrad solve` besides the scene, `--seed` and `--image`.
-    pub args: Vec<String>,
-    /// Tile side in pixels for the comparison.
-    pub tile: u32,
-    /// Denominator floor as a fraction of the golden's mean radiance.
-    pub relative_floor: f32,
-    /// Largest allowed tile difference (set by `--bless`).
-    pub threshold: f32,
-    /// The seed-to-seed differences measured by `--bless` (seeds 1.. against seed 0).
-    pub seed_spread: Vec<f32>,
-}
-
-impl Recipe {
-    /// The floor in radiance units for a golden image.
-    pub fn floor(&self, golden: &Image) -> f32 {
-        let sum: f32 = golden.pixels.iter().map(|p| p.x + p.y + p.z).sum();
-        self.relative_floor * sum / (3.0 * golden.pixels.len().max(1) as f32)
-    }
-}
 
 fn golden_dir(root: &Path) -> PathBuf {
     root.join("scenes/golden")
@@ -89,12 +64,10 @@ pub fn run(root: &Path, mcrad: &Path, bless: bool) -> Result<()> {
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned();
-        let mut recipe: Recipe = serde_json::from_str(&std::fs::read_to_string(&path)?)
-            .with_context(|| format!("could not parse {}", path.display()))?;
+        let mut recipe = Recipe::read(&path)?;
         let golden_path = golden_dir(root).join(format!("{name}.exr"));
         if bless {
             let golden = render(root, mcrad, &recipe, 0, &golden_path)?;
-            let floor = recipe.floor(&golden);
             recipe.seed_spread = (1..SEEDS)
                 .map(|seed| {
                     let img = render(
@@ -104,12 +77,12 @@ pub fn run(root: &Path, mcrad: &Path, bless: bool) -> Result<()> {
                         seed,
                         &out_dir.join(format!("{name}-seed{seed}.exr")),
                     )?;
-                    Ok(tile_difference(&img, &golden, recipe.tile, floor)?.max_relative)
+                    Ok(recipe.difference(&img, &golden)?.max_relative)
                 })
                 .collect::<Result<_>>()?;
             let spread = recipe.seed_spread.iter().copied().fold(0.0, f32::max);
             recipe.threshold = MARGIN * spread;
-            std::fs::write(&path, serde_json::to_string_pretty(&recipe)? + "\n")?;
+            recipe.write(&path)?;
             println!(
                 "{name}: blessed; seed spread up to {spread:.4}, threshold {:.4}",
                 recipe.threshold
@@ -124,12 +97,8 @@ pub fn run(root: &Path, mcrad: &Path, bless: bool) -> Result<()> {
             0,
             &out_dir.join(format!("{name}-actual.exr")),
         )?;
-        let d = tile_difference(&actual, &golden, recipe.tile, recipe.floor(&golden))?;
-        let verdict = if d.max_relative <= recipe.threshold {
-            "ok"
-        } else {
-            "FAILED"
-        };
+        let d = recipe.difference(&actual, &golden)?;
+        let verdict = if recipe.passes(&d) { "ok" } else { "FAILED" };
         println!(
             "{name}: {verdict}: largest tile difference {:.4} (threshold {:.4}) at tile {:?}, channel {}",
             d.max_relative,
@@ -137,7 +106,7 @@ pub fn run(root: &Path, mcrad: &Path, bless: bool) -> Result<()> {
             d.worst_tile,
             ["r", "g", "b"][d.worst_channel]
         );
-        if d.max_relative > recipe.threshold {
+        if !recipe.passes(&d) {
             let scale = Exposure::Auto.scale(&golden);
             let fixed = Exposure::Stops(scale.log2());
             for (suffix, image, exposure) in [

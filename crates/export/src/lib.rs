@@ -1,17 +1,15 @@
-//! Results out of mcrad: per-patch CSV and run statistics as JSON (the formats of the command
-//! line contract in `ARCHITECTURE.md`).
+//! Results out of mcrad as files: the per-patch CSV (written and read, through serde and the
+//! `csv` crate), run statistics as JSON and binary glTF with per-vertex radiosity (the formats
+//! of the command line contract in `ARCHITECTURE.md`). Pictures are `mcrad-render`'s.
 //!
 //! Writers take any [`std::io::Write`] and never print; the caller owns files and messages.
 
-pub mod compare;
 mod gltf_out;
 mod patches;
-pub mod plot;
-pub mod render;
 mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
-pub use patches::{PatchRow, ReadCsvError, read_patch_csv, write_patch_csv};
+pub use patches::{PATCH_CSV_HEADER, PatchRow, ReadCsvError, read_patch_csv, write_patch_csv};
 pub use stats::RunStats;
 
 /// Why writing a result failed.
@@ -40,13 +38,6 @@ pub enum ExportError {
     #[error("could not write glTF: {reason}")]
     Gltf {
         /// What is wrong, with the offending values.
-        reason: String,
-    },
-    /// A plot could not be drawn: no data, a value that cannot be placed on its axis, or the
-    /// image could not be encoded.
-    #[error("could not plot: {reason}")]
-    Plot {
-        /// What is wrong, with the offending series and value.
         reason: String,
     },
 }

@@ -2,6 +2,7 @@
 
 use crate::ExportError;
 use glam::DVec3;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 
 /// One row of the per-patch CSV.
@@ -17,30 +18,70 @@ pub struct PatchRow {
     pub variance: Option<DVec3>,
 }
 
-/// Writes the header `patch,area,r,g,b,var_r,var_g,var_b` and one line per row. Numbers are
-/// written with Rust's shortest round-trip formatting, so reading them back gives the same f64.
+/// The header of the per-patch CSV.
+pub const PATCH_CSV_HEADER: [&str; 8] = ["patch", "area", "r", "g", "b", "var_r", "var_g", "var_b"];
+
+/// An `f64` written with Rust's shortest round-trip formatting (`Display`: no exponent,
+/// `2` for 2.0), which the CSV files have always used.
+struct Shortest(f64);
+
+impl Serialize for Shortest {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(&self.0)
+    }
+}
+
+/// One written row; field order is [`PATCH_CSV_HEADER`]'s.
+#[derive(Serialize)]
+struct WriteRow {
+    patch: u32,
+    area: Shortest,
+    r: Shortest,
+    g: Shortest,
+    b: Shortest,
+    var_r: Option<Shortest>,
+    var_g: Option<Shortest>,
+    var_b: Option<Shortest>,
+}
+
+impl From<PatchRow> for WriteRow {
+    fn from(row: PatchRow) -> WriteRow {
+        let (b, v) = (row.radiosity, row.variance);
+        WriteRow {
+            patch: row.patch,
+            area: Shortest(row.area),
+            r: Shortest(b.x),
+            g: Shortest(b.y),
+            b: Shortest(b.z),
+            var_r: v.map(|v| Shortest(v.x)),
+            var_g: v.map(|v| Shortest(v.y)),
+            var_b: v.map(|v| Shortest(v.z)),
+        }
+    }
+}
+
+/// Writes the header `patch,area,r,g,b,var_r,var_g,var_b` and one line per row (`\n` line
+/// ends, no quoting). Numbers are written with Rust's shortest round-trip formatting, so reading
+/// them back gives the same f64; a `None` variance is three blank fields.
 pub fn write_patch_csv<W: Write>(
-    mut out: W,
+    out: W,
     rows: impl IntoIterator<Item = PatchRow>,
 ) -> Result<(), ExportError> {
-    let io = |source| ExportError::Io {
+    let fail = |e: csv::Error| ExportError::Io {
+        what: "the patch CSV",
+        source: e.into(),
+    };
+    let mut csv = csv::WriterBuilder::new()
+        .has_headers(false)
+        .from_writer(out);
+    csv.write_record(PATCH_CSV_HEADER).map_err(fail)?;
+    for row in rows {
+        csv.serialize(WriteRow::from(row)).map_err(fail)?;
+    }
+    csv.flush().map_err(|source| ExportError::Io {
         what: "the patch CSV",
         source,
-    };
-    writeln!(out, "patch,area,r,g,b,var_r,var_g,var_b").map_err(io)?;
-    for row in rows {
-        let b = row.radiosity;
-        match row.variance {
-            Some(v) => writeln!(
-                out,
-                "{},{},{},{},{},{},{},{}",
-                row.patch, row.area, b.x, b.y, b.z, v.x, v.y, v.z
-            ),
-            None => writeln!(out, "{},{},{},{},{},,,", row.patch, row.area, b.x, b.y, b.z),
-        }
-        .map_err(io)?;
-    }
-    out.flush().map_err(io)
+    })
 }
 
 #[cfg(test)]
@@ -74,6 +115,23 @@ mod tests {
         assert_eq!(f[2].parse::<f64>().unwrap(), 1.0 / 3.0);
         assert_eq!(f[6].parse::<f64>().unwrap(), 1e-7);
         assert_eq!(lines[2], "9,2,1,1,1,,,");
+        // The bytes of the format: `Display` numbers (no exponent), `\n` line ends.
+        let mut buf = Vec::new();
+        write_patch_csv(
+            &mut buf,
+            [PatchRow {
+                patch: 0,
+                area: 0.1 + 0.2,
+                radiosity: DVec3::new(1e-7, 2.0, 1e21),
+                variance: Some(DVec3::new(0.5, 0.0, 3.25)),
+            }],
+        )
+        .unwrap();
+        assert_eq!(
+            String::from_utf8(buf).unwrap(),
+            "patch,area,r,g,b,var_r,var_g,var_b\n\
+             0,0.30000000000000004,0.0000001,2,1000000000000000000000,0.5,0,3.25\n"
+        );
     }
 }
 
@@ -95,63 +153,117 @@ pub enum ReadCsvError {
         /// The file.
         path: std::path::PathBuf,
         /// 1-based line number.
-        line: usize,
+        line: u64,
         /// What is wrong.
         reason: String,
     },
 }
 
-/// Reads a patch CSV written by [`write_patch_csv`] (blank variances read as `None`).
+/// One read row; fields are matched to [`PATCH_CSV_HEADER`] by name.
+#[derive(Deserialize)]
+struct ReadRow {
+    patch: u32,
+    area: f64,
+    r: f64,
+    g: f64,
+    b: f64,
+    var_r: Option<f64>,
+    var_g: Option<f64>,
+    var_b: Option<f64>,
+}
+
+/// Reads a patch CSV written by [`write_patch_csv`] (blank variances read as `None`; blank
+/// lines and spaces around fields are ignored). Every number must be finite, and the three
+/// variances all given or all blank.
 pub fn read_patch_csv(path: &std::path::Path) -> Result<Vec<PatchRow>, ReadCsvError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ReadCsvError::Io {
+    let file = std::fs::File::open(path).map_err(|source| ReadCsvError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let parse_err = |line: usize, reason: String| ReadCsvError::Parse {
+    read_rows(std::io::BufReader::new(file), path)
+}
+
+fn read_rows<R: std::io::Read>(
+    input: R,
+    path: &std::path::Path,
+) -> Result<Vec<PatchRow>, ReadCsvError> {
+    let parse_err = |line: u64, reason: String| ReadCsvError::Parse {
         path: path.to_path_buf(),
         line,
         reason,
     };
-    let mut lines = text.lines().enumerate();
-    match lines.next() {
-        Some((_, h)) if h.trim() == "patch,area,r,g,b,var_r,var_g,var_b" => {}
-        _ => {
-            return Err(parse_err(
-                1,
-                "the header must be patch,area,r,g,b,var_r,var_g,var_b".into(),
-            ));
+    let from_csv = |e: csv::Error| {
+        let line = e.position().map_or(0, csv::Position::line);
+        match e.into_kind() {
+            csv::ErrorKind::Io(source) => ReadCsvError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+            csv::ErrorKind::UnequalLengths { len, .. } => {
+                parse_err(line, format!("expected 8 fields, found {len}"))
+            }
+            other => parse_err(line, format!("{other:?}")),
         }
+    };
+    let mut csv = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_reader(input);
+    let header = csv.headers().map_err(from_csv)?.clone();
+    if header.iter().ne(PATCH_CSV_HEADER) {
+        return Err(parse_err(
+            1,
+            "the header must be patch,area,r,g,b,var_r,var_g,var_b".into(),
+        ));
     }
     let mut rows = Vec::new();
-    for (i, line) in lines {
-        if line.trim().is_empty() {
-            continue;
+    for record in csv.records() {
+        let record = record.map_err(from_csv)?;
+        let line = record.position().map_or(0, csv::Position::line);
+        let row: ReadRow = record.deserialize(Some(&header)).map_err(|e| {
+            let field = match e.kind() {
+                csv::ErrorKind::Deserialize { err, .. } => err.field().map_or(0, |f| f as usize),
+                _ => 0,
+            };
+            let what = if field == 0 {
+                "a patch number"
+            } else {
+                "a number"
+            };
+            parse_err(
+                line,
+                format!(
+                    "'{}' in column {} is not {what}",
+                    record.get(field).unwrap_or(""),
+                    PATCH_CSV_HEADER[field.min(7)]
+                ),
+            )
+        })?;
+        let values = [
+            row.area,
+            row.r,
+            row.g,
+            row.b,
+            row.var_r.unwrap_or(0.0),
+            row.var_g.unwrap_or(0.0),
+            row.var_b.unwrap_or(0.0),
+        ];
+        if let Some(x) = values.iter().find(|x| !x.is_finite()) {
+            return Err(parse_err(line, format!("'{x}' is not a finite number")));
         }
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if f.len() != 8 {
-            return Err(parse_err(
-                i + 1,
-                format!("expected 8 fields, found {}", f.len()),
-            ));
-        }
-        let num = |k: usize| -> Result<f64, ReadCsvError> {
-            f[k].parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| parse_err(i + 1, format!("'{}' is not a finite number", f[k])))
-        };
-        let patch = f[0]
-            .parse::<u32>()
-            .map_err(|_| parse_err(i + 1, format!("'{}' is not a patch number", f[0])))?;
-        let variance = if f[5..].iter().all(|x| x.is_empty()) {
-            None
-        } else {
-            Some(DVec3::new(num(5)?, num(6)?, num(7)?))
+        let variance = match (row.var_r, row.var_g, row.var_b) {
+            (Some(r), Some(g), Some(b)) => Some(DVec3::new(r, g, b)),
+            (None, None, None) => None,
+            _ => {
+                return Err(parse_err(
+                    line,
+                    "the variances must be all given or all blank".into(),
+                ));
+            }
         };
         rows.push(PatchRow {
-            patch,
-            area: num(1)?,
-            radiosity: DVec3::new(num(2)?, num(3)?, num(4)?),
+            patch: row.patch,
+            area: row.area,
+            radiosity: DVec3::new(row.r, row.g, row.b),
             variance,
         });
     }
@@ -189,6 +301,23 @@ mod read_tests {
         .unwrap();
         let err = read_patch_csv(&path).unwrap_err().to_string();
         assert!(err.contains("p.csv line 3") && err.contains("'x'"), "{err}");
+        std::fs::write(
+            &path,
+            "patch,area,r,g,b,var_r,var_g,var_b\n 0 , 1,2,3,4,5,6,7\n1,1,2,3,4,,6,\n\n",
+        )
+        .unwrap();
+        let err = read_patch_csv(&path).unwrap_err().to_string();
+        assert!(err.contains("line 3") && err.contains("all given"), "{err}");
+        std::fs::write(&path, "patch,area,r,g,b,var_r,var_g,var_b\n0,1,2,3\n").unwrap();
+        let err = read_patch_csv(&path).unwrap_err().to_string();
+        assert!(err.contains("line 2") && err.contains("8 fields"), "{err}");
+        std::fs::write(
+            &path,
+            "patch,area,r,g,b,var_r,var_g,var_b\n0,inf,2,3,4,,,\n",
+        )
+        .unwrap();
+        let err = read_patch_csv(&path).unwrap_err().to_string();
+        assert!(err.contains("not a finite number"), "{err}");
         std::fs::write(&path, "a,b\n").unwrap();
         assert!(
             read_patch_csv(&path)

@@ -593,15 +593,12 @@ mod tests {
         assert!(f.canonical_segment(&p, &q).is_none());
     }
 
-    /// A small seeded stream for the tests below.
-    struct Stream(u64);
+    /// The tests' seeded stream ([`crate::testing::uniforms`]) with the shapes they draw.
+    struct Stream<F: FnMut() -> f32>(F);
 
-    impl Stream {
+    impl<F: FnMut() -> f32> Stream<F> {
         fn unit(&mut self) -> f32 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            (self.0 >> 40) as f32 / (1u64 << 24) as f32
+            (self.0)()
         }
         fn point(&mut self, min: Vec3, max: Vec3) -> Vec3 {
             // mostly inside the box, some outside, some on its faces
@@ -668,7 +665,7 @@ mod tests {
 
     #[test]
     fn f32_canonical_points_match_the_f64_map() {
-        let mut rng = Stream(0x9e37_79b9_7f4a_7c15);
+        let mut rng = Stream(crate::testing::uniforms(11));
         for (min, max) in frames() {
             let f = Frame::new(min, max);
             assert_eq!(f.center32.as_dvec3(), f.center);
@@ -684,11 +681,11 @@ mod tests {
 
     #[test]
     fn fast_paths_match_the_general_paths() {
-        let mut rng = Stream(0x2545_f491_4f6c_dd1d);
+        let mut rng = Stream(crate::testing::uniforms(12));
         let mut fast_rays = 0;
         for (min, max) in frames() {
             let f = Frame::new(min, max);
-            let surface = |rng: &mut Stream| {
+            let surface = |rng: &mut Stream<_>| {
                 let normal = if rng.unit() < 0.1 {
                     Vec3::ZERO
                 } else {

@@ -12,7 +12,7 @@
 //! Either way the curve stops at the first point below the target error, or before a point
 //! predicted to end after the time limit (a ladder rung takes about twice the previous one).
 
-use mcrad_combine::rms_rel;
+use mcrad_lab::trace::Reference;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
@@ -51,24 +51,14 @@ pub struct Problem<'a> {
     pub mesh: &'a Mesh,
     /// Its BVH.
     pub bvh: &'a Bvh,
-    /// Patch areas (m²).
-    pub area: Vec<f64>,
-    /// Emitted radiosity per patch (W/m²).
-    pub emission: Vec<glam::DVec3>,
-    /// The reference radiosity (W/m²).
-    pub reference: Vec<glam::DVec3>,
+    /// The reference solution the error is measured against.
+    pub reference: Reference,
 }
 
 impl<'a> Problem<'a> {
     /// The problem of `mesh` against `reference`.
-    pub fn new(mesh: &'a Mesh, bvh: &'a Bvh, reference: Vec<glam::DVec3>) -> Self {
+    pub fn new(mesh: &'a Mesh, bvh: &'a Bvh, reference: Reference) -> Self {
         Problem {
-            area: mesh.patches().iter().map(|p| p.area).collect(),
-            emission: mesh
-                .patches()
-                .iter()
-                .map(|p| p.emission.as_dvec3())
-                .collect(),
             mesh,
             bvh,
             reference,
@@ -76,12 +66,12 @@ impl<'a> Problem<'a> {
     }
 
     fn error(&self, b: &[glam::DVec3]) -> f64 {
-        rms_rel(&self.area, &self.emission, b, &self.reference)
+        self.reference.rms_rel(b)
     }
 
     /// Rays of the first point: 1e5, or 50 per patch on large meshes.
     pub fn first_rays(&self) -> u64 {
-        (50 * self.area.len() as u64).max(100_000)
+        (50 * self.mesh.patches().len() as u64).max(100_000)
     }
 }
 

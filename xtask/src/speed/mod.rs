@@ -143,7 +143,7 @@ pub fn measure_scene(
     eprintln!(
         "{}: {} patches, built in {:.2} s",
         scene.name,
-        problem.area.len(),
+        problem.mesh.patches().len(),
         loaded.build_seconds
     );
     let mut curves = Vec::new();
@@ -170,7 +170,7 @@ pub fn measure_scene(
     }
     Ok(SceneResult {
         scene,
-        patches: problem.area.len(),
+        patches: problem.mesh.patches().len(),
         build_seconds: loaded.build_seconds,
         curves,
     })

@@ -2,7 +2,7 @@
 
 use super::measure::Point;
 use anyhow::Result;
-use mcrad_export::plot::{PlotSpec, Series, line_plot};
+use mcrad_lab::plot::{PlotSpec, Series, line_plot};
 use std::path::Path;
 
 /// The error levels of the table.

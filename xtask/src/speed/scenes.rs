@@ -1,8 +1,8 @@
 //! The experiment's scenes and their reference solutions.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use glam::DVec3;
-use mcrad_combine::rms_rel;
+use mcrad_lab::trace::{Numbering, Reference};
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
@@ -148,8 +148,8 @@ impl ExpScene {
         })
     }
 
-    /// The reference radiosity in mesh order.
-    pub fn reference(&self, root: &Path, mesh: &Mesh) -> Result<Vec<DVec3>> {
+    /// The reference solution of `mesh` (its CSV's rows numbered in mesh order).
+    pub fn reference(&self, root: &Path, mesh: &Mesh) -> Result<Reference> {
         let path = root.join("scenes/reference").join(self.reference);
         let rows = mcrad_export::read_patch_csv(&path).with_context(|| {
             format!(
@@ -157,16 +157,8 @@ impl ExpScene {
                 self.name, self.name
             )
         })?;
-        if rows.len() != mesh.patches().len() {
-            bail!(
-                "{} has {} rows but the mesh of {} has {} patches",
-                path.display(),
-                rows.len(),
-                self.name,
-                mesh.patches().len()
-            );
-        }
-        Ok(rows.iter().map(|r| r.radiosity).collect())
+        Reference::from_rows(mesh, &rows, Numbering::Index)
+            .with_context(|| format!("{} against the mesh of {}", path.display(), self.name))
     }
 }
 
@@ -264,13 +256,6 @@ fn shooting(loaded: &Loaded, rays: u64, seeds: [u64; 2]) -> Result<Vec<DVec3>> {
         .zip(&runs[1])
         .map(|(a, b)| 0.5 * (a + b))
         .collect();
-    let area: Vec<f64> = loaded.mesh.patches().iter().map(|p| p.area).collect();
-    let emission: Vec<DVec3> = loaded
-        .mesh
-        .patches()
-        .iter()
-        .map(|p| p.emission.as_dvec3())
-        .collect();
     // rms_rel of run a against run b, with the mean's reflected light as the denominator.
     let diff: Vec<DVec3> = runs[0]
         .iter()
@@ -278,7 +263,7 @@ fn shooting(loaded: &Loaded, rays: u64, seeds: [u64; 2]) -> Result<Vec<DVec3>> {
         .zip(&mean)
         .map(|((a, b), m)| m + (a - b))
         .collect();
-    let noise = rms_rel(&area, &emission, &diff, &mean) / 2.0;
+    let noise = Reference::new(&loaded.mesh, mean.clone())?.rms_rel(&diff) / 2.0;
     eprintln!("  the mean's own noise: {:.3}% rms_rel", 100.0 * noise);
     Ok(mean)
 }

@@ -6,7 +6,7 @@ use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Hit;
 
-use super::RenderError;
+use crate::RenderError;
 
 /// The radiosity solution to render, in W/m² per RGB channel. A pixel shows radiance
 /// `L = B / π` (W/(m² sr)) of the surface it sees (diffuse surfaces look equally bright from

@@ -2,7 +2,7 @@
 //! patches (`Subdivision::MaxEdge(0.0044)` on `scenes/cornell-box.obj`), flat shading, at 1 and
 //! 4 samples per pixel, on the current rayon pool (all cores unless `RAYON_NUM_THREADS` says).
 //!
-//! `cargo bench -p mcrad-export --bench render`. The radiosity is a fixed stand-in
+//! `cargo bench -p mcrad-render --bench render`. The radiosity is a fixed stand-in
 //! (`B = E + 10 rho` W/m²): the render's cost does not depend on the values.
 
 use std::hint::black_box;
@@ -11,9 +11,9 @@ use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
-use mcrad_export::render::{Camera, RenderSettings, Shading, render};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
+use mcrad_render::{Camera, RenderSettings, Shading, render};
 
 fn bench(c: &mut Criterion) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell-box.obj");

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::tonemap::{Exposure, to_srgb8};
+use crate::tonemap::{Exposure, to_srgb8};
 
 /// A rendered image of radiance, W/(m² sr) per linear RGB channel, row-major, top row first:
 /// pixel `(x, y)` is `pixels[y * width + x]`. Invariant: `pixels.len() == width * height`
@@ -145,6 +145,40 @@ pub fn write_png(image: &Image, path: &Path, exposure: Exposure) -> Result<(), I
     })
 }
 
+/// Reads an OpenEXR file's RGB channels as linear radiance (the inverse of
+/// [`write_exr`]).
+pub fn read_exr(path: &Path) -> Result<Image, ImageReadError> {
+    let fail = |reason: String| ImageReadError {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |size, _| (size.width(), vec![Vec3::ZERO; size.width() * size.height()]),
+        |(width, pixels): &mut (usize, Vec<Vec3>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+            pixels[pos.y() * *width + pos.x()] = Vec3::new(r, g, b);
+        },
+    )
+    .map_err(|e| fail(e.to_string()))?;
+    let size = image.layer_data.size;
+    let (_, pixels) = image.layer_data.channel_data.pixels;
+    Ok(Image {
+        width: u32::try_from(size.width()).map_err(|_| fail("too wide".into()))?,
+        height: u32::try_from(size.height()).map_err(|_| fail("too tall".into()))?,
+        pixels,
+    })
+}
+
+/// Why an image could not be read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("could not read {}: {reason}", path.display())]
+pub struct ImageReadError {
+    /// The file.
+    pub path: PathBuf,
+    /// What went wrong.
+    pub reason: String,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -254,5 +288,16 @@ mod tests {
         assert!(err.to_string().contains("no/such/dir/x.png"), "{err}");
         let err = write_exr(&gradient(2, 2), &dir.path().join("no/such/dir/x.exr")).unwrap_err();
         assert!(matches!(err, ImageError::Exr { .. }), "{err}");
+    }
+
+    #[test]
+    fn exr_reads_back_what_was_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.exr");
+        let a = gradient(7, 5);
+        write_exr(&a, &path).unwrap();
+        assert_eq!(read_exr(&path).unwrap(), a);
+        let err = read_exr(&dir.path().join("missing.exr")).unwrap_err();
+        assert!(err.to_string().contains("missing.exr"), "{err}");
     }
 }

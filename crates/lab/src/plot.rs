@@ -5,7 +5,7 @@
 //! `ab_glyph` backend), so plotting needs no system fonts.
 //!
 //! ```no_run
-//! use mcrad_export::plot::{PlotSpec, Series, line_plot};
+//! use mcrad_lab::plot::{PlotSpec, Series, line_plot};
 //! let spec = PlotSpec {
 //!     title: "error".into(),
 //!     x_label: "rays".into(),
@@ -21,7 +21,6 @@
 //! line_plot(std::path::Path::new("error.png"), &spec).unwrap();
 //! ```
 
-use crate::ExportError;
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::{KeyPointHint, NoDefaultFormatting, Ranged, ValueFormatter};
 use plotters::prelude::*;
@@ -78,8 +77,27 @@ pub struct Series {
     pub band: Option<Vec<(f64, f64, f64)>>,
 }
 
-fn plot_error(reason: impl Into<String>) -> ExportError {
-    ExportError::Plot {
+/// Why a plot could not be drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// No data, a value that cannot be placed on its axis, or the image could not be drawn or
+    /// encoded.
+    #[error("could not plot: {reason}")]
+    Plot {
+        /// What is wrong, with the offending series and value.
+        reason: String,
+    },
+    /// The PNG could not be written.
+    #[error("could not write the plot: {source}")]
+    Io {
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+fn plot_error(reason: impl Into<String>) -> PlotError {
+    PlotError::Plot {
         reason: reason.into(),
     }
 }
@@ -87,9 +105,9 @@ fn plot_error(reason: impl Into<String>) -> ExportError {
 /// Writes `spec` as a PNG of [`WIDTH`] × [`HEIGHT`] pixels to `path`.
 ///
 /// Errors: no point at all, a non-finite value, a non-positive value on a logarithmic axis
-/// ([`ExportError::Plot`], naming the series and the value), or the file cannot be written
-/// ([`ExportError::Io`]).
-pub fn line_plot(path: &Path, spec: &PlotSpec) -> Result<(), ExportError> {
+/// ([`PlotError::Plot`], naming the series and the value), or the file cannot be written
+/// ([`PlotError::Io`]).
+pub fn line_plot(path: &Path, spec: &PlotSpec) -> Result<(), PlotError> {
     let (x_range, y_range) = ranges(spec)?;
     register_font()?;
     let mut buffer = vec![0u8; (WIDTH * HEIGHT * 3) as usize];
@@ -113,16 +131,13 @@ pub fn line_plot(path: &Path, spec: &PlotSpec) -> Result<(), ExportError> {
     image
         .save_with_format(path, image::ImageFormat::Png)
         .map_err(|e| match e {
-            image::ImageError::IoError(source) => ExportError::Io {
-                what: "the plot",
-                source,
-            },
+            image::ImageError::IoError(source) => PlotError::Io { source },
             other => plot_error(format!("could not encode {}: {other}", path.display())),
         })
 }
 
 /// Registers the embedded DejaVu Sans as [`FONT`] (once per process).
-fn register_font() -> Result<(), ExportError> {
+fn register_font() -> Result<(), PlotError> {
     static REGISTER: Once = Once::new();
     let mut ok = true;
     REGISTER.call_once(|| {
@@ -234,7 +249,7 @@ impl ValueFormatter<f64> for LogAxis {
 /// The data extent of every point and band edge, padded (5% of the span on a linear axis, 10%
 /// of a decade on a logarithmic one), checked for finiteness and positivity on log axes.
 #[allow(clippy::type_complexity)]
-fn ranges(spec: &PlotSpec) -> Result<((f64, f64), (f64, f64)), ExportError> {
+fn ranges(spec: &PlotSpec) -> Result<((f64, f64), (f64, f64)), PlotError> {
     let mut xs = Vec::new();
     let mut ys = Vec::new();
     for s in &spec.series {

@@ -100,6 +100,18 @@ impl Camera {
         })
     }
 
+    /// The camera a scene file stores (`mcrad_scene_io::Camera`: eye, unit view direction, up,
+    /// vertical field of view), checked like [`Camera::look_at`] with the look-at point one unit
+    /// along the view direction.
+    pub fn from_scene(camera: &mcrad_scene_io::Camera) -> Result<Camera, CameraError> {
+        Camera::look_at(
+            camera.eye,
+            camera.eye + camera.forward,
+            camera.up,
+            camera.fov_y_degrees,
+        )
+    }
+
     /// The eye (centre of projection), scene units.
     pub fn eye(&self) -> Vec3 {
         self.eye

@@ -4,7 +4,7 @@ use glam::{Vec2, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
-use super::camera::{Camera, CameraError};
+use crate::camera::{Camera, CameraError};
 
 /// Vertical field of view of an outside view chosen by [`Camera::frame_scene`], degrees.
 pub const FRAME_FOV_Y_DEGREES: f32 = 40.0;

@@ -9,9 +9,8 @@
 //! relative tile difference; the threshold it is held to is measured from the spread between
 //! seeds and recorded per scene (`cargo xtask regress --bless`).
 
-use crate::render::Image;
 use glam::Vec3;
-use std::path::{Path, PathBuf};
+use mcrad_render::Image;
 
 /// The result of comparing an image with its golden.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -91,40 +90,6 @@ pub fn tile_difference(
     Ok(worst)
 }
 
-/// Reads an OpenEXR file's RGB channels as linear radiance (the inverse of
-/// [`write_exr`](crate::render::write_exr)).
-pub fn read_exr(path: &Path) -> Result<Image, ImageReadError> {
-    let fail = |reason: String| ImageReadError {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let image = exr::prelude::read_first_rgba_layer_from_file(
-        path,
-        |size, _| (size.width(), vec![Vec3::ZERO; size.width() * size.height()]),
-        |(width, pixels): &mut (usize, Vec<Vec3>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-            pixels[pos.y() * *width + pos.x()] = Vec3::new(r, g, b);
-        },
-    )
-    .map_err(|e| fail(e.to_string()))?;
-    let size = image.layer_data.size;
-    let (_, pixels) = image.layer_data.channel_data.pixels;
-    Ok(Image {
-        width: u32::try_from(size.width()).map_err(|_| fail("too wide".into()))?,
-        height: u32::try_from(size.height()).map_err(|_| fail("too tall".into()))?,
-        pixels,
-    })
-}
-
-/// Why an image could not be read.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("could not read {}: {reason}", path.display())]
-pub struct ImageReadError {
-    /// The file.
-    pub path: PathBuf,
-    /// What went wrong.
-    pub reason: String,
-}
-
 /// An image of `|actual - golden|` per pixel and channel, scaled so the largest difference is 1
 /// (a picture of where two renders differ).
 pub fn difference_image(actual: &Image, golden: &Image) -> Result<Image, CompareError> {
@@ -190,19 +155,6 @@ mod tests {
         let diff = difference_image(&shifted, &golden).unwrap();
         assert_eq!(diff.pixels[63].x, 1.0);
         assert_eq!(diff.pixels[64 * 63].x, 0.0);
-    }
-
-    #[test]
-    fn exr_reads_back_what_was_written() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("x.exr");
-        let a = image(7, 5, |x, y| {
-            Vec3::new(x as f32 * 0.37, y as f32 * 1e-3, 1e4 + x as f32)
-        });
-        crate::render::write_exr(&a, &path).unwrap();
-        assert_eq!(read_exr(&path).unwrap(), a);
-        let err = read_exr(&dir.path().join("missing.exr")).unwrap_err();
-        assert!(err.to_string().contains("missing.exr"), "{err}");
     }
 
     #[test]

@@ -14,7 +14,7 @@
 //!
 //! ```
 //! use glam::{DVec3, Vec3};
-//! use mcrad_export::render::{Camera, RenderSettings, Shading, render};
+//! use mcrad_render::{Camera, RenderSettings, Shading, render};
 //! # use mcrad_meshing::{Mesh, Subdivision};
 //! # use mcrad_raycast::Bvh;
 //! # fn build(dir: &std::path::Path) -> Mesh {
@@ -54,7 +54,7 @@ use rayon::prelude::*;
 
 pub use self::camera::{Camera, CameraError};
 pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
-pub use self::image::{Image, ImageError, write_exr, write_png};
+pub use self::image::{Image, ImageError, ImageReadError, read_exr, write_exr, write_png};
 pub use self::shade::Shading;
 pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_encode};
 

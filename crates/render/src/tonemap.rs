@@ -2,7 +2,7 @@
 
 use glam::Vec3;
 
-use super::image::Image;
+use crate::image::Image;
 
 /// The percentile of lit-pixel luminance that [`Exposure::Auto`] maps to [`AUTO_TARGET`].
 pub const AUTO_PERCENTILE: f32 = 0.99;
