@@ -2,9 +2,10 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_export::render::Exposure;
+use mcrad_mc_radiosity::schedule::ScheduleConfig;
 use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
-use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
+use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -121,6 +122,27 @@ impl Solve {
             m => m,
         }
     }
+
+    /// The library's configuration of the run: `--rays` (default [`DEFAULT_RAYS`], no limit
+    /// with `--time`), `--seed`, `--unshot-threshold`, `--ambient` and
+    /// `--visibility-tolerance`. With no flag it is [`ScheduleConfig::default`].
+    pub fn schedule_config(&self) -> ScheduleConfig {
+        ScheduleConfig {
+            rays: self.rays.unwrap_or(if self.time.is_some() {
+                u64::MAX
+            } else {
+                DEFAULT_RAYS
+            }),
+            seed: self.seed,
+            unshot_threshold: self.unshot_threshold,
+            ambient: self.ambient,
+            first_pass_rays: None,
+            reference: ReferenceConfig {
+                visibility_tolerance: self.visibility_tolerance,
+                ..Default::default()
+            },
+        }
+    }
 }
 
 /// The help of `--rays`, with the library's default budget.
@@ -201,8 +223,38 @@ fn parse_count(s: &str) -> Result<u64, String> {
 
 #[cfg(test)]
 mod tests {
-    use super::{parse_count, parse_exposure, parse_size};
+    use super::{Args, Command, Solve, parse_count, parse_exposure, parse_size};
+    use clap::Parser;
     use mcrad_export::render::Exposure;
+    use mcrad_mc_radiosity::Method;
+    use mcrad_mc_radiosity::schedule::ScheduleConfig;
+
+    fn solve(args: &[&str]) -> Solve {
+        let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
+        match Args::try_parse_from(argv).unwrap().command {
+            Command::Solve(s) => s,
+        }
+    }
+
+    #[test]
+    fn the_command_line_defaults_are_the_library_defaults() {
+        let s = solve(&[]);
+        assert_eq!(s.schedule_config(), ScheduleConfig::default());
+        assert_eq!(s.method(), Method::default());
+        assert_eq!(solve(&["--time", "5"]).schedule_config().rays, u64::MAX);
+    }
+
+    #[test]
+    fn every_registered_method_parses_and_split_is_an_alias() {
+        for m in Method::ALL {
+            assert_eq!(solve(&["--method", m.name()]).method(), m);
+        }
+        let split = solve(&["--method", "two-pass", "--split"]);
+        assert_eq!(split.method(), Method::TwoPassSplit);
+        // As before the registry: other methods ignore --split.
+        assert_eq!(solve(&["--method", "prr", "--split"]).method(), Method::Prr);
+        assert!(Args::try_parse_from(["mcrad", "solve", "s.obj", "--method", "teleport"]).is_err());
+    }
 
     #[test]
     fn sizes_and_exposures_parse() {

@@ -5,10 +5,9 @@ use crate::trace::Tracer;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::schedule::{self, DEFAULT_RAYS, Kind, ScheduleConfig, Solution};
+use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
-use mcrad_reference::ReferenceConfig;
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
 use std::ops::ControlFlow;
@@ -51,11 +50,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     };
     let setup_seconds = setup.elapsed().as_secs_f64();
 
-    let rays = args.rays.unwrap_or(if args.time.is_some() {
-        u64::MAX
-    } else {
-        DEFAULT_RAYS
-    });
+    let config = args.schedule_config();
+    let rays = config.rays;
     let method = args.method();
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deterministic = method.kind() == Kind::Deterministic;
@@ -66,17 +62,6 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     }
     let deadline = if deterministic { None } else { args.time };
     let bar = progress_bar(args.quiet, if deterministic { u64::MAX } else { rays });
-    let config = ScheduleConfig {
-        rays,
-        seed: args.seed,
-        unshot_threshold: args.unshot_threshold,
-        ambient: args.ambient,
-        first_pass_rays: None,
-        reference: ReferenceConfig {
-            visibility_tolerance: args.visibility_tolerance,
-            ..Default::default()
-        },
-    };
     let start = Instant::now();
     let mut trace_error = None;
     let solution: Solution = schedule::run(method, &mesh, &bvh, &config, &mut |step| {
