@@ -1,7 +1,7 @@
 //! The method registry: every solution method once, with its command-line name, its place in
 //! the paper, a one-line summary, its [`Kind`] and the function that runs it.
 //!
-//! The one [`methods!`] invocation below generates the [`Method`] enum, [`Method::ALL`], the
+//! The one `methods!` invocation below generates the [`Method`] enum, [`Method::ALL`], the
 //! name and metadata accessors, [`FromStr`](std::str::FromStr) and [`Display`](fmt::Display),
 //! clap's `ValueEnum` (feature `clap`), serde's `Serialize` (feature `serde`) and the dispatch
 //! of [`schedule::run`](crate::schedule::run), every one an exhaustive match over the same list:
