@@ -2,6 +2,10 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_render::Exposure;
+use mcrad_mc_radiosity::schedule::ScheduleConfig;
+use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method};
+use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
+use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -18,67 +22,16 @@ pub enum Command {
     Solve(Solve),
 }
 
-/// The solution methods.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum Method {
-    /// Stochastic shooting with constant energy per ray (paper, section 1.3).
-    Shoot,
-    /// Jacobi gathering (section 1.4).
-    Gather,
-    /// Shooting, then one gathering round from it (section 1.5); see --split.
-    TwoPass,
-    /// Progressive ray refinement (Algorithm 1): shooting passes merged by their rays.
-    Prr,
-    /// Progressive gathering (Algorithm 2) from one shooting solution.
-    ProgressiveGather,
-    /// Progressive two-pass (Algorithm 3): refined shooting, regathered each pass.
-    ProgressiveTwoPass,
-    /// Iterative combined shooting and gathering (Algorithm 4), merged per patch by inverse
-    /// variance.
-    Combined,
-    /// RenderPark's alternative to combined: every ray used for shooting and gathering,
-    /// weighted by the balance heuristic.
-    Bidirectional,
-    /// Deterministic reference: explicit form factors and Gauss-Seidel (up to 10k patches);
-    /// --rays does not apply.
-    Reference,
-}
-
-impl Method {
-    /// The schedule that runs this method (`split`: two-pass with the direct/indirect split);
-    /// `None` for the reference solver.
-    pub fn schedule(self, split: bool) -> Option<mcrad_mc_radiosity::schedule::Method> {
-        use mcrad_mc_radiosity::schedule::Method as M;
-        Some(match self {
-            Method::Reference => return None,
-            Method::Shoot => M::Shoot,
-            Method::Gather => M::Gather,
-            Method::TwoPass if split => M::TwoPassSplit,
-            Method::TwoPass => M::TwoPass,
-            Method::Prr => M::Prr,
-            Method::ProgressiveGather => M::ProgressiveGather,
-            Method::ProgressiveTwoPass => M::ProgressiveTwoPass,
-            Method::Combined => M::Combined,
-            Method::Bidirectional => M::Bidirectional,
-        })
-    }
-
-    /// The name in statistics and summaries.
-    pub fn name(self, split: bool) -> &'static str {
-        self.schedule(split).map_or("reference", |m| m.name())
-    }
-}
-
 #[derive(Debug, clap::Args)]
 pub struct Solve {
     /// The scene: .obj (with the .mtl files it names), .gltf or .glb.
     pub scene: PathBuf,
     /// Solution method.
-    #[arg(long, value_enum, default_value_t = Method::Combined)]
+    #[arg(long, value_enum, default_value_t = Method::default())]
     pub method: Method,
-    /// Total ray budget over all passes (accepts 2000000 and 2e6). Default: 2e6, or no limit
-    /// with --time.
-    #[arg(long, value_parser = parse_count)]
+    /// Total ray budget over all passes (accepts 2000000 and 2e6). Default: `DEFAULT_RAYS`, or
+    /// no limit with --time.
+    #[arg(long, value_parser = parse_count, help = rays_help())]
     pub rays: Option<u64>,
     /// Wall-clock budget in seconds: progressive methods stop with the best complete solution
     /// when the next step would not finish in time.
@@ -90,10 +43,11 @@ pub struct Solve {
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
     /// 2e-3 is about twenty times quicker than the default.
-    #[arg(long, value_name = "F", default_value_t = 1e-4)]
+    #[arg(long, value_name = "F", default_value_t = DEFAULT_VISIBILITY_TOLERANCE)]
     pub visibility_tolerance: f64,
     /// two-pass: compute direct light by sampling the emitters with shadow rays and gather only
-    /// the indirect light (Shirley and Wang 1991).
+    /// the indirect light (Shirley and Wang 1991); `--method two-pass --split` is an alias of
+    /// `--method two-pass-split`. Other methods ignore it.
     #[arg(long)]
     pub split: bool,
     /// A reference solution (a --patches CSV of the same mesh) to measure error against.
@@ -112,13 +66,13 @@ pub struct Solve {
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's
-    /// bounding-box diagonal / 20.
-    #[arg(long, value_name = "L", allow_negative_numbers = true)]
+    /// bounding-box diagonal × `DEFAULT_MAX_EDGE_FRACTION`.
+    #[arg(long, value_name = "L", allow_negative_numbers = true, help = max_edge_help())]
     pub max_edge: Option<f32>,
     /// Stop shooting when the unshot power is below this fraction of the emitted power. The
     /// power left unshot is missing from the answer (a bias of about this fraction), so the
     /// default is small: a run spends its budget. The paper's 0.01 stops sooner.
-    #[arg(long, default_value_t = 1e-4, value_name = "FRACTION")]
+    #[arg(long, default_value_t = DEFAULT_UNSHOT_THRESHOLD, value_name = "FRACTION")]
     pub unshot_threshold: f64,
     /// Write per-patch radiosity: `patch,area,r,g,b,var_r,var_g,var_b`.
     #[arg(long, value_name = "F.csv")]
@@ -157,6 +111,56 @@ pub struct Solve {
     /// No progress bar and no summary line (errors and warnings still go to stderr).
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+impl Solve {
+    /// The method to run: `--method`, with `--split` turning `two-pass` into `two-pass-split`
+    /// (other methods ignore `--split`).
+    pub fn method(&self) -> Method {
+        match self.method {
+            Method::TwoPass if self.split => Method::TwoPassSplit,
+            m => m,
+        }
+    }
+
+    /// The library's configuration of the run: `--rays` (default [`DEFAULT_RAYS`], no limit
+    /// with `--time`), `--seed`, `--unshot-threshold`, `--ambient` and
+    /// `--visibility-tolerance`. With no flag it is [`ScheduleConfig::default`].
+    pub fn schedule_config(&self) -> ScheduleConfig {
+        ScheduleConfig {
+            rays: self.rays.unwrap_or(if self.time.is_some() {
+                u64::MAX
+            } else {
+                DEFAULT_RAYS
+            }),
+            seed: self.seed,
+            unshot_threshold: self.unshot_threshold,
+            ambient: self.ambient,
+            first_pass_rays: None,
+            reference: ReferenceConfig {
+                visibility_tolerance: self.visibility_tolerance,
+                ..Default::default()
+            },
+        }
+    }
+}
+
+/// The help of `--rays`, with the library's default budget.
+fn rays_help() -> String {
+    format!(
+        "Total ray budget over all passes (accepts 2000000 and 2e6). Default: {:e}, or no limit \
+         with --time",
+        DEFAULT_RAYS as f64
+    )
+}
+
+/// The help of `--max-edge`, with the library's default subdivision.
+fn max_edge_help() -> String {
+    format!(
+        "Subdivide until no patch edge is longer than L (scene units). Default: the scene's \
+         bounding-box diagonal / {}",
+        1.0 / DEFAULT_MAX_EDGE_FRACTION
+    )
 }
 
 /// How renders are shaded.
@@ -219,8 +223,38 @@ fn parse_count(s: &str) -> Result<u64, String> {
 
 #[cfg(test)]
 mod tests {
-    use super::{parse_count, parse_exposure, parse_size};
+    use super::{Args, Command, Solve, parse_count, parse_exposure, parse_size};
+    use clap::Parser;
     use mcrad_render::Exposure;
+    use mcrad_mc_radiosity::Method;
+    use mcrad_mc_radiosity::schedule::ScheduleConfig;
+
+    fn solve(args: &[&str]) -> Solve {
+        let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
+        match Args::try_parse_from(argv).unwrap().command {
+            Command::Solve(s) => s,
+        }
+    }
+
+    #[test]
+    fn the_command_line_defaults_are_the_library_defaults() {
+        let s = solve(&[]);
+        assert_eq!(s.schedule_config(), ScheduleConfig::default());
+        assert_eq!(s.method(), Method::default());
+        assert_eq!(solve(&["--time", "5"]).schedule_config().rays, u64::MAX);
+    }
+
+    #[test]
+    fn every_registered_method_parses_and_split_is_an_alias() {
+        for m in Method::ALL {
+            assert_eq!(solve(&["--method", m.name()]).method(), m);
+        }
+        let split = solve(&["--method", "two-pass", "--split"]);
+        assert_eq!(split.method(), Method::TwoPassSplit);
+        // As before the registry: other methods ignore --split.
+        assert_eq!(solve(&["--method", "prr", "--split"]).method(), Method::Prr);
+        assert!(Args::try_parse_from(["mcrad", "solve", "s.obj", "--method", "teleport"]).is_err());
+    }
 
     #[test]
     fn sizes_and_exposures_parse() {

@@ -5,7 +5,7 @@ use crate::trace::Tracer;
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig, Solution};
+use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::fs::File;
@@ -13,12 +13,6 @@ use std::io::{BufWriter, IsTerminal};
 use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Instant;
-
-/// Default subdivision: no patch edge longer than this fraction of the bounding-box diagonal.
-const DEFAULT_MAX_EDGE_FRACTION: f32 = 1.0 / 20.0;
-
-/// Default ray budget when neither --rays nor --time is given.
-const DEFAULT_RAYS: u64 = 2_000_000;
 
 pub fn run(args: &Solve) -> Result<()> {
     let threads = args
@@ -43,10 +37,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     let subdivision = if args.no_subdivide {
         Subdivision::None
     } else {
-        Subdivision::MaxEdge(
-            args.max_edge
-                .unwrap_or_else(|| scene.bounds().diagonal() as f32 * DEFAULT_MAX_EDGE_FRACTION),
-        )
+        args.max_edge
+            .map_or_else(|| Subdivision::default_for(scene), Subdivision::MaxEdge)
     };
     let mesh = Mesh::build(scene, subdivision)?;
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
@@ -58,41 +50,20 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     };
     let setup_seconds = setup.elapsed().as_secs_f64();
 
-    let rays = args.rays.unwrap_or(if args.time.is_some() {
-        u64::MAX
-    } else {
-        DEFAULT_RAYS
-    });
-    let bar = progress_bar(args.quiet, rays);
-    let config = ScheduleConfig {
-        rays,
-        seed: args.seed,
-        unshot_threshold: args.unshot_threshold,
-        ambient: args.ambient,
-        first_pass_rays: None,
-    };
+    let config = args.schedule_config();
+    let rays = config.rays;
+    let method = args.method();
+    // The reference solver runs to its accuracy target: no budget, no deadline.
+    let deterministic = method.kind() == Kind::Deterministic;
+    if deterministic && (args.rays.is_some() || args.time.is_some()) {
+        eprintln!(
+            "warning: --rays and --time do not apply to --method {method}; it runs to its accuracy target"
+        );
+    }
+    let deadline = if deterministic { None } else { args.time };
+    let bar = progress_bar(args.quiet, if deterministic { u64::MAX } else { rays });
     let start = Instant::now();
     let mut trace_error = None;
-    let Some(method) = args.method.schedule(args.split) else {
-        if args.rays.is_some() || args.time.is_some() {
-            eprintln!(
-                "warning: --rays and --time do not apply to --method reference; it runs to its accuracy target"
-            );
-        }
-        let solution = solve_reference(&mesh, &bvh, args.visibility_tolerance, &bar)?;
-        let seconds = start.elapsed().as_secs_f64();
-        return finish(
-            args,
-            threads,
-            &loaded,
-            &mesh,
-            &bvh,
-            &solution,
-            seconds,
-            setup_seconds,
-            &bar,
-        );
-    };
     let solution: Solution = schedule::run(method, &mesh, &bvh, &config, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         bar.set_position(step.rays.min(rays));
@@ -103,7 +74,7 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
             trace_error = Some(e);
             return ControlFlow::Break(());
         }
-        match args.time {
+        match deadline {
             // Stop when the next step, at the speed so far, would end after the deadline.
             Some(budget)
                 if seconds + step.next_rays as f64 * seconds / step.rays.max(1) as f64 > budget =>
@@ -127,35 +98,6 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         setup_seconds,
         &bar,
     )
-}
-
-/// The deterministic reference solution, as a one-step [`Solution`].
-fn solve_reference(
-    mesh: &Mesh,
-    bvh: &Bvh,
-    visibility_tolerance: f64,
-    bar: &ProgressBar,
-) -> Result<Solution> {
-    bar.set_length(mesh.patches().len() as u64);
-    bar.set_message("form-factor rows");
-    let done = std::sync::atomic::AtomicU64::new(0);
-    let config = mcrad_reference::ReferenceConfig {
-        visibility_tolerance,
-        ..Default::default()
-    };
-    let r = mcrad_reference::reference(mesh, bvh, &config, &|rows| {
-        let rows = done
-            .fetch_max(rows as u64, std::sync::atomic::Ordering::Relaxed)
-            .max(rows as u64);
-        bar.set_position(rows);
-    })?;
-    Ok(Solution {
-        estimate: r.estimate,
-        steps: r.stats.iterations as u32,
-        escaped_rays: 0,
-        unshot_fraction: 0.0,
-        stopped: false,
-    })
 }
 
 /// Writes the outputs of a finished solve and prints the summary.
@@ -183,7 +125,7 @@ fn finish(
         write_patch_csv(create(path)?, rows)?;
     }
     let run = RunStats {
-        method: args.method.name(args.split).into(),
+        method: args.method(),
         patches: mesh.patches().len(),
         rays: estimate.rays(),
         seconds,
@@ -193,7 +135,7 @@ fn finish(
         threads,
         escaped_rays: solution.escaped_rays,
         unshot_fraction: solution.unshot_fraction,
-        stop: if solution.stopped { "stopped" } else { "done" }.into(),
+        stop: solution.stop,
         setup_seconds,
     };
     if let Some(path) = &args.stats {

@@ -90,6 +90,10 @@ fn solve_cornell_box_writes_patches_stats_and_a_summary() {
         assert!(stats.get(key).is_some(), "stats lacks {key}: {stats}");
     }
     assert_eq!(stats["method"], "shoot");
+    assert!(
+        matches!(stats["stop"].as_str(), Some("converged" | "budget")),
+        "{stats}"
+    );
     assert_eq!(stats["patches"], 19);
     assert_eq!(stats["seed"], 7);
     assert_eq!(stats["threads"], 2);

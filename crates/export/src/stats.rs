@@ -1,6 +1,7 @@
 //! Run statistics as JSON.
 
 use crate::ExportError;
+use mcrad_mc_radiosity::{Method, StopReason};
 use serde::Serialize;
 use std::io::Write;
 
@@ -8,8 +9,9 @@ use std::io::Write;
 /// command-line contract; the rest extend it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunStats {
-    /// The method that ran (`shoot`, ...).
-    pub method: String,
+    /// The method that ran, written as its registry name ([`Method::name`]: `shoot`,
+    /// `two-pass-split`, ...).
+    pub method: Method,
     /// Number of patches solved for.
     pub patches: usize,
     /// Rays cast.
@@ -28,8 +30,10 @@ pub struct RunStats {
     pub escaped_rays: u64,
     /// Unshot power left at the end as a fraction of the emitted power (channels summed).
     pub unshot_fraction: f64,
-    /// Why the run ended (`converged`, `budget`, `stopped`).
-    pub stop: String,
+    /// Why the run ended, written as [`StopReason::name`]: `converged` (the accuracy target
+    /// was reached), `budget` (the ray budget was spent) or `stopped` (stopped early: a time
+    /// budget or an error target).
+    pub stop: StopReason,
     /// Seconds spent loading the scene, meshing and building the BVH.
     pub setup_seconds: f64,
 }
@@ -57,7 +61,7 @@ mod tests {
     #[test]
     fn contract_fields_are_present() {
         let s = RunStats {
-            method: "shoot".into(),
+            method: Method::TwoPassSplit,
             patches: 32,
             rays: 1000,
             seconds: 0.5,
@@ -67,7 +71,7 @@ mod tests {
             threads: 2,
             escaped_rays: 0,
             unshot_fraction: 0.01,
-            stop: "converged".into(),
+            stop: StopReason::BudgetSpent,
             setup_seconds: 0.1,
         };
         let mut buf = Vec::new();
@@ -85,7 +89,8 @@ mod tests {
         ] {
             assert!(v.get(key).is_some(), "missing {key}");
         }
-        assert_eq!(v["method"], "shoot");
+        assert_eq!(v["method"], "two-pass-split");
+        assert_eq!(v["stop"], "budget");
         assert_eq!(v["rays"], 1000);
     }
 }

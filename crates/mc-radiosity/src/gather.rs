@@ -66,8 +66,8 @@
 //! number of threads. A schedule must give every round it wants independent of the others its
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
+use crate::method::StopReason;
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
-use crate::shoot::StopReason;
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::{Estimate, EstimateError};

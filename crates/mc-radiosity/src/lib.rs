@@ -18,8 +18,11 @@
 //! - [`ambient`](ambient()) and [`with_ambient`] ([`ambient`](mod@ambient)): Cohen et al.'s
 //!   ambient term for the power a shooting run left unshot (section 3.1).
 //! - [`schedule`]: the methods behind one interface — single-pass shooting, gathering and
-//!   two-pass, and the progressive Algorithms 1-3 — handing each complete intermediate solution
-//!   to an observer that may stop the run.
+//!   two-pass, the progressive Algorithms 1-4, bidirectional and the deterministic reference —
+//!   handing each complete intermediate solution to an observer that may stop the run.
+//! - [`method`]: the registry of those methods, one entry each ([`Method`]): names, metadata
+//!   and the dispatch of [`schedule::run`]; clap's `ValueEnum` with feature `clap`, serde's
+//!   `Serialize` (of [`Method`] and [`StopReason`]) with feature `serde`.
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`mcrad_random::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
@@ -28,6 +31,7 @@
 pub mod ambient;
 pub mod direct;
 pub mod gather;
+pub mod method;
 pub mod sampling;
 pub mod schedule;
 mod shoot;
@@ -39,5 +43,7 @@ pub use gather::{
     CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
     Gathering, gather, gather_corners, gather_round, gather_round_from,
 };
-pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
+pub use method::{Kind, Method, StopReason, UnknownMethod};
+pub use schedule::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD};
+pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, shoot};
 pub use surface::SurfaceSampler;

@@ -15,74 +15,23 @@ use mcrad_combine::{Estimate, EstimateError, Rule, merge};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
+use mcrad_reference::{ReferenceConfig, ReferenceError};
 use std::ops::ControlFlow;
 
-mod bidirectional;
-mod combined;
+pub(crate) mod bidirectional;
+pub(crate) mod combined;
+pub(crate) mod reference;
 
-/// The solution methods a schedule can run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Method {
-    /// Stochastic shooting (section 1.3); a step is a wave.
-    Shoot,
-    /// Jacobi gathering (section 1.4) from `B = E`; a step is a round.
-    Gather,
-    /// Two-pass (section 1.5): shooting with half the budget, then one gathering round from it
-    /// with the other half.
-    TwoPass,
-    /// Two-pass with Shirley's direct/indirect split: the second half computes direct light by
-    /// sampling the emitters with shadow rays and gathers only the indirect light.
-    TwoPassSplit,
-    /// Progressive ray refinement (Algorithm 1): complete shooting passes with doubling rays
-    /// (halving energy per ray), merged with weights proportional to their rays, i.e.
-    /// inversely proportional to their energy per ray.
-    Prr,
-    /// Progressive gathering (Algorithm 2): one shooting solution (a quarter of the budget),
-    /// then gathering rounds from it with doubling rays per patch, merged by rays per patch.
-    ProgressiveGather,
-    /// Progressive two-pass (Algorithm 3): shooting refined pass by pass as in PRR, each
-    /// refinement regathered with doubling rays per patch; gathers merged by rays per patch.
-    ProgressiveTwoPass,
-    /// Iterative combined shooting and gathering (Algorithm 4): each pass shoots (merged as in
-    /// PRR), gathers from the current combination with the direct/indirect split (merged by
-    /// rays), and combines the two per patch and channel by inverse variance, the shooting
-    /// share of the next pass chosen to minimise the expected error (see `combined.rs`).
-    Combined,
-    /// RenderPark's alternative to [`Method::Combined`]: every ray used for both shooting and
-    /// gathering, weighted by the balance heuristic (bidirectional stochastic Jacobi steps from
-    /// the solution so far, merged by rays; see `bidirectional.rs`).
-    Bidirectional,
-}
+pub use crate::method::{Kind, Method, StopReason};
 
-impl Method {
-    /// Every method, in the order experiments list them.
-    pub const ALL: [Method; 9] = [
-        Method::Shoot,
-        Method::Gather,
-        Method::TwoPass,
-        Method::TwoPassSplit,
-        Method::Prr,
-        Method::ProgressiveGather,
-        Method::ProgressiveTwoPass,
-        Method::Combined,
-        Method::Bidirectional,
-    ];
+/// The default ray budget of a run: two million rays over all passes.
+pub const DEFAULT_RAYS: u64 = 2_000_000;
 
-    /// The name used on the command line and in statistics.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Shoot => "shoot",
-            Method::Gather => "gather",
-            Method::TwoPass => "two-pass",
-            Method::TwoPassSplit => "two-pass-split",
-            Method::Prr => "prr",
-            Method::ProgressiveGather => "progressive-gather",
-            Method::ProgressiveTwoPass => "progressive-two-pass",
-            Method::Combined => "combined",
-            Method::Bidirectional => "bidirectional",
-        }
-    }
-}
+/// The default unshot threshold: shooting stops once the power left unshot is at most this
+/// fraction of the emitted power. That power is missing from the answer (a bias of about this
+/// fraction, lower in proportion), so the default is small and a run normally spends its
+/// budget; the paper's `0.01` stops sooner with a bias of about 1%.
+pub const DEFAULT_UNSHOT_THRESHOLD: f64 = 1e-4;
 
 /// Settings shared by the schedules.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,16 +47,22 @@ pub struct ScheduleConfig {
     /// Rays of the first pass of a progressive method; `None`: the budget / 63 (six doubling
     /// passes fill the budget), or 100 000 without a budget.
     pub first_pass_rays: Option<u64>,
+    /// The reference solver's settings ([`Method::Reference`] only: accuracy targets and the
+    /// patch limit).
+    pub reference: ReferenceConfig,
 }
 
 impl Default for ScheduleConfig {
+    /// The command line's defaults: [`DEFAULT_RAYS`], seed 0, [`DEFAULT_UNSHOT_THRESHOLD`], no
+    /// ambient term, first pass from the budget, the reference solver's defaults.
     fn default() -> Self {
         ScheduleConfig {
-            rays: 2_000_000,
+            rays: DEFAULT_RAYS,
             seed: 0,
-            unshot_threshold: 0.01,
+            unshot_threshold: DEFAULT_UNSHOT_THRESHOLD,
             ambient: false,
             first_pass_rays: None,
+            reference: ReferenceConfig::default(),
         }
     }
 }
@@ -137,8 +92,8 @@ pub struct Solution {
     pub escaped_rays: u64,
     /// Unshot power left by the last shooting pass, as a fraction of the emitted power.
     pub unshot_fraction: f64,
-    /// True when the observer stopped the run.
-    pub stopped: bool,
+    /// Why the run ended.
+    pub stop: StopReason,
 }
 
 /// Why a schedule failed.
@@ -156,6 +111,9 @@ pub enum ScheduleError {
     /// Estimates could not be merged.
     #[error(transparent)]
     Merge(#[from] EstimateError),
+    /// The reference solver refused or failed.
+    #[error(transparent)]
+    Reference(#[from] ReferenceError),
     /// No step could run: the budget is smaller than one pass.
     #[error("the ray budget of {0} rays is too small for one pass of this method")]
     BudgetTooSmall(u64),
@@ -172,17 +130,7 @@ pub fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
-    match method {
-        Method::Shoot => run_shoot(mesh, caster, config, observer),
-        Method::Gather => run_gather(mesh, caster, config, observer),
-        Method::TwoPass => run_two_pass(mesh, caster, config, false, observer),
-        Method::TwoPassSplit => run_two_pass(mesh, caster, config, true, observer),
-        Method::Prr => run_prr(mesh, caster, config, observer),
-        Method::ProgressiveGather => run_progressive_gather(mesh, caster, config, observer),
-        Method::ProgressiveTwoPass => run_progressive_two_pass(mesh, caster, config, observer),
-        Method::Combined => combined::run_combined(mesh, caster, config, observer),
-        Method::Bidirectional => bidirectional::run_bidirectional(mesh, caster, config, observer),
-    }
+    method.dispatch(mesh, caster, config, observer)
 }
 
 fn shoot_config(config: &ScheduleConfig, rays: u64, seed: u64) -> ShootConfig {
@@ -199,7 +147,7 @@ fn unshot_fraction(s: &Shooting) -> f64 {
 }
 
 /// Plain shooting: one pass, a step per wave.
-fn run_shoot<C: RayCaster>(
+pub(crate) fn run_shoot<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
@@ -220,7 +168,7 @@ fn run_shoot<C: RayCaster>(
             })
         },
     )?;
-    let stopped = s.stats.stop == crate::StopReason::Stopped;
+    let stop = s.stats.stop;
     let unshot_fraction = unshot_fraction(&s);
     let escaped_rays = s.stats.escaped_rays;
     Ok(Solution {
@@ -228,7 +176,7 @@ fn run_shoot<C: RayCaster>(
         steps,
         escaped_rays,
         unshot_fraction,
-        stopped,
+        stop,
     })
 }
 
@@ -267,7 +215,7 @@ fn accumulate(
 }
 
 /// Jacobi gathering: a step per round.
-fn run_gather<C: RayCaster>(
+pub(crate) fn run_gather<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
@@ -294,13 +242,12 @@ fn run_gather<C: RayCaster>(
             radiosity: p.radiosity,
         })
     })?;
-    let stopped = g.stats.stop == crate::StopReason::Stopped;
     Ok(Solution {
         estimate: g.estimate,
         steps: g.rounds,
         escaped_rays: g.stats.escaped_rays,
         unshot_fraction: 0.0,
-        stopped,
+        stop: g.stats.stop,
     })
 }
 
@@ -361,6 +308,36 @@ impl Iterator for Doubling {
     }
 }
 
+/// [`StopReason::Stopped`] if the observer stopped the run, else [`StopReason::BudgetSpent`]:
+/// the end of a method that runs until its budget is spent.
+fn budget_or_stopped(stopped: bool) -> StopReason {
+    if stopped {
+        StopReason::Stopped
+    } else {
+        StopReason::BudgetSpent
+    }
+}
+
+/// [`Method::TwoPass`]: [`run_two_pass`] gathering everything.
+pub(crate) fn run_two_pass_plain<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    run_two_pass(mesh, caster, config, false, observer)
+}
+
+/// [`Method::TwoPassSplit`]: [`run_two_pass`] with the direct/indirect split.
+pub(crate) fn run_two_pass_split<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    run_two_pass(mesh, caster, config, true, observer)
+}
+
 /// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
 /// split) from it with the other half. Two steps.
 fn run_two_pass<C: RayCaster>(
@@ -398,7 +375,7 @@ fn run_two_pass<C: RayCaster>(
             steps: 1,
             escaped_rays,
             unshot_fraction: unshot,
-            stopped: true,
+            stop: StopReason::Stopped,
         });
     }
     let sampler = SurfaceSampler::new(mesh);
@@ -444,7 +421,7 @@ fn run_two_pass<C: RayCaster>(
         steps: 2,
         escaped_rays,
         unshot_fraction: unshot,
-        stopped,
+        stop: budget_or_stopped(stopped),
     })
 }
 
@@ -527,13 +504,13 @@ impl Progressive {
             steps: self.steps,
             escaped_rays: self.escaped_rays,
             unshot_fraction: self.unshot_fraction,
-            stopped: self.stopped,
+            stop: budget_or_stopped(self.stopped),
         })
     }
 }
 
 /// Algorithm 2: progressive gathering from one shooting solution.
-fn run_progressive_gather<C: RayCaster>(
+pub(crate) fn run_progressive_gather<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
@@ -592,7 +569,7 @@ fn run_progressive_gather<C: RayCaster>(
 
 /// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
 /// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
-fn run_progressive_two_pass<C: RayCaster>(
+pub(crate) fn run_progressive_two_pass<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
@@ -633,7 +610,7 @@ fn run_progressive_two_pass<C: RayCaster>(
 }
 
 /// Algorithm 1: progressive ray refinement.
-fn run_prr<C: RayCaster>(
+pub(crate) fn run_prr<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,

@@ -32,6 +32,7 @@
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
 
+use crate::method::StopReason;
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
@@ -82,17 +83,6 @@ pub enum ShootError {
     /// The mesh has more patches than hit records can name.
     #[error("{0} patches are more than the shooter can address (2^31)")]
     TooManyPatches(usize),
-}
-
-/// Why a run ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StopReason {
-    /// The unshot power fell below the threshold.
-    Converged,
-    /// The ray budget was spent.
-    BudgetSpent,
-    /// The observer asked to stop.
-    Stopped,
 }
 
 /// What the observer sees after each wave.

@@ -14,6 +14,18 @@ pub enum Subdivision {
     MaxEdge(f32),
 }
 
+/// The default patch size as a fraction of the scene's size: no patch edge longer than the
+/// bounding-box diagonal / 20 ([`Subdivision::default_for`]).
+pub const DEFAULT_MAX_EDGE_FRACTION: f32 = 1.0 / 20.0;
+
+impl Subdivision {
+    /// The default subdivision of `scene`: [`Subdivision::MaxEdge`] of
+    /// [`DEFAULT_MAX_EDGE_FRACTION`] times its bounding-box diagonal (scene units).
+    pub fn default_for(scene: &Scene) -> Subdivision {
+        Subdivision::MaxEdge(scene.bounds().diagonal() as f32 * DEFAULT_MAX_EDGE_FRACTION)
+    }
+}
+
 /// Why a mesh could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MeshError {

@@ -17,7 +17,7 @@ mod build;
 mod smooth;
 mod subdivide;
 
-pub use build::{Mesh, MeshError, Patch, Subdivision};
+pub use build::{DEFAULT_MAX_EDGE_FRACTION, Mesh, MeshError, Patch, Subdivision};
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 
 #[cfg(test)]

@@ -1,27 +1,32 @@
 //! Measuring one method on one scene with one seed: a curve of (seconds, rays, rms_rel) points.
 //!
-//! Two ways, by what a method's intermediate solutions are:
-//! - **progressive** (`prr`, `progressive-two-pass`, `combined`, `bidirectional`): every step
-//!   is a complete solution of all the rays so far, so one unbounded run (passes doubling from
-//!   `first` rays) gives the curve: one point per step, time from the start of the run.
-//! - **ladder** (every other method, and any method added later): a step of `shoot` is a wave
-//!   (not a converged solution until the last), `gather` iterates from `B = E`, and the
-//!   two-pass methods and `progressive-gather` size their parts from the budget. So each point
-//!   is a separate run with budget `first × 2^k`, and its final (time, error).
+//! Two ways, by the method's [`Kind`] in the registry:
+//! - **progressive** ([`Kind::Progressive`]: `prr`, `progressive-two-pass`, `combined`,
+//!   `bidirectional`): every step is a complete solution of all the rays so far, so one
+//!   unbounded run (passes doubling from `first` rays) gives the curve: one point per step, time
+//!   from the start of the run.
+//! - **ladder** ([`Kind::Budgeted`]): a step of `shoot` is a wave (not a converged solution
+//!   until the last), `gather` iterates from `B = E`, and the two-pass methods and
+//!   `progressive-gather` size their parts from the budget. So each point is a separate run
+//!   with budget `first × 2^k`, and its final (time, error).
+//!
+//! The deterministic reference ([`Kind::Deterministic`]) is what the curves are measured
+//! against, not a curve ([`Method::monte_carlo`]).
 //!
 //! Either way the curve stops at the first point below the target error, or before a point
 //! predicted to end after the time limit (a ladder rung takes about twice the previous one).
 
 use mcrad_lab::trace::Reference;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::schedule::{DEFAULT_UNSHOT_THRESHOLD, Kind, Method, ScheduleConfig, run};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-/// Shooting stops below this fraction of the emitted power unshot. The CLI's default (1e-2)
-/// leaves a bias of the order of 1% rms_rel, which would floor every shooting-based curve.
-pub const UNSHOT_THRESHOLD: f64 = 1e-4;
+/// Shooting stops below this fraction of the emitted power unshot: the library's and the CLI's
+/// default. The paper's 1e-2 would leave a bias of the order of 1% rms_rel, which would floor
+/// every shooting-based curve.
+pub const UNSHOT_THRESHOLD: f64 = DEFAULT_UNSHOT_THRESHOLD;
 
 /// One measured solution.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -75,12 +80,9 @@ impl<'a> Problem<'a> {
     }
 }
 
-/// True for the methods measured by one unbounded run.
+/// True for the methods measured by one unbounded run (the registry's [`Kind::Progressive`]).
 pub fn progressive(method: Method) -> bool {
-    matches!(
-        method,
-        Method::Prr | Method::ProgressiveTwoPass | Method::Combined | Method::Bidirectional
-    )
+    method.kind() == Kind::Progressive
 }
 
 fn config(rays: u64, seed: u64, first: Option<u64>) -> ScheduleConfig {
@@ -90,6 +92,7 @@ fn config(rays: u64, seed: u64, first: Option<u64>) -> ScheduleConfig {
         unshot_threshold: UNSHOT_THRESHOLD,
         ambient: false,
         first_pass_rays: first,
+        ..Default::default()
     }
 }
 

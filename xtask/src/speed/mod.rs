@@ -1,5 +1,5 @@
 //! `cargo xtask experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-//! [--time S] [--out DIR]`: every method of `Method::ALL` on every experiment scene
+//! [--time S] [--out DIR]`: every Monte Carlo method of the registry (`Method::monte_carlo`) on every experiment scene
 //! ([`scenes::SCENES`]), several seeds, error (`rms_rel` against the scene's reference solution)
 //! against wall-clock time.
 //!
@@ -55,7 +55,7 @@ impl Options {
                 max_points: 24,
             },
             scenes: scenes::SCENES.iter().collect(),
-            methods: Method::ALL.to_vec(),
+            methods: Method::monte_carlo().collect(),
             out: root.join(if quick {
                 "target/speed-vs-error-quick"
             } else {
@@ -85,10 +85,9 @@ impl Options {
                     o.methods = value()?
                         .split(',')
                         .map(|n| {
-                            Method::ALL
-                                .into_iter()
+                            Method::monte_carlo()
                                 .find(|m| m.name() == n)
-                                .with_context(|| format!("unknown method '{n}'"))
+                                .with_context(|| format!("unknown Monte Carlo method '{n}'"))
                         })
                         .collect::<Result<_>>()?;
                 }
@@ -247,7 +246,7 @@ mod tests {
                 max_points: 3,
             },
             scenes: vec![&TINY],
-            methods: Method::ALL.to_vec(),
+            methods: Method::monte_carlo().collect(),
             out: dir.path().to_path_buf(),
         };
         let result = measure_scene(&crate::root(), &TINY, &options).unwrap();
@@ -262,7 +261,7 @@ mod tests {
         write_outputs(&options, &[result], 0.0).unwrap();
         let csv = std::fs::read_to_string(dir.path().join("speed-vs-error.csv")).unwrap();
         let md = std::fs::read_to_string(dir.path().join("results.md")).unwrap();
-        for m in Method::ALL {
+        for m in Method::monte_carlo() {
             assert!(csv.contains(&format!("cornell-faces,{},1,", m.name())));
             assert!(md.contains(&format!("| `{}` |", m.name())), "{md}");
         }
@@ -281,6 +280,7 @@ mod tests {
         assert_eq!((o.seeds, o.scenes.len(), o.methods.len()), (1, 1, 2));
         assert!(Options::parse(&root, &args("--scenes nowhere")).is_err());
         assert!(Options::parse(&root, &args("--methods teleport")).is_err());
+        assert!(Options::parse(&root, &args("--methods reference")).is_err());
         assert!(Options::parse(&root, &args("--seeds")).is_err());
     }
 }

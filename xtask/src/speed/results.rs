@@ -26,8 +26,8 @@ pub fn markdown(options: &Options, results: &[SceneResult], minutes: f64) -> Str
            curve the median with a band from the smallest to the largest error over the seeds.\n\
          - Time: from the call of `schedule::run` to the solution, so meshing and BVH build are \
            excluded (they are in the scene table); measuring the error is excluded too.\n\
-         - Shooting stops at {UNSHOT_THRESHOLD:e} of the emitted power unshot (the CLI's \
-           default; the paper's 1e-2 leaves a bias of the order of 1% rms_rel); no ambient term.\n\
+         - Shooting stops at {UNSHOT_THRESHOLD:e} of the emitted power unshot (the default; \
+           the paper's 1e-2 leaves a bias of the order of 1% rms_rel); no ambient term.\n\
          - Progressive methods ({progressive_names}): one unbounded run per seed, a point \
            after every complete pass (passes double from 1e5 rays, or 50 per patch when more).\n\
          - Other methods ({ladder_names}): their intermediate steps are not converged solutions \

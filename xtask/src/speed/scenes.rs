@@ -241,6 +241,7 @@ fn shooting(loaded: &Loaded, rays: u64, seeds: [u64; 2]) -> Result<Vec<DVec3>> {
             unshot_threshold: 1e-5,
             ambient: false,
             first_pass_rays: None,
+            ..Default::default()
         };
         let s = run(
             Method::Shoot,

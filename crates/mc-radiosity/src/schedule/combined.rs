@@ -58,7 +58,7 @@ struct Shots {
 }
 
 /// Algorithm 4: see the [module documentation](self).
-pub(super) fn run_combined<C: RayCaster>(
+pub(crate) fn run_combined<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
