@@ -70,7 +70,7 @@ pub fn pooled_relative(group: &[usize], variance: &[DVec3], value: &[DVec3]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Estimate, Rule, merge};
+    use crate::{Estimate, InverseVariance, merge};
 
     /// A small deterministic generator (SplitMix64) for the tests' Poisson draws.
     struct Rng(u64);
@@ -114,7 +114,7 @@ mod tests {
             let m = merge(
                 &one(a, ha * xa * xa),
                 &one(b, hb * xb * xb),
-                Rule::InverseVariance,
+                &InverseVariance,
             )
             .unwrap();
             own += m.radiosity()[0].x;
@@ -132,7 +132,7 @@ mod tests {
                 DVec3::splat(xb),
                 DVec3::ONE,
             );
-            let m = merge(&one(a, va.x), &one(b, vb.x), Rule::InverseVariance).unwrap();
+            let m = merge(&one(a, va.x), &one(b, vb.x), &InverseVariance).unwrap();
             expected += m.radiosity()[0].x;
         }
         let (own, expected) = (own / trials as f64, expected / trials as f64);

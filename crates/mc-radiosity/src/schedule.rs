@@ -11,7 +11,7 @@ use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round_fr
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
-use mcrad_combine::{Estimate, EstimateError, Rule, merge};
+use mcrad_combine::{ByRays, Estimate, EstimateError, merge};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
@@ -254,15 +254,11 @@ fn per_patch(mesh: &Mesh, rays: u64) -> u32 {
     (rays / mesh.patches().len().max(1) as u64).clamp(2, u32::MAX as u64) as u32
 }
 
-/// Merges `next` into `acc` by `rule`.
-fn accumulate(
-    acc: Option<Estimate>,
-    next: Estimate,
-    rule: Rule,
-) -> Result<Estimate, ScheduleError> {
+/// Merges `next` into `acc` by their rays ([`ByRays`], the passes of Algorithms 1-3).
+fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, ScheduleError> {
     Ok(match acc {
         None => next,
-        Some(a) => merge(&a, &next, rule)?,
+        Some(a) => merge(&a, &next, &ByRays)?,
     })
 }
 
@@ -468,7 +464,7 @@ impl Progressive {
         next_rays: u64,
         observer: &mut Observer,
     ) -> Result<bool, ScheduleError> {
-        let merged = accumulate(self.merged.take(), estimate, Rule::ByWork)?;
+        let merged = accumulate(self.merged.take(), estimate)?;
         self.replace(merged, next_rays, observer)
     }
 
@@ -606,11 +602,7 @@ fn run_progressive_two_pass<C: RayCaster>(
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let s = run.shoot(mesh, caster, config, budget / 2, k)?;
-        let refined = accumulate(
-            shooting.take(),
-            with_ambient(mesh, config, s)?,
-            Rule::ByWork,
-        )?;
+        let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
         let seed = derive_seed(config.seed, GATHER_TAG + k);
         let r = gather_round_from(
             mesh,

@@ -9,9 +9,12 @@
 //!    pass), with the direct/indirect split: direct light by sampling the emitters, indirect
 //!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
 //!    (Algorithm 3) into the gathering estimate `G`.
-//! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with
-//!    `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights of two independent unbiased
-//!    estimates ([`Rule::InverseVariance`]).
+//! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
+//!    [`Weighting`]. The default ([`run_combined`], the registry's `combined`) is
+//!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
+//!    of two independent unbiased estimates, from the expected variances below;
+//!    [`run_combined_with`] takes any other weighting (it sees those expected variances in
+//!    its [`Operand`]s).
 //!
 //! **The variances.** Weights by the estimates' own sample variances bias the merge (they are
 //! computed from the samples they weight; see [`mcrad_combine::expected`], measured there at
@@ -40,7 +43,7 @@ use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
-use mcrad_combine::{Estimate, EstimateError, Rule, merge_weighted};
+use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
@@ -57,11 +60,25 @@ struct Shots {
     ray_power: DVec3,
 }
 
-/// Algorithm 4: see the [module documentation](self).
+/// Algorithm 4 with its default weighting, [`InverseExpectedVariance`]: see the
+/// [module documentation](self).
 pub(super) fn run_combined<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, ScheduleError> {
+    run_combined_with(mesh, caster, config, &InverseExpectedVariance, observer)
+}
+
+/// Algorithm 4 merging shooting and gathering with `weighting` (per patch and channel; each
+/// operand carries its expected variance, [`Operand::expected`]). The budget split
+/// ([`best_share`]) still models inverse-variance weights.
+pub(super) fn run_combined_with<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    weighting: &dyn Weighting,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     let patches = mesh.patches();
@@ -107,7 +124,7 @@ pub(super) fn run_combined<C: RayCaster>(
             Some(old) => {
                 let w = pass_rays as f64 / shot_rays as f64;
                 Shots {
-                    merged: accumulate(Some(old.merged), s.estimate, Rule::ByWork)?,
+                    merged: accumulate(Some(old.merged), s.estimate)?,
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
                 }
             }
@@ -133,8 +150,8 @@ pub(super) fn run_combined<C: RayCaster>(
         )?;
         gather_rays += g.rays();
         run.rays += g.rays();
-        let g = accumulate(gathered.take(), g, Rule::ByWork)?;
-        let c = combine(mesh, shots_now, &g, run.merged.as_ref())?;
+        let g = accumulate(gathered.take(), g)?;
+        let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
         gathered = Some(g);
         if !run.replace(c, passes.peek(), observer)? {
             break;
@@ -196,7 +213,7 @@ fn gathering_variance(
     Ok(face.iter().zip(r).map(|(f, r)| k[*f] * *r * *r).collect())
 }
 
-/// `S` and `G` merged by inverse variance, weighted by their expected variances at the
+/// `S` and `G` merged by `weighting`, each operand carrying its expected variance at the
 /// reflected radiosity of `previous` (the last combination; `S` in the first pass); the
 /// variance reported is the merge's with the estimates' own variances.
 fn combine(
@@ -204,13 +221,17 @@ fn combine(
     shots: &Shots,
     gathered: &Estimate,
     previous: Option<&Estimate>,
+    weighting: &dyn Weighting,
 ) -> Result<Estimate, ScheduleError> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
-    Ok(merge_weighted(
-        &shots.merged,
-        gathered,
-        &shooting_variance(mesh, shots, &r)?,
-        &gathering_variance(mesh, gathered, &r)?,
+    let (vs, vg) = (
+        shooting_variance(mesh, shots, &r)?,
+        gathering_variance(mesh, gathered, &r)?,
+    );
+    Ok(merge(
+        Operand::with_expected(&shots.merged, &vs),
+        Operand::with_expected(gathered, &vg),
+        weighting,
     )?)
 }
 
