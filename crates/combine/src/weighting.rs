@@ -138,7 +138,7 @@ fn check_len(v: &[DVec3], of: &Estimate) -> Result<(), EstimateError> {
     Ok(())
 }
 
-/// Inverse-variance weights ([`inverse`]'s rule, `w_a = V_b / (V_a + V_b)`) from the
+/// Inverse-variance weights (`w_a = V_b / (V_a + V_b)`, `1/2` by rays where both are zero) from the
 /// estimates' *own* (estimated, sample) variances. Minimum variance when the variances are
 /// exact; with sample variances correlated with the values it biases the merge (see
 /// [`crate::expected`]) — [`InverseExpectedVariance`] is the unbiased alternative.
