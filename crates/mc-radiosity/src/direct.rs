@@ -55,9 +55,8 @@
 //! Either way `D_i = rho_i mean(f)` over the patch's `n` samples, with variance `rho_i² s² / n`,
 //! `s²` the sample variance of `f`.
 
-use crate::gather::{
-    DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round_from, jobs,
-};
+use crate::gather::{Emission, GatherError, check_input, gather_round_from};
+use crate::jobs::{DIRECT_LIGHT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};

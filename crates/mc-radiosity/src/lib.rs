@@ -28,6 +28,7 @@
 pub mod ambient;
 pub mod direct;
 pub mod gather;
+mod jobs;
 pub mod sampling;
 pub mod schedule;
 mod shoot;

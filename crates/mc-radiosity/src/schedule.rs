@@ -6,10 +6,8 @@
 //! solution, never a half-finished pass. The merge rules live in `combine`.
 
 use crate::ambient::AmbientError;
-use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round_from};
+use crate::gather::GatherError;
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
-use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::{ByRays, Estimate, EstimateError, merge};
 use mcrad_meshing::Mesh;
@@ -19,6 +17,13 @@ use std::ops::ControlFlow;
 
 mod bidirectional;
 mod combined;
+mod gather;
+mod progressive_gather;
+mod progressive_two_pass;
+mod prr;
+mod shoot;
+mod two_pass;
+mod two_pass_split;
 
 /// The solution methods a schedule can run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -173,15 +178,15 @@ pub fn run<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
     match method {
-        Method::Shoot => run_shoot(mesh, caster, config, observer),
-        Method::Gather => run_gather(mesh, caster, config, observer),
-        Method::TwoPass => run_two_pass(mesh, caster, config, false, observer),
-        Method::TwoPassSplit => run_two_pass(mesh, caster, config, true, observer),
-        Method::Prr => run_prr(mesh, caster, config, observer),
-        Method::ProgressiveGather => run_progressive_gather(mesh, caster, config, observer),
-        Method::ProgressiveTwoPass => run_progressive_two_pass(mesh, caster, config, observer),
-        Method::Combined => combined::run_combined(mesh, caster, config, observer),
-        Method::Bidirectional => bidirectional::run_bidirectional(mesh, caster, config, observer),
+        Method::Shoot => shoot::run(mesh, caster, config, observer),
+        Method::Gather => gather::run(mesh, caster, config, observer),
+        Method::TwoPass => two_pass::run(mesh, caster, config, observer),
+        Method::TwoPassSplit => two_pass_split::run(mesh, caster, config, observer),
+        Method::Prr => prr::run(mesh, caster, config, observer),
+        Method::ProgressiveGather => progressive_gather::run(mesh, caster, config, observer),
+        Method::ProgressiveTwoPass => progressive_two_pass::run(mesh, caster, config, observer),
+        Method::Combined => combined::run(mesh, caster, config, observer),
+        Method::Bidirectional => bidirectional::run(mesh, caster, config, observer),
     }
 }
 
@@ -196,40 +201,6 @@ fn shoot_config(config: &ScheduleConfig, rays: u64, seed: u64) -> ShootConfig {
 fn unshot_fraction(s: &Shooting) -> f64 {
     let t = |x: DVec3| x.x + x.y + x.z;
     t(s.stats.unshot) / t(s.stats.emitted)
-}
-
-/// Plain shooting: one pass, a step per wave.
-fn run_shoot<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let mut steps = 0;
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, config.rays, config.seed),
-        &mut |p| {
-            steps = p.waves;
-            observer(&Step {
-                index: p.waves,
-                rays: p.rays,
-                next_rays: p.budget.saturating_sub(p.rays),
-                radiosity: p.radiosity,
-            })
-        },
-    )?;
-    let stopped = s.stats.stop == crate::StopReason::Stopped;
-    let unshot_fraction = unshot_fraction(&s);
-    let escaped_rays = s.stats.escaped_rays;
-    Ok(Solution {
-        estimate: with_ambient(mesh, config, s)?,
-        steps,
-        escaped_rays,
-        unshot_fraction,
-        stopped,
-    })
 }
 
 /// The shooting estimate, with the ambient term (its unshot power spread as
@@ -259,44 +230,6 @@ fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, Schedul
     Ok(match acc {
         None => next,
         Some(a) => merge(&a, &next, &ByRays)?,
-    })
-}
-
-/// Jacobi gathering: a step per round.
-fn run_gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
-    let rays_per_patch = if config.rays == u64::MAX {
-        256
-    } else {
-        per_patch(mesh, config.rays / 10)
-    };
-    let gather_config = GatherConfig {
-        rays: config.rays,
-        rays_per_patch,
-        threshold: 1e-3,
-        seed: config.seed,
-    };
-    let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
-    let g = gather(mesh, caster, &gather_config, &mut |p| {
-        observer(&Step {
-            index: p.rounds,
-            rays: p.rays,
-            next_rays: per_round.min(p.budget - p.rays),
-            radiosity: p.radiosity,
-        })
-    })?;
-    let stopped = g.stats.stop == crate::StopReason::Stopped;
-    Ok(Solution {
-        estimate: g.estimate,
-        steps: g.rounds,
-        escaped_rays: g.stats.escaped_rays,
-        unshot_fraction: 0.0,
-        stopped,
     })
 }
 
@@ -355,93 +288,6 @@ impl Iterator for Doubling {
         self.next = self.next.saturating_mul(2);
         Some(n)
     }
-}
-
-/// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
-/// split) from it with the other half. Two steps.
-fn run_two_pass<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    split: bool,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let budget = if config.rays == u64::MAX {
-        2_000_000
-    } else {
-        config.rays
-    };
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
-        &mut |_| ControlFlow::Continue(()),
-    )?;
-    let (shot_rays, mut escaped_rays, unshot) =
-        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
-    let shooting = with_ambient(mesh, config, s)?;
-    let gather_budget = budget.saturating_sub(shot_rays);
-    if observer(&Step {
-        index: 1,
-        rays: shot_rays,
-        next_rays: gather_budget,
-        radiosity: shooting.radiosity(),
-    })
-    .is_break()
-    {
-        return Ok(Solution {
-            estimate: shooting,
-            steps: 1,
-            escaped_rays,
-            unshot_fraction: unshot,
-            stopped: true,
-        });
-    }
-    let sampler = SurfaceSampler::new(mesh);
-    let seed = derive_seed(config.seed, GATHER_TAG);
-    let gathered = if split {
-        // Direct samples cost two rays each (an emitter sample and a cosine ray).
-        let split = SplitConfig {
-            rays_per_patch: per_patch(mesh, gather_budget / 2),
-            samples_per_patch: per_patch(mesh, gather_budget / 4),
-            sampling: DirectSampling::EmittersAndCosine,
-        };
-        two_pass_split(mesh, &sampler, caster, &shooting, &split, seed, 0)?
-    } else {
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &shooting,
-            Emission::Include,
-            per_patch(mesh, gather_budget),
-            seed,
-            0,
-        )?;
-        escaped_rays += r.escaped_rays;
-        r.estimate
-    };
-    // The answer's work is everything it took: the shooting and the gathering.
-    let rays = shot_rays + gathered.rays();
-    let estimate = Estimate::new(
-        gathered.radiosity().to_vec(),
-        gathered.variance().map(<[DVec3]>::to_vec),
-        rays,
-    )?;
-    let stopped = observer(&Step {
-        index: 2,
-        rays,
-        next_rays: 0,
-        radiosity: estimate.radiosity(),
-    })
-    .is_break();
-    Ok(Solution {
-        estimate,
-        steps: 2,
-        escaped_rays,
-        unshot_fraction: unshot,
-        stopped,
-    })
 }
 
 /// The bookkeeping of a progressive schedule: the merged solution so far and the counters.
@@ -526,120 +372,6 @@ impl Progressive {
             stopped: self.stopped,
         })
     }
-}
-
-/// Algorithm 2: progressive gathering from one shooting solution.
-fn run_progressive_gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let shoot_budget = if config.rays == u64::MAX {
-        1_000_000
-    } else {
-        config.rays / 4
-    };
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
-        &mut |_| ControlFlow::Continue(()),
-    )?;
-    let mut run = Progressive {
-        rays: s.stats.rays,
-        escaped_rays: s.stats.escaped_rays,
-        unshot_fraction: unshot_fraction(&s),
-        ..Default::default()
-    };
-    let shooting = with_ambient(mesh, config, s)?;
-    let sampler = SurfaceSampler::new(mesh);
-    let rest = config.rays.saturating_sub(run.rays);
-    let min_pass = 2 * mesh.patches().len() as u64;
-    let first =
-        config
-            .first_pass_rays
-            .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 });
-    let mut passes = Doubling::new(&ScheduleConfig {
-        rays: rest,
-        first_pass_rays: Some(first.max(min_pass)),
-        ..config.clone()
-    });
-    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
-        let seed = derive_seed(config.seed, GATHER_TAG + run.steps as u64);
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &shooting,
-            Emission::Include,
-            per_patch(mesh, budget),
-            seed,
-            0,
-        )?;
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
-}
-
-/// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
-/// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
-fn run_progressive_two_pass<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let min_pass = 4 * mesh.patches().len() as u64;
-    let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
-    let mut shooting: Option<Estimate> = None;
-    let mut run = Progressive::default();
-    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
-        let k = run.steps as u64;
-        let s = run.shoot(mesh, caster, config, budget / 2, k)?;
-        let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
-        let seed = derive_seed(config.seed, GATHER_TAG + k);
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &refined,
-            Emission::Include,
-            per_patch(mesh, budget / 2),
-            seed,
-            0,
-        )?;
-        shooting = Some(refined);
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
-}
-
-/// Algorithm 1: progressive ray refinement.
-fn run_prr<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let mut passes = Doubling::new(config);
-    let mut run = Progressive::default();
-    while let Some(budget) = passes.next() {
-        let s = run.shoot(mesh, caster, config, budget, run.steps as u64)?;
-        if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
 }
 
 #[cfg(test)]

@@ -46,7 +46,7 @@ const NOTHING: u32 = u32::MAX;
 const ALLOCATE: u64 = 0;
 
 /// The bidirectional schedule: see the [module documentation](self).
-pub(super) fn run_bidirectional<C: RayCaster>(
+pub(crate) fn run<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,

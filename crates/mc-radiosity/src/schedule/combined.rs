@@ -10,10 +10,10 @@
 //!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
 //!    (Algorithm 3) into the gathering estimate `G`.
 //! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
-//!    [`Weighting`]. The default ([`run_combined`], the registry's `combined`) is
+//!    [`Weighting`]. The default ([`run`], the registry's `combined`) is
 //!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
 //!    of two independent unbiased estimates, from the expected variances below;
-//!    [`run_combined_with`] takes any other weighting (it sees those expected variances in
+//!    [`run_with`] takes any other weighting (it sees those expected variances in
 //!    its [`Operand`]s).
 //!
 //! **The variances.** Weights by the estimates' own sample variances bias the merge (they are
@@ -62,19 +62,19 @@ struct Shots {
 
 /// Algorithm 4 with its default weighting, [`InverseExpectedVariance`]: see the
 /// [module documentation](self).
-pub(super) fn run_combined<C: RayCaster>(
+pub(crate) fn run<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
-    run_combined_with(mesh, caster, config, &InverseExpectedVariance, observer)
+    run_with(mesh, caster, config, &InverseExpectedVariance, observer)
 }
 
 /// Algorithm 4 merging shooting and gathering with `weighting` (per patch and channel; each
 /// operand carries its expected variance, [`Operand::expected`]). The budget split
 /// ([`best_share`]) still models inverse-variance weights.
-pub(super) fn run_combined_with<C: RayCaster>(
+pub(crate) fn run_with<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
@@ -87,7 +87,7 @@ pub(super) fn run_combined_with<C: RayCaster>(
     let min_pass = 8 * patches.len() as u64;
     if config.rays < min_pass {
         // Too few rays to gather at every patch even once: shooting alone is the best use.
-        return super::run_shoot(mesh, caster, config, observer);
+        return super::shoot::run(mesh, caster, config, observer);
     }
     let mut passes = Doubling::at_least(config, min_pass);
     let sampler = SurfaceSampler::new(mesh);
