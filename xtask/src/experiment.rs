@@ -22,7 +22,8 @@ use glam::DVec3;
 use mcrad_combine::{Estimate, rms_rel};
 use mcrad_export::plot::{PlotSpec, Series, line_plot};
 use mcrad_mc_radiosity::{
-    Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
+    Context as Estimators, Emission, ShootConfig, Shooting, StreamKey, ambient, gather_round,
+    shoot, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
@@ -102,7 +103,6 @@ fn reflected(mesh: &Mesh, radiosity: &[DVec3]) -> f64 {
 struct Setup {
     mesh: Mesh,
     bvh: Bvh,
-    sampler: SurfaceSampler,
     exact: Vec<DVec3>,
     exact_reflected: f64,
     area: Vec<f64>,
@@ -110,16 +110,16 @@ struct Setup {
 }
 
 impl Setup {
+    /// What the estimators need of the scene.
+    fn ctx(&self) -> Estimators<'_, Bvh> {
+        Estimators::new(&self.mesh, &self.bvh)
+    }
+
     fn shoot(&self, config: &ShootConfig, stop_after: Option<u32>) -> Result<Shooting> {
-        Ok(shoot(
-            &self.mesh,
-            &self.bvh,
-            config,
-            &mut |p| match stop_after {
-                Some(k) if p.waves >= k => ControlFlow::Break(()),
-                _ => ControlFlow::Continue(()),
-            },
-        )?)
+        Ok(shoot(&self.ctx(), config, &mut |p| match stop_after {
+            Some(k) if p.waves >= k => ControlFlow::Break(()),
+            _ => ControlFlow::Continue(()),
+        })?)
     }
 
     /// Gathers once from `shooting` without and with the ambient term; two rows.
@@ -147,14 +147,11 @@ impl Setup {
             // snapshot, with and without the term (common random numbers), so the curves differ
             // by their input, not by the gathering's noise.
             let round = gather_round(
-                &self.mesh,
-                &self.sampler,
-                &self.bvh,
+                &self.ctx(),
                 input.radiosity(),
                 Emission::Include,
                 GATHER_RAYS,
-                seed,
-                0,
+                StreamKey::new(seed),
             )?;
             let b = round.estimate.radiosity();
             Ok(Row {
@@ -184,7 +181,6 @@ fn figure2(root: &Path) -> Result<()> {
     let reference = reference(&mesh, &bvh, &ReferenceConfig::default(), &|_| {})?;
     let exact = reference.estimate.radiosity().to_vec();
     let setup = Setup {
-        sampler: SurfaceSampler::new(&mesh),
         exact_reflected: reflected(&mesh, &exact),
         area: mesh.patches().iter().map(|p| p.area).collect(),
         emission: mesh

@@ -55,14 +55,15 @@
 //! Either way `D_i = rho_i mean(f)` over the patch's `n` samples, with variance `rho_i² s² / n`,
 //! `s²` the sample variance of `f`.
 
+use crate::context::Context;
 use crate::gather::{Emission, GatherError, check_input, gather_round_from};
 use crate::jobs::{DIRECT_LIGHT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
-use mcrad_meshing::{Mesh, Patch};
-use mcrad_random::Stream;
+use mcrad_meshing::Patch;
+use mcrad_random::{Stream, StreamKey};
 use mcrad_raycast::{NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};
@@ -104,14 +105,12 @@ pub struct DirectLight {
 ///
 /// Errors: `samples_per_patch < 2`.
 pub fn direct<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     samples_per_patch: u32,
     sampling: DirectSampling,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<DirectLight, GatherError> {
+    let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     if samples_per_patch < 2 {
         return Err(GatherError::TooFewRays(samples_per_patch));
     }
@@ -120,11 +119,7 @@ pub fn direct<C: RayCaster>(
         return Err(GatherError::TooManyPatches(patches.len()));
     }
     let samples = patches.len() as u64 * samples_per_patch as u64;
-    let power: Vec<f64> = patches
-        .iter()
-        .map(|p| p.emission.as_dvec3().element_sum() * p.area)
-        .collect();
-    let Some(emitters) = Discrete::new(&power) else {
+    let Some(emitters) = ctx.emitters() else {
         let zero = vec![DVec3::ZERO; patches.len()];
         return Ok(DirectLight {
             estimate: Estimate::new(zero.clone(), Some(zero), 0)?,
@@ -134,7 +129,7 @@ pub fn direct<C: RayCaster>(
     };
     let light = Light {
         patches,
-        emitters: &emitters,
+        emitters,
         mis: sampling == DirectSampling::EmittersAndCosine,
     };
     let jobs = jobs(patches.len(), samples_per_patch);
@@ -143,7 +138,10 @@ pub fn direct<C: RayCaster>(
         .map(|job| {
             let i = job.item as usize;
             let frame = Frame::from_normal(patches[i].normal);
-            let mut rng = Stream::new(seed, pass, i as u64, DIRECT_LIGHT + job.chunk as u64);
+            let mut rng = key
+                .item(i as u64)
+                .sub(DIRECT_LIGHT + job.chunk as u64)
+                .stream();
             let mut tally = Tally::default();
             for _ in 0..job.rays {
                 let f = light.sample(i, &frame, sampler, caster, &mut rng, &mut tally);
@@ -297,14 +295,12 @@ pub struct SplitConfig {
 ///
 /// Errors: `shooting` not one finite value per patch, or fewer than 2 rays or samples.
 pub fn two_pass_split<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     shooting: &Estimate,
     config: &SplitConfig,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<Estimate, GatherError> {
+    let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
     let indirect_input = Estimate::new(
@@ -318,26 +314,14 @@ pub fn two_pass_split<C: RayCaster>(
         shooting.rays(),
     )?;
     let indirect = gather_round_from(
-        mesh,
-        sampler,
-        caster,
+        ctx,
         &indirect_input,
         Emission::Exclude,
         config.rays_per_patch,
-        seed,
-        pass,
+        key,
     )?
     .estimate;
-    let direct = direct(
-        mesh,
-        sampler,
-        caster,
-        config.samples_per_patch,
-        config.sampling,
-        seed,
-        pass,
-    )?
-    .estimate;
+    let direct = direct(ctx, config.samples_per_patch, config.sampling, key)?.estimate;
     let radiosity = patches
         .iter()
         .zip(indirect.radiosity().iter().zip(direct.radiosity()))

@@ -23,7 +23,7 @@
 //!
 //! ```
 //! use glam::{DVec3, Vec3};
-//! use mcrad_mc_radiosity::{Emission, SurfaceSampler, gather_round};
+//! use mcrad_mc_radiosity::{Context, Emission, StreamKey, gather_round};
 //! use mcrad_meshing::{Mesh, Subdivision};
 //! use mcrad_raycast::Bvh;
 //! use mcrad_scene_io::{Face, Material, Scene};
@@ -42,11 +42,11 @@
 //! let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
 //! let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-//! let sampler = SurfaceSampler::new(&mesh);
+//! let ctx = Context::new(&mesh, &bvh);
 //!
 //! // Gathering from the exact solution reproduces it: every ray sees B = 2.
 //! let exact = vec![DVec3::splat(2.0); 6];
-//! let round = gather_round(&mesh, &sampler, &bvh, &exact, Emission::Include, 100, 0, 0).unwrap();
+//! let round = gather_round(&ctx, &exact, Emission::Include, 100, StreamKey::new(0)).unwrap();
 //! assert_eq!(round.estimate.rays(), 600);
 //! for b in round.estimate.radiosity() {
 //!     assert!((b.x - 2.0).abs() < 0.02); // exact unless a ray slipped through an edge
@@ -54,6 +54,9 @@
 //! ```
 //!
 //! # Randomness and determinism
+//!
+//! `seed` and `pass` below are the fields of the [`StreamKey`](mcrad_random::StreamKey) the
+//! caller passes.
 //!
 //! Patch `i`'s rays in round `pass` come from `Stream::new(seed, pass, i, PATCH_GATHER + chunk)`,
 //! one stream per chunk of 4096 rays; vertex group `g`'s from
@@ -66,14 +69,14 @@
 //! number of threads. A schedule must give every round it wants independent of the others its
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
+use crate::context::Context;
 use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, run};
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
 use crate::shoot::StopReason;
-use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::{Estimate, EstimateError};
 use mcrad_meshing::{CornerGroups, Mesh};
-use mcrad_random::Stream;
+use mcrad_random::StreamKey;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
 use std::ops::ControlFlow;
 
@@ -190,28 +193,14 @@ pub struct GatherRound {
 /// the result depends on `(seed, pass)` only, not on the thread count.
 ///
 /// Errors: `input` not one finite value per patch, or `rays_per_patch < 2`.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_round<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &[DVec3],
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<GatherRound, GatherError> {
-    round(
-        mesh,
-        sampler,
-        caster,
-        input,
-        None,
-        emission,
-        rays_per_patch,
-        seed,
-        pass,
-    )
+    round(ctx, input, None, emission, rays_per_patch, key)
 }
 
 /// [`gather_round`] from an estimate: the same values, and the variance reported per patch
@@ -222,43 +211,33 @@ pub fn gather_round<C: RayCaster>(
 /// coarse mesh this dominates (the Cornell box's 19 faces: a block face's gathered variance was
 /// 20 times the conditional one); on a fine one it is small. An input without variances adds
 /// nothing.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_round_from<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &Estimate,
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<GatherRound, GatherError> {
     round(
-        mesh,
-        sampler,
-        caster,
+        ctx,
         input.radiosity(),
         input.variance(),
         emission,
         rays_per_patch,
-        seed,
-        pass,
+        key,
     )
 }
 
 /// [`gather_round`] with the input variance of [`gather_round_from`] optional.
-#[allow(clippy::too_many_arguments)]
 fn round<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &[DVec3],
     input_variance: Option<&[DVec3]>,
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<GatherRound, GatherError> {
+    let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
         check_input(mesh, v)?;
@@ -269,7 +248,10 @@ fn round<C: RayCaster>(
     let patches = mesh.patches();
     let jobs = jobs(patches.len(), rays_per_patch);
     let seen = run(patches.len(), &jobs, |job| {
-        let mut rng = Stream::new(seed, pass, job.item as u64, PATCH_GATHER + job.chunk as u64);
+        let mut rng = key
+            .item(job.item as u64)
+            .sub(PATCH_GATHER + job.chunk as u64)
+            .stream();
         look(job.rays, caster, input, input_variance, || {
             sampler.ray(job.item as usize, &mut rng)
         })
@@ -396,11 +378,11 @@ pub struct Gathering {
 ///
 /// Errors: `config.rays_per_patch < 2`, a bad threshold, or a budget below one round.
 pub fn gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &GatherConfig,
     observer: &mut dyn FnMut(&GatherProgress) -> ControlFlow<()>,
 ) -> Result<Gathering, GatherError> {
+    let mesh = ctx.mesh();
     if !(config.threshold.is_finite() && config.threshold >= 0.0) {
         return Err(GatherError::BadThreshold(config.threshold));
     }
@@ -414,7 +396,6 @@ pub fn gather<C: RayCaster>(
             round,
         });
     }
-    let sampler = SurfaceSampler::new(mesh);
     let mut b: Vec<DVec3> = mesh
         .patches()
         .iter()
@@ -431,14 +412,11 @@ pub fn gather<C: RayCaster>(
     let mut last = Estimate::new(b.clone(), Some(vec![DVec3::ZERO; b.len()]), 0)?;
     while stats.rays + round <= config.rays {
         let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
+            ctx,
             &last,
             Emission::Include,
             config.rays_per_patch,
-            config.seed,
-            stats.rounds as u64,
+            StreamKey::new(config.seed).pass(stats.rounds as u64),
         )?;
         let next = r.estimate.radiosity();
         let largest = next.iter().zip(mesh.patches()).fold(0.0f64, |m, (x, p)| {
@@ -529,17 +507,15 @@ pub struct CornerGathering {
 ///
 /// Errors: `input` not one finite value per patch, `groups` made for another mesh, or
 /// `rays_per_vertex < 2`.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_corners<C: RayCaster>(
-    mesh: &Mesh,
+    ctx: &Context<C>,
     groups: &CornerGroups,
-    caster: &C,
     input: &[DVec3],
     emission: Emission,
     rays_per_vertex: u32,
-    seed: u64,
-    pass: u64,
+    key: StreamKey,
 ) -> Result<CornerGathering, GatherError> {
+    let (mesh, caster) = (ctx.mesh(), ctx.caster());
     check_input(mesh, input)?;
     if rays_per_vertex < 2 {
         return Err(GatherError::TooFewRays(rays_per_vertex));
@@ -570,7 +546,10 @@ pub fn gather_corners<C: RayCaster>(
     let jobs = jobs(groups.len(), rays_per_vertex);
     let seen = run(groups.len(), &jobs, |job| {
         let g = job.item as usize;
-        let mut rng = Stream::new(seed, pass, g as u64, VERTEX_GATHER + job.chunk as u64);
+        let mut rng = key
+            .item(g as u64)
+            .sub(VERTEX_GATHER + job.chunk as u64)
+            .stream();
         let (origin, frame) = (groups.point(g), &frames[g]);
         look(job.rays, caster, input, None, || Ray {
             origin,

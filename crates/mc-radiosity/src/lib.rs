@@ -26,6 +26,7 @@
 //! This crate does no I/O.
 
 pub mod ambient;
+mod context;
 pub mod direct;
 pub mod gather;
 mod jobs;
@@ -35,10 +36,12 @@ mod shoot;
 mod surface;
 
 pub use ambient::{AmbientError, ambient, mean_reflectance, with_ambient};
+pub use context::Context;
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
 pub use gather::{
     CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
     Gathering, gather, gather_corners, gather_round, gather_round_from,
 };
+pub use mcrad_random::StreamKey;
 pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
 pub use surface::SurfaceSampler;

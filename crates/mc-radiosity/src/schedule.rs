@@ -6,6 +6,7 @@
 //! solution, never a half-finished pass. The merge rules live in `combine`.
 
 use crate::ambient::AmbientError;
+use crate::context::Context;
 use crate::gather::GatherError;
 use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
 use glam::DVec3;
@@ -338,15 +339,13 @@ impl Progressive {
     /// power counted in the run.
     fn shoot<C: RayCaster>(
         &mut self,
-        mesh: &Mesh,
-        caster: &C,
+        ctx: &Context<C>,
         config: &ScheduleConfig,
         rays: u64,
         tag: u64,
     ) -> Result<Shooting, ScheduleError> {
         let s = shoot(
-            mesh,
-            caster,
+            ctx,
             &shoot_config(config, rays, derive_seed(config.seed, tag)),
             &mut |_| ControlFlow::Continue(()),
         )?;

@@ -32,11 +32,12 @@
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
 
+use crate::context::Context;
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
-use mcrad_meshing::Mesh;
+
 use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
@@ -201,11 +202,11 @@ fn total(x: DVec3) -> f64 {
 /// Solves radiosity on `mesh` by shooting, casting rays through `caster`. `observer` sees the
 /// progress after each wave and may stop the run, which then returns the solution so far.
 pub fn shoot<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ShootConfig,
     observer: &mut dyn FnMut(&ShootProgress) -> ControlFlow<()>,
 ) -> Result<Shooting, ShootError> {
+    let (mesh, caster) = (ctx.mesh(), ctx.caster());
     if config.rays == 0 {
         return Err(ShootError::NoRays);
     }
@@ -234,7 +235,7 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(0.999);
-    let sampler = SurfaceSampler::new(mesh);
+    let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];

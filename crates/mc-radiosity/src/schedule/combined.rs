@@ -39,13 +39,13 @@ use super::{
     Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
     accumulate, per_patch,
 };
+use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
 use mcrad_meshing::Mesh;
-use mcrad_random::derive_seed;
+use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
 /// Bounds of the shooting share of a pass.
@@ -81,6 +81,7 @@ pub(crate) fn run_with<C: RayCaster>(
     weighting: &dyn Weighting,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let patches = mesh.patches();
     // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
     // shooting share.
@@ -90,7 +91,6 @@ pub(crate) fn run_with<C: RayCaster>(
         return super::shoot::run(mesh, caster, config, observer);
     }
     let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
@@ -112,7 +112,7 @@ pub(crate) fn run_with<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = run.shoot(mesh, caster, config, shoot_budget, k)?;
+        let s = run.shoot(&ctx, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         shot_rays += pass_rays;
@@ -140,13 +140,10 @@ pub(crate) fn run_with<C: RayCaster>(
             sampling: DirectSampling::EmittersAndCosine,
         };
         let g = two_pass_split(
-            mesh,
-            &sampler,
-            caster,
+            &ctx,
             input,
             &split,
-            derive_seed(config.seed, GATHER_TAG + k),
-            0,
+            StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
         gather_rays += g.rays();
         run.rays += g.rays();

@@ -1,6 +1,7 @@
 //! Jacobi gathering (Balog, section 1.4): a step per round.
 
 use super::{Observer, ScheduleConfig, ScheduleError, Solution, Step, per_patch};
+use crate::context::Context;
 use crate::gather::{GatherConfig, gather};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -12,6 +13,7 @@ pub(crate) fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
     let rays_per_patch = if config.rays == u64::MAX {
         256
@@ -25,7 +27,7 @@ pub(crate) fn run<C: RayCaster>(
         seed: config.seed,
     };
     let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
-    let g = gather(mesh, caster, &gather_config, &mut |p| {
+    let g = gather(&ctx, &gather_config, &mut |p| {
         observer(&Step {
             index: p.rounds,
             rays: p.rays,

@@ -4,11 +4,11 @@ use super::{
     Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
     per_patch, shoot_config, unshot_fraction, with_ambient,
 };
+use crate::context::Context;
 use crate::gather::{Emission, gather_round_from};
 use crate::shoot::shoot;
-use crate::surface::SurfaceSampler;
 use mcrad_meshing::Mesh;
-use mcrad_random::derive_seed;
+use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 
@@ -19,14 +19,14 @@ pub(crate) fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let shoot_budget = if config.rays == u64::MAX {
         1_000_000
     } else {
         config.rays / 4
     };
     let s = shoot(
-        mesh,
-        caster,
+        &ctx,
         &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
@@ -37,7 +37,6 @@ pub(crate) fn run<C: RayCaster>(
         ..Default::default()
     };
     let shooting = with_ambient(mesh, config, s)?;
-    let sampler = SurfaceSampler::new(mesh);
     let rest = config.rays.saturating_sub(run.rays);
     let min_pass = 2 * mesh.patches().len() as u64;
     let first =
@@ -50,16 +49,13 @@ pub(crate) fn run<C: RayCaster>(
         ..config.clone()
     });
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
-        let seed = derive_seed(config.seed, GATHER_TAG + run.steps as u64);
+        let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
         let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
+            &ctx,
             &shooting,
             Emission::Include,
             per_patch(mesh, budget),
-            seed,
-            0,
+            key,
         )?;
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;

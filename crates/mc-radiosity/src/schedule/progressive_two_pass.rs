@@ -4,11 +4,11 @@ use super::{
     Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
     accumulate, per_patch, with_ambient,
 };
+use crate::context::Context;
 use crate::gather::{Emission, gather_round_from};
-use crate::surface::SurfaceSampler;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
-use mcrad_random::derive_seed;
+use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
 /// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
@@ -19,25 +19,22 @@ pub(crate) fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let min_pass = 4 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let s = run.shoot(mesh, caster, config, budget / 2, k)?;
+        let s = run.shoot(&ctx, config, budget / 2, k)?;
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
-        let seed = derive_seed(config.seed, GATHER_TAG + k);
+        let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);
         let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
+            &ctx,
             &refined,
             Emission::Include,
             per_patch(mesh, budget / 2),
-            seed,
-            0,
+            key,
         )?;
         shooting = Some(refined);
         run.rays += r.estimate.rays();

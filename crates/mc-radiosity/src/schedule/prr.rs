@@ -3,6 +3,7 @@
 use super::{
     Doubling, Observer, Progressive, ScheduleConfig, ScheduleError, Solution, with_ambient,
 };
+use crate::context::Context;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
@@ -13,10 +14,11 @@ pub(crate) fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let mut passes = Doubling::new(config);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
-        let s = run.shoot(mesh, caster, config, budget, run.steps as u64)?;
+        let s = run.shoot(&ctx, config, budget, run.steps as u64)?;
         if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
             break;
         }

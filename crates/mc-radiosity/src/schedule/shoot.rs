@@ -4,6 +4,7 @@ use super::{
     Observer, ScheduleConfig, ScheduleError, Solution, Step, shoot_config, unshot_fraction,
     with_ambient,
 };
+use crate::context::Context;
 use crate::shoot::shoot;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -15,10 +16,10 @@ pub(crate) fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let mut steps = 0;
     let s = shoot(
-        mesh,
-        caster,
+        &ctx,
         &shoot_config(config, config.rays, config.seed),
         &mut |p| {
             steps = p.waves;

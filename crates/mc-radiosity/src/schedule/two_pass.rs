@@ -4,14 +4,14 @@ use super::{
     GATHER_TAG, Observer, ScheduleConfig, ScheduleError, Solution, Step, per_patch, shoot_config,
     unshot_fraction, with_ambient,
 };
+use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::gather::{Emission, gather_round_from};
 use crate::shoot::shoot;
-use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
-use mcrad_random::derive_seed;
+use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 
@@ -24,14 +24,14 @@ pub(super) fn run_two_pass<C: RayCaster>(
     split: bool,
     observer: &mut Observer,
 ) -> Result<Solution, ScheduleError> {
+    let ctx = Context::new(mesh, caster);
     let budget = if config.rays == u64::MAX {
         2_000_000
     } else {
         config.rays
     };
     let s = shoot(
-        mesh,
-        caster,
+        &ctx,
         &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
@@ -55,8 +55,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
             stopped: true,
         });
     }
-    let sampler = SurfaceSampler::new(mesh);
-    let seed = derive_seed(config.seed, GATHER_TAG);
+    let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
         // Direct samples cost two rays each (an emitter sample and a cosine ray).
         let split = SplitConfig {
@@ -64,17 +63,14 @@ pub(super) fn run_two_pass<C: RayCaster>(
             samples_per_patch: per_patch(mesh, gather_budget / 4),
             sampling: DirectSampling::EmittersAndCosine,
         };
-        two_pass_split(mesh, &sampler, caster, &shooting, &split, seed, 0)?
+        two_pass_split(&ctx, &shooting, &split, key)?
     } else {
         let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
+            &ctx,
             &shooting,
             Emission::Include,
             per_patch(mesh, gather_budget),
-            seed,
-            0,
+            key,
         )?;
         escaped_rays += r.escaped_rays;
         r.estimate
