@@ -140,7 +140,7 @@ pub fn direct<C: RayCaster>(
             let frame = Frame::from_normal(patches[i].normal);
             let mut rng = key
                 .item(i as u64)
-                .sub(DIRECT_LIGHT + job.chunk as u64)
+                .substream(DIRECT_LIGHT + job.chunk as u64)
                 .stream();
             let mut tally = Tally::default();
             for _ in 0..job.rays {

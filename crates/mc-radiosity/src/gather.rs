@@ -250,7 +250,7 @@ fn round<C: RayCaster>(
     let seen = run(patches.len(), &jobs, |job| {
         let mut rng = key
             .item(job.item as u64)
-            .sub(PATCH_GATHER + job.chunk as u64)
+            .substream(PATCH_GATHER + job.chunk as u64)
             .stream();
         look(job.rays, caster, input, input_variance, || {
             sampler.ray(job.item as usize, &mut rng)
@@ -548,7 +548,7 @@ pub fn gather_corners<C: RayCaster>(
         let g = job.item as usize;
         let mut rng = key
             .item(g as u64)
-            .sub(VERTEX_GATHER + job.chunk as u64)
+            .substream(VERTEX_GATHER + job.chunk as u64)
             .stream();
         let (origin, frame) = (groups.point(g), &frames[g]);
         look(job.rays, caster, input, None, || Ray {

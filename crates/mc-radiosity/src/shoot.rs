@@ -294,7 +294,7 @@ pub fn shoot<C: RayCaster>(
         for batch in batches(&jobs) {
             let hits: Vec<Vec<u32>> = batch
                 .par_iter()
-                .map(|job| trace(job, &sampler, caster, config.seed, wave))
+                .map(|job| trace(job, sampler, caster, config.seed, wave))
                 .collect();
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {

@@ -13,7 +13,7 @@ use rand_pcg::Pcg32;
 
 /// What a stream is for: the run's `seed`, the `pass` (wave, round) of a schedule, the `item`
 /// (patch, vertex) and a sub-stream `sub` (a purpose tag plus a chunk of the item's work).
-/// Built up field by field, e.g. `StreamKey::new(seed).pass(k).item(i).sub(TAG + chunk)`; the
+/// Built up field by field, e.g. `StreamKey::new(seed).pass(k).item(i).substream(TAG + chunk)`; the
 /// stream is a pure function of the four numbers ([`StreamKey::stream`]).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
 pub struct StreamKey {
@@ -47,7 +47,7 @@ impl StreamKey {
     }
 
     /// This key with sub-stream `sub`.
-    pub fn sub(self, sub: u64) -> StreamKey {
+    pub fn substream(self, sub: u64) -> StreamKey {
         StreamKey { sub, ..self }
     }
 
@@ -140,7 +140,7 @@ mod tests {
 
     #[test]
     fn keys_give_the_streams_of_their_numbers() {
-        let key = StreamKey::new(1).pass(2).item(3).sub(4);
+        let key = StreamKey::new(1).pass(2).item(3).substream(4);
         let (mut a, mut b) = (key.stream(), Stream::new(1, 2, 3, 4));
         for _ in 0..8 {
             assert_eq!(a.uniform().to_bits(), b.uniform().to_bits());

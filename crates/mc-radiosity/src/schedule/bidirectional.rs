@@ -113,7 +113,11 @@ fn step<C: RayCaster>(
         .collect();
     let mut jobs = Vec::new();
     for (i, t) in expected.iter().enumerate() {
-        let draw = key.item(i as u64).sub(ALLOCATE).stream().uniform_f64();
+        let draw = key
+            .item(i as u64)
+            .substream(ALLOCATE)
+            .stream()
+            .uniform_f64();
         let n = stochastic_round(*t, draw);
         for chunk in 0..n.div_ceil(JOB_RAYS) {
             jobs.push((
@@ -126,7 +130,7 @@ fn step<C: RayCaster>(
     let hits: Vec<Vec<u32>> = jobs
         .par_iter()
         .map(|&(patch, chunk, n)| {
-            let mut rng = key.item(patch as u64).sub(1 + chunk as u64).stream();
+            let mut rng = key.item(patch as u64).substream(1 + chunk as u64).stream();
             (0..n)
                 .map(
                     |_| match caster.closest_hit(&sampler.ray(patch as usize, &mut rng)) {
