@@ -56,7 +56,8 @@
 //! `s²` the sample variance of `f`.
 
 use crate::context::Context;
-use crate::gather::{Emission, GatherError, check_input, gather_round_from};
+use crate::error::Error;
+use crate::gather::{Emission, check_input, gather_round_from};
 use crate::jobs::{DIRECT_LIGHT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
@@ -109,14 +110,17 @@ pub fn direct<C: RayCaster>(
     samples_per_patch: u32,
     sampling: DirectSampling,
     key: StreamKey,
-) -> Result<DirectLight, GatherError> {
+) -> Result<DirectLight, Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     if samples_per_patch < 2 {
-        return Err(GatherError::TooFewRays(samples_per_patch));
+        return Err(Error::TooFewRays(samples_per_patch));
     }
     let patches = mesh.patches();
     if patches.len() >= NO_ID as usize {
-        return Err(GatherError::TooManyPatches(patches.len()));
+        return Err(Error::TooManyPatches {
+            patches: patches.len(),
+            limit: NO_ID as u64,
+        });
     }
     let samples = patches.len() as u64 * samples_per_patch as u64;
     let Some(emitters) = ctx.emitters() else {
@@ -299,7 +303,7 @@ pub fn two_pass_split<C: RayCaster>(
     shooting: &Estimate,
     config: &SplitConfig,
     key: StreamKey,
-) -> Result<Estimate, GatherError> {
+) -> Result<Estimate, Error> {
     let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();

@@ -70,11 +70,12 @@
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
 use crate::context::Context;
+use crate::error::Error;
 use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, run};
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
 use crate::shoot::StopReason;
 use glam::{DVec3, Vec3};
-use mcrad_combine::{Estimate, EstimateError};
+use mcrad_combine::Estimate;
 use mcrad_meshing::{CornerGroups, Mesh};
 use mcrad_random::StreamKey;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
@@ -90,69 +91,23 @@ pub enum Emission {
     Exclude,
 }
 
-/// Why a gathering (or direct-light) estimate is refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum GatherError {
-    /// The input radiosity does not have one entry per patch.
-    #[error("the input has {got} values but the mesh has {patches} patches")]
-    InputLength {
-        /// Patches in the mesh.
-        patches: usize,
-        /// Entries given.
-        got: usize,
-    },
-    /// An input radiosity is NaN or infinite.
-    #[error("input radiosity of patch {patch} is not finite: {value}")]
-    NotFinite {
-        /// Patch index.
-        patch: usize,
-        /// The offending value (W/m²).
-        value: DVec3,
-    },
-    /// Fewer than two rays (or samples) per item: the sample variance needs two.
-    #[error("at least 2 rays per patch or vertex are needed for a variance, got {0}")]
-    TooFewRays(u32),
-    /// The ray budget cannot pay for a single gathering round.
-    #[error("a budget of {budget} rays cannot pay for one round of {round} rays")]
-    BudgetTooSmall {
-        /// The budget.
-        budget: u64,
-        /// Rays of one round (`patches × rays_per_patch`).
-        round: u64,
-    },
-    /// The convergence threshold is negative or not finite.
-    #[error("the gathering threshold must be finite and >= 0, got {0}")]
-    BadThreshold(f64),
-    /// The corner groups were made for another mesh.
-    #[error("the corner groups cover {got} corners but the mesh has {corners}")]
-    GroupsMismatch {
-        /// Corners of the mesh.
-        corners: usize,
-        /// Corners the groups cover.
-        got: usize,
-    },
-    /// The mesh has more patches than ray ids can name.
-    #[error("{0} patches are more than the gatherer can address (2^32 - 1)")]
-    TooManyPatches(usize),
-    /// The result could not be made an [`Estimate`] (a non-finite sum: overflow).
-    #[error(transparent)]
-    Estimate(#[from] EstimateError),
-}
-
 /// Checks that `input` has one finite value per patch of `mesh`.
-pub(crate) fn check_input(mesh: &Mesh, input: &[DVec3]) -> Result<(), GatherError> {
+pub(crate) fn check_input(mesh: &Mesh, input: &[DVec3]) -> Result<(), Error> {
     let patches = mesh.patches().len();
     if input.len() != patches {
-        return Err(GatherError::InputLength {
+        return Err(Error::InputLength {
             patches,
             got: input.len(),
         });
     }
     if patches >= NO_ID as usize {
-        return Err(GatherError::TooManyPatches(patches));
+        return Err(Error::TooManyPatches {
+            patches,
+            limit: NO_ID as u64,
+        });
     }
     match input.iter().position(|b| !b.is_finite()) {
-        Some(patch) => Err(GatherError::NotFinite {
+        Some(patch) => Err(Error::NotFinite {
             patch,
             value: input[patch],
         }),
@@ -199,7 +154,7 @@ pub fn gather_round<C: RayCaster>(
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
-) -> Result<GatherRound, GatherError> {
+) -> Result<GatherRound, Error> {
     round(ctx, input, None, emission, rays_per_patch, key)
 }
 
@@ -217,7 +172,7 @@ pub fn gather_round_from<C: RayCaster>(
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
-) -> Result<GatherRound, GatherError> {
+) -> Result<GatherRound, Error> {
     round(
         ctx,
         input.radiosity(),
@@ -236,14 +191,14 @@ fn round<C: RayCaster>(
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
-) -> Result<GatherRound, GatherError> {
+) -> Result<GatherRound, Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
         check_input(mesh, v)?;
     }
     if rays_per_patch < 2 {
-        return Err(GatherError::TooFewRays(rays_per_patch));
+        return Err(Error::TooFewRays(rays_per_patch));
     }
     let patches = mesh.patches();
     let jobs = jobs(patches.len(), rays_per_patch);
@@ -270,7 +225,7 @@ fn finish(
     seen: &[Seen],
     emission: Emission,
     rays: u64,
-) -> Result<GatherRound, GatherError> {
+) -> Result<GatherRound, Error> {
     let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
     let (mut escaped_rays, mut back_face_hits) = (0, 0);
     for ((rho, e), s) in materials.zip(seen) {
@@ -381,17 +336,17 @@ pub fn gather<C: RayCaster>(
     ctx: &Context<C>,
     config: &GatherConfig,
     observer: &mut dyn FnMut(&GatherProgress) -> ControlFlow<()>,
-) -> Result<Gathering, GatherError> {
+) -> Result<Gathering, Error> {
     let mesh = ctx.mesh();
     if !(config.threshold.is_finite() && config.threshold >= 0.0) {
-        return Err(GatherError::BadThreshold(config.threshold));
+        return Err(Error::BadGatherThreshold(config.threshold));
     }
     if config.rays_per_patch < 2 {
-        return Err(GatherError::TooFewRays(config.rays_per_patch));
+        return Err(Error::TooFewRays(config.rays_per_patch));
     }
     let round = mesh.patches().len() as u64 * config.rays_per_patch as u64;
     if config.rays < round {
-        return Err(GatherError::BudgetTooSmall {
+        return Err(Error::BudgetBelowRound {
             budget: config.rays,
             round,
         });
@@ -514,14 +469,14 @@ pub fn gather_corners<C: RayCaster>(
     emission: Emission,
     rays_per_vertex: u32,
     key: StreamKey,
-) -> Result<CornerGathering, GatherError> {
+) -> Result<CornerGathering, Error> {
     let (mesh, caster) = (ctx.mesh(), ctx.caster());
     check_input(mesh, input)?;
     if rays_per_vertex < 2 {
-        return Err(GatherError::TooFewRays(rays_per_vertex));
+        return Err(Error::TooFewRays(rays_per_vertex));
     }
     if groups.corner_groups().len() != mesh.corner_count() {
-        return Err(GatherError::GroupsMismatch {
+        return Err(Error::GroupsMismatch {
             corners: mesh.corner_count(),
             got: groups.corner_groups().len(),
         });

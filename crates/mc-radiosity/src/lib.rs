@@ -28,6 +28,7 @@
 pub mod ambient;
 mod context;
 pub mod direct;
+mod error;
 pub mod gather;
 mod jobs;
 pub mod sampling;
@@ -35,13 +36,14 @@ pub mod schedule;
 mod shoot;
 mod surface;
 
-pub use ambient::{AmbientError, ambient, mean_reflectance, with_ambient};
+pub use ambient::{ambient, mean_reflectance, with_ambient};
 pub use context::Context;
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
+pub use error::Error;
 pub use gather::{
-    CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
-    Gathering, gather, gather_corners, gather_round, gather_round_from,
+    CornerGathering, Emission, GatherConfig, GatherProgress, GatherRound, GatherStats, Gathering,
+    gather, gather_corners, gather_round, gather_round_from,
 };
 pub use mcrad_random::StreamKey;
-pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, StopReason, shoot};
+pub use shoot::{ShootConfig, ShootProgress, ShootStats, Shooting, StopReason, shoot};
 pub use surface::SurfaceSampler;

@@ -5,12 +5,11 @@
 //! draw progress, write an error trace, or stop the run; a stopped run returns the last complete
 //! solution, never a half-finished pass. The merge rules live in `combine`.
 
-use crate::ambient::AmbientError;
 use crate::context::Context;
-use crate::gather::GatherError;
-use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
+use crate::error::Error;
+use crate::shoot::{ShootConfig, Shooting, shoot};
 use glam::DVec3;
-use mcrad_combine::{ByRays, Estimate, EstimateError, merge};
+use mcrad_combine::{ByRays, Estimate, merge};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
@@ -147,26 +146,6 @@ pub struct Solution {
     pub stopped: bool,
 }
 
-/// Why a schedule failed.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ScheduleError {
-    /// A shooting pass was refused.
-    #[error(transparent)]
-    Shoot(#[from] ShootError),
-    /// A gathering step was refused.
-    #[error(transparent)]
-    Gather(#[from] GatherError),
-    /// The ambient term could not be formed.
-    #[error(transparent)]
-    Ambient(#[from] AmbientError),
-    /// Estimates could not be merged.
-    #[error(transparent)]
-    Merge(#[from] EstimateError),
-    /// No step could run: the budget is smaller than one pass.
-    #[error("the ray budget of {0} rays is too small for one pass of this method")]
-    BudgetTooSmall(u64),
-}
-
 /// The observer of a schedule.
 pub type Observer<'o> = dyn FnMut(&Step) -> ControlFlow<()> + 'o;
 
@@ -177,7 +156,7 @@ pub fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     match method {
         Method::Shoot => shoot::run(mesh, caster, config, observer),
         Method::Gather => gather::run(mesh, caster, config, observer),
@@ -206,16 +185,12 @@ fn unshot_fraction(s: &Shooting) -> f64 {
 
 /// The shooting estimate, with the ambient term (its unshot power spread as
 /// `rho_i * A_amb`) added when the configuration asks for it.
-fn with_ambient(
-    mesh: &Mesh,
-    config: &ScheduleConfig,
-    s: Shooting,
-) -> Result<Estimate, ScheduleError> {
+fn with_ambient(mesh: &Mesh, config: &ScheduleConfig, s: Shooting) -> Result<Estimate, Error> {
     if !config.ambient {
         return Ok(s.estimate);
     }
     let a = crate::ambient::ambient(mesh, &s.unshot, s.stats.escape_fraction())?;
-    Ok(crate::ambient::with_ambient(mesh, &s.estimate, a)?)
+    crate::ambient::with_ambient(mesh, &s.estimate, a)
 }
 
 /// Seed tags: shooting pass `k` uses `k`, gathering pass `k` uses `GATHER_TAG + k`.
@@ -227,7 +202,7 @@ fn per_patch(mesh: &Mesh, rays: u64) -> u32 {
 }
 
 /// Merges `next` into `acc` by their rays ([`ByRays`], the passes of Algorithms 1-3).
-fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, ScheduleError> {
+fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, Error> {
     Ok(match acc {
         None => next,
         Some(a) => merge(&a, &next, &ByRays)?,
@@ -310,7 +285,7 @@ impl Progressive {
         estimate: Estimate,
         next_rays: u64,
         observer: &mut Observer,
-    ) -> Result<bool, ScheduleError> {
+    ) -> Result<bool, Error> {
         let merged = accumulate(self.merged.take(), estimate)?;
         self.replace(merged, next_rays, observer)
     }
@@ -322,7 +297,7 @@ impl Progressive {
         merged: Estimate,
         next_rays: u64,
         observer: &mut Observer,
-    ) -> Result<bool, ScheduleError> {
+    ) -> Result<bool, Error> {
         self.steps += 1;
         let step = Step {
             index: self.steps,
@@ -343,7 +318,7 @@ impl Progressive {
         config: &ScheduleConfig,
         rays: u64,
         tag: u64,
-    ) -> Result<Shooting, ScheduleError> {
+    ) -> Result<Shooting, Error> {
         let s = shoot(
             ctx,
             &shoot_config(config, rays, derive_seed(config.seed, tag)),
@@ -356,8 +331,8 @@ impl Progressive {
     }
 
     /// The solution: the merged estimate, its work counted as every ray the run cast.
-    fn finish(self, budget: u64) -> Result<Solution, ScheduleError> {
-        let m = self.merged.ok_or(ScheduleError::BudgetTooSmall(budget))?;
+    fn finish(self, budget: u64) -> Result<Solution, Error> {
+        let m = self.merged.ok_or(Error::BudgetTooSmall(budget))?;
         let estimate = Estimate::new(
             m.radiosity().to_vec(),
             m.variance().map(<[DVec3]>::to_vec),

@@ -33,6 +33,7 @@
 //! is zero.
 
 use crate::context::Context;
+use crate::error::Error;
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
@@ -66,23 +67,6 @@ impl Default for ShootConfig {
             seed: 0,
         }
     }
-}
-
-/// Why a shooting run is refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ShootError {
-    /// Nothing in the mesh emits.
-    #[error("no patch emits light: there is nothing to shoot")]
-    NoEmission,
-    /// The ray budget is zero.
-    #[error("the ray budget must be at least 1")]
-    NoRays,
-    /// The threshold is not a fraction.
-    #[error("the unshot threshold must be in [0, 1], got {0}")]
-    BadThreshold(f64),
-    /// The mesh has more patches than hit records can name.
-    #[error("{0} patches are more than the shooter can address (2^31)")]
-    TooManyPatches(usize),
 }
 
 /// Why a run ended.
@@ -205,17 +189,20 @@ pub fn shoot<C: RayCaster>(
     ctx: &Context<C>,
     config: &ShootConfig,
     observer: &mut dyn FnMut(&ShootProgress) -> ControlFlow<()>,
-) -> Result<Shooting, ShootError> {
+) -> Result<Shooting, Error> {
     let (mesh, caster) = (ctx.mesh(), ctx.caster());
     if config.rays == 0 {
-        return Err(ShootError::NoRays);
+        return Err(Error::NoRays);
     }
     if !(0.0..=1.0).contains(&config.unshot_threshold) {
-        return Err(ShootError::BadThreshold(config.unshot_threshold));
+        return Err(Error::BadUnshotThreshold(config.unshot_threshold));
     }
     let patches = mesh.patches();
     if patches.len() >= BACK as usize {
-        return Err(ShootError::TooManyPatches(patches.len()));
+        return Err(Error::TooManyPatches {
+            patches: patches.len(),
+            limit: BACK as u64,
+        });
     }
     let area: Vec<f64> = patches.iter().map(|p| p.area).collect();
     let rho: Vec<DVec3> = patches.iter().map(|p| p.reflectance.as_dvec3()).collect();
@@ -225,7 +212,7 @@ pub fn shoot<C: RayCaster>(
         .collect();
     let emitted: DVec3 = unshot.iter().sum();
     if total(emitted) <= 0.0 {
-        return Err(ShootError::NoEmission);
+        return Err(Error::NoEmission);
     }
     let total_area: f64 = area.iter().sum();
     let rho_avg = (rho

@@ -15,9 +15,9 @@
 
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::{
-    Context, DirectSampling, Emission, GatherConfig, GatherError, ShootConfig, SplitConfig,
-    StopReason, ambient, direct, gather, gather_corners, gather_round, mean_reflectance, shoot,
-    two_pass_split, with_ambient,
+    Context, DirectSampling, Emission, Error, GatherConfig, ShootConfig, SplitConfig, StopReason,
+    ambient, direct, gather, gather_corners, gather_round, mean_reflectance, shoot, two_pass_split,
+    with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::StreamKey;
@@ -815,15 +815,15 @@ fn bad_inputs_are_errors() {
     };
     assert_eq!(
         round(&good[..5], 10),
-        Err(GatherError::InputLength { patches: 6, got: 5 })
+        Err(Error::InputLength { patches: 6, got: 5 })
     );
     let mut nan = good.clone();
     nan[3].y = f64::NAN;
     assert!(matches!(
         round(&nan, 10),
-        Err(GatherError::NotFinite { patch: 3, .. })
+        Err(Error::NotFinite { patch: 3, .. })
     ));
-    assert_eq!(round(&good, 1), Err(GatherError::TooFewRays(1)));
+    assert_eq!(round(&good, 1), Err(Error::TooFewRays(1)));
     let other = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.5)).unwrap();
     let e = gather_corners(
         &ctx,

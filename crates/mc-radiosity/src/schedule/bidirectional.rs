@@ -27,9 +27,10 @@
 //! The schedule: the first pass shoots (an unbiased first solution), every later pass is a step
 //! from the solution so far, and the passes merge by their rays (as Algorithms 1-3 do).
 
-use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution};
+use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution};
 use crate::context::Context;
-use crate::gather::{GatherError, check_input};
+use crate::error::Error;
+use crate::gather::check_input;
 use crate::sampling::stochastic_round;
 use glam::DVec3;
 use mcrad_combine::Estimate;
@@ -51,7 +52,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let min_pass = 2 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
@@ -84,7 +85,7 @@ fn step<C: RayCaster>(
     input: &[DVec3],
     rays: u64,
     key: StreamKey,
-) -> Result<Estimate, GatherError> {
+) -> Result<Estimate, Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     let patches = mesh.patches();

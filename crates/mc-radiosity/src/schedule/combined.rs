@@ -36,11 +36,11 @@
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
-    accumulate, per_patch,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
 };
 use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::error::Error;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
@@ -67,7 +67,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     run_with(mesh, caster, config, &InverseExpectedVariance, observer)
 }
 
@@ -80,7 +80,7 @@ pub(crate) fn run_with<C: RayCaster>(
     config: &ScheduleConfig,
     weighting: &dyn Weighting,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let patches = mesh.patches();
     // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
@@ -170,7 +170,7 @@ fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
 /// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
 /// ((W/m²)², [`shot_noise`]), with `m_i` the mean deposit, or `rho_i` times the mean ray power
 /// where no ray landed.
-fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, ScheduleError> {
+fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
     let s = &shots.merged;
     let v = s.variance().ok_or(EstimateError::MissingVariance)?;
     Ok(mesh
@@ -193,11 +193,7 @@ fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec
 /// ((W/m²)²), with `k_f` the gather's relative variance pooled over the input face `f` of the
 /// patch ([`pooled_relative`]), so a patch whose few rays all saw the same value (a sample
 /// variance of zero) is not taken as exact.
-fn gathering_variance(
-    mesh: &Mesh,
-    gathered: &Estimate,
-    r: &[DVec3],
-) -> Result<Vec<DVec3>, ScheduleError> {
+fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
     let v = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let patches = mesh.patches();
     let face: Vec<usize> = patches.iter().map(|p| p.face as usize).collect();
@@ -219,7 +215,7 @@ fn combine(
     gathered: &Estimate,
     previous: Option<&Estimate>,
     weighting: &dyn Weighting,
-) -> Result<Estimate, ScheduleError> {
+) -> Result<Estimate, Error> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
     let (vs, vg) = (
         shooting_variance(mesh, shots, &r)?,

@@ -1,7 +1,8 @@
 //! Jacobi gathering (Balog, section 1.4): a step per round.
 
-use super::{Observer, ScheduleConfig, ScheduleError, Solution, Step, per_patch};
+use super::{Observer, ScheduleConfig, Solution, Step, per_patch};
 use crate::context::Context;
+use crate::error::Error;
 use crate::gather::{GatherConfig, gather};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -12,7 +13,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
     let rays_per_patch = if config.rays == u64::MAX {

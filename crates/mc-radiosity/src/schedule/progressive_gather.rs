@@ -1,10 +1,11 @@
 //! Algorithm 2 of the paper: progressive gathering from one shooting solution.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
-    per_patch, shoot_config, unshot_fraction, with_ambient,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, per_patch, shoot_config,
+    unshot_fraction, with_ambient,
 };
 use crate::context::Context;
+use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use crate::shoot::shoot;
 use mcrad_meshing::Mesh;
@@ -18,7 +19,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let shoot_budget = if config.rays == u64::MAX {
         1_000_000

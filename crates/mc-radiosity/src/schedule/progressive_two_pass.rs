@@ -1,10 +1,11 @@
 //! Algorithm 3 of the paper: progressive two-pass.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
-    accumulate, per_patch, with_ambient,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
+    with_ambient,
 };
 use crate::context::Context;
+use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
@@ -18,7 +19,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let min_pass = 4 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);

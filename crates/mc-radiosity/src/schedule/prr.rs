@@ -1,9 +1,8 @@
 //! Algorithm 1 of the paper: progressive ray refinement (PRR), shooting passes merged by rays.
 
-use super::{
-    Doubling, Observer, Progressive, ScheduleConfig, ScheduleError, Solution, with_ambient,
-};
+use super::{Doubling, Observer, Progressive, ScheduleConfig, Solution, with_ambient};
 use crate::context::Context;
+use crate::error::Error;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
@@ -13,7 +12,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let mut passes = Doubling::new(config);
     let mut run = Progressive::default();

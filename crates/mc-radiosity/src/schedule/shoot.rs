@@ -1,10 +1,10 @@
 //! Plain shooting (Balog, section 1.3): one pass, a step per wave.
 
 use super::{
-    Observer, ScheduleConfig, ScheduleError, Solution, Step, shoot_config, unshot_fraction,
-    with_ambient,
+    Observer, ScheduleConfig, Solution, Step, shoot_config, unshot_fraction, with_ambient,
 };
 use crate::context::Context;
+use crate::error::Error;
 use crate::shoot::shoot;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -15,7 +15,7 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let mut steps = 0;
     let s = shoot(

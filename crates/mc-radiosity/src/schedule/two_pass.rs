@@ -1,11 +1,12 @@
 //! Two-pass radiosity (Balog, section 1.5): shooting, then one gathering round from it.
 
 use super::{
-    GATHER_TAG, Observer, ScheduleConfig, ScheduleError, Solution, Step, per_patch, shoot_config,
-    unshot_fraction, with_ambient,
+    GATHER_TAG, Observer, ScheduleConfig, Solution, Step, per_patch, shoot_config, unshot_fraction,
+    with_ambient,
 };
 use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use crate::shoot::shoot;
 use glam::DVec3;
@@ -23,7 +24,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
     config: &ScheduleConfig,
     split: bool,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let ctx = Context::new(mesh, caster);
     let budget = if config.rays == u64::MAX {
         2_000_000
@@ -104,6 +105,6 @@ pub(crate) fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     run_two_pass(mesh, caster, config, false, observer)
 }
