@@ -290,7 +290,7 @@ pub struct SplitConfig {
 /// B_i = E_i + D_i + rho_i sum_j F_ij (B_shoot,j - E_j),
 /// ```
 ///
-/// the direct light `D` from [`direct`] and the indirect light from one [`gather_round`] over
+/// the direct light `D` from [`direct`] and the indirect light from one [`gather_round`](crate::gather_round) over
 /// `input = B_shoot - E` with [`Emission::Exclude`]. Gathering rays never score emission, so a
 /// small light they miss costs nothing: only light reflected at least once is gathered. The two
 /// parts use independent streams (same `seed` and `pass`), so the variance is their sum,

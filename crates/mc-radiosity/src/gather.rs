@@ -55,7 +55,7 @@
 //!
 //! # Randomness and determinism
 //!
-//! `seed` and `pass` below are the fields of the [`StreamKey`](mcrad_random::StreamKey) the
+//! `seed` and `pass` below are the fields of the [`StreamKey`] the
 //! caller passes.
 //!
 //! Patch `i`'s rays in round `pass` come from `Stream::new(seed, pass, i, PATCH_GATHER + chunk)`,
@@ -128,7 +128,7 @@ pub struct GatherRound {
 }
 
 /// One Jacobi gathering round (Balog, section 1.4): every patch `i` casts `rays_per_patch`
-/// cosine-distributed rays from uniform points of itself ([`SurfaceSampler::ray`]) and gets
+/// cosine-distributed rays from uniform points of itself (a uniform point, a cosine-distributed direction) and gets
 ///
 /// ```text
 /// B'_i = [E_i] + rho_i (1/n) sum_k input[j_k]      (W/m² per channel)

@@ -31,7 +31,7 @@ pub mod direct;
 mod error;
 pub mod gather;
 mod jobs;
-pub mod sampling;
+mod sampling;
 pub mod schedule;
 mod shoot;
 mod surface;
@@ -46,4 +46,7 @@ pub use gather::{
 };
 pub use mcrad_random::StreamKey;
 pub use shoot::{ShootConfig, ShootProgress, ShootStats, Shooting, StopReason, shoot};
+/// Uniform points and cosine-distributed rays on patches, for tests that check the estimators'
+/// sampling against the reference (only with the `testing` feature).
+#[cfg(feature = "testing")]
 pub use surface::SurfaceSampler;

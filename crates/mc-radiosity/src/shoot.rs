@@ -49,7 +49,7 @@ use std::ops::ControlFlow;
 pub struct ShootConfig {
     /// The ray budget (`>= 1`): the waves cast at most this many rays, and a finishing tail of
     /// Russian-roulette rays ships what is still above the threshold when it is spent (see the
-    /// [module documentation](self)).
+    /// documentation of [`shoot`](crate::shoot())).
     pub rays: u64,
     /// Stop once the unshot power (summed over patches and channels) is at most this fraction
     /// of the emitted power; in `[0, 1]`. `0` runs until the budget is spent.
