@@ -25,6 +25,10 @@ mod shoot;
 mod two_pass;
 mod two_pass_split;
 
+/// Algorithm 4 (the `combined` method) with a weighting of its choice instead of the default
+/// [`InverseExpectedVariance`](mcrad_combine::InverseExpectedVariance).
+pub use combined::run_with as run_combined_with;
+
 /// The solution methods a schedule can run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {

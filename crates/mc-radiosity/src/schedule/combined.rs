@@ -71,10 +71,15 @@ pub(crate) fn run<C: RayCaster>(
     run_with(mesh, caster, config, &InverseExpectedVariance, observer)
 }
 
-/// Algorithm 4 merging shooting and gathering with `weighting` (per patch and channel; each
-/// operand carries its expected variance, [`Operand::expected`]). The budget split
-/// ([`best_share`]) still models inverse-variance weights.
-pub(crate) fn run_with<C: RayCaster>(
+/// Algorithm 4 of Balog's paper, iterative combined shooting and gathering, merging the
+/// shooting estimate `S` and the gathering estimate `G` of every pass into
+/// `C_i = w_i S_i + (1 - w_i) G_i` with `weighting` (per patch and channel). Each operand
+/// carries its expected variance ([`Operand::expected`]: shooting's shot noise `m_i R_i / A_i`,
+/// gathering's pooled relative variance times `R_i²`, at the reflected radiosity `R_i` of the
+/// previous combination), which [`InverseExpectedVariance`] (the `combined` method's default)
+/// weights by. The split of each pass's rays between shooting and gathering still minimises
+/// the error expected under inverse-variance weights, whatever `weighting` is.
+pub fn run_with<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
