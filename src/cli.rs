@@ -1,11 +1,11 @@
 //! The command line (its flags are the contract of `ARCHITECTURE.md`).
 
 use clap::{Parser, Subcommand, ValueEnum};
-use mcrad_render::Exposure;
 use mcrad_mc_radiosity::schedule::ScheduleConfig;
 use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
+use mcrad_render::Exposure;
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -225,9 +225,9 @@ fn parse_count(s: &str) -> Result<u64, String> {
 mod tests {
     use super::{Args, Command, Solve, parse_count, parse_exposure, parse_size};
     use clap::Parser;
-    use mcrad_render::Exposure;
     use mcrad_mc_radiosity::Method;
     use mcrad_mc_radiosity::schedule::ScheduleConfig;
+    use mcrad_render::Exposure;
 
     fn solve(args: &[&str]) -> Solve {
         let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);

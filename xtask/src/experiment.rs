@@ -23,7 +23,8 @@ use mcrad_combine::Estimate;
 use mcrad_lab::plot::{PlotSpec, Series, line_plot};
 use mcrad_lab::trace::Reference;
 use mcrad_mc_radiosity::{
-    Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
+    Context as Estimators, Emission, ShootConfig, Shooting, StreamKey, ambient, gather_round,
+    shoot, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
@@ -103,22 +104,21 @@ fn reflected(mesh: &Mesh, radiosity: &[DVec3]) -> f64 {
 struct Setup {
     mesh: Mesh,
     bvh: Bvh,
-    sampler: SurfaceSampler,
     exact: Reference,
     exact_reflected: f64,
 }
 
 impl Setup {
+    /// What the estimators need of the scene.
+    fn ctx(&self) -> Estimators<'_, Bvh> {
+        Estimators::new(&self.mesh, &self.bvh)
+    }
+
     fn shoot(&self, config: &ShootConfig, stop_after: Option<u32>) -> Result<Shooting> {
-        Ok(shoot(
-            &self.mesh,
-            &self.bvh,
-            config,
-            &mut |p| match stop_after {
-                Some(k) if p.waves >= k => ControlFlow::Break(()),
-                _ => ControlFlow::Continue(()),
-            },
-        )?)
+        Ok(shoot(&self.ctx(), config, &mut |p| match stop_after {
+            Some(k) if p.waves >= k => ControlFlow::Break(()),
+            _ => ControlFlow::Continue(()),
+        })?)
     }
 
     /// Gathers once from `shooting` without and with the ambient term; two rows.
@@ -146,14 +146,11 @@ impl Setup {
             // snapshot, with and without the term (common random numbers), so the curves differ
             // by their input, not by the gathering's noise.
             let round = gather_round(
-                &self.mesh,
-                &self.sampler,
-                &self.bvh,
+                &self.ctx(),
                 input.radiosity(),
                 Emission::Include,
                 GATHER_RAYS,
-                seed,
-                0,
+                StreamKey::new(seed),
             )?;
             let b = round.estimate.radiosity();
             Ok(Row {
@@ -183,7 +180,6 @@ fn figure2(root: &Path) -> Result<()> {
     let reference = reference(&mesh, &bvh, &ReferenceConfig::default(), &|_| {})?;
     let exact = reference.estimate.radiosity().to_vec();
     let setup = Setup {
-        sampler: SurfaceSampler::new(&mesh),
         exact_reflected: reflected(&mesh, &exact),
         exact: Reference::new(&mesh, exact)?,
         mesh,

@@ -70,7 +70,7 @@ pub fn pooled_relative(group: &[usize], variance: &[DVec3], value: &[DVec3]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Estimate, Rule, merge};
+    use crate::{Estimate, InverseVariance, merge};
 
     /// A seeded PCG stream for the tests' Poisson draws.
     struct Rng(rand_pcg::Pcg32);
@@ -111,7 +111,7 @@ mod tests {
             let m = merge(
                 &one(a, ha * xa * xa),
                 &one(b, hb * xb * xb),
-                Rule::InverseVariance,
+                &InverseVariance,
             )
             .unwrap();
             own += m.radiosity()[0].x;
@@ -129,7 +129,7 @@ mod tests {
                 DVec3::splat(xb),
                 DVec3::ONE,
             );
-            let m = merge(&one(a, va.x), &one(b, vb.x), Rule::InverseVariance).unwrap();
+            let m = merge(&one(a, va.x), &one(b, vb.x), &InverseVariance).unwrap();
             expected += m.radiosity()[0].x;
         }
         let (own, expected) = (own / trials as f64, expected / trials as f64);

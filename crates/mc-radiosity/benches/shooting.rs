@@ -13,7 +13,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec3, Vec3A};
-use mcrad_mc_radiosity::{ShootConfig, shoot};
+use mcrad_mc_radiosity::{Context, ShootConfig, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::{Bvh, Hit, Ray, RayCaster, SurfacePoint};
 use obvhs::{
@@ -134,12 +134,9 @@ fn bench(c: &mut Criterion) {
             bvh: &bvh,
             rays: Mutex::new(Vec::new()),
         };
-        let run = shoot(
-            &mesh,
-            &recorder,
-            &config,
-            &mut |_| ControlFlow::Continue(()),
-        )
+        let run = shoot(&Context::new(&mesh, &recorder), &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
         .unwrap();
         let mut rays = recorder.rays.into_inner().unwrap();
         // Rays in a deterministic order (the recording order depends on the threads).
@@ -151,10 +148,12 @@ fn bench(c: &mut Criterion) {
         group.throughput(Throughput::Elements(run.stats.rays));
         group.bench_function("shoot", |b| {
             b.iter(|| {
-                shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(()))
-                    .unwrap()
-                    .stats
-                    .rays
+                shoot(&Context::new(&mesh, &bvh), &config, &mut |_| {
+                    ControlFlow::Continue(())
+                })
+                .unwrap()
+                .stats
+                .rays
             })
         });
         group.bench_function("mcrad_bvh", |b| {

@@ -33,36 +33,10 @@
 //! proportional to the unshot power, so it vanishes as the shooting converges; the term adds no
 //! variance estimate of its own.
 
+use crate::error::Error;
 use glam::DVec3;
-use mcrad_combine::{Estimate, EstimateError};
+use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
-
-/// Why the ambient term cannot be computed or applied.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum AmbientError {
-    /// The per-patch values do not have one entry per patch.
-    #[error("{got} values were given for a mesh of {patches} patches")]
-    Length {
-        /// Patches in the mesh.
-        patches: usize,
-        /// Entries given.
-        got: usize,
-    },
-    /// An unshot power is NaN, infinite or negative.
-    #[error("unshot power of patch {patch} is not finite and non-negative: {value}")]
-    BadUnshot {
-        /// Patch index.
-        patch: usize,
-        /// The offending value (W).
-        value: DVec3,
-    },
-    /// The escape share is not in `[0, 1]` in every channel.
-    #[error("the escaped share of shot power must be in [0, 1], got {0}")]
-    BadEscape(DVec3),
-    /// The result could not be made an [`Estimate`].
-    #[error(transparent)]
-    Estimate(#[from] EstimateError),
-}
 
 /// The area-weighted mean reflectance `rho_avg = sum_j A_j rho_j / sum_j A_j` per channel.
 pub fn mean_reflectance(mesh: &Mesh) -> DVec3 {
@@ -81,10 +55,10 @@ pub fn mean_reflectance(mesh: &Mesh) -> DVec3 {
 /// [module documentation](self) for what it means and where it is biased.
 ///
 /// Errors: `unshot` not one finite, non-negative value per patch; `escape` outside `[0, 1]`.
-pub fn ambient(mesh: &Mesh, unshot: &[DVec3], escape: DVec3) -> Result<DVec3, AmbientError> {
+pub fn ambient(mesh: &Mesh, unshot: &[DVec3], escape: DVec3) -> Result<DVec3, Error> {
     let patches = mesh.patches().len();
     if unshot.len() != patches {
-        return Err(AmbientError::Length {
+        return Err(Error::InputLength {
             patches,
             got: unshot.len(),
         });
@@ -93,13 +67,13 @@ pub fn ambient(mesh: &Mesh, unshot: &[DVec3], escape: DVec3) -> Result<DVec3, Am
         .iter()
         .position(|u| !(u.is_finite() && u.min_element() >= 0.0))
     {
-        return Err(AmbientError::BadUnshot {
+        return Err(Error::BadUnshot {
             patch,
             value: unshot[patch],
         });
     }
     if !(escape.min_element() >= 0.0 && escape.max_element() <= 1.0) {
-        return Err(AmbientError::BadEscape(escape));
+        return Err(Error::BadEscape(escape));
     }
     let total: DVec3 = unshot.iter().sum();
     let kept = DVec3::ONE - escape;
@@ -114,14 +88,10 @@ pub fn ambient(mesh: &Mesh, unshot: &[DVec3], escape: DVec3) -> Result<DVec3, Am
 /// [module documentation](self)).
 ///
 /// Errors: `estimate` not one value per patch, or a non-finite result.
-pub fn with_ambient(
-    mesh: &Mesh,
-    estimate: &Estimate,
-    ambient: DVec3,
-) -> Result<Estimate, AmbientError> {
+pub fn with_ambient(mesh: &Mesh, estimate: &Estimate, ambient: DVec3) -> Result<Estimate, Error> {
     let patches = mesh.patches();
     if estimate.len() != patches.len() {
-        return Err(AmbientError::Length {
+        return Err(Error::InputLength {
             patches: patches.len(),
             got: estimate.len(),
         });

@@ -55,15 +55,16 @@
 //! Either way `D_i = rho_i mean(f)` over the patch's `n` samples, with variance `rho_i² s² / n`,
 //! `s²` the sample variance of `f`.
 
-use crate::gather::{
-    DIRECT_LIGHT, Emission, GatherError, Moments, check_input, gather_round_from, jobs,
-};
+use crate::context::Context;
+use crate::error::Error;
+use crate::gather::{Emission, check_input, gather_round_from};
+use crate::jobs::{DIRECT_LIGHT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
-use mcrad_meshing::{Mesh, Patch};
-use mcrad_random::Stream;
+use mcrad_meshing::Patch;
+use mcrad_random::{Stream, StreamKey};
 use mcrad_raycast::{NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};
@@ -105,27 +106,24 @@ pub struct DirectLight {
 ///
 /// Errors: `samples_per_patch < 2`.
 pub fn direct<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     samples_per_patch: u32,
     sampling: DirectSampling,
-    seed: u64,
-    pass: u64,
-) -> Result<DirectLight, GatherError> {
+    key: StreamKey,
+) -> Result<DirectLight, Error> {
+    let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     if samples_per_patch < 2 {
-        return Err(GatherError::TooFewRays(samples_per_patch));
+        return Err(Error::TooFewRays(samples_per_patch));
     }
     let patches = mesh.patches();
     if patches.len() >= NO_ID as usize {
-        return Err(GatherError::TooManyPatches(patches.len()));
+        return Err(Error::TooManyPatches {
+            patches: patches.len(),
+            limit: NO_ID as u64,
+        });
     }
     let samples = patches.len() as u64 * samples_per_patch as u64;
-    let power: Vec<f64> = patches
-        .iter()
-        .map(|p| p.emission.as_dvec3().element_sum() * p.area)
-        .collect();
-    let Some(emitters) = Discrete::new(&power) else {
+    let Some(emitters) = ctx.emitters() else {
         let zero = vec![DVec3::ZERO; patches.len()];
         return Ok(DirectLight {
             estimate: Estimate::new(zero.clone(), Some(zero), 0)?,
@@ -135,7 +133,7 @@ pub fn direct<C: RayCaster>(
     };
     let light = Light {
         patches,
-        emitters: &emitters,
+        emitters,
         mis: sampling == DirectSampling::EmittersAndCosine,
     };
     let jobs = jobs(patches.len(), samples_per_patch);
@@ -144,7 +142,10 @@ pub fn direct<C: RayCaster>(
         .map(|job| {
             let i = job.item as usize;
             let frame = Frame::from_normal(patches[i].normal);
-            let mut rng = Stream::new(seed, pass, i as u64, DIRECT_LIGHT + job.chunk as u64);
+            let mut rng = key
+                .item(i as u64)
+                .substream(DIRECT_LIGHT + job.chunk as u64)
+                .stream();
             let mut tally = Tally::default();
             for _ in 0..job.rays {
                 let f = light.sample(i, &frame, sampler, caster, &mut rng, &mut tally);
@@ -289,7 +290,7 @@ pub struct SplitConfig {
 /// B_i = E_i + D_i + rho_i sum_j F_ij (B_shoot,j - E_j),
 /// ```
 ///
-/// the direct light `D` from [`direct`] and the indirect light from one [`gather_round`] over
+/// the direct light `D` from [`direct`] and the indirect light from one [`gather_round`](crate::gather_round) over
 /// `input = B_shoot - E` with [`Emission::Exclude`]. Gathering rays never score emission, so a
 /// small light they miss costs nothing: only light reflected at least once is gathered. The two
 /// parts use independent streams (same `seed` and `pass`), so the variance is their sum,
@@ -298,14 +299,12 @@ pub struct SplitConfig {
 ///
 /// Errors: `shooting` not one finite value per patch, or fewer than 2 rays or samples.
 pub fn two_pass_split<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     shooting: &Estimate,
     config: &SplitConfig,
-    seed: u64,
-    pass: u64,
-) -> Result<Estimate, GatherError> {
+    key: StreamKey,
+) -> Result<Estimate, Error> {
+    let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
     let indirect_input = Estimate::new(
@@ -319,26 +318,14 @@ pub fn two_pass_split<C: RayCaster>(
         shooting.rays(),
     )?;
     let indirect = gather_round_from(
-        mesh,
-        sampler,
-        caster,
+        ctx,
         &indirect_input,
         Emission::Exclude,
         config.rays_per_patch,
-        seed,
-        pass,
+        key,
     )?
     .estimate;
-    let direct = direct(
-        mesh,
-        sampler,
-        caster,
-        config.samples_per_patch,
-        config.sampling,
-        seed,
-        pass,
-    )?
-    .estimate;
+    let direct = direct(ctx, config.samples_per_patch, config.sampling, key)?.estimate;
     let radiosity = patches
         .iter()
         .zip(indirect.radiosity().iter().zip(direct.radiosity()))

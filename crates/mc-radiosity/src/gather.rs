@@ -23,7 +23,7 @@
 //!
 //! ```
 //! use glam::{DVec3, Vec3};
-//! use mcrad_mc_radiosity::{Emission, SurfaceSampler, gather_round};
+//! use mcrad_mc_radiosity::{Context, Emission, StreamKey, gather_round};
 //! use mcrad_meshing::{Mesh, Subdivision};
 //! use mcrad_raycast::Bvh;
 //! use mcrad_scene_io::{Face, Material, Scene};
@@ -42,11 +42,11 @@
 //! let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
 //! let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-//! let sampler = SurfaceSampler::new(&mesh);
+//! let ctx = Context::new(&mesh, &bvh);
 //!
 //! // Gathering from the exact solution reproduces it: every ray sees B = 2.
 //! let exact = vec![DVec3::splat(2.0); 6];
-//! let round = gather_round(&mesh, &sampler, &bvh, &exact, Emission::Include, 100, 0, 0).unwrap();
+//! let round = gather_round(&ctx, &exact, Emission::Include, 100, StreamKey::new(0)).unwrap();
 //! assert_eq!(round.estimate.rays(), 600);
 //! for b in round.estimate.radiosity() {
 //!     assert!((b.x - 2.0).abs() < 0.02); // exact unless a ray slipped through an edge
@@ -54,6 +54,9 @@
 //! ```
 //!
 //! # Randomness and determinism
+//!
+//! `seed` and `pass` below are the fields of the [`StreamKey`] the
+//! caller passes.
 //!
 //! Patch `i`'s rays in round `pass` come from `Stream::new(seed, pass, i, PATCH_GATHER + chunk)`,
 //! one stream per chunk of 4096 rays; vertex group `g`'s from
@@ -66,25 +69,17 @@
 //! number of threads. A schedule must give every round it wants independent of the others its
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
+use crate::context::Context;
+use crate::error::Error;
+use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, run};
 use crate::method::StopReason;
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
-use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
-use mcrad_combine::{Estimate, EstimateError};
+use mcrad_combine::Estimate;
 use mcrad_meshing::{CornerGroups, Mesh};
-use mcrad_random::Stream;
+use mcrad_random::StreamKey;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
-use rayon::prelude::*;
 use std::ops::ControlFlow;
-
-/// Rays (or samples) per job: the unit of parallel work and of random streams.
-pub(crate) const JOB_RAYS: u32 = 4096;
-/// Sub-stream tag of patch gathering ([`gather_round`]); the chunk number is added to it.
-pub(crate) const PATCH_GATHER: u64 = 1 << 40;
-/// Sub-stream tag of vertex gathering ([`gather_corners`]).
-pub(crate) const VERTEX_GATHER: u64 = 2 << 40;
-/// Sub-stream tag of direct-light sampling ([`direct`](crate::direct())).
-pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;
 
 /// Whether a gathering result includes the patch's own emission.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -96,222 +91,23 @@ pub enum Emission {
     Exclude,
 }
 
-/// Why a gathering (or direct-light) estimate is refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum GatherError {
-    /// The input radiosity does not have one entry per patch.
-    #[error("the input has {got} values but the mesh has {patches} patches")]
-    InputLength {
-        /// Patches in the mesh.
-        patches: usize,
-        /// Entries given.
-        got: usize,
-    },
-    /// An input radiosity is NaN or infinite.
-    #[error("input radiosity of patch {patch} is not finite: {value}")]
-    NotFinite {
-        /// Patch index.
-        patch: usize,
-        /// The offending value (W/m²).
-        value: DVec3,
-    },
-    /// Fewer than two rays (or samples) per item: the sample variance needs two.
-    #[error("at least 2 rays per patch or vertex are needed for a variance, got {0}")]
-    TooFewRays(u32),
-    /// The ray budget cannot pay for a single gathering round.
-    #[error("a budget of {budget} rays cannot pay for one round of {round} rays")]
-    BudgetTooSmall {
-        /// The budget.
-        budget: u64,
-        /// Rays of one round (`patches × rays_per_patch`).
-        round: u64,
-    },
-    /// The convergence threshold is negative or not finite.
-    #[error("the gathering threshold must be finite and >= 0, got {0}")]
-    BadThreshold(f64),
-    /// The corner groups were made for another mesh.
-    #[error("the corner groups cover {got} corners but the mesh has {corners}")]
-    GroupsMismatch {
-        /// Corners of the mesh.
-        corners: usize,
-        /// Corners the groups cover.
-        got: usize,
-    },
-    /// The mesh has more patches than ray ids can name.
-    #[error("{0} patches are more than the gatherer can address (2^32 - 1)")]
-    TooManyPatches(usize),
-    /// The result could not be made an [`Estimate`] (a non-finite sum: overflow).
-    #[error(transparent)]
-    Estimate(#[from] EstimateError),
-}
-
-/// Running mean and sum of squared deviations of per-ray samples, per RGB channel (Welford's
-/// update, Chan et al.'s merge), in f64. A constant sample has exactly zero deviation.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub(crate) struct Moments {
-    pub n: u64,
-    pub mean: DVec3,
-    pub m2: DVec3,
-}
-
-impl Moments {
-    /// Adds one sample.
-    #[inline]
-    pub fn push(&mut self, x: DVec3) {
-        self.n += 1;
-        let delta = x - self.mean;
-        self.mean += delta / self.n as f64;
-        self.m2 += delta * (x - self.mean);
-    }
-
-    /// The moments of both sample sets together.
-    pub fn merge(self, other: Moments) -> Moments {
-        if self.n == 0 {
-            return other;
-        }
-        if other.n == 0 {
-            return self;
-        }
-        let n = self.n + other.n;
-        let delta = other.mean - self.mean;
-        let w = other.n as f64 / n as f64;
-        Moments {
-            n,
-            mean: self.mean + delta * w,
-            m2: self.m2 + other.m2 + delta * delta * (self.n as f64 * w),
-        }
-    }
-
-    /// The estimated variance of the sample mean, `s² / n` with `s²` the unbiased sample
-    /// variance; zero below two samples.
-    pub fn variance_of_mean(&self) -> DVec3 {
-        if self.n < 2 {
-            return DVec3::ZERO;
-        }
-        (self.m2 / ((self.n - 1) as f64 * self.n as f64)).max(DVec3::ZERO)
-    }
-}
-
-/// One job: `rays` rays of item `item` (a patch or a vertex group), chunk `chunk` of them.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Job {
-    pub item: u32,
-    pub chunk: u32,
-    pub rays: u32,
-}
-
-/// The jobs of `items` items with `per_item` rays each, item by item, chunk by chunk.
-pub(crate) fn jobs(items: usize, per_item: u32) -> Vec<Job> {
-    let chunks = per_item.div_ceil(JOB_RAYS);
-    (0..items as u32)
-        .flat_map(|item| {
-            (0..chunks).map(move |chunk| Job {
-                item,
-                chunk,
-                rays: (per_item - chunk * JOB_RAYS).min(JOB_RAYS),
-            })
-        })
-        .collect()
-}
-
-/// What the rays of one job saw.
-#[derive(Debug, Clone, Copy, Default)]
-struct Seen {
-    moments: Moments,
-    escaped: u64,
-    back_faces: u64,
-    /// Sum of the input variance over consecutive ray pairs that hit the same patch.
-    collisions: DVec3,
-    /// Consecutive ray pairs looked at.
-    pairs: u64,
-}
-
-impl Seen {
-    fn merge(self, other: Seen) -> Seen {
-        Seen {
-            moments: self.moments.merge(other.moments),
-            escaped: self.escaped + other.escaped,
-            back_faces: self.back_faces + other.back_faces,
-            collisions: self.collisions + other.collisions,
-            pairs: self.pairs + other.pairs,
-        }
-    }
-
-    /// The estimate of `sum_j F_ij² V_j` from the collisions: two independent rays of a patch
-    /// hit the same `j` with probability `F_ij²` (0 without pairs).
-    fn collision_mean(&self) -> DVec3 {
-        if self.pairs == 0 {
-            DVec3::ZERO
-        } else {
-            self.collisions / self.pairs as f64
-        }
-    }
-}
-
-/// Casts `n` rays from `ray` and records `input` at each first front-face hit (0 otherwise);
-/// with `variance` (the input's, per patch), also the collisions of consecutive rays.
-#[inline]
-fn look<C: RayCaster>(
-    n: u32,
-    caster: &C,
-    input: &[DVec3],
-    variance: Option<&[DVec3]>,
-    mut ray: impl FnMut() -> Ray,
-) -> Seen {
-    let mut seen = Seen::default();
-    let mut previous = None;
-    for k in 0..n {
-        let hit = caster.closest_hit(&ray());
-        let x = match hit {
-            Some(hit) if hit.front => input[hit.id as usize],
-            Some(_) => {
-                seen.back_faces += 1;
-                DVec3::ZERO
-            }
-            None => {
-                seen.escaped += 1;
-                DVec3::ZERO
-            }
-        };
-        seen.moments.push(x);
-        if let Some(v) = variance {
-            let id = hit.filter(|h| h.front).map(|h| h.id);
-            if k > 0 {
-                seen.pairs += 1;
-                if let Some(j) = id.filter(|&j| previous == Some(j)) {
-                    seen.collisions += v[j as usize];
-                }
-            }
-            previous = id;
-        }
-    }
-    seen
-}
-
-/// Runs `jobs` in parallel and merges each item's chunks in chunk order.
-fn run<F: Fn(&Job) -> Seen + Sync + Send>(items: usize, jobs: &[Job], f: F) -> Vec<Seen> {
-    let seen: Vec<Seen> = jobs.par_iter().map(f).collect();
-    let mut out = vec![Seen::default(); items];
-    for (job, s) in jobs.iter().zip(seen) {
-        out[job.item as usize] = out[job.item as usize].merge(s);
-    }
-    out
-}
-
 /// Checks that `input` has one finite value per patch of `mesh`.
-pub(crate) fn check_input(mesh: &Mesh, input: &[DVec3]) -> Result<(), GatherError> {
+pub(crate) fn check_input(mesh: &Mesh, input: &[DVec3]) -> Result<(), Error> {
     let patches = mesh.patches().len();
     if input.len() != patches {
-        return Err(GatherError::InputLength {
+        return Err(Error::InputLength {
             patches,
             got: input.len(),
         });
     }
     if patches >= NO_ID as usize {
-        return Err(GatherError::TooManyPatches(patches));
+        return Err(Error::TooManyPatches {
+            patches,
+            limit: NO_ID as u64,
+        });
     }
     match input.iter().position(|b| !b.is_finite()) {
-        Some(patch) => Err(GatherError::NotFinite {
+        Some(patch) => Err(Error::NotFinite {
             patch,
             value: input[patch],
         }),
@@ -332,7 +128,7 @@ pub struct GatherRound {
 }
 
 /// One Jacobi gathering round (Balog, section 1.4): every patch `i` casts `rays_per_patch`
-/// cosine-distributed rays from uniform points of itself ([`SurfaceSampler::ray`]) and gets
+/// cosine-distributed rays from uniform points of itself (a uniform point, a cosine-distributed direction) and gets
 ///
 /// ```text
 /// B'_i = [E_i] + rho_i (1/n) sum_k input[j_k]      (W/m² per channel)
@@ -352,28 +148,14 @@ pub struct GatherRound {
 /// the result depends on `(seed, pass)` only, not on the thread count.
 ///
 /// Errors: `input` not one finite value per patch, or `rays_per_patch < 2`.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_round<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &[DVec3],
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
-) -> Result<GatherRound, GatherError> {
-    round(
-        mesh,
-        sampler,
-        caster,
-        input,
-        None,
-        emission,
-        rays_per_patch,
-        seed,
-        pass,
-    )
+    key: StreamKey,
+) -> Result<GatherRound, Error> {
+    round(ctx, input, None, emission, rays_per_patch, key)
 }
 
 /// [`gather_round`] from an estimate: the same values, and the variance reported per patch
@@ -384,54 +166,47 @@ pub fn gather_round<C: RayCaster>(
 /// coarse mesh this dominates (the Cornell box's 19 faces: a block face's gathered variance was
 /// 20 times the conditional one); on a fine one it is small. An input without variances adds
 /// nothing.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_round_from<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &Estimate,
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
-) -> Result<GatherRound, GatherError> {
+    key: StreamKey,
+) -> Result<GatherRound, Error> {
     round(
-        mesh,
-        sampler,
-        caster,
+        ctx,
         input.radiosity(),
         input.variance(),
         emission,
         rays_per_patch,
-        seed,
-        pass,
+        key,
     )
 }
 
 /// [`gather_round`] with the input variance of [`gather_round_from`] optional.
-#[allow(clippy::too_many_arguments)]
 fn round<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &[DVec3],
     input_variance: Option<&[DVec3]>,
     emission: Emission,
     rays_per_patch: u32,
-    seed: u64,
-    pass: u64,
-) -> Result<GatherRound, GatherError> {
+    key: StreamKey,
+) -> Result<GatherRound, Error> {
+    let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
         check_input(mesh, v)?;
     }
     if rays_per_patch < 2 {
-        return Err(GatherError::TooFewRays(rays_per_patch));
+        return Err(Error::TooFewRays(rays_per_patch));
     }
     let patches = mesh.patches();
     let jobs = jobs(patches.len(), rays_per_patch);
     let seen = run(patches.len(), &jobs, |job| {
-        let mut rng = Stream::new(seed, pass, job.item as u64, PATCH_GATHER + job.chunk as u64);
+        let mut rng = key
+            .item(job.item as u64)
+            .substream(PATCH_GATHER + job.chunk as u64)
+            .stream();
         look(job.rays, caster, input, input_variance, || {
             sampler.ray(job.item as usize, &mut rng)
         })
@@ -450,7 +225,7 @@ fn finish(
     seen: &[Seen],
     emission: Emission,
     rays: u64,
-) -> Result<GatherRound, GatherError> {
+) -> Result<GatherRound, Error> {
     let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
     let (mut escaped_rays, mut back_face_hits) = (0, 0);
     for ((rho, e), s) in materials.zip(seen) {
@@ -558,25 +333,24 @@ pub struct Gathering {
 ///
 /// Errors: `config.rays_per_patch < 2`, a bad threshold, or a budget below one round.
 pub fn gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &GatherConfig,
     observer: &mut dyn FnMut(&GatherProgress) -> ControlFlow<()>,
-) -> Result<Gathering, GatherError> {
+) -> Result<Gathering, Error> {
+    let mesh = ctx.mesh();
     if !(config.threshold.is_finite() && config.threshold >= 0.0) {
-        return Err(GatherError::BadThreshold(config.threshold));
+        return Err(Error::BadGatherThreshold(config.threshold));
     }
     if config.rays_per_patch < 2 {
-        return Err(GatherError::TooFewRays(config.rays_per_patch));
+        return Err(Error::TooFewRays(config.rays_per_patch));
     }
     let round = mesh.patches().len() as u64 * config.rays_per_patch as u64;
     if config.rays < round {
-        return Err(GatherError::BudgetTooSmall {
+        return Err(Error::BudgetBelowRound {
             budget: config.rays,
             round,
         });
     }
-    let sampler = SurfaceSampler::new(mesh);
     let mut b: Vec<DVec3> = mesh
         .patches()
         .iter()
@@ -593,14 +367,11 @@ pub fn gather<C: RayCaster>(
     let mut last = Estimate::new(b.clone(), Some(vec![DVec3::ZERO; b.len()]), 0)?;
     while stats.rays + round <= config.rays {
         let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
+            ctx,
             &last,
             Emission::Include,
             config.rays_per_patch,
-            config.seed,
-            stats.rounds as u64,
+            StreamKey::new(config.seed).pass(stats.rounds as u64),
         )?;
         let next = r.estimate.radiosity();
         let largest = next.iter().zip(mesh.patches()).fold(0.0f64, |m, (x, p)| {
@@ -691,23 +462,21 @@ pub struct CornerGathering {
 ///
 /// Errors: `input` not one finite value per patch, `groups` made for another mesh, or
 /// `rays_per_vertex < 2`.
-#[allow(clippy::too_many_arguments)]
 pub fn gather_corners<C: RayCaster>(
-    mesh: &Mesh,
+    ctx: &Context<C>,
     groups: &CornerGroups,
-    caster: &C,
     input: &[DVec3],
     emission: Emission,
     rays_per_vertex: u32,
-    seed: u64,
-    pass: u64,
-) -> Result<CornerGathering, GatherError> {
+    key: StreamKey,
+) -> Result<CornerGathering, Error> {
+    let (mesh, caster) = (ctx.mesh(), ctx.caster());
     check_input(mesh, input)?;
     if rays_per_vertex < 2 {
-        return Err(GatherError::TooFewRays(rays_per_vertex));
+        return Err(Error::TooFewRays(rays_per_vertex));
     }
     if groups.corner_groups().len() != mesh.corner_count() {
-        return Err(GatherError::GroupsMismatch {
+        return Err(Error::GroupsMismatch {
             corners: mesh.corner_count(),
             got: groups.corner_groups().len(),
         });
@@ -732,7 +501,10 @@ pub fn gather_corners<C: RayCaster>(
     let jobs = jobs(groups.len(), rays_per_vertex);
     let seen = run(groups.len(), &jobs, |job| {
         let g = job.item as usize;
-        let mut rng = Stream::new(seed, pass, g as u64, VERTEX_GATHER + job.chunk as u64);
+        let mut rng = key
+            .item(g as u64)
+            .substream(VERTEX_GATHER + job.chunk as u64)
+            .stream();
         let (origin, frame) = (groups.point(g), &frames[g]);
         look(job.rays, caster, input, None, || Ray {
             origin,
@@ -767,6 +539,7 @@ pub fn gather_corners<C: RayCaster>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::jobs::{JOB_RAYS, Moments};
 
     #[test]
     fn moments_merge_like_one_pass() {

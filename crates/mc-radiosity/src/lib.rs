@@ -29,21 +29,30 @@
 //! This crate does no I/O.
 
 pub mod ambient;
+mod context;
 pub mod direct;
+mod error;
 pub mod gather;
+mod jobs;
 pub mod method;
-pub mod sampling;
+mod sampling;
 pub mod schedule;
 mod shoot;
 mod surface;
 
-pub use ambient::{AmbientError, ambient, mean_reflectance, with_ambient};
+pub use ambient::{ambient, mean_reflectance, with_ambient};
+pub use context::Context;
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
+pub use error::Error;
 pub use gather::{
-    CornerGathering, Emission, GatherConfig, GatherError, GatherProgress, GatherRound, GatherStats,
-    Gathering, gather, gather_corners, gather_round, gather_round_from,
+    CornerGathering, Emission, GatherConfig, GatherProgress, GatherRound, GatherStats, Gathering,
+    gather, gather_corners, gather_round, gather_round_from,
 };
+pub use mcrad_random::StreamKey;
 pub use method::{Kind, Method, StopReason, UnknownMethod};
 pub use schedule::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD};
-pub use shoot::{ShootConfig, ShootError, ShootProgress, ShootStats, Shooting, shoot};
+pub use shoot::{ShootConfig, ShootProgress, ShootStats, Shooting, shoot};
+/// Uniform points and cosine-distributed rays on patches, for tests that check the estimators'
+/// sampling against the reference (only with the `testing` feature).
+#[cfg(feature = "testing")]
 pub use surface::SurfaceSampler;

@@ -12,7 +12,8 @@
 //! [`StopReason`], why a run ended, lives here too: it is what the run statistics report next
 //! to the method.
 
-use crate::schedule::{Observer, ScheduleConfig, ScheduleError, Solution};
+use crate::error::Error;
+use crate::schedule::{Observer, ScheduleConfig, Solution};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::fmt;
@@ -152,7 +153,7 @@ macro_rules! methods {
                 caster: &C,
                 config: &ScheduleConfig,
                 observer: &mut Observer,
-            ) -> Result<Solution, ScheduleError> {
+            ) -> Result<Solution, Error> {
                 match self {
                     $(Method::$variant => $runner(mesh, caster, config, observer),)*
                 }
@@ -168,7 +169,7 @@ methods! {
         paper: Some("section 1.3"),
         summary: "Stochastic shooting with constant energy per ray",
         kind: Budgeted,
-        runner: crate::schedule::run_shoot,
+        runner: crate::schedule::shoot::run,
     }
     /// Jacobi gathering (section 1.4) from `B = E`; a step is a round.
     Gather {
@@ -176,7 +177,7 @@ methods! {
         paper: Some("section 1.4"),
         summary: "Jacobi gathering: each patch gathers rho * mean(B_hit) over its rays",
         kind: Budgeted,
-        runner: crate::schedule::run_gather,
+        runner: crate::schedule::gather::run,
     }
     /// Two-pass (section 1.5): shooting with half the budget, then one gathering round from it
     /// with the other half.
@@ -185,7 +186,7 @@ methods! {
         paper: Some("section 1.5"),
         summary: "Shooting with half the budget, then one gathering round from it; see --split",
         kind: Budgeted,
-        runner: crate::schedule::run_two_pass_plain,
+        runner: crate::schedule::two_pass::run,
     }
     /// Two-pass with Shirley's direct/indirect split: the second half computes direct light by
     /// sampling the emitters with shadow rays and gathers only the indirect light.
@@ -195,7 +196,7 @@ methods! {
         summary: "Two-pass with Shirley and Wang's split: direct light by sampling the \
                   emitters, only the indirect light gathered",
         kind: Budgeted,
-        runner: crate::schedule::run_two_pass_split,
+        runner: crate::schedule::two_pass_split::run,
     }
     /// Progressive ray refinement (Algorithm 1): complete shooting passes with doubling rays
     /// (halving energy per ray), merged with weights proportional to their rays, i.e.
@@ -206,7 +207,7 @@ methods! {
         summary: "Progressive ray refinement: shooting passes with doubling rays, merged by \
                   their rays",
         kind: Progressive,
-        runner: crate::schedule::run_prr,
+        runner: crate::schedule::prr::run,
     }
     /// Progressive gathering (Algorithm 2): one shooting solution (a quarter of the budget),
     /// then gathering rounds from it with doubling rays per patch, merged by rays per patch.
@@ -216,7 +217,7 @@ methods! {
         summary: "Progressive gathering: one shooting solution, gathering rounds from it with \
                   doubling rays",
         kind: Budgeted,
-        runner: crate::schedule::run_progressive_gather,
+        runner: crate::schedule::progressive_gather::run,
     }
     /// Progressive two-pass (Algorithm 3): shooting refined pass by pass as in PRR, each
     /// refinement regathered with doubling rays per patch; gathers merged by rays per patch.
@@ -225,7 +226,7 @@ methods! {
         paper: Some("Algorithm 3"),
         summary: "Progressive two-pass: shooting refined as in prr, regathered every pass",
         kind: Progressive,
-        runner: crate::schedule::run_progressive_two_pass,
+        runner: crate::schedule::progressive_two_pass::run,
     }
     /// Iterative combined shooting and gathering (Algorithm 4): each pass shoots (merged as in
     /// PRR), gathers from the current combination with the direct/indirect split (merged by
@@ -237,7 +238,7 @@ methods! {
         summary: "Iterative combined shooting and gathering, merged per patch by inverse \
                   variance",
         kind: Progressive,
-        runner: crate::schedule::combined::run_combined,
+        runner: crate::schedule::combined::run,
     }
     /// RenderPark's alternative to [`Method::Combined`]: every ray used for both shooting and
     /// gathering, weighted by the balance heuristic (bidirectional stochastic Jacobi steps from
@@ -248,7 +249,7 @@ methods! {
         summary: "RenderPark's alternative to combined: every ray used for shooting and \
                   gathering, weighted by the balance heuristic",
         kind: Progressive,
-        runner: crate::schedule::bidirectional::run_bidirectional,
+        runner: crate::schedule::bidirectional::run,
     }
     /// The deterministic reference solver (crate `mcrad-reference`): explicit form factors and
     /// Gauss-Seidel, up to [`ReferenceConfig::max_patches`](mcrad_reference::ReferenceConfig)
@@ -260,7 +261,7 @@ methods! {
         summary: "Deterministic reference: explicit form factors and Gauss-Seidel (up to 10k \
                   patches); --rays does not apply",
         kind: Deterministic,
-        runner: crate::schedule::reference::run_reference,
+        runner: crate::schedule::reference::run,
     }
 }
 

@@ -4,6 +4,7 @@
 //! directions, area for points, counting measure for discrete choices.
 
 use glam::{Vec2, Vec3};
+#[cfg(test)]
 use std::f32::consts::{FRAC_1_PI, PI};
 
 /// An orthonormal frame around a unit normal (Duff et al. 2017, branchless).
@@ -32,13 +33,14 @@ impl Frame {
 
     /// Local coordinates to world.
     #[inline]
-    pub fn to_world(&self, v: Vec3) -> Vec3 {
+    pub fn to_world(self, v: Vec3) -> Vec3 {
         self.tangent * v.x + self.bitangent * v.y + self.normal * v.z
     }
 
     /// World coordinates to local.
+    #[cfg(test)]
     #[inline]
-    pub fn to_local(&self, v: Vec3) -> Vec3 {
+    pub fn to_local(self, v: Vec3) -> Vec3 {
         Vec3::new(
             v.dot(self.tangent),
             v.dot(self.bitangent),
@@ -52,6 +54,7 @@ impl Frame {
 /// Density [`cosine_hemisphere_pdf`]. The polar form has no branch and no division, which matters
 /// in the shooting loop; the concentric map's better stratification does not, as the samples are
 /// independent.
+#[cfg(test)]
 #[inline]
 pub fn cosine_hemisphere(u: Vec2) -> Vec3 {
     let r = u.x.sqrt();
@@ -75,12 +78,14 @@ pub fn cosine_hemisphere_rejection(mut uniform: impl FnMut() -> f32) -> Vec3 {
 }
 
 /// Density of [`cosine_hemisphere`] per steradian: `cos(theta) / pi` above the surface, 0 below.
+#[cfg(test)]
 #[inline]
 pub fn cosine_hemisphere_pdf(local_dir: Vec3) -> f32 {
     local_dir.z.max(0.0) * FRAC_1_PI
 }
 
 /// Inverse of [`cosine_hemisphere`]: the square point that maps to `local_dir` (`z >= 0`).
+#[cfg(test)]
 pub fn cosine_hemisphere_inverse(local_dir: Vec3) -> Vec2 {
     let phi = local_dir.y.atan2(local_dir.x);
     let v = phi / (2.0 * PI);
@@ -99,12 +104,14 @@ pub fn uniform_triangle(u: Vec2) -> Vec2 {
 }
 
 /// Density of [`uniform_triangle`] per unit area for a triangle of `area`.
+#[cfg(test)]
 #[inline]
 pub fn uniform_triangle_pdf(area: f32) -> f32 {
     1.0 / area
 }
 
 /// Inverse of [`uniform_triangle`].
+#[cfg(test)]
 pub fn uniform_triangle_inverse(b: Vec2) -> Vec2 {
     let su = b.x + b.y;
     if su <= 0.0 {
@@ -155,6 +162,7 @@ impl Discrete {
     }
 
     /// The sub-interval of `[0, 1)` that maps to index `i` (the inverse of [`Discrete::sample`]).
+    #[cfg(test)]
     pub fn inverse(&self, i: usize) -> std::ops::Range<f64> {
         (if i == 0 { 0.0 } else { self.cdf[i - 1] })..self.cdf[i]
     }

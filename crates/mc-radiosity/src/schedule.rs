@@ -5,22 +5,31 @@
 //! draw progress, write an error trace, or stop the run; a stopped run returns the last complete
 //! solution, never a half-finished pass. The merge rules live in `combine`.
 
-use crate::ambient::AmbientError;
-use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::gather::{Emission, GatherConfig, GatherError, gather, gather_round_from};
-use crate::shoot::{ShootConfig, ShootError, Shooting, shoot};
-use crate::surface::SurfaceSampler;
+use crate::context::Context;
+use crate::error::Error;
+use crate::shoot::{ShootConfig, Shooting, shoot};
 use glam::DVec3;
-use mcrad_combine::{Estimate, EstimateError, Rule, merge};
+use mcrad_combine::{ByRays, Estimate, merge};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
-use mcrad_reference::{ReferenceConfig, ReferenceError};
+use mcrad_reference::ReferenceConfig;
 use std::ops::ControlFlow;
 
 pub(crate) mod bidirectional;
 pub(crate) mod combined;
+pub(crate) mod gather;
+pub(crate) mod progressive_gather;
+pub(crate) mod progressive_two_pass;
+pub(crate) mod prr;
 pub(crate) mod reference;
+pub(crate) mod shoot;
+pub(crate) mod two_pass;
+pub(crate) mod two_pass_split;
+
+/// Algorithm 4 (the `combined` method) with a weighting of its choice instead of the default
+/// [`InverseExpectedVariance`](mcrad_combine::InverseExpectedVariance).
+pub use combined::run_with as run_combined_with;
 
 pub use crate::method::{Kind, Method, StopReason};
 
@@ -96,29 +105,6 @@ pub struct Solution {
     pub stop: StopReason,
 }
 
-/// Why a schedule failed.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ScheduleError {
-    /// A shooting pass was refused.
-    #[error(transparent)]
-    Shoot(#[from] ShootError),
-    /// A gathering step was refused.
-    #[error(transparent)]
-    Gather(#[from] GatherError),
-    /// The ambient term could not be formed.
-    #[error(transparent)]
-    Ambient(#[from] AmbientError),
-    /// Estimates could not be merged.
-    #[error(transparent)]
-    Merge(#[from] EstimateError),
-    /// The reference solver refused or failed.
-    #[error(transparent)]
-    Reference(#[from] ReferenceError),
-    /// No step could run: the budget is smaller than one pass.
-    #[error("the ray budget of {0} rays is too small for one pass of this method")]
-    BudgetTooSmall(u64),
-}
-
 /// The observer of a schedule.
 pub type Observer<'o> = dyn FnMut(&Step) -> ControlFlow<()> + 'o;
 
@@ -129,7 +115,7 @@ pub fn run<C: RayCaster>(
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     method.dispatch(mesh, caster, config, observer)
 }
 
@@ -146,52 +132,14 @@ fn unshot_fraction(s: &Shooting) -> f64 {
     t(s.stats.unshot) / t(s.stats.emitted)
 }
 
-/// Plain shooting: one pass, a step per wave.
-pub(crate) fn run_shoot<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let mut steps = 0;
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, config.rays, config.seed),
-        &mut |p| {
-            steps = p.waves;
-            observer(&Step {
-                index: p.waves,
-                rays: p.rays,
-                next_rays: p.budget.saturating_sub(p.rays),
-                radiosity: p.radiosity,
-            })
-        },
-    )?;
-    let stop = s.stats.stop;
-    let unshot_fraction = unshot_fraction(&s);
-    let escaped_rays = s.stats.escaped_rays;
-    Ok(Solution {
-        estimate: with_ambient(mesh, config, s)?,
-        steps,
-        escaped_rays,
-        unshot_fraction,
-        stop,
-    })
-}
-
 /// The shooting estimate, with the ambient term (its unshot power spread as
 /// `rho_i * A_amb`) added when the configuration asks for it.
-fn with_ambient(
-    mesh: &Mesh,
-    config: &ScheduleConfig,
-    s: Shooting,
-) -> Result<Estimate, ScheduleError> {
+fn with_ambient(mesh: &Mesh, config: &ScheduleConfig, s: Shooting) -> Result<Estimate, Error> {
     if !config.ambient {
         return Ok(s.estimate);
     }
     let a = crate::ambient::ambient(mesh, &s.unshot, s.stats.escape_fraction())?;
-    Ok(crate::ambient::with_ambient(mesh, &s.estimate, a)?)
+    crate::ambient::with_ambient(mesh, &s.estimate, a)
 }
 
 /// Seed tags: shooting pass `k` uses `k`, gathering pass `k` uses `GATHER_TAG + k`.
@@ -202,52 +150,11 @@ fn per_patch(mesh: &Mesh, rays: u64) -> u32 {
     (rays / mesh.patches().len().max(1) as u64).clamp(2, u32::MAX as u64) as u32
 }
 
-/// Merges `next` into `acc` by `rule`.
-fn accumulate(
-    acc: Option<Estimate>,
-    next: Estimate,
-    rule: Rule,
-) -> Result<Estimate, ScheduleError> {
+/// Merges `next` into `acc` by their rays ([`ByRays`], the passes of Algorithms 1-3).
+fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, Error> {
     Ok(match acc {
         None => next,
-        Some(a) => merge(&a, &next, rule)?,
-    })
-}
-
-/// Jacobi gathering: a step per round.
-pub(crate) fn run_gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
-    let rays_per_patch = if config.rays == u64::MAX {
-        256
-    } else {
-        per_patch(mesh, config.rays / 10)
-    };
-    let gather_config = GatherConfig {
-        rays: config.rays,
-        rays_per_patch,
-        threshold: 1e-3,
-        seed: config.seed,
-    };
-    let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
-    let g = gather(mesh, caster, &gather_config, &mut |p| {
-        observer(&Step {
-            index: p.rounds,
-            rays: p.rays,
-            next_rays: per_round.min(p.budget - p.rays),
-            radiosity: p.radiosity,
-        })
-    })?;
-    Ok(Solution {
-        estimate: g.estimate,
-        steps: g.rounds,
-        escaped_rays: g.stats.escaped_rays,
-        unshot_fraction: 0.0,
-        stop: g.stats.stop,
+        Some(a) => merge(&a, &next, &ByRays)?,
     })
 }
 
@@ -318,113 +225,6 @@ fn budget_or_stopped(stopped: bool) -> StopReason {
     }
 }
 
-/// [`Method::TwoPass`]: [`run_two_pass`] gathering everything.
-pub(crate) fn run_two_pass_plain<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    run_two_pass(mesh, caster, config, false, observer)
-}
-
-/// [`Method::TwoPassSplit`]: [`run_two_pass`] with the direct/indirect split.
-pub(crate) fn run_two_pass_split<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    run_two_pass(mesh, caster, config, true, observer)
-}
-
-/// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
-/// split) from it with the other half. Two steps.
-fn run_two_pass<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    split: bool,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let budget = if config.rays == u64::MAX {
-        2_000_000
-    } else {
-        config.rays
-    };
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
-        &mut |_| ControlFlow::Continue(()),
-    )?;
-    let (shot_rays, mut escaped_rays, unshot) =
-        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
-    let shooting = with_ambient(mesh, config, s)?;
-    let gather_budget = budget.saturating_sub(shot_rays);
-    if observer(&Step {
-        index: 1,
-        rays: shot_rays,
-        next_rays: gather_budget,
-        radiosity: shooting.radiosity(),
-    })
-    .is_break()
-    {
-        return Ok(Solution {
-            estimate: shooting,
-            steps: 1,
-            escaped_rays,
-            unshot_fraction: unshot,
-            stop: StopReason::Stopped,
-        });
-    }
-    let sampler = SurfaceSampler::new(mesh);
-    let seed = derive_seed(config.seed, GATHER_TAG);
-    let gathered = if split {
-        // Direct samples cost two rays each (an emitter sample and a cosine ray).
-        let split = SplitConfig {
-            rays_per_patch: per_patch(mesh, gather_budget / 2),
-            samples_per_patch: per_patch(mesh, gather_budget / 4),
-            sampling: DirectSampling::EmittersAndCosine,
-        };
-        two_pass_split(mesh, &sampler, caster, &shooting, &split, seed, 0)?
-    } else {
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &shooting,
-            Emission::Include,
-            per_patch(mesh, gather_budget),
-            seed,
-            0,
-        )?;
-        escaped_rays += r.escaped_rays;
-        r.estimate
-    };
-    // The answer's work is everything it took: the shooting and the gathering.
-    let rays = shot_rays + gathered.rays();
-    let estimate = Estimate::new(
-        gathered.radiosity().to_vec(),
-        gathered.variance().map(<[DVec3]>::to_vec),
-        rays,
-    )?;
-    let stopped = observer(&Step {
-        index: 2,
-        rays,
-        next_rays: 0,
-        radiosity: estimate.radiosity(),
-    })
-    .is_break();
-    Ok(Solution {
-        estimate,
-        steps: 2,
-        escaped_rays,
-        unshot_fraction: unshot,
-        stop: budget_or_stopped(stopped),
-    })
-}
-
 /// The bookkeeping of a progressive schedule: the merged solution so far and the counters.
 #[derive(Default)]
 struct Progressive {
@@ -444,8 +244,8 @@ impl Progressive {
         estimate: Estimate,
         next_rays: u64,
         observer: &mut Observer,
-    ) -> Result<bool, ScheduleError> {
-        let merged = accumulate(self.merged.take(), estimate, Rule::ByWork)?;
+    ) -> Result<bool, Error> {
+        let merged = accumulate(self.merged.take(), estimate)?;
         self.replace(merged, next_rays, observer)
     }
 
@@ -456,7 +256,7 @@ impl Progressive {
         merged: Estimate,
         next_rays: u64,
         observer: &mut Observer,
-    ) -> Result<bool, ScheduleError> {
+    ) -> Result<bool, Error> {
         self.steps += 1;
         let step = Step {
             index: self.steps,
@@ -473,15 +273,13 @@ impl Progressive {
     /// power counted in the run.
     fn shoot<C: RayCaster>(
         &mut self,
-        mesh: &Mesh,
-        caster: &C,
+        ctx: &Context<C>,
         config: &ScheduleConfig,
         rays: u64,
         tag: u64,
-    ) -> Result<Shooting, ScheduleError> {
+    ) -> Result<Shooting, Error> {
         let s = shoot(
-            mesh,
-            caster,
+            ctx,
             &shoot_config(config, rays, derive_seed(config.seed, tag)),
             &mut |_| ControlFlow::Continue(()),
         )?;
@@ -492,8 +290,8 @@ impl Progressive {
     }
 
     /// The solution: the merged estimate, its work counted as every ray the run cast.
-    fn finish(self, budget: u64) -> Result<Solution, ScheduleError> {
-        let m = self.merged.ok_or(ScheduleError::BudgetTooSmall(budget))?;
+    fn finish(self, budget: u64) -> Result<Solution, Error> {
+        let m = self.merged.ok_or(Error::BudgetTooSmall(budget))?;
         let estimate = Estimate::new(
             m.radiosity().to_vec(),
             m.variance().map(<[DVec3]>::to_vec),
@@ -507,124 +305,6 @@ impl Progressive {
             stop: budget_or_stopped(self.stopped),
         })
     }
-}
-
-/// Algorithm 2: progressive gathering from one shooting solution.
-pub(crate) fn run_progressive_gather<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let shoot_budget = if config.rays == u64::MAX {
-        1_000_000
-    } else {
-        config.rays / 4
-    };
-    let s = shoot(
-        mesh,
-        caster,
-        &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
-        &mut |_| ControlFlow::Continue(()),
-    )?;
-    let mut run = Progressive {
-        rays: s.stats.rays,
-        escaped_rays: s.stats.escaped_rays,
-        unshot_fraction: unshot_fraction(&s),
-        ..Default::default()
-    };
-    let shooting = with_ambient(mesh, config, s)?;
-    let sampler = SurfaceSampler::new(mesh);
-    let rest = config.rays.saturating_sub(run.rays);
-    let min_pass = 2 * mesh.patches().len() as u64;
-    let first =
-        config
-            .first_pass_rays
-            .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 });
-    let mut passes = Doubling::new(&ScheduleConfig {
-        rays: rest,
-        first_pass_rays: Some(first.max(min_pass)),
-        ..config.clone()
-    });
-    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
-        let seed = derive_seed(config.seed, GATHER_TAG + run.steps as u64);
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &shooting,
-            Emission::Include,
-            per_patch(mesh, budget),
-            seed,
-            0,
-        )?;
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
-}
-
-/// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
-/// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
-pub(crate) fn run_progressive_two_pass<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let min_pass = 4 * mesh.patches().len() as u64;
-    let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
-    let mut shooting: Option<Estimate> = None;
-    let mut run = Progressive::default();
-    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
-        let k = run.steps as u64;
-        let s = run.shoot(mesh, caster, config, budget / 2, k)?;
-        let refined = accumulate(
-            shooting.take(),
-            with_ambient(mesh, config, s)?,
-            Rule::ByWork,
-        )?;
-        let seed = derive_seed(config.seed, GATHER_TAG + k);
-        let r = gather_round_from(
-            mesh,
-            &sampler,
-            caster,
-            &refined,
-            Emission::Include,
-            per_patch(mesh, budget / 2),
-            seed,
-            0,
-        )?;
-        shooting = Some(refined);
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
-}
-
-/// Algorithm 1: progressive ray refinement.
-pub(crate) fn run_prr<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
-    config: &ScheduleConfig,
-    observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
-    let mut passes = Doubling::new(config);
-    let mut run = Progressive::default();
-    while let Some(budget) = passes.next() {
-        let s = run.shoot(mesh, caster, config, budget, run.steps as u64)?;
-        if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
-            break;
-        }
-    }
-    run.finish(config.rays)
 }
 
 #[cfg(test)]

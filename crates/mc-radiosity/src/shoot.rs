@@ -32,12 +32,14 @@
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
 
+use crate::context::Context;
+use crate::error::Error;
 use crate::method::StopReason;
 use crate::sampling::stochastic_round;
 use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
-use mcrad_meshing::Mesh;
+
 use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
@@ -48,7 +50,7 @@ use std::ops::ControlFlow;
 pub struct ShootConfig {
     /// The ray budget (`>= 1`): the waves cast at most this many rays, and a finishing tail of
     /// Russian-roulette rays ships what is still above the threshold when it is spent (see the
-    /// [module documentation](self)).
+    /// documentation of [`shoot`](crate::shoot())).
     pub rays: u64,
     /// Stop once the unshot power (summed over patches and channels) is at most this fraction
     /// of the emitted power; in `[0, 1]`. `0` runs until the budget is spent.
@@ -58,31 +60,15 @@ pub struct ShootConfig {
 }
 
 impl Default for ShootConfig {
-    /// One million rays, stop at 1% unshot, seed 0.
+    /// One million rays, stop at [`DEFAULT_UNSHOT_THRESHOLD`](crate::DEFAULT_UNSHOT_THRESHOLD)
+    /// unshot (the schedules' default), seed 0.
     fn default() -> Self {
         ShootConfig {
             rays: 1_000_000,
-            unshot_threshold: 0.01,
+            unshot_threshold: crate::DEFAULT_UNSHOT_THRESHOLD,
             seed: 0,
         }
     }
-}
-
-/// Why a shooting run is refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum ShootError {
-    /// Nothing in the mesh emits.
-    #[error("no patch emits light: there is nothing to shoot")]
-    NoEmission,
-    /// The ray budget is zero.
-    #[error("the ray budget must be at least 1")]
-    NoRays,
-    /// The threshold is not a fraction.
-    #[error("the unshot threshold must be in [0, 1], got {0}")]
-    BadThreshold(f64),
-    /// The mesh has more patches than hit records can name.
-    #[error("{0} patches are more than the shooter can address (2^31)")]
-    TooManyPatches(usize),
 }
 
 /// What the observer sees after each wave.
@@ -191,20 +177,23 @@ fn total(x: DVec3) -> f64 {
 /// Solves radiosity on `mesh` by shooting, casting rays through `caster`. `observer` sees the
 /// progress after each wave and may stop the run, which then returns the solution so far.
 pub fn shoot<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ShootConfig,
     observer: &mut dyn FnMut(&ShootProgress) -> ControlFlow<()>,
-) -> Result<Shooting, ShootError> {
+) -> Result<Shooting, Error> {
+    let (mesh, caster) = (ctx.mesh(), ctx.caster());
     if config.rays == 0 {
-        return Err(ShootError::NoRays);
+        return Err(Error::NoRays);
     }
     if !(0.0..=1.0).contains(&config.unshot_threshold) {
-        return Err(ShootError::BadThreshold(config.unshot_threshold));
+        return Err(Error::BadUnshotThreshold(config.unshot_threshold));
     }
     let patches = mesh.patches();
     if patches.len() >= BACK as usize {
-        return Err(ShootError::TooManyPatches(patches.len()));
+        return Err(Error::TooManyPatches {
+            patches: patches.len(),
+            limit: BACK as u64,
+        });
     }
     let area: Vec<f64> = patches.iter().map(|p| p.area).collect();
     let rho: Vec<DVec3> = patches.iter().map(|p| p.reflectance.as_dvec3()).collect();
@@ -214,7 +203,7 @@ pub fn shoot<C: RayCaster>(
         .collect();
     let emitted: DVec3 = unshot.iter().sum();
     if total(emitted) <= 0.0 {
-        return Err(ShootError::NoEmission);
+        return Err(Error::NoEmission);
     }
     let total_area: f64 = area.iter().sum();
     let rho_avg = (rho
@@ -224,7 +213,7 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(0.999);
-    let sampler = SurfaceSampler::new(mesh);
+    let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
@@ -283,7 +272,7 @@ pub fn shoot<C: RayCaster>(
         for batch in batches(&jobs) {
             let hits: Vec<Vec<u32>> = batch
                 .par_iter()
-                .map(|job| trace(job, &sampler, caster, config.seed, wave))
+                .map(|job| trace(job, sampler, caster, config.seed, wave))
                 .collect();
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {

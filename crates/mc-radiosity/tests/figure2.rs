@@ -22,9 +22,10 @@
 use glam::DVec3;
 use mcrad_combine::rms_rel;
 use mcrad_mc_radiosity::{
-    Emission, ShootConfig, Shooting, SurfaceSampler, ambient, gather_round, shoot, with_ambient,
+    Context, Emission, ShootConfig, Shooting, ambient, gather_round, shoot, with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_random::StreamKey;
 use mcrad_raycast::Bvh;
 use mcrad_reference::{ReferenceConfig, reference};
 use std::ops::ControlFlow;
@@ -58,7 +59,7 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
     let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
     assert_eq!(mesh.patches().len(), 19);
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let sampler = SurfaceSampler::new(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let exact = reference(&mesh, &bvh, &ReferenceConfig::default(), &|_| {})
         .unwrap()
         .estimate;
@@ -85,14 +86,11 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
             s.estimate.clone()
         };
         let round = gather_round(
-            &mesh,
-            &sampler,
-            &bvh,
+            &ctx,
             input.radiosity(),
             Emission::Include,
             GATHER_RAYS,
-            seed,
-            0,
+            StreamKey::new(seed),
         )
         .unwrap();
         let b = round.estimate.radiosity();
@@ -111,7 +109,10 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
             unshot_threshold: 0.0,
             seed,
         };
-        let early = shoot(&mesh, &bvh, &early_config, &mut |_| ControlFlow::Break(())).unwrap();
+        let early = shoot(&Context::new(&mesh, &bvh), &early_config, &mut |_| {
+            ControlFlow::Break(())
+        })
+        .unwrap();
         assert_eq!(early.stats.waves, 1);
         unshot.push(early.stats.unshot.element_sum() / early.stats.emitted.element_sum());
         let late_config = ShootConfig {
@@ -119,12 +120,9 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
             unshot_threshold: 0.01,
             seed,
         };
-        let late = shoot(
-            &mesh,
-            &bvh,
-            &late_config,
-            &mut |_| ControlFlow::Continue(()),
-        )
+        let late = shoot(&Context::new(&mesh, &bvh), &late_config, &mut |_| {
+            ControlFlow::Continue(())
+        })
         .unwrap();
         assert!(late.stats.unshot.element_sum() <= 0.01 * late.stats.emitted.element_sum());
         runs.push([

@@ -15,11 +15,12 @@
 
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::{
-    DirectSampling, Emission, GatherConfig, GatherError, ShootConfig, SplitConfig, StopReason,
-    SurfaceSampler, ambient, direct, gather, gather_corners, gather_round, mean_reflectance, shoot,
-    two_pass_split, with_ambient,
+    Context, DirectSampling, Emission, Error, GatherConfig, ShootConfig, SplitConfig, StopReason,
+    ambient, direct, gather, gather_corners, gather_round, mean_reflectance, shoot, two_pass_split,
+    with_ambient,
 };
 use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_random::StreamKey;
 use mcrad_scene_io::{Face, Material, Scene};
 use std::ops::ControlFlow;
 
@@ -151,12 +152,13 @@ fn one_round_from_the_exact_furnace_solution_reproduces_it() {
     for rho in [0.5f32, 0.9] {
         let mesh = Mesh::build(&furnace(rho), Subdivision::MaxEdge(0.5)).unwrap();
         assert_eq!(mesh.patches().len(), 24);
-        let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+        let bvh = bvh(&mesh);
+        let ctx = Context::new(&mesh, &bvh);
         let b = 1.0 / (1.0 - rho as f64);
         let input = vec![DVec3::splat(b); 24];
         let n = 4000;
         for (emission, want) in [(Emission::Include, b), (Emission::Exclude, b - 1.0)] {
-            let r = gather_round(&mesh, &sampler, &bvh, &input, emission, n, 7, 0).unwrap();
+            let r = gather_round(&ctx, &input, emission, n, StreamKey::new(7)).unwrap();
             assert_eq!(r.back_face_hits, 0);
             assert_eq!(r.estimate.rays(), 24 * n as u64);
             assert!(r.escaped_rays as f64 <= 1e-5 * r.estimate.rays() as f64);
@@ -196,7 +198,7 @@ fn jacobi_gathering_converges_to_the_furnace_answer() {
             seed: 3,
         };
         let mut changes = Vec::new();
-        let r = gather(&mesh, &bvh, &config, &mut |p| {
+        let r = gather(&Context::new(&mesh, &bvh), &config, &mut |p| {
             changes.push(p.change);
             ControlFlow::Continue(())
         })
@@ -240,7 +242,10 @@ fn jacobi_gathering_agrees_with_shooting_in_a_lit_box() {
             threshold: 0.0,
             seed,
         };
-        let g = gather(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap();
+        let g = gather(&Context::new(&mesh, &bvh), &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
         assert_eq!((g.rounds, g.stats.stop), (30, StopReason::BudgetSpent));
         gathered.push(flat(g.estimate.radiosity()));
         let s = ShootConfig {
@@ -248,7 +253,10 @@ fn jacobi_gathering_agrees_with_shooting_in_a_lit_box() {
             unshot_threshold: 1e-5,
             seed: 1000 + seed,
         };
-        let s = shoot(&mesh, &bvh, &s, &mut |_| ControlFlow::Continue(())).unwrap();
+        let s = shoot(&Context::new(&mesh, &bvh), &s, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
         shot.push(flat(s.estimate.radiosity()));
     }
     for k in 0..gathered[0].len() {
@@ -271,13 +279,22 @@ fn vertex_gathering_matches_patch_gathering_in_a_uniformly_lit_furnace() {
     // back face or the outside).
     let rho = 0.5;
     let mesh = Mesh::build(&furnace(rho as f32), Subdivision::MaxEdge(0.25)).unwrap();
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let b = 1.0 / (1.0 - rho);
     let n = 2000;
     for crease in [30.0, 90.0] {
         let groups = mesh.corner_groups(crease);
         let input = vec![DVec3::splat(b); mesh.patches().len()];
-        let v = gather_corners(&mesh, &groups, &bvh, &input, Emission::Include, n, 5, 0).unwrap();
+        let v = gather_corners(
+            &ctx,
+            &groups,
+            &input,
+            Emission::Include,
+            n,
+            StreamKey::new(5),
+        )
+        .unwrap();
         assert_eq!(v.back_face_hits, 0, "crease {crease}");
         assert!(
             v.escaped_rays as f64 <= 1e-5 * v.rays as f64,
@@ -302,8 +319,16 @@ fn vertex_gathering_matches_patch_gathering_in_a_uniformly_lit_furnace() {
         .map(|&f| DVec3::splat(if f { 1000.0 } else { b }))
         .collect();
     let groups = mesh.corner_groups(30.0);
-    let v = gather_corners(&mesh, &groups, &bvh, &input, Emission::Include, n, 6, 0).unwrap();
-    let p = gather_round(&mesh, &sampler, &bvh, &input, Emission::Include, n, 6, 0).unwrap();
+    let v = gather_corners(
+        &ctx,
+        &groups,
+        &input,
+        Emission::Include,
+        n,
+        StreamKey::new(6),
+    )
+    .unwrap();
+    let p = gather_round(&ctx, &input, Emission::Include, n, StreamKey::new(6)).unwrap();
     assert_eq!(v.back_face_hits + p.back_face_hits, 0);
     assert!((v.escaped_rays + p.escaped_rays) as f64 <= 1e-5 * (v.rays + p.estimate.rays()) as f64);
     let want = 1.0 + rho * b;
@@ -376,6 +401,7 @@ fn vertex_gathering_matches_the_analytic_point_form_factor() {
     .0;
     let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.25)).unwrap();
     let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let groups = mesh.corner_groups(30.0);
     let input: Vec<DVec3> = mesh
         .patches()
@@ -409,14 +435,12 @@ fn vertex_gathering_matches_the_analytic_point_form_factor() {
     let samples: Vec<Vec<f64>> = (0..RUNS)
         .map(|seed| {
             let v = gather_corners(
-                &mesh,
+                &ctx,
                 &groups,
-                &bvh,
                 &input,
                 Emission::Exclude,
                 20_000,
-                seed,
-                0,
+                StreamKey::new(seed),
             )
             .unwrap();
             corner_of.iter().map(|&c| v.radiosity[c].x).collect()
@@ -431,19 +455,17 @@ fn one_round_from_a_unit_emitter_gives_the_analytic_form_factors() {
     // scene: 0.04% false failures each.
     for (parallel, f) in [(true, 0.199825), (false, 0.200044)] {
         let mesh = two_squares(parallel);
-        let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+        let bvh = bvh(&mesh);
+        let ctx = Context::new(&mesh, &bvh);
         let input = [DVec3::ONE, DVec3::ZERO];
         let samples: Vec<Vec<f64>> = (0..RUNS)
             .map(|seed| {
                 let r = gather_round(
-                    &mesh,
-                    &sampler,
-                    &bvh,
+                    &ctx,
                     &input,
                     Emission::Exclude,
                     100_000,
-                    seed,
-                    0,
+                    StreamKey::new(seed),
                 )
                 .unwrap();
                 assert_eq!(r.estimate.radiosity()[0], DVec3::ZERO);
@@ -464,10 +486,11 @@ fn direct_light_gives_the_analytic_form_factors() {
     ];
     for (parallel, f, sampling) in cases {
         let mesh = two_squares(parallel);
-        let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+        let bvh = bvh(&mesh);
+        let ctx = Context::new(&mesh, &bvh);
         let samples: Vec<Vec<f64>> = (0..RUNS)
             .map(|seed| {
-                let d = direct(&mesh, &sampler, &bvh, 50_000, sampling, seed, 0).unwrap();
+                let d = direct(&ctx, 50_000, sampling, StreamKey::new(seed)).unwrap();
                 assert_eq!(d.estimate.radiosity()[0], DVec3::ZERO);
                 assert_eq!(d.occluded, 0);
                 vec![d.estimate.radiosity()[1].x]
@@ -479,17 +502,15 @@ fn direct_light_gives_the_analytic_form_factors() {
     // Student-t does not apply and the error falls like n^(-1/3). With these fixed seeds the
     // mean of 16 runs of 1e6 samples is 0.12% off; allow 1%.
     let mesh = two_squares(false);
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let mean = (0..RUNS)
         .map(|seed| {
             direct(
-                &mesh,
-                &sampler,
-                &bvh,
+                &ctx,
                 1_000_000,
                 DirectSampling::Emitters,
-                seed,
-                0,
+                StreamKey::new(seed),
             )
             .unwrap()
             .estimate
@@ -524,7 +545,8 @@ fn estimated_variances_agree_with_the_spread_over_seeds() {
     // averaged over ~100 patch-channels the ratio's standard deviation is about 0.04, so the
     // band 0.7..1.4 is more than 7 standard deviations wide on either side.
     let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.25)).unwrap();
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let input: Vec<DVec3> = mesh
         .patches()
         .iter()
@@ -535,36 +557,31 @@ fn estimated_variances_agree_with_the_spread_over_seeds() {
     type Run = (Vec<f64>, Vec<f64>);
     let estimators: [(&str, &dyn Fn(u64) -> Run); 3] = [
         ("gather_round", &|seed| {
-            let r = gather_round(
-                &mesh,
-                &sampler,
-                &bvh,
-                &input,
-                Emission::Include,
-                32,
-                seed,
-                0,
-            )
-            .unwrap();
+            let r =
+                gather_round(&ctx, &input, Emission::Include, 32, StreamKey::new(seed)).unwrap();
             (
                 flat(r.estimate.radiosity()),
                 flat(r.estimate.variance().unwrap()),
             )
         }),
         ("gather_corners", &|seed| {
-            let r = gather_corners(&mesh, &groups, &bvh, &input, Emission::Include, 32, seed, 0)
-                .unwrap();
+            let r = gather_corners(
+                &ctx,
+                &groups,
+                &input,
+                Emission::Include,
+                32,
+                StreamKey::new(seed),
+            )
+            .unwrap();
             (flat(&r.radiosity), flat(&r.variance))
         }),
         ("direct", &|seed| {
             let r = direct(
-                &mesh,
-                &sampler,
-                &bvh,
+                &ctx,
                 32,
                 DirectSampling::EmittersAndCosine,
-                seed,
-                0,
+                StreamKey::new(seed),
             )
             .unwrap();
             (
@@ -590,7 +607,8 @@ fn two_pass_split_from_the_exact_furnace_solution_is_unbiased() {
     // 1% false failures.
     let rho = 0.5;
     let mesh = Mesh::build(&furnace(rho as f32), Subdivision::MaxEdge(0.5)).unwrap();
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let b = 1.0 / (1.0 - rho);
     let shooting = vec![DVec3::splat(b); 24];
     let config = SplitConfig {
@@ -600,8 +618,7 @@ fn two_pass_split_from_the_exact_furnace_solution_is_unbiased() {
     };
     let samples: Vec<Vec<f64>> = (0..RUNS)
         .map(|seed| {
-            let e =
-                two_pass_split(&mesh, &sampler, &bvh, &exact(&shooting), &config, seed, 0).unwrap();
+            let e = two_pass_split(&ctx, &exact(&shooting), &config, StreamKey::new(seed)).unwrap();
             e.radiosity().iter().map(|v| v.x).collect()
         })
         .collect();
@@ -611,7 +628,8 @@ fn two_pass_split_from_the_exact_furnace_solution_is_unbiased() {
 #[test]
 fn same_seed_same_answer_with_one_or_two_threads() {
     let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.2)).unwrap();
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let groups = mesh.corner_groups(30.0);
     let input: Vec<DVec3> = (0..mesh.patches().len())
         .map(|i| DVec3::new(1.0, 0.5, 0.25) * (1 + i % 3) as f64)
@@ -619,27 +637,39 @@ fn same_seed_same_answer_with_one_or_two_threads() {
     // More rays than one job, so that chunks are merged.
     let n = 5000;
     let run = |seed: u64| {
-        let round =
-            gather_round(&mesh, &sampler, &bvh, &input, Emission::Include, n, seed, 2).unwrap();
+        let round = gather_round(
+            &ctx,
+            &input,
+            Emission::Include,
+            n,
+            StreamKey::new(seed).pass(2),
+        )
+        .unwrap();
         let config = GatherConfig {
             rays: 3 * mesh.patches().len() as u64 * 64,
             rays_per_patch: 64,
             threshold: 0.0,
             seed,
         };
-        let jacobi = gather(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(()))
-            .unwrap()
-            .estimate;
-        let corners =
-            gather_corners(&mesh, &groups, &bvh, &input, Emission::Exclude, n, seed, 2).unwrap();
+        let jacobi = gather(&Context::new(&mesh, &bvh), &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap()
+        .estimate;
+        let corners = gather_corners(
+            &ctx,
+            &groups,
+            &input,
+            Emission::Exclude,
+            n,
+            StreamKey::new(seed).pass(2),
+        )
+        .unwrap();
         let direct = direct(
-            &mesh,
-            &sampler,
-            &bvh,
+            &ctx,
             n,
             DirectSampling::EmittersAndCosine,
-            seed,
-            2,
+            StreamKey::new(seed).pass(2),
         )
         .unwrap();
         let split = SplitConfig {
@@ -647,7 +677,8 @@ fn same_seed_same_answer_with_one_or_two_threads() {
             samples_per_patch: 64,
             sampling: DirectSampling::Emitters,
         };
-        let split = two_pass_split(&mesh, &sampler, &bvh, &exact(&input), &split, seed, 2).unwrap();
+        let split =
+            two_pass_split(&ctx, &exact(&input), &split, StreamKey::new(seed).pass(2)).unwrap();
         (round, jacobi, corners, direct, split)
     };
     let solve = |threads| {
@@ -692,7 +723,7 @@ fn the_ambient_term_restores_the_furnace_mean() {
                     unshot_threshold: 0.0,
                     seed,
                 };
-                let s = shoot(&mesh, &bvh, &config, &mut |p| {
+                let s = shoot(&Context::new(&mesh, &bvh), &config, &mut |p| {
                     if p.waves == waves {
                         ControlFlow::Break(())
                     } else {
@@ -749,12 +780,14 @@ fn gather_stops_on_budget_and_observer() {
         threshold: 0.0,
         seed: 1,
     };
-    let r = gather(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap();
+    let r = gather(&Context::new(&mesh, &bvh), &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
     assert_eq!((r.rounds, r.stats.stop), (3, StopReason::BudgetSpent));
     assert_eq!(r.stats.rays, 1800);
     let r = gather(
-        &mesh,
-        &bvh,
+        &Context::new(&mesh, &bvh),
         &GatherConfig {
             rays: 1_000_000,
             ..config
@@ -774,40 +807,41 @@ fn gather_stops_on_budget_and_observer() {
 #[test]
 fn bad_inputs_are_errors() {
     let mesh = Mesh::build(&furnace(0.5), Subdivision::None).unwrap();
-    let (bvh, sampler) = (bvh(&mesh), SurfaceSampler::new(&mesh));
+    let bvh = bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
     let good = vec![DVec3::ONE; 6];
     let round = |input: &[DVec3], n| {
-        gather_round(&mesh, &sampler, &bvh, input, Emission::Include, n, 0, 0).map(|_| ())
+        gather_round(&ctx, input, Emission::Include, n, StreamKey::new(0)).map(|_| ())
     };
     assert_eq!(
         round(&good[..5], 10),
-        Err(GatherError::InputLength { patches: 6, got: 5 })
+        Err(Error::InputLength { patches: 6, got: 5 })
     );
     let mut nan = good.clone();
     nan[3].y = f64::NAN;
     assert!(matches!(
         round(&nan, 10),
-        Err(GatherError::NotFinite { patch: 3, .. })
+        Err(Error::NotFinite { patch: 3, .. })
     ));
-    assert_eq!(round(&good, 1), Err(GatherError::TooFewRays(1)));
+    assert_eq!(round(&good, 1), Err(Error::TooFewRays(1)));
     let other = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.5)).unwrap();
     let e = gather_corners(
-        &mesh,
+        &ctx,
         &other.corner_groups(30.0),
-        &bvh,
         &good,
         Emission::Include,
         10,
-        0,
-        0,
+        StreamKey::new(0),
     )
     .unwrap_err();
     assert!(e.to_string().contains("corner groups"), "{e}");
     let go = |c: GatherConfig| {
-        gather(&mesh, &bvh, &c, &mut |_| ControlFlow::Continue(()))
-            .map(|_| ())
-            .unwrap_err()
-            .to_string()
+        gather(&Context::new(&mesh, &bvh), &c, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .map(|_| ())
+        .unwrap_err()
+        .to_string()
     };
     assert!(
         go(GatherConfig {
@@ -824,7 +858,7 @@ fn bad_inputs_are_errors() {
         .contains(">= 0")
     );
     assert!(
-        direct(&mesh, &sampler, &bvh, 0, DirectSampling::Emitters, 0, 0)
+        direct(&ctx, 0, DirectSampling::Emitters, StreamKey::new(0))
             .unwrap_err()
             .to_string()
             .contains("at least 2")

@@ -11,7 +11,7 @@ mod common;
 
 use common::{box_faces, furnace, material};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::{ShootConfig, StopReason, shoot};
+use mcrad_mc_radiosity::{Context, ShootConfig, StopReason, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Scene};
@@ -26,8 +26,7 @@ fn runs(mesh: &Mesh, config: ShootConfig) -> Vec<Vec<f64>> {
     (0..RUNS)
         .map(|seed| {
             let r = shoot(
-                mesh,
-                &bvh,
+                &Context::new(mesh, &bvh),
                 &ShootConfig {
                     seed,
                     ..config.clone()
@@ -212,8 +211,7 @@ fn power_is_conserved_exactly_and_escapes_are_counted() {
     let mesh = Mesh::build(&open_box(), Subdivision::MaxEdge(0.25)).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let r = shoot(
-        &mesh,
-        &bvh,
+        &Context::new(&mesh, &bvh),
         &ShootConfig {
             rays: 300_000,
             unshot_threshold: 0.001,
@@ -271,14 +269,18 @@ fn same_seed_same_answer_with_one_or_two_threads() {
             .num_threads(threads)
             .build()
             .unwrap()
-            .install(|| shoot(&mesh, &bvh, &config, &mut |_| ControlFlow::Continue(())).unwrap())
+            .install(|| {
+                shoot(&Context::new(&mesh, &bvh), &config, &mut |_| {
+                    ControlFlow::Continue(())
+                })
+                .unwrap()
+            })
     };
     let (one, two) = (solve(1), solve(2));
     assert_eq!(one.estimate, two.estimate);
     assert_eq!(one.stats, two.stats);
     let other_seed = shoot(
-        &mesh,
-        &bvh,
+        &Context::new(&mesh, &bvh),
         &ShootConfig { seed: 43, ..config },
         &mut |_| ControlFlow::Continue(()),
     )
@@ -291,8 +293,7 @@ fn budget_and_observer_stop_the_run() {
     let mesh = Mesh::build(&furnace(0.9), Subdivision::None).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let r = shoot(
-        &mesh,
-        &bvh,
+        &Context::new(&mesh, &bvh),
         &ShootConfig {
             rays: 10_000,
             unshot_threshold: 0.0,
@@ -316,8 +317,7 @@ fn budget_and_observer_stop_the_run() {
     );
     let mut seen = 0;
     let r = shoot(
-        &mesh,
-        &bvh,
+        &Context::new(&mesh, &bvh),
         &ShootConfig {
             rays: 100_000,
             unshot_threshold: 0.0,
@@ -342,10 +342,12 @@ fn bad_configurations_are_errors() {
     let mesh = Mesh::build(&furnace(0.5), Subdivision::None).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let go = |c: ShootConfig| {
-        shoot(&mesh, &bvh, &c, &mut |_| ControlFlow::Continue(()))
-            .map(|_| ())
-            .unwrap_err()
-            .to_string()
+        shoot(&Context::new(&mesh, &bvh), &c, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .map(|_| ())
+        .unwrap_err()
+        .to_string()
     };
     assert!(
         go(ShootConfig {

@@ -11,7 +11,59 @@
 use rand_core::Rng;
 use rand_pcg::Pcg32;
 
-/// A random stream for one `(seed, pass, item, sub)`.
+/// What a stream is for: the run's `seed`, the `pass` (wave, round) of a schedule, the `item`
+/// (patch, vertex) and a sub-stream `sub` (a purpose tag plus a chunk of the item's work).
+/// Built up field by field, e.g. `StreamKey::new(seed).pass(k).item(i).substream(TAG + chunk)`; the
+/// stream is a pure function of the four numbers ([`StreamKey::stream`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct StreamKey {
+    /// The run seed (or a seed derived from it, [`StreamKey::derive`]).
+    pub seed: u64,
+    /// The pass (wave, round) within the sub-run.
+    pub pass: u64,
+    /// The item: a patch or a vertex group.
+    pub item: u64,
+    /// The sub-stream: a purpose tag plus a chunk number.
+    pub sub: u64,
+}
+
+impl StreamKey {
+    /// The key of run seed `seed`, pass, item and sub-stream 0.
+    pub fn new(seed: u64) -> StreamKey {
+        StreamKey {
+            seed,
+            ..StreamKey::default()
+        }
+    }
+
+    /// This key with pass `pass`.
+    pub fn pass(self, pass: u64) -> StreamKey {
+        StreamKey { pass, ..self }
+    }
+
+    /// This key with item `item`.
+    pub fn item(self, item: u64) -> StreamKey {
+        StreamKey { item, ..self }
+    }
+
+    /// This key with sub-stream `sub`.
+    pub fn substream(self, sub: u64) -> StreamKey {
+        StreamKey { sub, ..self }
+    }
+
+    /// The key of an independent sub-run tagged `tag` (a pass of a progressive schedule, an
+    /// estimator within it): seed [`derive_seed`]`(seed, tag)`, pass, item and sub-stream 0.
+    pub fn derive(self, tag: u64) -> StreamKey {
+        StreamKey::new(derive_seed(self.seed, tag))
+    }
+
+    /// The stream of this key: [`Stream::new`]`(seed, pass, item, sub)`.
+    pub fn stream(self) -> Stream {
+        Stream::new(self.seed, self.pass, self.item, self.sub)
+    }
+}
+
+/// A random stream for one `(seed, pass, item, sub)` ([`StreamKey`]).
 #[derive(Debug, Clone)]
 pub struct Stream(Pcg32);
 
@@ -84,6 +136,17 @@ mod tests {
             let c: Vec<f32> = (0..8).map(|_| s.uniform()).collect();
             assert_ne!(a, c, "{key:?}");
         }
+    }
+
+    #[test]
+    fn keys_give_the_streams_of_their_numbers() {
+        let key = StreamKey::new(1).pass(2).item(3).substream(4);
+        let (mut a, mut b) = (key.stream(), Stream::new(1, 2, 3, 4));
+        for _ in 0..8 {
+            assert_eq!(a.uniform().to_bits(), b.uniform().to_bits());
+        }
+        let derived = StreamKey::new(9).pass(5).derive(7);
+        assert_eq!(derived, StreamKey::new(derive_seed(9, 7)));
     }
 
     #[test]

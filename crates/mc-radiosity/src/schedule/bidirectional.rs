@@ -27,14 +27,15 @@
 //! The schedule: the first pass shoots (an unbiased first solution), every later pass is a step
 //! from the solution so far, and the passes merge by their rays (as Algorithms 1-3 do).
 
-use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution};
-use crate::gather::{GatherError, check_input};
+use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution};
+use crate::context::Context;
+use crate::error::Error;
+use crate::gather::check_input;
 use crate::sampling::stochastic_round;
-use crate::surface::SurfaceSampler;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
-use mcrad_random::{Stream, derive_seed};
+use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 
@@ -46,28 +47,26 @@ const NOTHING: u32 = u32::MAX;
 const ALLOCATE: u64 = 0;
 
 /// The bidirectional schedule: see the [module documentation](self).
-pub(crate) fn run_bidirectional<C: RayCaster>(
+pub(crate) fn run<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
+    let ctx = Context::new(mesh, caster);
     let min_pass = 2 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let estimate = match &run.merged {
-            None => run.shoot(mesh, caster, config, budget, k)?.estimate,
+            None => run.shoot(&ctx, config, budget, k)?.estimate,
             Some(solution) => {
                 let e = step(
-                    mesh,
-                    &sampler,
-                    caster,
+                    &ctx,
                     solution.radiosity(),
                     budget,
-                    derive_seed(config.seed, GATHER_TAG + k),
+                    StreamKey::new(config.seed).derive(GATHER_TAG + k),
                 )?;
                 run.rays += e.rays();
                 e
@@ -82,13 +81,12 @@ pub(crate) fn run_bidirectional<C: RayCaster>(
 
 /// One bidirectional Jacobi step from `input` with about `rays` rays (module documentation).
 fn step<C: RayCaster>(
-    mesh: &Mesh,
-    sampler: &SurfaceSampler,
-    caster: &C,
+    ctx: &Context<C>,
     input: &[DVec3],
     rays: u64,
-    seed: u64,
-) -> Result<Estimate, GatherError> {
+    key: StreamKey,
+) -> Result<Estimate, Error> {
+    let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     let patches = mesh.patches();
     let power: Vec<f64> = patches
@@ -116,7 +114,11 @@ fn step<C: RayCaster>(
         .collect();
     let mut jobs = Vec::new();
     for (i, t) in expected.iter().enumerate() {
-        let draw = Stream::new(seed, 0, i as u64, ALLOCATE).uniform_f64();
+        let draw = key
+            .item(i as u64)
+            .substream(ALLOCATE)
+            .stream()
+            .uniform_f64();
         let n = stochastic_round(*t, draw);
         for chunk in 0..n.div_ceil(JOB_RAYS) {
             jobs.push((
@@ -129,7 +131,7 @@ fn step<C: RayCaster>(
     let hits: Vec<Vec<u32>> = jobs
         .par_iter()
         .map(|&(patch, chunk, n)| {
-            let mut rng = Stream::new(seed, 0, patch as u64, 1 + chunk as u64);
+            let mut rng = key.item(patch as u64).substream(1 + chunk as u64).stream();
             (0..n)
                 .map(
                     |_| match caster.closest_hit(&sampler.ray(patch as usize, &mut rng)) {

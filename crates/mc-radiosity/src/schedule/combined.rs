@@ -9,9 +9,12 @@
 //!    pass), with the direct/indirect split: direct light by sampling the emitters, indirect
 //!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
 //!    (Algorithm 3) into the gathering estimate `G`.
-//! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with
-//!    `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights of two independent unbiased
-//!    estimates ([`Rule::InverseVariance`]).
+//! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
+//!    [`Weighting`]. The default ([`run`], the registry's `combined`) is
+//!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
+//!    of two independent unbiased estimates, from the expected variances below;
+//!    [`run_with`] takes any other weighting (it sees those expected variances in
+//!    its [`Operand`]s).
 //!
 //! **The variances.** Weights by the estimates' own sample variances bias the merge (they are
 //! computed from the samples they weight; see [`mcrad_combine::expected`], measured there at
@@ -33,16 +36,16 @@
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, ScheduleError, Solution,
-    accumulate, per_patch,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
 };
+use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
-use crate::surface::SurfaceSampler;
+use crate::error::Error;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
-use mcrad_combine::{Estimate, EstimateError, Rule, merge_weighted};
+use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
 use mcrad_meshing::Mesh;
-use mcrad_random::derive_seed;
+use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
 /// Bounds of the shooting share of a pass.
@@ -57,23 +60,42 @@ struct Shots {
     ray_power: DVec3,
 }
 
-/// Algorithm 4: see the [module documentation](self).
-pub(crate) fn run_combined<C: RayCaster>(
+/// Algorithm 4 with its default weighting, [`InverseExpectedVariance`]: see the
+/// [module documentation](self).
+pub(crate) fn run<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
+    run_with(mesh, caster, config, &InverseExpectedVariance, observer)
+}
+
+/// Algorithm 4 of Balog's paper, iterative combined shooting and gathering, merging the
+/// shooting estimate `S` and the gathering estimate `G` of every pass into
+/// `C_i = w_i S_i + (1 - w_i) G_i` with `weighting` (per patch and channel). Each operand
+/// carries its expected variance ([`Operand::expected`]: shooting's shot noise `m_i R_i / A_i`,
+/// gathering's pooled relative variance times `R_i²`, at the reflected radiosity `R_i` of the
+/// previous combination), which [`InverseExpectedVariance`] (the `combined` method's default)
+/// weights by. The split of each pass's rays between shooting and gathering still minimises
+/// the error expected under inverse-variance weights, whatever `weighting` is.
+pub fn run_with<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    weighting: &dyn Weighting,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let ctx = Context::new(mesh, caster);
     let patches = mesh.patches();
     // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
     // shooting share.
     let min_pass = 8 * patches.len() as u64;
     if config.rays < min_pass {
         // Too few rays to gather at every patch even once: shooting alone is the best use.
-        return super::run_shoot(mesh, caster, config, observer);
+        return super::shoot::run(mesh, caster, config, observer);
     }
     let mut passes = Doubling::at_least(config, min_pass);
-    let sampler = SurfaceSampler::new(mesh);
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
@@ -95,7 +117,7 @@ pub(crate) fn run_combined<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = run.shoot(mesh, caster, config, shoot_budget, k)?;
+        let s = run.shoot(&ctx, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         shot_rays += pass_rays;
@@ -107,7 +129,7 @@ pub(crate) fn run_combined<C: RayCaster>(
             Some(old) => {
                 let w = pass_rays as f64 / shot_rays as f64;
                 Shots {
-                    merged: accumulate(Some(old.merged), s.estimate, Rule::ByWork)?,
+                    merged: accumulate(Some(old.merged), s.estimate)?,
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
                 }
             }
@@ -123,18 +145,15 @@ pub(crate) fn run_combined<C: RayCaster>(
             sampling: DirectSampling::EmittersAndCosine,
         };
         let g = two_pass_split(
-            mesh,
-            &sampler,
-            caster,
+            &ctx,
             input,
             &split,
-            derive_seed(config.seed, GATHER_TAG + k),
-            0,
+            StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
         gather_rays += g.rays();
         run.rays += g.rays();
-        let g = accumulate(gathered.take(), g, Rule::ByWork)?;
-        let c = combine(mesh, shots_now, &g, run.merged.as_ref())?;
+        let g = accumulate(gathered.take(), g)?;
+        let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
         gathered = Some(g);
         if !run.replace(c, passes.peek(), observer)? {
             break;
@@ -156,7 +175,7 @@ fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
 /// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
 /// ((W/m²)², [`shot_noise`]), with `m_i` the mean deposit, or `rho_i` times the mean ray power
 /// where no ray landed.
-fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, ScheduleError> {
+fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
     let s = &shots.merged;
     let v = s.variance().ok_or(EstimateError::MissingVariance)?;
     Ok(mesh
@@ -179,11 +198,7 @@ fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec
 /// ((W/m²)²), with `k_f` the gather's relative variance pooled over the input face `f` of the
 /// patch ([`pooled_relative`]), so a patch whose few rays all saw the same value (a sample
 /// variance of zero) is not taken as exact.
-fn gathering_variance(
-    mesh: &Mesh,
-    gathered: &Estimate,
-    r: &[DVec3],
-) -> Result<Vec<DVec3>, ScheduleError> {
+fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
     let v = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let patches = mesh.patches();
     let face: Vec<usize> = patches.iter().map(|p| p.face as usize).collect();
@@ -196,7 +211,7 @@ fn gathering_variance(
     Ok(face.iter().zip(r).map(|(f, r)| k[*f] * *r * *r).collect())
 }
 
-/// `S` and `G` merged by inverse variance, weighted by their expected variances at the
+/// `S` and `G` merged by `weighting`, each operand carrying its expected variance at the
 /// reflected radiosity of `previous` (the last combination; `S` in the first pass); the
 /// variance reported is the merge's with the estimates' own variances.
 fn combine(
@@ -204,13 +219,17 @@ fn combine(
     shots: &Shots,
     gathered: &Estimate,
     previous: Option<&Estimate>,
-) -> Result<Estimate, ScheduleError> {
+    weighting: &dyn Weighting,
+) -> Result<Estimate, Error> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
-    Ok(merge_weighted(
-        &shots.merged,
-        gathered,
-        &shooting_variance(mesh, shots, &r)?,
-        &gathering_variance(mesh, gathered, &r)?,
+    let (vs, vg) = (
+        shooting_variance(mesh, shots, &r)?,
+        gathering_variance(mesh, gathered, &r)?,
+    );
+    Ok(merge(
+        Operand::with_expected(&shots.merged, &vs),
+        Operand::with_expected(gathered, &vg),
+        weighting,
     )?)
 }
 

@@ -3,7 +3,8 @@
 //! The ray budget and the seed do not apply; [`ScheduleConfig::reference`] sets the accuracy
 //! and the patch limit.
 
-use super::{Observer, ScheduleConfig, ScheduleError, Solution, Step};
+use super::{Observer, ScheduleConfig, Solution, Step};
+use crate::error::Error;
 use crate::method::StopReason;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
@@ -12,12 +13,12 @@ use mcrad_raycast::RayCaster;
 /// are the shadow rays cast). The solution has no variance; `steps` counts the Gauss-Seidel
 /// sweeps. It ends [`StopReason::Converged`] (the solver fails rather than stop short), or
 /// [`StopReason::Stopped`] if the observer breaks at that step.
-pub(crate) fn run_reference<C: RayCaster>(
+pub(crate) fn run<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,
     observer: &mut Observer,
-) -> Result<Solution, ScheduleError> {
+) -> Result<Solution, Error> {
     let r = mcrad_reference::reference(mesh, caster, &config.reference, &|_| {})?;
     let stopped = observer(&Step {
         index: 1,

@@ -1,0 +1,173 @@
+//! The job plumbing the gatherers share: work split into jobs of at most [`JOB_RAYS`] rays
+//! (the unit of parallel work and of random streams), run in parallel and reduced in a fixed
+//! order, so a seed gives the same answer on any number of threads.
+
+use glam::DVec3;
+use mcrad_raycast::{Ray, RayCaster};
+use rayon::prelude::*;
+
+/// Rays (or samples) per job: the unit of parallel work and of random streams.
+pub(crate) const JOB_RAYS: u32 = 4096;
+/// Sub-stream tag of patch gathering ([`gather_round`](crate::gather_round)); the chunk number is added to it.
+pub(crate) const PATCH_GATHER: u64 = 1 << 40;
+/// Sub-stream tag of vertex gathering ([`gather_corners`](crate::gather_corners)).
+pub(crate) const VERTEX_GATHER: u64 = 2 << 40;
+/// Sub-stream tag of direct-light sampling ([`direct`](crate::direct())).
+pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;
+
+/// Running mean and sum of squared deviations of per-ray samples, per RGB channel (Welford's
+/// update, Chan et al.'s merge), in f64. A constant sample has exactly zero deviation.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Moments {
+    pub n: u64,
+    pub mean: DVec3,
+    pub m2: DVec3,
+}
+
+impl Moments {
+    /// Adds one sample.
+    #[inline]
+    pub fn push(&mut self, x: DVec3) {
+        self.n += 1;
+        let delta = x - self.mean;
+        self.mean += delta / self.n as f64;
+        self.m2 += delta * (x - self.mean);
+    }
+
+    /// The moments of both sample sets together.
+    pub fn merge(self, other: Moments) -> Moments {
+        if self.n == 0 {
+            return other;
+        }
+        if other.n == 0 {
+            return self;
+        }
+        let n = self.n + other.n;
+        let delta = other.mean - self.mean;
+        let w = other.n as f64 / n as f64;
+        Moments {
+            n,
+            mean: self.mean + delta * w,
+            m2: self.m2 + other.m2 + delta * delta * (self.n as f64 * w),
+        }
+    }
+
+    /// The estimated variance of the sample mean, `s² / n` with `s²` the unbiased sample
+    /// variance; zero below two samples.
+    pub fn variance_of_mean(&self) -> DVec3 {
+        if self.n < 2 {
+            return DVec3::ZERO;
+        }
+        (self.m2 / ((self.n - 1) as f64 * self.n as f64)).max(DVec3::ZERO)
+    }
+}
+
+/// One job: `rays` rays of item `item` (a patch or a vertex group), chunk `chunk` of them.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Job {
+    pub item: u32,
+    pub chunk: u32,
+    pub rays: u32,
+}
+
+/// The jobs of `items` items with `per_item` rays each, item by item, chunk by chunk.
+pub(crate) fn jobs(items: usize, per_item: u32) -> Vec<Job> {
+    let chunks = per_item.div_ceil(JOB_RAYS);
+    (0..items as u32)
+        .flat_map(|item| {
+            (0..chunks).map(move |chunk| Job {
+                item,
+                chunk,
+                rays: (per_item - chunk * JOB_RAYS).min(JOB_RAYS),
+            })
+        })
+        .collect()
+}
+
+/// What the rays of one job saw.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Seen {
+    pub moments: Moments,
+    pub escaped: u64,
+    pub back_faces: u64,
+    /// Sum of the input variance over consecutive ray pairs that hit the same patch.
+    pub collisions: DVec3,
+    /// Consecutive ray pairs looked at.
+    pub pairs: u64,
+}
+
+impl Seen {
+    fn merge(self, other: Seen) -> Seen {
+        Seen {
+            moments: self.moments.merge(other.moments),
+            escaped: self.escaped + other.escaped,
+            back_faces: self.back_faces + other.back_faces,
+            collisions: self.collisions + other.collisions,
+            pairs: self.pairs + other.pairs,
+        }
+    }
+
+    /// The estimate of `sum_j F_ij² V_j` from the collisions: two independent rays of a patch
+    /// hit the same `j` with probability `F_ij²` (0 without pairs).
+    pub(crate) fn collision_mean(&self) -> DVec3 {
+        if self.pairs == 0 {
+            DVec3::ZERO
+        } else {
+            self.collisions / self.pairs as f64
+        }
+    }
+}
+
+/// Casts `n` rays from `ray` and records `input` at each first front-face hit (0 otherwise);
+/// with `variance` (the input's, per patch), also the collisions of consecutive rays.
+#[inline]
+pub(crate) fn look<C: RayCaster>(
+    n: u32,
+    caster: &C,
+    input: &[DVec3],
+    variance: Option<&[DVec3]>,
+    mut ray: impl FnMut() -> Ray,
+) -> Seen {
+    let mut seen = Seen::default();
+    let mut previous = None;
+    for k in 0..n {
+        let hit = caster.closest_hit(&ray());
+        let x = match hit {
+            Some(hit) if hit.front => input[hit.id as usize],
+            Some(_) => {
+                seen.back_faces += 1;
+                DVec3::ZERO
+            }
+            None => {
+                seen.escaped += 1;
+                DVec3::ZERO
+            }
+        };
+        seen.moments.push(x);
+        if let Some(v) = variance {
+            let id = hit.filter(|h| h.front).map(|h| h.id);
+            if k > 0 {
+                seen.pairs += 1;
+                if let Some(j) = id.filter(|&j| previous == Some(j)) {
+                    seen.collisions += v[j as usize];
+                }
+            }
+            previous = id;
+        }
+    }
+    seen
+}
+
+/// Runs `jobs` in parallel and merges each item's chunks in chunk order.
+pub(crate) fn run<F: Fn(&Job) -> Seen + Sync + Send>(
+    items: usize,
+    jobs: &[Job],
+    f: F,
+) -> Vec<Seen> {
+    let seen: Vec<Seen> = jobs.par_iter().map(f).collect();
+    let mut out = vec![Seen::default(); items];
+    for (job, s) in jobs.iter().zip(seen) {
+        out[job.item as usize] = out[job.item as usize].merge(s);
+    }
+    out
+}

@@ -1,0 +1,68 @@
+//! Algorithm 2 of the paper: progressive gathering from one shooting solution.
+
+use super::{
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, per_patch, shoot_config,
+    unshot_fraction, with_ambient,
+};
+use crate::context::Context;
+use crate::error::Error;
+use crate::gather::{Emission, gather_round_from};
+use crate::shoot::shoot;
+use mcrad_meshing::Mesh;
+use mcrad_random::{StreamKey, derive_seed};
+use mcrad_raycast::RayCaster;
+use std::ops::ControlFlow;
+
+/// Algorithm 2: progressive gathering from one shooting solution.
+pub(crate) fn run<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let ctx = Context::new(mesh, caster);
+    let shoot_budget = if config.rays == u64::MAX {
+        1_000_000
+    } else {
+        config.rays / 4
+    };
+    let s = shoot(
+        &ctx,
+        &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
+        &mut |_| ControlFlow::Continue(()),
+    )?;
+    let mut run = Progressive {
+        rays: s.stats.rays,
+        escaped_rays: s.stats.escaped_rays,
+        unshot_fraction: unshot_fraction(&s),
+        ..Default::default()
+    };
+    let shooting = with_ambient(mesh, config, s)?;
+    let rest = config.rays.saturating_sub(run.rays);
+    let min_pass = 2 * mesh.patches().len() as u64;
+    let first =
+        config
+            .first_pass_rays
+            .unwrap_or(if rest == u64::MAX { 100_000 } else { rest / 63 });
+    let mut passes = Doubling::new(&ScheduleConfig {
+        rays: rest,
+        first_pass_rays: Some(first.max(min_pass)),
+        ..config.clone()
+    });
+    while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
+        let r = gather_round_from(
+            &ctx,
+            &shooting,
+            Emission::Include,
+            per_patch(mesh, budget),
+            key,
+        )?;
+        run.rays += r.estimate.rays();
+        run.escaped_rays += r.escaped_rays;
+        if !run.step(r.estimate, passes.peek(), observer)? {
+            break;
+        }
+    }
+    run.finish(config.rays)
+}

@@ -1,0 +1,44 @@
+//! Plain shooting (Balog, section 1.3): one pass, a step per wave.
+
+use super::{
+    Observer, ScheduleConfig, Solution, Step, shoot_config, unshot_fraction, with_ambient,
+};
+use crate::context::Context;
+use crate::error::Error;
+use crate::shoot::shoot;
+use mcrad_meshing::Mesh;
+use mcrad_raycast::RayCaster;
+
+/// Plain shooting: one pass, a step per wave.
+pub(crate) fn run<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let ctx = Context::new(mesh, caster);
+    let mut steps = 0;
+    let s = shoot(
+        &ctx,
+        &shoot_config(config, config.rays, config.seed),
+        &mut |p| {
+            steps = p.waves;
+            observer(&Step {
+                index: p.waves,
+                rays: p.rays,
+                next_rays: p.budget.saturating_sub(p.rays),
+                radiosity: p.radiosity,
+            })
+        },
+    )?;
+    let stop = s.stats.stop;
+    let unshot_fraction = unshot_fraction(&s);
+    let escaped_rays = s.stats.escaped_rays;
+    Ok(Solution {
+        estimate: with_ambient(mesh, config, s)?,
+        steps,
+        escaped_rays,
+        unshot_fraction,
+        stop,
+    })
+}

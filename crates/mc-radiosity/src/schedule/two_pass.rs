@@ -1,0 +1,111 @@
+//! Two-pass radiosity (Balog, section 1.5): shooting, then one gathering round from it.
+
+use super::{
+    GATHER_TAG, Observer, ScheduleConfig, Solution, Step, budget_or_stopped, per_patch,
+    shoot_config, unshot_fraction, with_ambient,
+};
+use crate::context::Context;
+use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::error::Error;
+use crate::gather::{Emission, gather_round_from};
+use crate::method::StopReason;
+use crate::shoot::shoot;
+use glam::DVec3;
+use mcrad_combine::Estimate;
+use mcrad_meshing::Mesh;
+use mcrad_random::{StreamKey, derive_seed};
+use mcrad_raycast::RayCaster;
+use std::ops::ControlFlow;
+
+/// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
+/// split) from it with the other half. Two steps.
+pub(super) fn run_two_pass<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    split: bool,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let ctx = Context::new(mesh, caster);
+    let budget = if config.rays == u64::MAX {
+        2_000_000
+    } else {
+        config.rays
+    };
+    let s = shoot(
+        &ctx,
+        &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
+        &mut |_| ControlFlow::Continue(()),
+    )?;
+    let (shot_rays, mut escaped_rays, unshot) =
+        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let shooting = with_ambient(mesh, config, s)?;
+    let gather_budget = budget.saturating_sub(shot_rays);
+    if observer(&Step {
+        index: 1,
+        rays: shot_rays,
+        next_rays: gather_budget,
+        radiosity: shooting.radiosity(),
+    })
+    .is_break()
+    {
+        return Ok(Solution {
+            estimate: shooting,
+            steps: 1,
+            escaped_rays,
+            unshot_fraction: unshot,
+            stop: StopReason::Stopped,
+        });
+    }
+    let key = StreamKey::new(config.seed).derive(GATHER_TAG);
+    let gathered = if split {
+        // Direct samples cost two rays each (an emitter sample and a cosine ray).
+        let split = SplitConfig {
+            rays_per_patch: per_patch(mesh, gather_budget / 2),
+            samples_per_patch: per_patch(mesh, gather_budget / 4),
+            sampling: DirectSampling::EmittersAndCosine,
+        };
+        two_pass_split(&ctx, &shooting, &split, key)?
+    } else {
+        let r = gather_round_from(
+            &ctx,
+            &shooting,
+            Emission::Include,
+            per_patch(mesh, gather_budget),
+            key,
+        )?;
+        escaped_rays += r.escaped_rays;
+        r.estimate
+    };
+    // The answer's work is everything it took: the shooting and the gathering.
+    let rays = shot_rays + gathered.rays();
+    let estimate = Estimate::new(
+        gathered.radiosity().to_vec(),
+        gathered.variance().map(<[DVec3]>::to_vec),
+        rays,
+    )?;
+    let stopped = observer(&Step {
+        index: 2,
+        rays,
+        next_rays: 0,
+        radiosity: estimate.radiosity(),
+    })
+    .is_break();
+    Ok(Solution {
+        estimate,
+        steps: 2,
+        escaped_rays,
+        unshot_fraction: unshot,
+        stop: budget_or_stopped(stopped),
+    })
+}
+
+/// Two-pass without the split: shooting, then one gathering round.
+pub(crate) fn run<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    run_two_pass(mesh, caster, config, false, observer)
+}
