@@ -86,7 +86,8 @@ pub struct Solve {
     /// Write the mesh with baked per-vertex radiosity (COLOR_0, and exact values in `_RADIOSITY`).
     #[arg(long, value_name = "F.glb")]
     pub gltf: Option<PathBuf>,
-    /// Pinhole camera: eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES] (vertical fov, default 40).
+    /// Pinhole camera: eye=X,Y,Z,look=X,Y,Z with optional ,up=X,Y,Z and ,fov=DEGREES (vertical
+    /// fov, default 40).
     /// Default: the scene file's camera, else one framed automatically.
     #[arg(long, value_name = "SPEC", value_parser = crate::camera_arg::parse_camera, allow_hyphen_values = true)]
     pub camera: Option<mcrad_render::Camera>,
