@@ -5,13 +5,15 @@
 //! name and metadata accessors, [`FromStr`](std::str::FromStr) and [`Display`](fmt::Display),
 //! clap's `ValueEnum` (feature `clap`), serde's `Serialize` (feature `serde`) and the dispatch
 //! of [`schedule::run`](crate::schedule::run), every one an exhaustive match over the same list:
-//! a method is added by writing its runner (a function with the signature of
-//! [`schedule::run`](crate::schedule::run) less the method) and one line here, and nothing
-//! else can be forgotten.
+//! a method is added by writing its runner, a file `schedule/<name>.rs` with
+//! `pub(crate) fn run<C: RayCaster>(ctx: &Context<C>, config: &ScheduleConfig, observer: &mut
+//! Observer) -> Result<Solution, Error>` (the dispatch builds the [`Context`] once per run), and
+//! one entry here; nothing else can be forgotten.
 //!
 //! [`StopReason`], why a run ended, lives here too: it is what the run statistics report next
 //! to the method.
 
+use crate::context::Context;
 use crate::error::Error;
 use crate::schedule::{Observer, ScheduleConfig, Solution};
 use mcrad_meshing::Mesh;
@@ -154,8 +156,9 @@ macro_rules! methods {
                 config: &ScheduleConfig,
                 observer: &mut Observer,
             ) -> Result<Solution, Error> {
+                let ctx = Context::new(mesh, caster);
                 match self {
-                    $(Method::$variant => $runner(mesh, caster, config, observer),)*
+                    $(Method::$variant => $runner(&ctx, config, observer),)*
                 }
             }
         }

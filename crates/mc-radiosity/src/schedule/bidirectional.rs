@@ -34,7 +34,6 @@ use crate::gather::check_input;
 use crate::sampling::stochastic_round;
 use glam::DVec3;
 use mcrad_combine::Estimate;
-use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
@@ -48,22 +47,21 @@ const ALLOCATE: u64 = 0;
 
 /// The bidirectional schedule: see the [module documentation](self).
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let min_pass = 2 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let estimate = match &run.merged {
-            None => run.shoot(&ctx, config, budget, k)?.estimate,
+            None => run.shoot(ctx, config, budget, k)?.estimate,
             Some(solution) => {
                 let e = step(
-                    &ctx,
+                    ctx,
                     solution.radiosity(),
                     budget,
                     StreamKey::new(config.seed).derive(GATHER_TAG + k),

@@ -63,12 +63,11 @@ struct Shots {
 /// Algorithm 4 with its default weighting, [`InverseExpectedVariance`]: see the
 /// [module documentation](self).
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    run_with(mesh, caster, config, &InverseExpectedVariance, observer)
+    with_context(ctx, config, &InverseExpectedVariance, observer)
 }
 
 /// Algorithm 4 of Balog's paper, iterative combined shooting and gathering, merging the
@@ -86,14 +85,24 @@ pub fn run_with<C: RayCaster>(
     weighting: &dyn Weighting,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    with_context(&Context::new(mesh, caster), config, weighting, observer)
+}
+
+/// [`run_with`] on a context built by the caller.
+fn with_context<C: RayCaster>(
+    ctx: &Context<C>,
+    config: &ScheduleConfig,
+    weighting: &dyn Weighting,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let mesh = ctx.mesh();
     let patches = mesh.patches();
     // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
     // shooting share.
     let min_pass = 8 * patches.len() as u64;
     if config.rays < min_pass {
         // Too few rays to gather at every patch even once: shooting alone is the best use.
-        return super::shoot::run(mesh, caster, config, observer);
+        return super::shoot::run(ctx, config, observer);
     }
     let mut passes = Doubling::at_least(config, min_pass);
     let mut run = Progressive::default();
@@ -117,7 +126,7 @@ pub fn run_with<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = run.shoot(&ctx, config, shoot_budget, k)?;
+        let s = run.shoot(ctx, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         shot_rays += pass_rays;
@@ -145,7 +154,7 @@ pub fn run_with<C: RayCaster>(
             sampling: DirectSampling::EmittersAndCosine,
         };
         let g = two_pass_split(
-            &ctx,
+            ctx,
             input,
             &split,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),

@@ -4,17 +4,15 @@ use super::{Observer, ScheduleConfig, Solution, Step, per_patch};
 use crate::context::Context;
 use crate::error::Error;
 use crate::gather::{GatherConfig, gather};
-use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
 /// Jacobi gathering: a step per round.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     // About ten rounds' worth of rays per patch (the bounces a typical scene needs).
     let rays_per_patch = if config.rays == u64::MAX {
         256
@@ -28,7 +26,7 @@ pub(crate) fn run<C: RayCaster>(
         seed: config.seed,
     };
     let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
-    let g = gather(&ctx, &gather_config, &mut |p| {
+    let g = gather(ctx, &gather_config, &mut |p| {
         observer(&Step {
             index: p.rounds,
             rays: p.rays,

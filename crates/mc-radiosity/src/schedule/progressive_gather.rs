@@ -8,26 +8,24 @@ use crate::context::Context;
 use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use crate::shoot::shoot;
-use mcrad_meshing::Mesh;
 use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
 
 /// Algorithm 2: progressive gathering from one shooting solution.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let shoot_budget = if config.rays == u64::MAX {
         1_000_000
     } else {
         config.rays / 4
     };
     let s = shoot(
-        &ctx,
+        ctx,
         &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
@@ -52,7 +50,7 @@ pub(crate) fn run<C: RayCaster>(
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
         let r = gather_round_from(
-            &ctx,
+            ctx,
             &shooting,
             Emission::Include,
             per_patch(mesh, budget),

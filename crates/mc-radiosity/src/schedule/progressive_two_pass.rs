@@ -8,30 +8,28 @@ use crate::context::Context;
 use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use mcrad_combine::Estimate;
-use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
 /// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
 /// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let min_pass = 4 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let s = run.shoot(&ctx, config, budget / 2, k)?;
+        let s = run.shoot(ctx, config, budget / 2, k)?;
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);
         let r = gather_round_from(
-            &ctx,
+            ctx,
             &refined,
             Emission::Include,
             per_patch(mesh, budget / 2),

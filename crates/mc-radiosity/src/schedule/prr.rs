@@ -3,21 +3,19 @@
 use super::{Doubling, Observer, Progressive, ScheduleConfig, Solution, with_ambient};
 use crate::context::Context;
 use crate::error::Error;
-use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
 /// Algorithm 1: progressive ray refinement.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let mut passes = Doubling::new(config);
     let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
-        let s = run.shoot(&ctx, config, budget, run.steps as u64)?;
+        let s = run.shoot(ctx, config, budget, run.steps as u64)?;
         if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
             break;
         }

@@ -4,9 +4,9 @@
 //! and the patch limit.
 
 use super::{Observer, ScheduleConfig, Solution, Step};
+use crate::context::Context;
 use crate::error::Error;
 use crate::method::StopReason;
-use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
 /// Runs the reference solver and shows its solution to the observer as the one step (its rays
@@ -14,11 +14,11 @@ use mcrad_raycast::RayCaster;
 /// sweeps. It ends [`StopReason::Converged`] (the solver fails rather than stop short), or
 /// [`StopReason::Stopped`] if the observer breaks at that step.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
+    let (mesh, caster) = (ctx.mesh(), ctx.caster());
     let r = mcrad_reference::reference(mesh, caster, &config.reference, &|_| {})?;
     let stopped = observer(&Step {
         index: 1,

@@ -6,20 +6,18 @@ use super::{
 use crate::context::Context;
 use crate::error::Error;
 use crate::shoot::shoot;
-use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
 /// Plain shooting: one pass, a step per wave.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let mut steps = 0;
     let s = shoot(
-        &ctx,
+        ctx,
         &shoot_config(config, config.rays, config.seed),
         &mut |p| {
             steps = p.waves;

@@ -12,7 +12,6 @@ use crate::method::StopReason;
 use crate::shoot::shoot;
 use glam::DVec3;
 use mcrad_combine::Estimate;
-use mcrad_meshing::Mesh;
 use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
@@ -20,20 +19,19 @@ use std::ops::ControlFlow;
 /// Two-pass: shooting with half the budget, then one gathering round (or the direct/indirect
 /// split) from it with the other half. Two steps.
 pub(super) fn run_two_pass<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     split: bool,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    let ctx = Context::new(mesh, caster);
+    let mesh = ctx.mesh();
     let budget = if config.rays == u64::MAX {
         2_000_000
     } else {
         config.rays
     };
     let s = shoot(
-        &ctx,
+        ctx,
         &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
@@ -65,10 +63,10 @@ pub(super) fn run_two_pass<C: RayCaster>(
             samples_per_patch: per_patch(mesh, gather_budget / 4),
             sampling: DirectSampling::EmittersAndCosine,
         };
-        two_pass_split(&ctx, &shooting, &split, key)?
+        two_pass_split(ctx, &shooting, &split, key)?
     } else {
         let r = gather_round_from(
-            &ctx,
+            ctx,
             &shooting,
             Emission::Include,
             per_patch(mesh, gather_budget),
@@ -102,10 +100,9 @@ pub(super) fn run_two_pass<C: RayCaster>(
 
 /// Two-pass without the split: shooting, then one gathering round.
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    run_two_pass(mesh, caster, config, false, observer)
+    run_two_pass(ctx, config, false, observer)
 }

@@ -2,16 +2,15 @@
 //! direct light by sampling the emitters plus indirect light gathered from the shooting.
 
 use super::{Observer, ScheduleConfig, Solution};
+use crate::context::Context;
 use crate::error::Error;
-use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 
 /// Two-pass with the split: see [the module](self).
 pub(crate) fn run<C: RayCaster>(
-    mesh: &Mesh,
-    caster: &C,
+    ctx: &Context<C>,
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    super::two_pass::run_two_pass(mesh, caster, config, true, observer)
+    super::two_pass::run_two_pass(ctx, config, true, observer)
 }
