@@ -87,30 +87,33 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     if let Some(e) = trace_error {
         return Err(e);
     }
-    finish(
-        args,
+    let seconds = start.elapsed().as_secs_f64();
+    let estimate = &solution.estimate;
+    let run = RunStats {
+        method,
+        patches: mesh.patches().len(),
+        rays: estimate.rays(),
+        seconds,
+        rays_per_second: estimate.rays() as f64 / seconds.max(1e-9),
+        iterations: solution.steps,
+        seed: args.seed,
         threads,
-        &loaded,
-        &mesh,
-        &bvh,
-        &solution,
-        start.elapsed().as_secs_f64(),
+        escaped_rays: solution.escaped_rays,
+        unshot_fraction: solution.unshot_fraction,
+        stop: solution.stop,
         setup_seconds,
-        &bar,
-    )
+    };
+    finish(args, &loaded, &mesh, &bvh, &solution, &run, &bar)
 }
 
 /// Writes the outputs of a finished solve and prints the summary.
-#[allow(clippy::too_many_arguments)]
 fn finish(
     args: &Solve,
-    threads: usize,
     loaded: &mcrad_scene_io::Loaded,
     mesh: &Mesh,
     bvh: &Bvh,
     solution: &Solution,
-    seconds: f64,
-    setup_seconds: f64,
+    run: &RunStats,
     bar: &ProgressBar,
 ) -> Result<()> {
     let estimate = &solution.estimate;
@@ -124,20 +127,6 @@ fn finish(
         });
         write_patch_csv(create(path)?, rows)?;
     }
-    let run = RunStats {
-        method: args.method(),
-        patches: mesh.patches().len(),
-        rays: estimate.rays(),
-        seconds,
-        rays_per_second: estimate.rays() as f64 / seconds.max(1e-9),
-        iterations: solution.steps,
-        seed: args.seed,
-        threads,
-        escaped_rays: solution.escaped_rays,
-        unshot_fraction: solution.unshot_fraction,
-        stop: solution.stop,
-        setup_seconds,
-    };
     if let Some(path) = &args.stats {
         run.write_json(create(path)?)?;
     }
@@ -155,7 +144,7 @@ fn finish(
             run.iterations,
             100.0 * run.unshot_fraction,
             run.escaped_rays,
-            threads
+            run.threads
         );
     }
     Ok(())

@@ -67,14 +67,11 @@ impl Obj {
 
     /// A box without a bottom: footprint centred at `(cx, cz)`, half sizes `(hx, hz)`, turned by
     /// `angle` about +y, from height `y0` up `h`. Returns its top height.
-    #[allow(clippy::too_many_arguments)]
     fn block(
         &mut self,
         material: &str,
-        cx: f64,
-        cz: f64,
-        hx: f64,
-        hz: f64,
+        (cx, cz): (f64, f64),
+        (hx, hz): (f64, f64),
         angle: f64,
         y0: f64,
         h: f64,
@@ -217,17 +214,15 @@ pub fn boxes_room() -> (String, String) {
             let (hx, hz) = (rng.range(0.03, 0.08), rng.range(0.03, 0.08));
             let angle = rng.range(0.0, std::f64::consts::PI);
             let colour = colours[(rng.next() * 4.0) as usize % 4];
-            let top = obj.block(colour, cx, cz, hx, hz, angle, 0.0, rng.range(0.04, 0.5));
+            let top = obj.block(colour, (cx, cz), (hx, hz), angle, 0.0, rng.range(0.04, 0.5));
             if rng.next() < STACK {
                 let s = rng.range(0.4, 0.8);
                 let colour = colours[(rng.next() * 4.0) as usize % 4];
                 let turn = angle + rng.range(-0.5, 0.5);
                 obj.block(
                     colour,
-                    cx,
-                    cz,
-                    s * hx,
-                    s * hz,
+                    (cx, cz),
+                    (s * hx, s * hz),
                     turn,
                     top,
                     rng.range(0.03, 0.15),
