@@ -254,7 +254,10 @@ mod tests {
             assert_eq!(seeds.len(), 2);
             for points in seeds {
                 assert!(!points.is_empty(), "{} has no point", method.name());
-                assert!(points.windows(2).all(|w| w[0].seconds < w[1].seconds));
+                // Rays, not seconds: a ladder's rungs are separate runs, and on a loaded machine
+                // a bigger rung can take less wall-clock time than the one before.
+                assert!(points.windows(2).all(|w| w[0].rays < w[1].rays));
+                assert!(points.iter().all(|p| p.seconds > 0.0));
                 assert!(points.iter().all(|p| p.rms_rel > 0.0 && p.rms_rel < 1.0));
             }
         }
