@@ -1,5 +1,6 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
+mod calibrate;
 mod experiment;
 mod gen_scenes;
 mod regress;
@@ -27,6 +28,9 @@ tasks:
           every method on every experiment scene, error against time; writes
           docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
           (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)
+  calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
+          every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z²,
+          spread/reported variance, power bias, budget use; writes docs/calibration.md
   gen-scenes
           writes the generated experiment scene scenes/boxes-room.obj (+ .mtl)
   gen-references [scene ...]
@@ -68,6 +72,7 @@ fn run() -> Result<()> {
             speed::run(&root(), &args)
         }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
+        Some("calibrate") => calibrate::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>()),
         Some("gen-scenes") => gen_scenes::run(&root()),
         Some("gen-references") => {
             let names: Vec<String> = std::env::args().skip(2).collect();
