@@ -523,10 +523,16 @@ struct Row {
 /// Runs the suite and writes the report.
 pub fn run(root: &Path, args: &[String]) -> Result<()> {
     let o = Options::parse(root, args)?;
+    let start = Instant::now();
     let rows = measure(&o)?;
     let table = table(&rows) + &far_table(&rows);
     print!("{table}");
-    let doc = document(&o, &table);
+    let mut doc = document(&o, &table);
+    let _ = write!(
+        doc,
+        "\nThe suite took {:.0} s of wall-clock time (the reference solution included).\n",
+        start.elapsed().as_secs_f64()
+    );
     std::fs::write(&o.out, doc).with_context(|| format!("could not write {}", o.out.display()))?;
     eprintln!("wrote {}", o.out.display());
     Ok(())
@@ -642,9 +648,10 @@ fn dedup_notes(notes: Vec<String>) -> Vec<String> {
     let mut out: Vec<(String, usize)> = Vec::new();
     for n in notes {
         // "seed 3: panic: x" and "seed 4: panic: x" are the same message
-        let key = n
-            .split_once(": ")
-            .map_or(n.clone(), |(_, rest)| rest.into());
+        let key = match n.split_once(": ") {
+            Some((seed, rest)) if seed.starts_with("seed ") => rest.to_string(),
+            _ => n,
+        };
         match out.iter_mut().find(|(k, _)| *k == key) {
             Some((_, c)) => *c += 1,
             None => out.push((key, 1)),
@@ -653,6 +660,16 @@ fn dedup_notes(notes: Vec<String>) -> Vec<String> {
     out.into_iter()
         .map(|(k, c)| if c > 1 { format!("{c} seeds: {k}") } else { k })
         .collect()
+}
+
+/// A ratio in standard errors: one decimal, or in powers of ten beyond 1e4 (a standard error
+/// of rounding noise).
+fn ratio(v: f64) -> String {
+    if v.abs() < 1e4 {
+        format!("{v:+.1}")
+    } else {
+        format!("{v:+.0e}")
+    }
 }
 
 /// A value with `✗` when it misses `ok`.
@@ -733,11 +750,7 @@ fn table(rows: &[Row]) -> String {
                 |v| !high_rho || v.abs() <= target::HIGH_RHO
             ),
             cell(s.power_se, |v| format!("{:.4}%", 100.0 * v), |_| true),
-            cell(
-                bias_se,
-                |v| format!("{v:+.1}"),
-                |v| v.abs() <= target::POWER_SE
-            ),
+            cell(bias_se, ratio, |v| v.abs() <= target::POWER_SE),
             r.seconds,
             r.notes.join("; ").replace('|', "/"),
         );
@@ -768,18 +781,14 @@ fn far_table(rows: &[Row]) -> String {
         };
         any = true;
         let se = (sa * sa + sb * sb).sqrt();
-        let z = (pb - pa) / se;
+        let z = if pb == pa { 0.0 } else { (pb - pa) / se };
         let z2 = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.3}"));
         let _ = writeln!(
             t,
             "| {} | {:+.4}% | {} | {} / {} | {:.2} / {:.2} |",
             far.method,
             100.0 * (pb - pa),
-            cell(
-                Some(z),
-                |v| format!("{v:+.1}"),
-                |v| v.abs() <= target::POWER_SE
-            ),
+            cell(Some(z), ratio, |v| v.abs() <= target::POWER_SE),
             z2(a.z2),
             z2(b.z2),
             origin.seconds,
@@ -907,6 +916,12 @@ mod tests {
         };
         let s = statistics(&[none.clone(), none], Some(&exact), &areas, 100);
         assert_eq!((s.z2, s.no_var, s.spread_pooled), (None, 12, None));
+        let notes = ["seed 0: panic: x", "seed 1: panic: x", "converged early: 8"];
+        assert_eq!(
+            dedup_notes(notes.map(String::from).to_vec()),
+            ["2 seeds: panic: x", "converged early: 8"]
+        );
+        assert_eq!((ratio(2.345), ratio(-3e7)), ("+2.3".into(), "-3e7".into()));
     }
 
     /// A standard normal number (Box-Muller).
