@@ -25,7 +25,12 @@
 //! `U_i phi_0 / |U_i|` with probability `|U_i| / phi_0` and drops its power otherwise. The
 //! expected power shot is `U_i` either way, so the result stays unbiased, no power waits for a
 //! later wave, and the tail costs about `unshot / ((1 - rho_avg) phi_0)` rays more than the
-//! budget (a fraction of a percent of it in a normal run).
+//! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost explodes
+//! (at `rho = 0.99999` the series has `1e5` bounces per watt), so the tail's energy per ray is
+//! raised to `max(phi_0, unshot / ((1 - rho) budget / 40))` (`rho` the area-weighted mean
+//! reflectance, unclamped), which makes its expected cost at most 2.5% of the budget, and the
+//! tail stops after 5% of the budget ([`StopReason::BudgetSpent`]) with what is left reported
+//! as unshot (`ShootStats::unshot`), not hidden.
 //!
 //! Power is conserved exactly in every realisation (to floating-point rounding):
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
@@ -213,6 +218,17 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(0.999);
+    // The unclamped mean reflectance, for sizing the finishing tail: its rays follow the whole
+    // remaining series, `1 / (1 - rho)` bounces per watt.
+    let rho_tail = (rho
+        .iter()
+        .zip(&area)
+        .map(|(r, a)| total(*r) / 3.0 * a)
+        .sum::<f64>()
+        / total_area)
+        .min(1.0 - 1e-12);
+    // The finishing tail may cast at most this many rays past the budget.
+    let tail_cap = config.rays / 20;
     let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
@@ -235,6 +251,8 @@ pub fn shoot<C: RayCaster>(
     let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
+    // The finishing tail's energy per ray, fixed at its first wave.
+    let mut tail_phi: Option<f64> = None;
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
@@ -248,7 +266,18 @@ pub fn shoot<C: RayCaster>(
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
-            let phi = *phi_0.get_or_insert(left / (1.0 - rho_avg));
+            if stats.finishing_rays >= tail_cap {
+                // The tail spent its share: stop with the rest unshot (reported, not hidden).
+                stats.stop = StopReason::BudgetSpent;
+                break;
+            }
+            // The tail's energy per ray: the first wave's, raised so that shipping what is
+            // left (`left / ((1 - rho) phi)` rays expected) costs about half the cap.
+            let tail = *tail_phi.get_or_insert_with(|| {
+                let first = *phi_0.get_or_insert(left / (1.0 - rho_avg));
+                first.max(left / ((1.0 - rho_tail) * (tail_cap.max(1) as f64 / 2.0)))
+            });
+            let phi = tail;
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
@@ -321,8 +350,7 @@ pub fn shoot<C: RayCaster>(
         .zip(&area)
         .map(|(s, a)| *s / (a * a))
         .collect();
-    let estimate =
-        Estimate::new(radiosity, Some(variance), stats.rays).expect("shooting sums stay finite");
+    let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {
         estimate,
         unshot,
