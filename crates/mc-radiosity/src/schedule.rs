@@ -99,7 +99,9 @@ pub struct Solution {
     pub steps: u32,
     /// Rays that hit nothing, over all passes.
     pub escaped_rays: u64,
-    /// Unshot power left by the last shooting pass, as a fraction of the emitted power.
+    /// Unshot power left by the last shooting pass, as a fraction of the emitted power; for
+    /// `gather`, the bound `rho_max^rounds` on the share of the reflected light its Jacobi
+    /// series has not yet summed.
     pub unshot_fraction: f64,
     /// Why the run ended.
     pub stop: StopReason,
