@@ -110,7 +110,8 @@ pub struct Solution {
 /// The observer of a schedule.
 pub type Observer<'o> = dyn FnMut(&Step) -> ControlFlow<()> + 'o;
 
-/// Runs `method` on `mesh`, casting rays through `caster`.
+/// Runs `method` on `mesh`, casting rays through `caster`. Errors include
+/// [`Error::FarFromOrigin`]: a scene too far from the origin for its `f32` coordinates.
 pub fn run<C: RayCaster>(
     method: Method,
     mesh: &Mesh,
@@ -118,6 +119,7 @@ pub fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
+    crate::context::check_precision(mesh)?;
     method.dispatch(mesh, caster, config, observer)
 }
 

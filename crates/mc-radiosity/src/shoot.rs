@@ -190,6 +190,7 @@ pub fn shoot<C: RayCaster>(
     if config.rays == 0 {
         return Err(Error::NoRays);
     }
+    crate::context::check_precision(mesh)?;
     if !(0.0..=1.0).contains(&config.unshot_threshold) {
         return Err(Error::BadUnshotThreshold(config.unshot_threshold));
     }
