@@ -148,6 +148,8 @@ pub struct Shooting {
     /// Radiosity `B_i = E_i + (received and reflected power)_i / A_i` (W/m²) with its variance:
     /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
     /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
+    /// A reflecting patch no ray reached reports one hit's worth, `(rho_i p / A_i)²` with `p` the
+    /// mean ray power (no information, not certainty).
     pub estimate: Estimate,
     /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
     pub unshot: Vec<DVec3>,
@@ -346,10 +348,27 @@ pub fn shoot<C: RayCaster>(
     }
     stats.unshot = unshot.iter().sum();
     radiosity_so_far(patches, &reflected, &mut radiosity);
+    // A patch that reflects but that no ray reached has no information, not a zero variance:
+    // it gets the variance of one hit's deposit, `(rho_i p / A_i)²` with `p` the mean ray power
+    // per channel (with no hit seen, the mean number of hits expected under a flat prior is 1),
+    // so its `z` stays finite and nothing trusts its `B = E` more than a patch that was hit.
+    let ray_power = if stats.rays > 0 {
+        stats.shot / stats.rays as f64
+    } else {
+        DVec3::ZERO
+    };
     let variance = squares
         .iter()
         .zip(&area)
-        .map(|(s, a)| *s / (a * a))
+        .zip(&rho)
+        .map(|((s, a), r)| {
+            if *s == DVec3::ZERO {
+                let x = *r * ray_power / *a;
+                x * x
+            } else {
+                *s / (a * a)
+            }
+        })
         .collect();
     let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {

@@ -74,3 +74,48 @@ fn near_enough_the_origin_gives_the_origins_answer() {
         (va + vb).sqrt()
     );
 }
+
+#[test]
+fn a_patch_no_ray_reached_reports_no_information() {
+    // Issue 16: a patch no ray reached came back as B = 0 with variance 0 (z infinite). A
+    // 1 mm² patch (reflectance 0.5, no emission) 1 cm above the floor of the unit furnace
+    // (rho 0.5, E = 1) faces up at walls of B = 2, so its exact B is about 1 W/m²; at 2e4 rays
+    // about 0.003 hits are expected, so no ray reaches it (fixed seeds: deterministic).
+    let (mut p, mut f) = (Vec::new(), Vec::new());
+    box_faces(1.0, &mut p, &mut f, [0; 6]);
+    let base = p.len() as u32;
+    for (x, y) in [(0.5, 0.5), (0.501, 0.5), (0.501, 0.501), (0.5, 0.501)] {
+        p.push(Vec3::new(x, y, 0.01));
+    }
+    f.push(common::quad([base, base + 1, base + 2, base + 3], 1, 6));
+    let scene = Scene::new(
+        p,
+        f,
+        vec![material("furnace", 0.5, 1.0), material("speck", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0;
+    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let speck = mesh.patches().len() - 1;
+    for method in [Method::Shoot, Method::Prr, Method::Bidirectional] {
+        for seed in 0..4 {
+            let config = ScheduleConfig {
+                rays: 20_000,
+                seed,
+                ..Default::default()
+            };
+            let s = run(method, &mesh, &bvh, &config, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap();
+            let b = s.estimate.radiosity()[speck].x;
+            let v = s.estimate.variance().unwrap()[speck].x;
+            let z = (b - 1.0) / v.sqrt();
+            assert!(
+                v > 0.0 && z.is_finite(),
+                "{method:?} seed {seed}: B {b} var {v}"
+            );
+        }
+    }
+}
