@@ -30,7 +30,10 @@
 //! raised to `max(phi_0, unshot / ((1 - rho) budget / 40))` (`rho` the area-weighted mean
 //! reflectance, unclamped), which makes its expected cost at most 2.5% of the budget, and the
 //! tail stops after 5% of the budget ([`StopReason::BudgetSpent`]) with what is left reported
-//! as unshot (`ShootStats::unshot`), not hidden.
+//! as unshot (`ShootStats::unshot`), not hidden. When even the raised energy per ray exceeds all
+//! the power left (the tail cannot afford one chain of `1 / (1 - rho)` bounces), no roulette
+//! runs: the run stops there with the power unshot, since a roulette that drops nearly
+//! everything is unbiased only over many runs and its noise is in no reported variance.
 //!
 //! Power is conserved exactly in every realisation (to floating-point rounding):
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
@@ -280,6 +283,14 @@ pub fn shoot<C: RayCaster>(
                 let first = *phi_0.get_or_insert(left / (1.0 - rho_avg));
                 first.max(left / ((1.0 - rho_tail) * (tail_cap.max(1) as f64 / 2.0)))
             });
+            let raised = phi_0.is_some_and(|first| tail > first);
+            if raised && tail > left {
+                // Not even one ray's worth is left at the tail's energy per ray: its roulette
+                // would drop nearly everything (unbiased only over many runs, and with a noise
+                // no reported variance holds). Stop with the rest unshot and reported instead.
+                stats.stop = StopReason::BudgetSpent;
+                break;
+            }
             let phi = tail;
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
