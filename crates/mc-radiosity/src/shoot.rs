@@ -27,9 +27,10 @@
 //! later wave, and the tail costs about `unshot / ((1 - rho_avg) phi_0)` rays more than the
 //! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost explodes
 //! (at `rho = 0.99999` the series has `1e5` bounces per watt), so the tail's energy per ray is
-//! raised to `max(phi_0, unshot / ((1 - rho) budget / 40))` (`rho` the area-weighted mean
-//! reflectance, unclamped), which makes its expected cost at most 2.5% of the budget, and the
-//! tail stops after 5% of the budget ([`StopReason::BudgetSpent`]) with what is left reported
+//! raised to `max(phi_0, unshot / ((1 - rho) cap / 2))` (`rho` the area-weighted mean
+//! reflectance, unclamped; `cap` the larger of 5% of the budget and one ray per patch), which
+//! makes its expected cost at most half the cap, and the tail stops after `cap` rays
+//! ([`StopReason::BudgetSpent`]) with what is left reported
 //! as unshot (`ShootStats::unshot`), not hidden. When even the raised energy per ray exceeds all
 //! the power left (the tail cannot afford one chain of `1 / (1 - rho)` bounces), no roulette
 //! runs: the run stops there with the power unshot, since a roulette that drops nearly
@@ -233,8 +234,11 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(1.0 - 1e-12);
-    // The finishing tail may cast at most this many rays past the budget.
-    let tail_cap = config.rays / 20;
+    // The finishing tail may cast at most this many rays past the budget: 5% of it, or one
+    // ray per patch if that is more (a roulette over the small remainders of many patches
+    // costs about that in an ordinary run, e.g. 140-280 rays on 864 patches whatever the
+    // budget, and is left as it was).
+    let tail_cap = (config.rays / 20).max(patches.len() as u64);
     let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
