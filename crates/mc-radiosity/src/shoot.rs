@@ -152,8 +152,8 @@ pub struct Shooting {
     /// Radiosity `B_i = E_i + (received and reflected power)_i / A_i` (W/m²) with its variance:
     /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
     /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
-    /// A reflecting patch no ray reached reports one hit's worth, `(rho_i p / A_i)²` with `p` the
-    /// mean ray power (no information, not certainty).
+    /// A patch no ray reached has variance 0 here (the schedules' outputs replace it with
+    /// `unreached_variance`'s "no information").
     pub estimate: Estimate,
     /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
     pub unshot: Vec<DVec3>,
@@ -363,27 +363,10 @@ pub fn shoot<C: RayCaster>(
     }
     stats.unshot = unshot.iter().sum();
     radiosity_so_far(patches, &reflected, &mut radiosity);
-    // A patch that reflects but that no ray reached has no information, not a zero variance:
-    // it gets the variance of one hit's deposit, `(rho_i p / A_i)²` with `p` the mean ray power
-    // per channel (with no hit seen, the mean number of hits expected under a flat prior is 1),
-    // so its `z` stays finite and nothing trusts its `B = E` more than a patch that was hit.
-    let ray_power = if stats.rays > 0 {
-        stats.shot / stats.rays as f64
-    } else {
-        DVec3::ZERO
-    };
     let variance = squares
         .iter()
         .zip(&area)
-        .zip(&rho)
-        .map(|((s, a), r)| {
-            if *s == DVec3::ZERO {
-                let x = *r * ray_power / *a;
-                x * x
-            } else {
-                *s / (a * a)
-            }
-        })
+        .map(|(s, a)| *s / (a * a))
         .collect();
     let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {
@@ -507,4 +490,46 @@ fn trace<C: RayCaster>(
             }
         })
         .collect()
+}
+
+/// Replaces the zero variance of a patch that reflects but that no ray reached (no information,
+/// not certainty) in a shooting-based final estimate: per channel with `rho_ic > 0` and
+/// `V_ic = 0`, `V_ic = (rho_ic p_c / A_i)²`, the variance of one hit's deposit, with
+/// `p_c = sum_j B_jc A_j / N` the mean power per ray (every watt leaving a patch is shot; `N`
+/// the estimate's rays). With no hit seen, the mean number of hits expected under a flat prior
+/// is 1, so this is what one hit would have said; `z` against any reference stays finite.
+/// Applied to a method's final output only, so the combination's variance models (which read
+/// the passes' own variances) are unchanged. Patches that do not reflect keep `V = 0`: their
+/// `B = E` is certain.
+pub(crate) fn unreached_variance(
+    mesh: &mcrad_meshing::Mesh,
+    estimate: Estimate,
+) -> Result<Estimate, Error> {
+    let Some(variance) = estimate.variance() else {
+        return Ok(estimate);
+    };
+    if estimate.rays() == 0 {
+        return Ok(estimate);
+    }
+    let patches = mesh.patches();
+    let power: DVec3 = estimate
+        .radiosity()
+        .iter()
+        .zip(patches)
+        .map(|(b, p)| *b * p.area)
+        .sum();
+    let per_ray = power / estimate.rays() as f64;
+    let variance: Vec<DVec3> = variance
+        .iter()
+        .zip(patches)
+        .map(|(v, p)| {
+            let x = p.reflectance.as_dvec3() * per_ray / p.area;
+            DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v)
+        })
+        .collect();
+    Ok(Estimate::new(
+        estimate.radiosity().to_vec(),
+        Some(variance),
+        estimate.rays(),
+    )?)
 }

@@ -34,7 +34,9 @@ fn solve(method: Method, mesh: &Mesh, seed: u64) -> Result<f64, Error> {
         seed,
         ..Default::default()
     };
-    let s = run(method, mesh, &bvh, &config, &mut |_| ControlFlow::Continue(()))?;
+    let s = run(method, mesh, &bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })?;
     let b = s.estimate.radiosity();
     Ok(b.iter().map(|b| b.x).sum::<f64>() / b.len() as f64)
 }
@@ -60,11 +62,18 @@ fn near_enough_the_origin_gives_the_origins_answer() {
     // radiosity of 8 shooting seeds at 100 and at 0 agree within 5 standard errors of their
     // difference (about 14 dof: P(|t| > 5) < 2e-4, the false-failure rate).
     let (near, far) = (furnace_at(0.0), furnace_at(100.0));
-    let a: Vec<f64> = (0..8).map(|s| solve(Method::Shoot, &near, s).unwrap()).collect();
-    let b: Vec<f64> = (0..8).map(|s| solve(Method::Shoot, &far, s).unwrap()).collect();
+    let a: Vec<f64> = (0..8)
+        .map(|s| solve(Method::Shoot, &near, s).unwrap())
+        .collect();
+    let b: Vec<f64> = (0..8)
+        .map(|s| solve(Method::Shoot, &far, s).unwrap())
+        .collect();
     let mv = |x: &[f64]| {
         let m = x.iter().sum::<f64>() / 8.0;
-        (m, x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / 7.0 / 8.0)
+        (
+            m,
+            x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / 7.0 / 8.0,
+        )
     };
     let ((ma, va), (mb, vb)) = (mv(&a), mv(&b));
     assert!(va > 0.0 && vb > 0.0);

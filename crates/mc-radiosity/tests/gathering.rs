@@ -207,8 +207,7 @@ fn jacobi_gathering_converges_to_the_furnace_answer() {
         let m = r.rounds as i32;
         let want_rounds = (1..)
             .find(|&m| {
-                rho.powi(m) / ((rho - rho.powi(m + 1)) / (1.0 - rho))
-                    * (rho / (1.0 - rho)).max(1.0)
+                rho.powi(m) / ((rho - rho.powi(m + 1)) / (1.0 - rho)) * (rho / (1.0 - rho)).max(1.0)
                     <= 1e-4
             })
             .unwrap();
@@ -220,7 +219,10 @@ fn jacobi_gathering_converges_to_the_furnace_answer() {
         let b_m = (1.0 - rho.powi(m + 1)) / (1.0 - rho);
         // What the threshold promises: the missing bounces (rho/(1-rho) of the last change)
         // are at most the threshold relative to the reflected light.
-        assert!(exact - b_m <= 1e-4 * (exact - 1.0), "rho {rho}: {b_m} vs {exact}");
+        assert!(
+            exact - b_m <= 1e-4 * (exact - 1.0),
+            "rho {rho}: {b_m} vs {exact}"
+        );
         // An escape lowers one round's value by rho B / n, and later rounds carry it on.
         let slack = r.stats.escaped_rays as f64 * exact / 500.0 / (1.0 - rho) + 1e-12;
         for v in r.estimate.radiosity() {
@@ -940,7 +942,12 @@ fn jacobi_gathering_does_not_stop_on_rounds_that_saw_no_light() {
     let (mut p, mut f) = (Vec::new(), Vec::new());
     box_faces(1.0, &mut p, &mut f, [0; 6]);
     let base = p.len() as u32;
-    for (x, y) in [(0.495, 0.495), (0.495, 0.505), (0.505, 0.505), (0.505, 0.495)] {
+    for (x, y) in [
+        (0.495, 0.495),
+        (0.495, 0.505),
+        (0.505, 0.505),
+        (0.505, 0.495),
+    ] {
         p.push(Vec3::new(x, y, 0.99));
     }
     // Counter-clockwise seen from below: it shines down.

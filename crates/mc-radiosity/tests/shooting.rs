@@ -385,7 +385,11 @@ fn shooting_near_rho_one_keeps_the_budget() {
         )
         .unwrap();
         let s = &r.stats;
-        assert!(s.rays <= 21_000, "seed {seed}: {} rays for 2e4: {s:?}", s.rays);
+        assert!(
+            s.rays <= 21_000,
+            "seed {seed}: {} rays for 2e4: {s:?}",
+            s.rays
+        );
         // The budget cannot ship 1e5 bounces: what is left is reported, not dropped.
         assert_eq!(s.stop, StopReason::BudgetSpent, "{s:?}");
         assert!(s.unshot.x > 0.5 * s.emitted.x, "{s:?}");
