@@ -256,8 +256,10 @@ pub struct GatherConfig {
     pub rays_per_patch: u32,
     /// Stop once the largest change of a round relative to the largest reflected radiosity,
     /// `max_{i,c} |B'_ic - B_ic| / max_{i,c} (B'_ic - E_ic)` (emission left out: a bright
-    /// light would otherwise hide every change),
-    /// is at most this (finite, `>= 0`; `0` runs until the budget is spent).
+    /// light would otherwise hide every change), times the remainder factor
+    /// `max(1, rho / (1 - rho))` of the largest reflectance `rho` (the bounces still missing),
+    /// is at most this (finite, `>= 0`; `0` runs until the budget is spent). A round that saw
+    /// no reflected light never stops the run (see [`gather`]).
     pub threshold: f64,
     /// Seed of every random stream of the run.
     pub seed: u64,
