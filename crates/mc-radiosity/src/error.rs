@@ -19,6 +19,23 @@ pub enum Error {
     /// The convergence threshold of Jacobi gathering is negative or not finite.
     #[error("the gathering threshold must be finite and >= 0, got {0}")]
     BadGatherThreshold(f64),
+    /// The scene lies so far from the origin, relative to its smallest patch, that `f32`
+    /// coordinates cannot place points on it: the answer would be silently wrong.
+    #[error(
+        "coordinates reach {coordinate:e} scene units from the origin, where f32 points are \
+         {spacing:e} apart, more than 1/1024 of the smallest patch (patch {patch}, {size:e} \
+         across): move the scene near the origin (geometry is stored in f32)"
+    )]
+    FarFromOrigin {
+        /// The largest coordinate magnitude (scene units).
+        coordinate: f64,
+        /// The spacing of `f32` values there (scene units).
+        spacing: f64,
+        /// The smallest patch (mesh order).
+        patch: usize,
+        /// Its size, the square root of its area (scene units).
+        size: f64,
+    },
     /// The mesh has more patches than ray ids or hit records can name.
     #[error("{patches} patches are more than the estimator can address ({limit})")]
     TooManyPatches {

@@ -256,8 +256,10 @@ pub struct GatherConfig {
     pub rays_per_patch: u32,
     /// Stop once the largest change of a round relative to the largest reflected radiosity,
     /// `max_{i,c} |B'_ic - B_ic| / max_{i,c} (B'_ic - E_ic)` (emission left out: a bright
-    /// light would otherwise hide every change),
-    /// is at most this (finite, `>= 0`; `0` runs until the budget is spent).
+    /// light would otherwise hide every change), times the remainder factor
+    /// `max(1, rho / (1 - rho))` of the largest reflectance `rho` (the bounces still missing),
+    /// is at most this (finite, `>= 0`; `0` runs until the budget is spent). A round that saw
+    /// no reflected light never stops the run (see [`gather`]).
     pub threshold: f64,
     /// Seed of every random stream of the run.
     pub seed: u64,
@@ -327,9 +329,12 @@ pub struct Gathering {
 /// `k`, so that `E[B_m] = sum_{k <= m} (rho F)^k E`. The run stops when a round's largest change
 /// relative to the largest reflected radiosity is at most `config.threshold` ([`StopReason::Converged`]),
 /// when the next round would exceed the budget ([`StopReason::BudgetSpent`]) or when `observer`,
-/// called after every round, breaks ([`StopReason::Stopped`]). The threshold bounds the change
-/// of the last round, not the error: the bounces still missing add about `rho / (1 - rho)` times
-/// the last change, and with few rays per patch the change never falls below the noise.
+/// called after every round, breaks ([`StopReason::Stopped`]). The test is on the remainder the
+/// last change implies: the bounces still missing add about `rho / (1 - rho)` times the last
+/// change (`rho` the largest reflectance), so the run stops when
+/// `change · max(1, rho / (1 - rho)) <= threshold`. A round that saw no reflected light at all
+/// (no ray reached an emitter: `B' = E`) carries no information and never counts as converged
+/// unless no patch reflects. With few rays per patch the change never falls below the noise.
 ///
 /// Errors: `config.rays_per_patch < 2`, a bad threshold, or a budget below one round.
 pub fn gather<C: RayCaster>(
@@ -365,6 +370,14 @@ pub fn gather<C: RayCaster>(
         stop: StopReason::BudgetSpent,
     };
     let mut last = Estimate::new(b.clone(), Some(vec![DVec3::ZERO; b.len()]), 0)?;
+    // The change a round leaves to the rounds after it: about `rho / (1 - rho)` times its own.
+    let rho_max = mesh
+        .patches()
+        .iter()
+        .map(|p| f64::from(p.reflectance.max_element()))
+        .fold(0.0, f64::max)
+        .min(1.0 - 1e-12);
+    let tail = rho_max / (1.0 - rho_max);
     while stats.rays + round <= config.rays {
         let r = gather_round_from(
             ctx,
@@ -381,7 +394,15 @@ pub fn gather<C: RayCaster>(
             .iter()
             .zip(&b)
             .fold(0.0f64, |m, (x, y)| m.max((*x - *y).abs().max_element()));
-        stats.change = if largest > 0.0 { diff / largest } else { 0.0 };
+        // No reflected light seen yet (no ray reached an emitter) is no information, not
+        // convergence, unless nothing reflects at all.
+        stats.change = if largest > 0.0 {
+            diff / largest
+        } else if rho_max > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        };
         stats.rays += r.estimate.rays();
         stats.rounds += 1;
         stats.escaped_rays += r.escaped_rays;
@@ -399,7 +420,7 @@ pub fn gather<C: RayCaster>(
             stats.stop = StopReason::Stopped;
             break;
         }
-        if stats.change <= config.threshold {
+        if stats.change * tail.max(1.0) <= config.threshold {
             stats.stop = StopReason::Converged;
             break;
         }

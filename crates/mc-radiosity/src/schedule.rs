@@ -99,7 +99,9 @@ pub struct Solution {
     pub steps: u32,
     /// Rays that hit nothing, over all passes.
     pub escaped_rays: u64,
-    /// Unshot power left by the last shooting pass, as a fraction of the emitted power.
+    /// Unshot power left by the last shooting pass, as a fraction of the emitted power; for
+    /// `gather`, the bound `rho_max^rounds` on the share of the reflected light its Jacobi
+    /// series has not yet summed.
     pub unshot_fraction: f64,
     /// Why the run ended.
     pub stop: StopReason,
@@ -108,7 +110,8 @@ pub struct Solution {
 /// The observer of a schedule.
 pub type Observer<'o> = dyn FnMut(&Step) -> ControlFlow<()> + 'o;
 
-/// Runs `method` on `mesh`, casting rays through `caster`.
+/// Runs `method` on `mesh`, casting rays through `caster`. Errors include
+/// [`Error::FarFromOrigin`]: a scene too far from the origin for its `f32` coordinates.
 pub fn run<C: RayCaster>(
     method: Method,
     mesh: &Mesh,
@@ -116,6 +119,7 @@ pub fn run<C: RayCaster>(
     config: &ScheduleConfig,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
+    crate::context::check_precision(mesh)?;
     method.dispatch(mesh, caster, config, observer)
 }
 

@@ -25,7 +25,16 @@
 //! `U_i phi_0 / |U_i|` with probability `|U_i| / phi_0` and drops its power otherwise. The
 //! expected power shot is `U_i` either way, so the result stays unbiased, no power waits for a
 //! later wave, and the tail costs about `unshot / ((1 - rho_avg) phi_0)` rays more than the
-//! budget (a fraction of a percent of it in a normal run).
+//! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost explodes
+//! (at `rho = 0.99999` the series has `1e5` bounces per watt), so the tail's energy per ray is
+//! raised to `max(phi_0, unshot / ((1 - rho) cap / 2))` (`rho` the area-weighted mean
+//! reflectance, unclamped; `cap` the larger of 5% of the budget and one ray per patch), which
+//! makes its expected cost at most half the cap, and the tail stops after `cap` rays
+//! ([`StopReason::BudgetSpent`]) with what is left reported
+//! as unshot (`ShootStats::unshot`), not hidden. When even the raised energy per ray exceeds all
+//! the power left (the tail cannot afford one chain of `1 / (1 - rho)` bounces), no roulette
+//! runs: the run stops there with the power unshot, since a roulette that drops nearly
+//! everything is unbiased only over many runs and its noise is in no reported variance.
 //!
 //! Power is conserved exactly in every realisation (to floating-point rounding):
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
@@ -143,6 +152,8 @@ pub struct Shooting {
     /// Radiosity `B_i = E_i + (received and reflected power)_i / A_i` (W/m²) with its variance:
     /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
     /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
+    /// A patch no ray reached has variance 0 here (the schedules' outputs replace it with
+    /// `unreached_variance`'s "no information").
     pub estimate: Estimate,
     /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
     pub unshot: Vec<DVec3>,
@@ -185,6 +196,7 @@ pub fn shoot<C: RayCaster>(
     if config.rays == 0 {
         return Err(Error::NoRays);
     }
+    crate::context::check_precision(mesh)?;
     if !(0.0..=1.0).contains(&config.unshot_threshold) {
         return Err(Error::BadUnshotThreshold(config.unshot_threshold));
     }
@@ -213,6 +225,20 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(0.999);
+    // The unclamped mean reflectance, for sizing the finishing tail: its rays follow the whole
+    // remaining series, `1 / (1 - rho)` bounces per watt.
+    let rho_tail = (rho
+        .iter()
+        .zip(&area)
+        .map(|(r, a)| total(*r) / 3.0 * a)
+        .sum::<f64>()
+        / total_area)
+        .min(1.0 - 1e-12);
+    // The finishing tail may cast at most this many rays past the budget: 5% of it, or one
+    // ray per patch if that is more (a roulette over the small remainders of many patches
+    // costs about that in an ordinary run, e.g. 140-280 rays on 864 patches whatever the
+    // budget, and is left as it was).
+    let tail_cap = (config.rays / 20).max(patches.len() as u64);
     let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
@@ -235,6 +261,8 @@ pub fn shoot<C: RayCaster>(
     let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
+    // The finishing tail's energy per ray, fixed at its first wave.
+    let mut tail_phi: Option<f64> = None;
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
@@ -248,7 +276,26 @@ pub fn shoot<C: RayCaster>(
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
-            let phi = *phi_0.get_or_insert(left / (1.0 - rho_avg));
+            if stats.finishing_rays >= tail_cap {
+                // The tail spent its share: stop with the rest unshot (reported, not hidden).
+                stats.stop = StopReason::BudgetSpent;
+                break;
+            }
+            // The tail's energy per ray: the first wave's, raised so that shipping what is
+            // left (`left / ((1 - rho) phi)` rays expected) costs about half the cap.
+            let tail = *tail_phi.get_or_insert_with(|| {
+                let first = *phi_0.get_or_insert(left / (1.0 - rho_avg));
+                first.max(left / ((1.0 - rho_tail) * (tail_cap.max(1) as f64 / 2.0)))
+            });
+            let raised = phi_0.is_some_and(|first| tail > first);
+            if raised && tail > left {
+                // Not even one ray's worth is left at the tail's energy per ray: its roulette
+                // would drop nearly everything (unbiased only over many runs, and with a noise
+                // no reported variance holds). Stop with the rest unshot and reported instead.
+                stats.stop = StopReason::BudgetSpent;
+                break;
+            }
+            let phi = tail;
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
@@ -321,8 +368,7 @@ pub fn shoot<C: RayCaster>(
         .zip(&area)
         .map(|(s, a)| *s / (a * a))
         .collect();
-    let estimate =
-        Estimate::new(radiosity, Some(variance), stats.rays).expect("shooting sums stay finite");
+    let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {
         estimate,
         unshot,
@@ -444,4 +490,46 @@ fn trace<C: RayCaster>(
             }
         })
         .collect()
+}
+
+/// Replaces the zero variance of a patch that reflects but that no ray reached (no information,
+/// not certainty) in a shooting-based final estimate: per channel with `rho_ic > 0` and
+/// `V_ic = 0`, `V_ic = (rho_ic p_c / A_i)²`, the variance of one hit's deposit, with
+/// `p_c = sum_j B_jc A_j / N` the mean power per ray (every watt leaving a patch is shot; `N`
+/// the estimate's rays). With no hit seen, the mean number of hits expected under a flat prior
+/// is 1, so this is what one hit would have said; `z` against any reference stays finite.
+/// Applied to a method's final output only, so the combination's variance models (which read
+/// the passes' own variances) are unchanged. Patches that do not reflect keep `V = 0`: their
+/// `B = E` is certain.
+pub(crate) fn unreached_variance(
+    mesh: &mcrad_meshing::Mesh,
+    estimate: Estimate,
+) -> Result<Estimate, Error> {
+    let Some(variance) = estimate.variance() else {
+        return Ok(estimate);
+    };
+    if estimate.rays() == 0 {
+        return Ok(estimate);
+    }
+    let patches = mesh.patches();
+    let power: DVec3 = estimate
+        .radiosity()
+        .iter()
+        .zip(patches)
+        .map(|(b, p)| *b * p.area)
+        .sum();
+    let per_ray = power / estimate.rays() as f64;
+    let variance: Vec<DVec3> = variance
+        .iter()
+        .zip(patches)
+        .map(|(v, p)| {
+            let x = p.reflectance.as_dvec3() * per_ray / p.area;
+            DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v)
+        })
+        .collect();
+    Ok(Estimate::new(
+        estimate.radiosity().to_vec(),
+        Some(variance),
+        estimate.rays(),
+    )?)
 }

@@ -74,7 +74,10 @@ pub(crate) fn run<C: RayCaster>(
             break;
         }
     }
-    run.finish(config.rays)
+    let mut solution = run.finish(config.rays)?;
+    // A patch no ray reached: "no information", not a zero variance.
+    solution.estimate = crate::shoot::unreached_variance(mesh, solution.estimate)?;
+    Ok(solution)
 }
 
 /// One bidirectional Jacobi step from `input` with about `rays` rays (module documentation).

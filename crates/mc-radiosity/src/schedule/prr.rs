@@ -20,5 +20,8 @@ pub(crate) fn run<C: RayCaster>(
             break;
         }
     }
-    run.finish(config.rays)
+    let mut solution = run.finish(config.rays)?;
+    // A patch no ray reached: "no information", not a zero variance.
+    solution.estimate = crate::shoot::unreached_variance(mesh, solution.estimate)?;
+    Ok(solution)
 }

@@ -33,7 +33,8 @@ pub(crate) fn run<C: RayCaster>(
     let unshot_fraction = unshot_fraction(&s);
     let escaped_rays = s.stats.escaped_rays;
     Ok(Solution {
-        estimate: with_ambient(mesh, config, s)?,
+        // A patch no ray reached: "no information", not a zero variance.
+        estimate: crate::shoot::unreached_variance(mesh, with_ambient(mesh, config, s)?)?,
         steps,
         escaped_rays,
         unshot_fraction,
