@@ -38,12 +38,14 @@ pub(super) fn run_two_pass<C: RayCaster>(
     let (shot_rays, mut escaped_rays, unshot) =
         (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
     let shooting = with_ambient(mesh, config, s)?;
-    let gather_budget = budget.saturating_sub(shot_rays);
+    let mut gather_budget = budget.saturating_sub(shot_rays);
+    let limit = super::no_limit();
     if observer(&Step {
         index: 1,
         rays: shot_rays,
         next_rays: gather_budget,
         radiosity: shooting.radiosity(),
+        limit: &limit,
     })
     .is_break()
     {
@@ -55,6 +57,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
             stop: StopReason::Stopped,
         });
     }
+    gather_budget = gather_budget.min(limit.get());
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
         // Direct samples cost two rays each (an emitter sample and a cosine ray).
@@ -87,6 +90,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
         rays,
         next_rays: 0,
         radiosity: estimate.radiosity(),
+        limit: &super::no_limit(),
     })
     .is_break();
     Ok(Solution {
