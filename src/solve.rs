@@ -28,6 +28,9 @@ pub fn run(args: &Solve) -> Result<()> {
 
 fn solve(args: &Solve, threads: usize) -> Result<()> {
     crate::output::check(args)?;
+    for warning in args.warnings() {
+        eprintln!("warning: {warning}");
+    }
     let setup = Instant::now();
     let loaded = mcrad_scene_io::load(&args.scene)?;
     for warning in &loaded.warnings {
