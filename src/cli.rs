@@ -33,8 +33,9 @@ pub struct Solve {
     /// no limit with --time.
     #[arg(long, value_parser = parse_count, help = rays_help())]
     pub rays: Option<u64>,
-    /// Wall-clock budget in seconds: progressive methods stop with the best complete solution
-    /// when the next step would not finish in time.
+    /// Wall-clock budget in seconds, counted from the start of loading: after each step the
+    /// rest of the run is sized to the rays that fit in the time left at the speed so far (a
+    /// shorter last pass), and a step that cannot finish in time is not started.
     #[arg(long, value_name = "S", value_parser = parse_seconds)]
     pub time: Option<f64>,
     /// Add the ambient term (paper, section 3.1) to shooting solutions.

@@ -324,9 +324,9 @@ mod tests {
         assert_eq!(r.warning(), None);
         let mut wrong_area = coarse_rows;
         wrong_area[1].area *= 1.01;
-        wrong_area[2].area *= 1.001;
+        wrong_area[0].area *= 1.001;
         let r = Reference::from_rows(&coarse, &wrong_area, Numbering::Index).unwrap();
-        let w = r.warning().expect("areas 1% and 0.1% off warn");
+        let w = r.warning().expect("areas 0.1% and 1% off warn");
         assert_eq!((w.rows, w.patch), (2, 1));
         assert!(w.to_string().contains("2 patch areas"), "{w}");
     }
