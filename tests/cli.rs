@@ -418,14 +418,18 @@ fn an_outside_reference_without_variances_is_read_and_areas_are_compared_relativ
 }
 
 /// `--method shoot --time T` without `--rays` used to queue jobs for 2^64 rays in its first
-/// wave (killed for memory); now its waves grow with the run and the deadline sizes the rest.
+/// wave, and `progressive-gather` sized its first gather at 2^58 rays (both killed for
+/// memory); now shooting waves grow with the run, gathers double from 100 000 rays, and the
+/// deadline sizes the rest.
 #[test]
-fn shoot_with_a_time_and_no_ray_budget_finishes() {
+fn a_time_and_no_ray_budget_finishes() {
     let dir = tempfile::tempdir().unwrap();
     let json = path(dir.path(), "s.json");
-    let o = cheap_solve(&["--method", "shoot", "--time", "0.5", "--stats", &json]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let stats: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert!(stats["rays"].as_u64().unwrap() > 0, "{stats}");
+    for method in ["shoot", "progressive-gather"] {
+        let o = cheap_solve(&["--method", method, "--time", "0.3", "--stats", &json]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert!(stats["rays"].as_u64().unwrap() > 0, "{method}: {stats}");
+    }
 }
