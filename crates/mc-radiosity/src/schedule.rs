@@ -46,7 +46,9 @@ pub const DEFAULT_UNSHOT_THRESHOLD: f64 = 1e-4;
 /// Settings shared by the schedules.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScheduleConfig {
-    /// Total ray budget over all passes; `u64::MAX` for none (then an observer must stop the run).
+    /// Total ray budget over all passes; `u64::MAX` for none (then an observer must stop the
+    /// run or cap it with [`Step::limit_rays_left`]; passes double from 100 000 rays and
+    /// shooting waves grow with the run, so no step is unbounded).
     pub rays: u64,
     /// Seed of the run; passes derive theirs from it.
     pub seed: u64,
