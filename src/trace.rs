@@ -24,16 +24,16 @@ impl Tracer {
         } else {
             Numbering::Index
         };
-        let matched = Reference::from_rows(mesh, &rows, numbering).with_context(|| {
+        let reference_file = reference;
+        let reference = Reference::from_rows(mesh, &rows, numbering).with_context(|| {
             format!(
                 "--reference {} (solve it with the same --no-subdivide / --max-edge)",
-                reference.display()
+                reference_file.display()
             )
         })?;
-        if let Some(w) = reference_warning(&matched) {
-            eprintln!("warning: --reference {}: {w}", reference.display());
+        if let Some(w) = reference.warning() {
+            eprintln!("warning: --reference {}: {w}", reference_file.display());
         }
-        let reference = matched;
         let file =
             File::create(trace).with_context(|| format!("could not create {}", trace.display()))?;
         let trace = Trace::new(BufWriter::new(file), reference)
@@ -46,9 +46,4 @@ impl Tracer {
         self.0.record(seconds, rays, radiosity)?;
         Ok(())
     }
-}
-
-/// The reference's warning (areas beyond the tolerance), if any.
-fn reference_warning(reference: &Reference) -> Option<String> {
-    reference.warning().map(ToString::to_string)
 }
