@@ -411,7 +411,8 @@ fn an_outside_reference_without_variances_is_read_and_areas_are_compared_relativ
     let o = run(&off);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stderr(&o).contains("warning: --reference") && stderr(&o).contains("1 patch areas"),
+        stderr(&o).contains("warning: --reference")
+            && stderr(&o).contains(": 1 of the reference's patch areas"),
         "{}",
         stderr(&o)
     );
