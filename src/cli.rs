@@ -33,8 +33,9 @@ pub struct Solve {
     /// no limit with --time.
     #[arg(long, value_parser = parse_count, help = rays_help())]
     pub rays: Option<u64>,
-    /// Wall-clock budget in seconds: progressive methods stop with the best complete solution
-    /// when the next step would not finish in time.
+    /// Wall-clock budget in seconds, counted from the start of loading: after each step the
+    /// rest of the run is sized to the rays that fit in the time left at the speed so far (a
+    /// shorter last pass), and a step that cannot finish in time is not started.
     #[arg(long, value_name = "S", value_parser = parse_seconds)]
     pub time: Option<f64>,
     /// Add the ambient term (paper, section 3.1) to shooting solutions.
@@ -43,8 +44,8 @@ pub struct Solve {
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
     /// 2e-3 is about twenty times quicker than the default.
-    #[arg(long, value_name = "F", default_value_t = DEFAULT_VISIBILITY_TOLERANCE)]
-    pub visibility_tolerance: f64,
+    #[arg(long, value_name = "F", help = visibility_help())]
+    pub visibility_tolerance: Option<f64>,
     /// two-pass: compute direct light by sampling the emitters with shadow rays and gather only
     /// the indirect light (Shirley and Wang 1991); `--method two-pass --split` is an alias of
     /// `--method two-pass-split`. Other methods ignore it.
@@ -139,11 +140,49 @@ impl Solve {
             ambient: self.ambient,
             first_pass_rays: None,
             reference: ReferenceConfig {
-                visibility_tolerance: self.visibility_tolerance,
+                visibility_tolerance: self
+                    .visibility_tolerance
+                    .unwrap_or(DEFAULT_VISIBILITY_TOLERANCE),
                 ..Default::default()
             },
         }
     }
+}
+
+impl Solve {
+    /// Options given that do nothing with the chosen method, one `warning: ` message each
+    /// (without the prefix); the run goes on without them.
+    pub fn warnings(&self) -> Vec<String> {
+        let method = self.method();
+        let mut warnings = Vec::new();
+        if self.ambient && !method.uses_ambient() {
+            warnings.push(format!(
+                "--ambient has no effect with --method {method} (it adds the ambient term to \
+                 shooting solutions: shoot, prr, two-pass, two-pass-split, progressive-gather, \
+                 progressive-two-pass)"
+            ));
+        }
+        if self.visibility_tolerance.is_some() && method != Method::Reference {
+            warnings.push(format!(
+                "--visibility-tolerance applies to --method reference only; ignored with --method {method}"
+            ));
+        }
+        if self.split && !matches!(method, Method::TwoPassSplit) {
+            warnings.push(format!(
+                "--split applies to --method two-pass only; ignored with --method {method}"
+            ));
+        }
+        warnings
+    }
+}
+
+/// The help of `--visibility-tolerance`, with the reference solver's default.
+fn visibility_help() -> String {
+    format!(
+        "reference: the target error of each form-factor row's visibility, relative to the row \
+         sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays; \
+         2e-3 is about twenty times quicker than the default. Default: {DEFAULT_VISIBILITY_TOLERANCE:e}"
+    )
 }
 
 /// The help of `--rays`, with the library's default budget.

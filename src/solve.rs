@@ -28,6 +28,9 @@ pub fn run(args: &Solve) -> Result<()> {
 
 fn solve(args: &Solve, threads: usize) -> Result<()> {
     crate::output::check(args)?;
+    for warning in args.warnings() {
+        eprintln!("warning: {warning}");
+    }
     let setup = Instant::now();
     let loaded = mcrad_scene_io::load(&args.scene)?;
     for warning in &loaded.warnings {
@@ -74,15 +77,19 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
             trace_error = Some(e);
             return ControlFlow::Break(());
         }
-        match deadline {
-            // Stop when the next step, at the speed so far, would end after the deadline.
-            Some(budget)
-                if seconds + step.next_rays as f64 * seconds / step.rays.max(1) as f64 > budget =>
-            {
-                ControlFlow::Break(())
+        if let Some(budget) = deadline {
+            // Setup counts against the budget: the time left is measured from the start of
+            // loading. At the speed of the run so far, size the rest to what fits.
+            let left = budget - setup.elapsed().as_secs_f64();
+            let fits = rays_that_fit(left, seconds, step.rays);
+            if fits == 0 {
+                return ControlFlow::Break(());
             }
-            _ => ControlFlow::Continue(()),
+            if step.next_rays > fits {
+                step.limit_rays_left(fits);
+            }
         }
+        ControlFlow::Continue(())
     })?;
     if let Some(e) = trace_error {
         return Err(e);
@@ -104,6 +111,26 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         setup_seconds,
     };
     finish(args, &loaded, &mesh, &bvh, &solution, &run, &bar)
+}
+
+/// The share of the time left a `--time` run plans to fill: the rest absorbs the per-step
+/// work that does not scale with rays and the writing of the outputs.
+const TIME_FILL: f64 = 0.97;
+
+/// The rays that fit in `left` seconds at the speed of a run that cast `rays` rays in
+/// `seconds` seconds, with [`TIME_FILL`]'s margin (0 when no time is left).
+fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
+    if left <= 0.0 {
+        return 0;
+    }
+    if rays == 0 {
+        return u64::MAX;
+    }
+    let per_ray = seconds / rays as f64;
+    if per_ray <= 0.0 {
+        return u64::MAX;
+    }
+    (TIME_FILL * left / per_ray).min(u64::MAX as f64) as u64
 }
 
 /// Writes the outputs of a finished solve and prints the summary.

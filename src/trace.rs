@@ -15,7 +15,8 @@ pub struct Tracer(Trace<BufWriter<File>>);
 
 impl Tracer {
     /// Reads the reference and matches it to `mesh` patch by patch: by input face number with
-    /// `--no-subdivide`, by mesh index otherwise. The areas must agree.
+    /// `--no-subdivide`, by mesh index otherwise. Areas that differ beyond a relative 1e-5 are
+    /// a warning on stderr.
     pub fn new(mesh: &Mesh, reference: &Path, trace: &Path, by_face: bool) -> Result<Tracer> {
         let rows = read_patch_csv(reference)?;
         let numbering = if by_face {
@@ -23,12 +24,16 @@ impl Tracer {
         } else {
             Numbering::Index
         };
+        let reference_file = reference;
         let reference = Reference::from_rows(mesh, &rows, numbering).with_context(|| {
             format!(
                 "--reference {} (solve it with the same --no-subdivide / --max-edge)",
-                reference.display()
+                reference_file.display()
             )
         })?;
+        if let Some(w) = reference.warning() {
+            eprintln!("warning: --reference {}: {w}", reference_file.display());
+        }
         let file =
             File::create(trace).with_context(|| format!("could not create {}", trace.display()))?;
         let trace = Trace::new(BufWriter::new(file), reference)

@@ -294,3 +294,143 @@ fn the_readme_command_writes_its_image_csv_and_stats() {
     );
     assert!(stats["rays"].as_u64().is_some_and(|r| r > 0), "{stats}");
 }
+
+/// A cheap solve of the Cornell box with `extra` arguments; returns the run's output.
+fn cheap_solve(extra: &[&str]) -> Output {
+    let mut args = vec![
+        "solve",
+        "scenes/cornell-box.obj",
+        "--no-subdivide",
+        "--threads",
+        "2",
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    mcrad(&args)
+}
+
+#[test]
+fn options_that_do_nothing_with_the_method_are_warned() {
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["--method", "gather", "--ambient", "--rays", "2e4"],
+            "warning: --ambient has no effect with --method gather",
+        ),
+        (
+            &["--method", "combined", "--ambient", "--rays", "2e4"],
+            "warning: --ambient has no effect with --method combined",
+        ),
+        (
+            &[
+                "--method",
+                "shoot",
+                "--visibility-tolerance",
+                "1e-3",
+                "--rays",
+                "2e4",
+            ],
+            "warning: --visibility-tolerance applies to --method reference only",
+        ),
+        (
+            &["--method", "prr", "--split", "--rays", "2e4"],
+            "warning: --split applies to --method two-pass only",
+        ),
+        (
+            &[
+                "--method",
+                "reference",
+                "--rays",
+                "2e4",
+                "--visibility-tolerance",
+                "2e-3",
+            ],
+            "warning: --rays and --time do not apply to --method reference",
+        ),
+    ];
+    for (args, warning) in cases {
+        let o = cheap_solve(args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(warning), "{args:?}: {}", stderr(&o));
+    }
+    // Where the options act, no warning.
+    for args in [
+        &["--method", "shoot", "--ambient", "--rays", "2e4"][..],
+        &[
+            "--method",
+            "two-pass",
+            "--split",
+            "--ambient",
+            "--rays",
+            "2e4",
+        ],
+    ] {
+        let o = cheap_solve(args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("warning"), "{args:?}: {}", stderr(&o));
+    }
+}
+
+#[test]
+fn an_outside_reference_without_variances_is_read_and_areas_are_compared_relatively() {
+    let dir = tempfile::tempdir().unwrap();
+    let (csv, trace) = (path(dir.path(), "p.csv"), path(dir.path(), "t.csv"));
+    let o = cheap_solve(&["--method", "shoot", "--rays", "2e4", "--patches", &csv]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rows = read_csv(&csv);
+    // As another tool writes it: five columns, areas to six significant digits (up to 5e-6 off), and one
+    // area `scale` off.
+    let write = |name: &str, scale: f64| {
+        let mut text = String::from("patch,area,r,g,b\n");
+        for (k, r) in rows.iter().enumerate() {
+            let area = if k == 3 { r.area * scale } else { r.area };
+            let b = r.radiosity;
+            text += &format!("{},{area:.5e},{},{},{}\n", r.patch, b.x, b.y, b.z);
+        }
+        let file = path(dir.path(), name);
+        std::fs::write(&file, text).unwrap();
+        file
+    };
+    let rounded = write("rounded.csv", 1.0);
+    let off = write("off.csv", 1.001);
+    let run = |reference: &str| {
+        cheap_solve(&[
+            "--method",
+            "shoot",
+            "--rays",
+            "2e4",
+            "--reference",
+            reference,
+            "--trace",
+            &trace,
+        ])
+    };
+    let o = run(&rounded);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("warning"), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(&trace).unwrap().lines().count() >= 2);
+    let o = run(&off);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("warning: --reference")
+            && stderr(&o).contains(": 1 of the reference's patch areas"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// `--method shoot --time T` without `--rays` used to queue jobs for 2^64 rays in its first
+/// wave, and `progressive-gather` sized its first gather at 2^58 rays (both killed for
+/// memory); now shooting waves grow with the run, gathers double from 100 000 rays, and the
+/// deadline sizes the rest.
+#[test]
+fn a_time_and_no_ray_budget_finishes() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = path(dir.path(), "s.json");
+    for method in ["shoot", "progressive-gather"] {
+        let o = cheap_solve(&["--method", method, "--time", "0.3", "--stats", &json]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let stats: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert!(stats["rays"].as_u64().unwrap() > 0, "{method}: {stats}");
+    }
+}

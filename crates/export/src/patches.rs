@@ -173,7 +173,8 @@ struct ReadRow {
 }
 
 /// Reads a patch CSV written by [`write_patch_csv`] (blank variances read as `None`; blank
-/// lines and spaces around fields are ignored). Every number must be finite, and the three
+/// lines and spaces around fields are ignored), or one with the header `patch,area,r,g,b` and
+/// no variance columns, as other tools write them (variances `None`). Every number must be finite, and the three
 /// variances all given or all blank.
 pub fn read_patch_csv(path: &std::path::Path) -> Result<Vec<PatchRow>, ReadCsvError> {
     let file = std::fs::File::open(path).map_err(|source| ReadCsvError::Io {
@@ -199,9 +200,9 @@ fn read_rows<R: std::io::Read>(
                 path: path.to_path_buf(),
                 source,
             },
-            csv::ErrorKind::UnequalLengths { len, .. } => {
-                parse_err(line, format!("expected 8 fields, found {len}"))
-            }
+            csv::ErrorKind::UnequalLengths {
+                expected_len, len, ..
+            } => parse_err(line, format!("expected {expected_len} fields, found {len}")),
             other => parse_err(line, format!("{other:?}")),
         }
     };
@@ -209,10 +210,16 @@ fn read_rows<R: std::io::Read>(
         .trim(csv::Trim::All)
         .from_reader(input);
     let header = csv.headers().map_err(from_csv)?.clone();
-    if header.iter().ne(PATCH_CSV_HEADER) {
+    // The full header, or its first five columns (other tools write no variances).
+    let columns = header.len();
+    if !(columns == PATCH_CSV_HEADER.len() || columns == 5)
+        || header
+            .iter()
+            .ne(PATCH_CSV_HEADER[..columns].iter().copied())
+    {
         return Err(parse_err(
             1,
-            "the header must be patch,area,r,g,b,var_r,var_g,var_b".into(),
+            "the header must be patch,area,r,g,b,var_r,var_g,var_b or patch,area,r,g,b".into(),
         ));
     }
     let mut rows = Vec::new();
@@ -318,6 +325,22 @@ mod read_tests {
         .unwrap();
         let err = read_patch_csv(&path).unwrap_err().to_string();
         assert!(err.contains("not a finite number"), "{err}");
+        // Other tools' files: the first five columns, no variances.
+        std::fs::write(&path, "patch,area,r,g,b\n3,0.25,1,2,0\n4, 1.5 ,1,1,1\n").unwrap();
+        let short = read_patch_csv(&path).unwrap();
+        assert_eq!(short.len(), 2);
+        assert_eq!(short[1].radiosity, DVec3::ONE);
+        assert!(short.iter().all(|r| r.variance.is_none()));
+        std::fs::write(&path, "patch,area,r,g,b\n0,1,2,3,4,5\n").unwrap();
+        let err = read_patch_csv(&path).unwrap_err().to_string();
+        assert!(err.contains("line 2") && err.contains("5 fields"), "{err}");
+        std::fs::write(&path, "patch,area,r,g\n0,1,2,3\n").unwrap();
+        assert!(
+            read_patch_csv(&path)
+                .unwrap_err()
+                .to_string()
+                .contains("header")
+        );
         std::fs::write(&path, "a,b\n").unwrap();
         assert!(
             read_patch_csv(&path)

@@ -269,6 +269,25 @@ methods! {
 }
 
 impl Method {
+    /// Whether [`ScheduleConfig::ambient`](crate::schedule::ScheduleConfig::ambient) can change
+    /// this method's result: the methods whose answer, or whose gathering's input, is a
+    /// shooting solution (`shoot`, `prr`, `two-pass`, `two-pass-split`, `progressive-gather`,
+    /// `progressive-two-pass`). `gather`, `bidirectional` and `reference` shoot nothing or only
+    /// to start their own steps, and `combined` weights its shooting by its own variance model
+    /// without the term (it adds it only when its budget is too small for a pass and it falls
+    /// back to `shoot`).
+    pub const fn uses_ambient(self) -> bool {
+        matches!(
+            self,
+            Method::Shoot
+                | Method::Prr
+                | Method::TwoPass
+                | Method::TwoPassSplit
+                | Method::ProgressiveGather
+                | Method::ProgressiveTwoPass
+        )
+    }
+
     /// The Monte Carlo methods (every one but the [`Kind::Deterministic`]), in registry order.
     pub fn monte_carlo() -> impl Iterator<Item = Method> {
         Method::ALL

@@ -14,6 +14,7 @@ use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
 use mcrad_raycast::RayCaster;
 use mcrad_reference::ReferenceConfig;
+use std::cell::Cell;
 use std::ops::ControlFlow;
 
 pub(crate) mod bidirectional;
@@ -45,7 +46,9 @@ pub const DEFAULT_UNSHOT_THRESHOLD: f64 = 1e-4;
 /// Settings shared by the schedules.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScheduleConfig {
-    /// Total ray budget over all passes; `u64::MAX` for none (then an observer must stop the run).
+    /// Total ray budget over all passes; `u64::MAX` for none (then an observer must stop the
+    /// run or cap it with [`Step::limit_rays_left`]; passes double from 100 000 rays and
+    /// shooting waves grow with the run, so no step is unbounded).
     pub rays: u64,
     /// Seed of the run; passes derive theirs from it.
     pub seed: u64,
@@ -88,6 +91,27 @@ pub struct Step<'a> {
     pub next_rays: u64,
     /// The current solution `B_i` (W/m²), in mesh order.
     pub radiosity: &'a [DVec3],
+    /// The observer's cap on the rays still to cast (`u64::MAX`: none).
+    pub(crate) limit: &'a Cell<u64>,
+}
+
+impl Step<'_> {
+    /// Caps the rays the rest of the run may cast at `rays` (the lowest cap given wins).
+    ///
+    /// A caller with a deadline predicts how many rays fit in the time left and calls this
+    /// instead of stopping: a progressive method sizes its next pass to the cap and ends after
+    /// it (a pass below the method's smallest useful pass is not started); `shoot` spreads its
+    /// remaining waves over the cap and finishes with its roulette tail; `two-pass` shortens
+    /// its gathering step; `gather` stops before a Jacobi round (of fixed cost) that the cap
+    /// cannot hold; `reference` has no next step.
+    pub fn limit_rays_left(&self, rays: u64) {
+        self.limit.set(self.limit.get().min(rays));
+    }
+}
+
+/// A fresh limit for a [`Step`]: no cap.
+pub(crate) fn no_limit() -> Cell<u64> {
+    Cell::new(u64::MAX)
 }
 
 /// What a schedule returns.
@@ -200,6 +224,13 @@ impl Doubling {
         if self.left - n < n { self.left } else { n }
     }
 
+    /// Lowers the rays left to at most `rays` (an observer's [`Step::limit_rays_left`]): the
+    /// next pass takes what is left if that is less than twice its doubling size, and is the
+    /// last.
+    pub(crate) fn cap(&mut self, rays: u64) {
+        self.left = self.left.min(rays);
+    }
+
     /// Rays left in the budget after the passes taken so far.
     pub(crate) fn remaining(&self) -> u64 {
         self.left
@@ -242,33 +273,37 @@ struct Progressive {
 
 impl Progressive {
     /// Merges `estimate` into the solution by work, counts the step and shows the merged
-    /// solution to the observer. `Ok(false)` when the observer stops the run.
+    /// solution to the observer, telling it the size of the next of `passes`. `Ok(false)` when
+    /// the observer stops the run; a cap the observer sets lowers what is left of `passes`.
     fn step(
         &mut self,
         estimate: Estimate,
-        next_rays: u64,
+        passes: &mut Doubling,
         observer: &mut Observer,
     ) -> Result<bool, Error> {
         let merged = accumulate(self.merged.take(), estimate)?;
-        self.replace(merged, next_rays, observer)
+        self.replace(merged, passes, observer)
     }
 
     /// Makes `merged` the solution (merged by the caller), counts the step and shows it to the
-    /// observer. `Ok(false)` when the observer stops the run.
+    /// observer as [`Progressive::step`] does. `Ok(false)` when the observer stops the run.
     fn replace(
         &mut self,
         merged: Estimate,
-        next_rays: u64,
+        passes: &mut Doubling,
         observer: &mut Observer,
     ) -> Result<bool, Error> {
         self.steps += 1;
+        let limit = no_limit();
         let step = Step {
             index: self.steps,
             rays: self.rays,
-            next_rays,
+            next_rays: passes.peek(),
             radiosity: merged.radiosity(),
+            limit: &limit,
         };
         self.stopped = observer(&step).is_break();
+        passes.cap(limit.get());
         self.merged = Some(merged);
         Ok(!self.stopped)
     }
@@ -339,5 +374,28 @@ mod tests {
             Doubling::new(&unbounded).take(3).collect::<Vec<_>>(),
             vec![100_000, 200_000, 400_000]
         );
+    }
+
+    #[test]
+    fn a_cap_makes_the_next_pass_the_last_and_sized_to_it() {
+        let unbounded = ScheduleConfig {
+            rays: u64::MAX,
+            ..Default::default()
+        };
+        let mut passes = Doubling::new(&unbounded);
+        assert_eq!(passes.next(), Some(100_000));
+        passes.cap(150_000);
+        assert_eq!(passes.peek(), 150_000);
+        assert_eq!(passes.collect::<Vec<_>>(), vec![150_000]);
+        // A cap above the doubling size but below twice it: the pass takes all of it.
+        let mut passes = Doubling::new(&unbounded);
+        passes.next();
+        passes.cap(390_000);
+        assert_eq!(passes.collect::<Vec<_>>(), vec![390_000]);
+        // A cap above twice the doubling size leaves passes of the usual size.
+        let mut passes = Doubling::new(&unbounded);
+        passes.next();
+        passes.cap(700_000);
+        assert_eq!(passes.collect::<Vec<_>>(), vec![200_000, 500_000]);
     }
 }

@@ -52,6 +52,7 @@ use mcrad_combine::Estimate;
 use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
+use std::cell::Cell;
 use std::ops::ControlFlow;
 
 /// Settings of a shooting run.
@@ -87,12 +88,28 @@ pub struct ShootProgress<'a> {
     pub waves: u32,
     /// Rays cast so far.
     pub rays: u64,
-    /// The budget.
+    /// The budget: the configured one, or lower once the observer has limited it
+    /// ([`ShootProgress::limit_rays_left`]); `u64::MAX` for none.
     pub budget: u64,
+    /// The most rays the next wave may cast: the budget left, or without a budget the run's
+    /// planning horizon (`max(2 × rays so far, 100 000)`) less the rays cast so far.
+    pub next_rays: u64,
     /// Unshot power left as a fraction of the emitted power (channels summed).
     pub unshot_fraction: f64,
     /// The solution so far, `B_i = E_i + received_i / A_i` (W/m²), in mesh order.
     pub radiosity: &'a [DVec3],
+    /// The observer's cap on the rays still to cast (`u64::MAX`: none).
+    pub(crate) limit: &'a Cell<u64>,
+}
+
+impl ShootProgress<'_> {
+    /// Caps the rays the rest of the run may cast at `rays` (the lowest cap given wins): the
+    /// waves spread the power still unshot over them and the finishing roulette ships what is
+    /// left, as when the configured budget runs out. A caller with a deadline uses this to size
+    /// the rest of the run to the time left.
+    pub fn limit_rays_left(&self, rays: u64) {
+        self.limit.set(self.limit.get().min(rays));
+    }
 }
 
 /// Counters and power balance of a run. Powers are in W per RGB channel (scene units² × W/m²).
@@ -161,6 +178,10 @@ pub struct Shooting {
     pub stats: ShootStats,
 }
 
+/// Without a budget (`rays == u64::MAX`, a run the observer stops) the waves plan for a
+/// horizon of `max(2 × rays so far, UNBOUNDED_FIRST)` rays, so a wave casts at most as many rays
+/// as the run has cast so far (or this many at first) and its jobs stay bounded in memory.
+const UNBOUNDED_FIRST: u64 = 100_000;
 /// Rays traced per job: the unit of parallel work and of random streams.
 const JOB_RAYS: u64 = 4096;
 /// Rays traced before their hits are folded in, bounding the memory of hit records.
@@ -234,11 +255,11 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(1.0 - 1e-12);
-    // The finishing tail may cast at most this many rays past the budget: 5% of it, or one
-    // ray per patch if that is more (a roulette over the small remainders of many patches
-    // costs about that in an ordinary run, e.g. 140-280 rays on 864 patches whatever the
-    // budget, and is left as it was).
-    let tail_cap = (config.rays / 20).max(patches.len() as u64);
+    // The finishing tail may cast at most this many rays past the budget (as lowered by the
+    // observer): 5% of it, or one ray per patch if that is more (a roulette over the small
+    // remainders of many patches costs about that in an ordinary run, e.g. 140-280 rays on 864
+    // patches whatever the budget, and is left as it was).
+    let tail_cap = |budget: u64| (budget / 20).max(patches.len() as u64);
     let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
@@ -263,19 +284,23 @@ pub fn shoot<C: RayCaster>(
     let mut phi_0: Option<f64> = None;
     // The finishing tail's energy per ray, fixed at its first wave.
     let mut tail_phi: Option<f64> = None;
+    // The budget, lowered when the observer limits the rays left.
+    let mut budget = config.rays;
+    let limit = Cell::new(u64::MAX);
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
             stats.stop = StopReason::Converged;
             break;
         }
-        let budget_left = config.rays.saturating_sub(stats.rays);
+        let budget_left = horizon(budget, stats.rays).saturating_sub(stats.rays);
         let wave = stats.waves as u64;
         let counts = if budget_left > 0 {
             let phi = left / ((1.0 - rho_avg) * budget_left as f64);
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
+            let tail_cap = tail_cap(budget);
             if stats.finishing_rays >= tail_cap {
                 // The tail spent its share: stop with the rest unshot (reported, not hidden).
                 stats.stop = StopReason::BudgetSpent;
@@ -300,20 +325,11 @@ pub fn shoot<C: RayCaster>(
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
         };
-        let mut jobs = Vec::new();
+        let jobs = wave_jobs(&counts);
         for (i, &n) in counts.iter().enumerate() {
-            if n == 0 {
-                continue;
-            }
-            per_ray[i] = unshot[i] / n as f64;
-            unshot[i] = DVec3::ZERO;
-            for chunk in 0..n.div_ceil(JOB_RAYS) {
-                let rays = (n - chunk * JOB_RAYS).min(JOB_RAYS) as u32;
-                jobs.push(Job {
-                    patch: i as u32,
-                    chunk: chunk as u32,
-                    rays,
-                });
+            if n > 0 {
+                per_ray[i] = unshot[i] / n as f64;
+                unshot[i] = DVec3::ZERO;
             }
         }
         for batch in batches(&jobs) {
@@ -352,14 +368,17 @@ pub fn shoot<C: RayCaster>(
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
-            budget: config.rays,
+            budget,
+            next_rays: horizon(budget, stats.rays).saturating_sub(stats.rays),
             unshot_fraction: total(unshot.iter().sum::<DVec3>()) / total(emitted),
             radiosity: &radiosity,
+            limit: &limit,
         };
         if observer(&progress).is_break() {
             stats.stop = StopReason::Stopped;
             break;
         }
+        budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
     radiosity_so_far(patches, &reflected, &mut radiosity);
@@ -374,6 +393,32 @@ pub fn shoot<C: RayCaster>(
         unshot,
         stats,
     })
+}
+
+/// The ray count the waves plan for: the budget, or without one (`u64::MAX`) a horizon that
+/// doubles with the rays cast (see [`UNBOUNDED_FIRST`]).
+fn horizon(budget: u64, rays: u64) -> u64 {
+    if budget == u64::MAX {
+        rays.saturating_mul(2).max(UNBOUNDED_FIRST)
+    } else {
+        budget
+    }
+}
+
+/// The jobs of one wave: each patch's `counts[i]` rays in chunks of at most [`JOB_RAYS`].
+fn wave_jobs(counts: &[u64]) -> Vec<Job> {
+    let mut jobs = Vec::new();
+    for (i, &n) in counts.iter().enumerate() {
+        for chunk in 0..n.div_ceil(JOB_RAYS) {
+            let rays = (n - chunk * JOB_RAYS).min(JOB_RAYS) as u32;
+            jobs.push(Job {
+                patch: i as u32,
+                chunk: chunk as u32,
+                rays,
+            });
+        }
+    }
+    jobs
 }
 
 /// `B_i = E_i + reflected_i / A_i` into `out`.

@@ -360,3 +360,36 @@ fn combined_is_unbiased_within_the_tolerance_its_variances_predict() {
         "mean z² {mean_z2}, worst {worst}"
     );
 }
+
+/// `Method::uses_ambient` is what the command line's `--ambient` warning relies on: the
+/// ambient term changes the result of exactly the methods it names (bit for bit the same
+/// answer otherwise). Deterministic: same seed, with and without the term.
+#[test]
+fn the_ambient_term_changes_exactly_the_methods_that_use_it() {
+    let (mesh, bvh) = cornell(Subdivision::None);
+    for method in Method::monte_carlo() {
+        let solve = |ambient: bool| {
+            let config = ScheduleConfig {
+                rays: 20_000,
+                seed: 5,
+                // Power left unshot, so the term is not zero.
+                unshot_threshold: 1e-2,
+                ambient,
+                ..Default::default()
+            };
+            run(method, &mesh, &bvh, &config, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap()
+            .estimate
+            .radiosity()
+            .to_vec()
+        };
+        assert_eq!(
+            solve(true) != solve(false),
+            method.uses_ambient(),
+            "{method}: uses_ambient() says {}",
+            method.uses_ambient()
+        );
+    }
+}

@@ -401,3 +401,65 @@ fn shooting_near_rho_one_keeps_the_budget() {
         );
     }
 }
+
+/// Without a budget (`rays = u64::MAX`, as `--time` without `--rays` gives) a wave casts at
+/// most `max(rays so far, 100 000)` rays, so its jobs stay bounded and an observer that stops
+/// the run early gets it back at once (it used to queue jobs for 2^64 rays in the first wave).
+/// Deterministic: the bound holds for every seed and wave.
+#[test]
+fn without_a_budget_waves_stay_bounded_and_a_cap_is_kept() {
+    let mesh = Mesh::build(&furnace(0.9), Subdivision::MaxEdge(0.5)).unwrap();
+    let bvh = common::bvh(&mesh);
+    let ctx = Context::new(&mesh, &bvh);
+    let config = ShootConfig {
+        rays: u64::MAX,
+        unshot_threshold: 0.0,
+        seed: 3,
+    };
+    let mut before = 0u64;
+    let mut waves = Vec::new();
+    let r = shoot(&ctx, &config, &mut |p| {
+        waves.push((before, p.rays - before, p.next_rays));
+        before = p.rays;
+        if p.waves == 6 {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    })
+    .unwrap();
+    assert_eq!(r.stats.stop, StopReason::Stopped);
+    assert_eq!(waves.len(), 6);
+    for &(so_far, cast, _) in &waves {
+        assert!(
+            cast <= so_far.max(100_000),
+            "a wave of {cast} rays after {so_far}: {waves:?}"
+        );
+    }
+    // The reported next wave is bounded the same way.
+    let (so_far, cast, next) = waves[5];
+    assert!(next <= (so_far + cast).max(100_000), "{waves:?}");
+
+    // An observer's cap on the rays left: the waves spread the power over it and the
+    // finishing roulette ships the rest (its rays counted apart).
+    let mut first = 0;
+    let config = ShootConfig {
+        unshot_threshold: 1e-4,
+        ..config
+    };
+    let r = shoot(&ctx, &config, &mut |p| {
+        if p.waves == 1 {
+            first = p.rays;
+            p.limit_rays_left(30_000);
+        }
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    assert_eq!(r.stats.stop, StopReason::Converged);
+    assert!(
+        r.stats.rays - r.stats.finishing_rays <= first + 30_000,
+        "{} rays ({} finishing) after a cap of 30 000 at {first}",
+        r.stats.rays,
+        r.stats.finishing_rays
+    );
+}

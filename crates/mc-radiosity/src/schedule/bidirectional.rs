@@ -70,7 +70,7 @@ pub(crate) fn run<C: RayCaster>(
                 e
             }
         };
-        if !run.step(estimate, passes.peek(), observer)? {
+        if !run.step(estimate, &mut passes, observer)? {
             break;
         }
     }

@@ -164,7 +164,7 @@ fn with_context<C: RayCaster>(
         let g = accumulate(gathered.take(), g)?;
         let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
         gathered = Some(g);
-        if !run.replace(c, passes.peek(), observer)? {
+        if !run.replace(c, &mut passes, observer)? {
             break;
         }
     }

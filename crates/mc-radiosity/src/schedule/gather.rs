@@ -6,6 +6,7 @@ use crate::error::Error;
 use crate::gather::{GatherConfig, gather};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
+use std::ops::ControlFlow;
 
 /// Jacobi gathering: a step per round.
 pub(crate) fn run<C: RayCaster>(
@@ -32,12 +33,19 @@ pub(crate) fn run<C: RayCaster>(
     };
     let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
     let g = gather(ctx, &gather_config, &mut |p| {
-        observer(&Step {
+        let limit = super::no_limit();
+        let flow = observer(&Step {
             index: p.rounds,
             rays: p.rays,
             next_rays: per_round.min(p.budget - p.rays),
             radiosity: p.radiosity,
-        })
+            limit: &limit,
+        });
+        // A round costs what it costs: a cap below it stops the run instead.
+        if limit.get() < per_round {
+            return ControlFlow::Break(());
+        }
+        flow
     })?;
     Ok(Solution {
         estimate: g.estimate,

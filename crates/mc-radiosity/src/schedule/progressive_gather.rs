@@ -36,7 +36,13 @@ pub(crate) fn run<C: RayCaster>(
         ..Default::default()
     };
     let shooting = with_ambient(mesh, config, s)?;
-    let rest = config.rays.saturating_sub(run.rays);
+    // Without a budget the gathers have none either (an observer stops them): `u64::MAX`
+    // less the shot rays would size the first gather at 2^58 rays.
+    let rest = if config.rays == u64::MAX {
+        u64::MAX
+    } else {
+        config.rays.saturating_sub(run.rays)
+    };
     let min_pass = 2 * mesh.patches().len() as u64;
     let first =
         config
@@ -58,7 +64,7 @@ pub(crate) fn run<C: RayCaster>(
         )?;
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
+        if !run.step(r.estimate, &mut passes, observer)? {
             break;
         }
     }

@@ -38,7 +38,7 @@ pub(crate) fn run<C: RayCaster>(
         shooting = Some(refined);
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, passes.peek(), observer)? {
+        if !run.step(r.estimate, &mut passes, observer)? {
             break;
         }
     }

@@ -16,7 +16,7 @@ pub(crate) fn run<C: RayCaster>(
     let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
         let s = run.shoot(ctx, config, budget, run.steps as u64)?;
-        if !run.step(with_ambient(mesh, config, s)?, passes.peek(), observer)? {
+        if !run.step(with_ambient(mesh, config, s)?, &mut passes, observer)? {
             break;
         }
     }

@@ -24,8 +24,9 @@ pub(crate) fn run<C: RayCaster>(
             observer(&Step {
                 index: p.waves,
                 rays: p.rays,
-                next_rays: p.budget.saturating_sub(p.rays),
+                next_rays: p.next_rays,
                 radiosity: p.radiosity,
+                limit: p.limit,
             })
         },
     )?;

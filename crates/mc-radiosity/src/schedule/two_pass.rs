@@ -25,25 +25,26 @@ pub(super) fn run_two_pass<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
     let mesh = ctx.mesh();
-    let budget = if config.rays == u64::MAX {
-        2_000_000
-    } else {
-        config.rays
-    };
+    if config.rays == u64::MAX {
+        return unbounded(ctx, config, split, observer);
+    }
+    let budget = config.rays;
     let s = shoot(
         ctx,
         &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
-    let (shot_rays, mut escaped_rays, unshot) =
+    let (shot_rays, escaped_rays, unshot) =
         (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
     let shooting = with_ambient(mesh, config, s)?;
-    let gather_budget = budget.saturating_sub(shot_rays);
+    let mut gather_budget = budget.saturating_sub(shot_rays);
+    let limit = super::no_limit();
     if observer(&Step {
         index: 1,
         rays: shot_rays,
         next_rays: gather_budget,
         radiosity: shooting.radiosity(),
+        limit: &limit,
     })
     .is_break()
     {
@@ -55,6 +56,112 @@ pub(super) fn run_two_pass<C: RayCaster>(
             stop: StopReason::Stopped,
         });
     }
+    gather_budget = gather_budget.min(limit.get());
+    let shot = Shot {
+        shooting,
+        rays: shot_rays,
+        escaped_rays,
+        unshot,
+        steps: 1,
+    };
+    finish(ctx, config, split, shot, gather_budget, observer)
+}
+
+/// The shooting half of a run: its solution (with the ambient term if asked), rays, escapes,
+/// unshot fraction and the steps shown so far.
+struct Shot {
+    shooting: Estimate,
+    rays: u64,
+    escaped_rays: u64,
+    unshot: f64,
+    steps: u32,
+}
+
+/// Two-pass without a budget (`rays == u64::MAX`, `--time` without `--rays`): the shooting
+/// runs as `shoot` does without one (waves within a doubling horizon), each wave a step whose
+/// `next_rays` counts the next wave and a gather as large as the shooting then; a cap `c` on
+/// the rays left splits so that both halves end equal (the shooting gets `(c - shot) / 2` more,
+/// the gather the rest). Without a cap the shooting runs until it converges or the observer
+/// stops it.
+fn unbounded<C: RayCaster>(
+    ctx: &Context<C>,
+    config: &ScheduleConfig,
+    split: bool,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let mut gather_cap = u64::MAX;
+    let mut stopped = false;
+    let mut steps = 0;
+    let s = shoot(
+        ctx,
+        &shoot_config(config, u64::MAX, derive_seed(config.seed, 0)),
+        &mut |p| {
+            steps = p.waves;
+            let limit = super::no_limit();
+            let flow = observer(&Step {
+                index: p.waves,
+                rays: p.rays,
+                next_rays: p.next_rays.saturating_mul(2).saturating_add(p.rays),
+                radiosity: p.radiosity,
+                limit: &limit,
+            });
+            stopped = flow.is_break();
+            let c = limit.get();
+            if c != u64::MAX {
+                let more = c.saturating_sub(p.rays) / 2;
+                p.limit_rays_left(more);
+                gather_cap = gather_cap.min(c - more);
+            }
+            flow
+        },
+    )?;
+    let (shot_rays, escaped_rays, unshot) =
+        (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let shooting = with_ambient(ctx.mesh(), config, s)?;
+    if stopped {
+        return Ok(Solution {
+            estimate: shooting,
+            steps,
+            escaped_rays,
+            unshot_fraction: unshot,
+            stop: StopReason::Stopped,
+        });
+    }
+    let shot = Shot {
+        shooting,
+        rays: shot_rays,
+        escaped_rays,
+        unshot,
+        steps,
+    };
+    finish(
+        ctx,
+        config,
+        split,
+        shot,
+        shot_rays.min(gather_cap),
+        observer,
+    )
+}
+
+/// The gathering half: one round (or the split) from `shot` with `gather_budget` rays, shown
+/// to the observer as the last step.
+fn finish<C: RayCaster>(
+    ctx: &Context<C>,
+    config: &ScheduleConfig,
+    split: bool,
+    shot: Shot,
+    gather_budget: u64,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    let mesh = ctx.mesh();
+    let Shot {
+        shooting,
+        rays: shot_rays,
+        mut escaped_rays,
+        unshot,
+        steps,
+    } = shot;
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
         // Direct samples cost two rays each (an emitter sample and a cosine ray).
@@ -83,15 +190,16 @@ pub(super) fn run_two_pass<C: RayCaster>(
         rays,
     )?;
     let stopped = observer(&Step {
-        index: 2,
+        index: steps + 1,
         rays,
         next_rays: 0,
         radiosity: estimate.radiosity(),
+        limit: &super::no_limit(),
     })
     .is_break();
     Ok(Solution {
         estimate,
-        steps: 2,
+        steps: steps + 1,
         escaped_rays,
         unshot_fraction: unshot,
         stop: budget_or_stopped(stopped),
