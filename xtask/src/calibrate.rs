@@ -10,7 +10,7 @@
 //! its form factors need no visibility and are exact to the quadrature tolerance).
 //!
 //! Every method of `Method::monte_carlo()` runs `K` seeds on every case through
-//! [`schedule::run`](mcrad_mc_radiosity::schedule::run), one run at a time. A run that returns
+//! [`schedule::run`], one run at a time. A run that returns
 //! an error or panics (caught by `catch_unwind`) is reported, not fatal; a run still going after
 //! `--limit` seconds is stopped by its observer at its next step, reported, and the case's
 //! remaining seeds of that method are skipped (a run that never reaches a step is not bounded:
