@@ -25,16 +25,10 @@
 //! `U_i phi_0 / |U_i|` with probability `|U_i| / phi_0` and drops its power otherwise. The
 //! expected power shot is `U_i` either way, so the result stays unbiased, no power waits for a
 //! later wave, and the tail costs about `unshot / ((1 - rho_avg) phi_0)` rays more than the
-//! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost explodes
-//! (at `rho = 0.99999` the series has `1e5` bounces per watt), so the tail's energy per ray is
-//! raised to `max(phi_0, unshot / ((1 - rho) cap / 2))` (`rho` the area-weighted mean
-//! reflectance, unclamped; `cap` the larger of 5% of the budget and one ray per patch), which
-//! makes its expected cost at most half the cap, and the tail stops after `cap` rays
-//! ([`StopReason::BudgetSpent`]) with what is left reported
-//! as unshot (`ShootStats::unshot`), not hidden. When even the raised energy per ray exceeds all
-//! the power left (the tail cannot afford one chain of `1 / (1 - rho)` bounces), no roulette
-//! runs: the run stops there with the power unshot, since a roulette that drops nearly
-//! everything is unbiased only over many runs and its noise is in no reported variance.
+//! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost grows like
+//! `1 / (1 - rho)` (at `rho = 0.99999`, 26x the budget): keeping the budget there by stopping
+//! the tail early was tried and measured (issue 16): it biases every progressive method low
+//! (PRR -5%, combined -56% at `rho = 0.999`), so the tail stays unbiased and may overrun.
 //!
 //! Power is conserved exactly in every realisation (to floating-point rounding):
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
@@ -246,20 +240,6 @@ pub fn shoot<C: RayCaster>(
         .sum::<f64>()
         / total_area)
         .min(0.999);
-    // The unclamped mean reflectance, for sizing the finishing tail: its rays follow the whole
-    // remaining series, `1 / (1 - rho)` bounces per watt.
-    let rho_tail = (rho
-        .iter()
-        .zip(&area)
-        .map(|(r, a)| total(*r) / 3.0 * a)
-        .sum::<f64>()
-        / total_area)
-        .min(1.0 - 1e-12);
-    // The finishing tail may cast at most this many rays past the budget (as lowered by the
-    // observer): 5% of it, or one ray per patch if that is more (a roulette over the small
-    // remainders of many patches costs about that in an ordinary run, e.g. 140-280 rays on 864
-    // patches whatever the budget, and is left as it was).
-    let tail_cap = |budget: u64| (budget / 20).max(patches.len() as u64);
     let sampler = ctx.sampler();
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
@@ -282,8 +262,6 @@ pub fn shoot<C: RayCaster>(
     let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
-    // The finishing tail's energy per ray, fixed at its first wave.
-    let mut tail_phi: Option<f64> = None;
     // The budget, lowered when the observer limits the rays left.
     let mut budget = config.rays;
     let limit = Cell::new(u64::MAX);
@@ -300,27 +278,7 @@ pub fn shoot<C: RayCaster>(
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
-            let tail_cap = tail_cap(budget);
-            if stats.finishing_rays >= tail_cap {
-                // The tail spent its share: stop with the rest unshot (reported, not hidden).
-                stats.stop = StopReason::BudgetSpent;
-                break;
-            }
-            // The tail's energy per ray: the first wave's, raised so that shipping what is
-            // left (`left / ((1 - rho) phi)` rays expected) costs about half the cap.
-            let tail = *tail_phi.get_or_insert_with(|| {
-                let first = *phi_0.get_or_insert(left / (1.0 - rho_avg));
-                first.max(left / ((1.0 - rho_tail) * (tail_cap.max(1) as f64 / 2.0)))
-            });
-            let raised = phi_0.is_some_and(|first| tail > first);
-            if raised && tail > left {
-                // Not even one ray's worth is left at the tail's energy per ray: its roulette
-                // would drop nearly everything (unbiased only over many runs, and with a noise
-                // no reported variance holds). Stop with the rest unshot and reported instead.
-                stats.stop = StopReason::BudgetSpent;
-                break;
-            }
-            let phi = tail;
+            let phi = *phi_0.get_or_insert(left / (1.0 - rho_avg));
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts

@@ -365,43 +365,6 @@ fn bad_configurations_are_errors() {
     );
 }
 
-#[test]
-fn shooting_near_rho_one_keeps_the_budget() {
-    // Issue 16: at rho 0.99999 the finishing roulette shipped the whole geometric series
-    // (1e5 bounces) at the first wave's energy per ray and overran `--rays 2e4` 26 times. The
-    // tail is now sized to a few percent of the budget and capped, and what it could not ship
-    // is reported as unshot. Deterministic (fixed seeds), so no false-failure rate: 4 seeds.
-    let mesh = Mesh::build(&furnace(0.99999), Subdivision::MaxEdge(0.25)).unwrap();
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    for seed in 0..4 {
-        let r = shoot(
-            &Context::new(&mesh, &bvh),
-            &ShootConfig {
-                rays: 20_000,
-                unshot_threshold: 1e-4,
-                seed,
-            },
-            &mut |_| ControlFlow::Continue(()),
-        )
-        .unwrap();
-        let s = &r.stats;
-        assert!(
-            s.rays <= 21_000,
-            "seed {seed}: {} rays for 2e4: {s:?}",
-            s.rays
-        );
-        // The budget cannot ship 1e5 bounces: what is left is reported, not dropped.
-        assert_eq!(s.stop, StopReason::BudgetSpent, "{s:?}");
-        assert!(s.unshot.x > 0.5 * s.emitted.x, "{s:?}");
-        let balance = s.absorbed + s.escaped + s.unshot;
-        assert!(
-            (balance - s.emitted - s.roulette).abs().max_element()
-                <= 1e-9 * s.emitted.max_element() * 1e5,
-            "{s:?}"
-        );
-    }
-}
-
 /// Without a budget (`rays = u64::MAX`, as `--time` without `--rays` gives) a wave casts at
 /// most `max(rays so far, 100 000)` rays, so its jobs stay bounded and an observer that stops
 /// the run early gets it back at once (it used to queue jobs for 2^64 rays in the first wave).
