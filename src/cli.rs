@@ -20,6 +20,9 @@ pub struct Args {
 pub enum Command {
     /// Solve a scene's radiosity and write the results.
     Solve(Solve),
+    /// Combine independent runs of one scene (different seeds) into one solution, per patch
+    /// and channel by inverse variance.
+    Merge(crate::merge::Merge),
 }
 
 #[derive(Debug, clap::Args)]
@@ -110,6 +113,15 @@ pub struct Solve {
     /// (degrees), and never across materials.
     #[arg(long, value_name = "DEGREES", default_value_t = mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)]
     pub crease: f32,
+    /// Write the run's state (solution, variances, rays) to S after every complete step,
+    /// atomically, so that `--resume S` can continue it.
+    #[arg(long, value_name = "S")]
+    pub save: Option<PathBuf>,
+    /// Continue the run saved in S (by `--save`): this run's --rays or --time are added to it
+    /// as an independent piece with its own random streams, merged by rays. The scene, mesh
+    /// options, method, seed and options must be those of the saved run.
+    #[arg(long, value_name = "S")]
+    pub resume: Option<PathBuf>,
     /// No progress bar and no summary line (errors and warnings still go to stderr).
     #[arg(long, short)]
     pub quiet: bool,
@@ -146,6 +158,35 @@ impl Solve {
                 ..Default::default()
             },
         }
+    }
+}
+
+impl Solve {
+    /// The options a saved state must agree on to be continued (besides the mesh, compared by
+    /// its fingerprint, and the seed): the method and the options that change the answer,
+    /// each as a name and the way the command line says it.
+    pub fn state_options(&self) -> crate::state::Options {
+        let subdivision = if self.no_subdivide {
+            "--no-subdivide".to_string()
+        } else {
+            self.max_edge.map_or_else(
+                || "the default subdivision".to_string(),
+                |l| format!("--max-edge {l}"),
+            )
+        };
+        let ambient = if self.ambient { "--ambient" } else { "no --ambient" };
+        [
+            ("method", format!("--method {}", self.method().name())),
+            (
+                "unshot threshold",
+                format!("--unshot-threshold {}", self.unshot_threshold),
+            ),
+            ("ambient term", ambient.to_string()),
+            ("subdivision", subdivision),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
     }
 }
 
@@ -273,6 +314,7 @@ mod tests {
         let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
         match Args::try_parse_from(argv).unwrap().command {
             Command::Solve(s) => s,
+            Command::Merge(_) => unreachable!("a solve command line"),
         }
     }
 

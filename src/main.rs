@@ -2,8 +2,11 @@
 
 mod camera_arg;
 mod cli;
+mod interrupt;
+mod merge;
 mod output;
 mod solve;
+mod state;
 mod trace;
 
 use clap::Parser;
@@ -13,9 +16,11 @@ fn main() -> ExitCode {
     let args = cli::Args::parse();
     let result = match args.command {
         cli::Command::Solve(solve) => solve::run(&solve),
+        cli::Command::Merge(merge) => merge::run(&merge).map(|()| solve::Outcome::Done),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(solve::Outcome::Done) => ExitCode::SUCCESS,
+        Ok(solve::Outcome::Interrupted) => ExitCode::from(interrupt::EXIT_INTERRUPTED),
         Err(err) => {
             // One clear line: the error and its causes, joined.
             eprintln!("error: {err:#}");

@@ -1,10 +1,14 @@
 //! `mcrad solve`: load, mesh, build the BVH, run the method, write the results.
 
 use crate::cli::Solve;
+use crate::interrupt;
+use crate::state::{Identity, RunState, piece_seed};
 use crate::trace::Tracer;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use mcrad_combine::Estimate;
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
+use mcrad_mc_radiosity::StopReason;
 use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
@@ -14,7 +18,17 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Instant;
 
-pub fn run(args: &Solve) -> Result<()> {
+/// How a solve ended, when it did not fail.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// The run ended by itself (budget, convergence, `--time`).
+    Done,
+    /// A signal stopped the run; the outputs of its last complete solution were written.
+    Interrupted,
+}
+
+pub fn run(args: &Solve) -> Result<Outcome> {
+    interrupt::install();
     let threads = args
         .threads
         .map(usize::from)
@@ -26,10 +40,19 @@ pub fn run(args: &Solve) -> Result<()> {
     pool.install(|| solve(args, threads))
 }
 
-fn solve(args: &Solve, threads: usize) -> Result<()> {
+fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     crate::output::check(args)?;
     for warning in args.warnings() {
         eprintln!("warning: {warning}");
+    }
+    let method = args.method();
+    if method.kind() == Kind::Deterministic {
+        if args.resume.is_some() {
+            bail!("--resume: --method {method} is deterministic, there is no run to continue");
+        }
+        if args.save.is_some() {
+            eprintln!("warning: --save does not apply to --method {method} (deterministic)");
+        }
     }
     let setup = Instant::now();
     let loaded = mcrad_scene_io::load(&args.scene)?;
@@ -51,11 +74,32 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         }
         _ => None,
     };
+    let identity = Identity {
+        scene: &args.scene,
+        mesh: &mesh,
+        patch: patch_numbers(args, &mesh),
+        seed: args.seed,
+        options: args.state_options(),
+    };
+    let resumed = match &args.resume {
+        Some(path) => {
+            let state = RunState::load(path)?;
+            state.check_continues(&identity, path)?;
+            Some(state)
+        }
+        None => None,
+    };
+    let save = args
+        .save
+        .as_ref()
+        .filter(|_| method.kind() != Kind::Deterministic);
     let setup_seconds = setup.elapsed().as_secs_f64();
 
-    let config = args.schedule_config();
+    let mut config = args.schedule_config();
+    // A continuation is an independent run with its own streams (piece number > 0).
+    let piece = resumed.as_ref().map_or(0, |s| s.pieces);
+    config.seed = piece_seed(args.seed, piece);
     let rays = config.rays;
-    let method = args.method();
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deterministic = method.kind() == Kind::Deterministic;
     if deterministic && (args.rays.is_some() || args.time.is_some()) {
@@ -67,6 +111,10 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     let bar = progress_bar(args.quiet, if deterministic { u64::MAX } else { rays });
     let start = Instant::now();
     let mut trace_error = None;
+    let mut save_error = None;
+    // Whether the steps are complete solutions (they carry a variance): then the last one is
+    // an answer even when the run is stopped.
+    let mut complete_steps = false;
     let solution: Solution = schedule::run(method, &mesh, &bvh, &config, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         bar.set_position(step.rays.min(rays));
@@ -75,6 +123,21 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
             && let Err(e) = t.record(seconds, step.rays, step.radiosity)
         {
             trace_error = Some(e);
+            return ControlFlow::Break(());
+        }
+        complete_steps = step.variance.is_some();
+        if let (Some(path), Some(variance)) = (save, step.variance) {
+            // The solution so far, merged with the saved pieces, replaces the state on disk.
+            let saved = Estimate::new(step.radiosity.to_vec(), Some(variance.to_vec()), step.rays)
+                .map_err(anyhow::Error::from)
+                .and_then(|e| state_after(&identity, resumed.as_ref(), &e, step.index, 0))
+                .and_then(|state| state.save(path));
+            if let Err(e) = saved {
+                save_error = Some(e);
+                return ControlFlow::Break(());
+            }
+        }
+        if interrupt::requested() {
             return ControlFlow::Break(());
         }
         if let Some(budget) = deadline {
@@ -94,23 +157,92 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     if let Some(e) = trace_error {
         return Err(e);
     }
+    if let Some(e) = save_error {
+        return Err(e);
+    }
+    let interrupted = interrupt::requested();
     let seconds = start.elapsed().as_secs_f64();
-    let estimate = &solution.estimate;
+    let piece_rays = solution.estimate.rays();
+    // The answer: this run, merged with the saved pieces when it continues them.
+    let state = state_after(
+        &identity,
+        resumed.as_ref(),
+        &solution.estimate,
+        solution.steps,
+        solution.escaped_rays,
+    )?;
+    let estimate = match resumed {
+        Some(_) => state.estimate()?,
+        None => solution.estimate.clone(),
+    };
+    if let Some(path) = save {
+        // A stopped run of a method whose steps are not answers (a shooting wave, a Jacobi
+        // round) lacks part of its light: it is no state to continue.
+        if solution.stop == StopReason::Stopped && !complete_steps {
+            eprintln!(
+                "warning: --save {}: the run of --method {method} stopped before its end and \
+                 its solution is incomplete (only the steps of progressive methods are \
+                 complete); not saved",
+                path.display()
+            );
+        } else {
+            state.save(path)?;
+        }
+    }
     let run = RunStats {
         method,
         patches: mesh.patches().len(),
         rays: estimate.rays(),
         seconds,
-        rays_per_second: estimate.rays() as f64 / seconds.max(1e-9),
-        iterations: solution.steps,
+        rays_per_second: piece_rays as f64 / seconds.max(1e-9),
+        iterations: state.steps,
         seed: args.seed,
         threads,
-        escaped_rays: solution.escaped_rays,
+        escaped_rays: state.escaped_rays,
         unshot_fraction: solution.unshot_fraction,
         stop: solution.stop,
         setup_seconds,
     };
-    finish(args, &loaded, &mesh, &bvh, &solution, &run, &bar)
+    finish(args, &loaded, &mesh, &bvh, &estimate, &identity.patch, &run, &bar)?;
+    if interrupted {
+        eprintln!(
+            "interrupted: the outputs hold the last complete solution ({} steps, {} rays{})",
+            state.steps,
+            estimate.rays(),
+            if save.is_some() && (complete_steps || solution.stop != StopReason::Stopped) {
+                "; --resume continues it"
+            } else {
+                ""
+            }
+        );
+        return Ok(Outcome::Interrupted);
+    }
+    Ok(Outcome::Done)
+}
+
+/// The patch numbers `--patches` writes, in mesh order: the input face with
+/// `--no-subdivide`, else the patch's index.
+fn patch_numbers(args: &Solve, mesh: &Mesh) -> Vec<u32> {
+    mesh.patches()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| if args.no_subdivide { p.face } else { i as u32 })
+        .collect()
+}
+
+/// The state after a run whose solution is `estimate` (`steps` steps, `escaped_rays` escaped
+/// rays): the saved state `resumed` continued by it, or the first piece.
+fn state_after(
+    id: &Identity,
+    resumed: Option<&RunState>,
+    estimate: &Estimate,
+    steps: u32,
+    escaped_rays: u64,
+) -> Result<RunState> {
+    match resumed {
+        Some(state) => state.continued(estimate, steps, escaped_rays),
+        None => Ok(RunState::new(id, estimate, 1, steps, escaped_rays)),
+    }
 }
 
 /// The share of the time left a `--time` run plans to fill: the rest absorbs the per-step
@@ -134,20 +266,20 @@ fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
 }
 
 /// Writes the outputs of a finished solve and prints the summary.
+#[allow(clippy::too_many_arguments)]
 fn finish(
     args: &Solve,
     loaded: &mcrad_scene_io::Loaded,
     mesh: &Mesh,
     bvh: &Bvh,
-    solution: &Solution,
+    estimate: &Estimate,
+    patch: &[u32],
     run: &RunStats,
     bar: &ProgressBar,
 ) -> Result<()> {
-    let estimate = &solution.estimate;
-
     if let Some(path) = &args.patches {
         let rows = mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
-            patch: if args.no_subdivide { p.face } else { i as u32 },
+            patch: patch[i],
             area: p.area,
             radiosity: estimate.radiosity()[i],
             variance: estimate.variance().map(|v| v[i]),

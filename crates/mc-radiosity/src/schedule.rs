@@ -91,6 +91,13 @@ pub struct Step<'a> {
     pub next_rays: u64,
     /// The current solution `B_i` (W/m²), in mesh order.
     pub radiosity: &'a [DVec3],
+    /// The estimated variance of each `B_i` per channel ((W/m²)², mesh order) where the step's
+    /// solution is a complete estimate of all the [`Step::rays`] cast so far: the steps of the
+    /// progressive schedules (`prr`, `progressive-gather`, `progressive-two-pass`, `combined`,
+    /// `bidirectional`). `None` for the steps of the others (a shooting wave or a Jacobi round
+    /// is not yet an answer). With `radiosity` and `rays` it is the solution so far, which a
+    /// caller can keep (the CLI's `--save`).
+    pub variance: Option<&'a [DVec3]>,
     /// The observer's cap on the rays still to cast (`u64::MAX`: none).
     pub(crate) limit: &'a Cell<u64>,
 }
@@ -300,6 +307,7 @@ impl Progressive {
             rays: self.rays,
             next_rays: passes.peek(),
             radiosity: merged.radiosity(),
+            variance: merged.variance(),
             limit: &limit,
         };
         self.stopped = observer(&step).is_break();

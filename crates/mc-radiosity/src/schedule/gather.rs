@@ -39,6 +39,7 @@ pub(crate) fn run<C: RayCaster>(
             rays: p.rays,
             next_rays: per_round.min(p.budget - p.rays),
             radiosity: p.radiosity,
+            variance: None,
             limit: &limit,
         });
         // A round costs what it costs: a cap below it stops the run instead.

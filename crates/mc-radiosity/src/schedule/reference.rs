@@ -25,6 +25,7 @@ pub(crate) fn run<C: RayCaster>(
         rays: r.estimate.rays(),
         next_rays: 0,
         radiosity: r.estimate.radiosity(),
+        variance: None,
         limit: &super::no_limit(),
     })
     .is_break();

@@ -26,6 +26,7 @@ pub(crate) fn run<C: RayCaster>(
                 rays: p.rays,
                 next_rays: p.next_rays,
                 radiosity: p.radiosity,
+                variance: None,
                 limit: p.limit,
             })
         },

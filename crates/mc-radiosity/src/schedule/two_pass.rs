@@ -44,6 +44,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
         rays: shot_rays,
         next_rays: gather_budget,
         radiosity: shooting.radiosity(),
+        variance: None,
         limit: &limit,
     })
     .is_break()
@@ -103,6 +104,7 @@ fn unbounded<C: RayCaster>(
                 rays: p.rays,
                 next_rays: p.next_rays.saturating_mul(2).saturating_add(p.rays),
                 radiosity: p.radiosity,
+                variance: None,
                 limit: &limit,
             });
             stopped = flow.is_break();
@@ -194,6 +196,7 @@ fn finish<C: RayCaster>(
         rays,
         next_rays: 0,
         radiosity: estimate.radiosity(),
+        variance: None,
         limit: &super::no_limit(),
     })
     .is_break();
