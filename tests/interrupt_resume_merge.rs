@@ -1,0 +1,323 @@
+//! Nothing is lost: a signalled solve writes its outputs and exits 130, a run cut into pieces
+//! with `--save`/`--resume` agrees with one run, and `mcrad merge` of runs with different seeds
+//! agrees with one run of all their rays.
+//!
+//! **Tolerances.** Two independent solutions `a`, `b` of the same mesh are compared per patch
+//! and channel by `z = (a - b) / sqrt(V_a + V_b)` with their reported variances; if they
+//! estimate the same radiosity with those variances, `mean z² = 1`. The runs' errors are
+//! correlated across patches (a gather reads the whole shooting solution), so the mean of
+//! 2 800 `z²` is noisier than independent draws would make it: over three seeds each it measured
+//! 0.99-1.11 for the pieces and 1.08-1.11 for the merge. The test accepts `[0.6, 1.5]`; reusing
+//! a piece's random streams gives about 2 (its noise counted once, its variance divided by
+//! three), dropping a piece fails the ray count.
+
+use mcrad_export::{PatchRow, read_patch_csv};
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const SCENE: &str = "scenes/cornell-box.obj";
+
+fn mcrad(args: &[&str]) -> Output {
+    let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("mcrad runs");
+    assert!(
+        o.status.success(),
+        "mcrad {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+fn path(dir: &Path, name: &str) -> String {
+    dir.join(name).to_string_lossy().into_owned()
+}
+
+fn read_csv(file: &str) -> Vec<PatchRow> {
+    read_patch_csv(Path::new(file)).unwrap()
+}
+
+fn stats(file: &str) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(file).unwrap()).unwrap()
+}
+
+/// `mean z²` over patches and channels of two solutions (see the module's documentation).
+fn mean_z2(a: &[PatchRow], b: &[PatchRow]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let mut z2 = Vec::new();
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!((x.patch, x.area), (y.patch, y.area));
+        let v = x.variance.unwrap() + y.variance.unwrap();
+        for c in 0..3 {
+            if v[c] > 0.0 {
+                z2.push((x.radiosity[c] - y.radiosity[c]).powi(2) / v[c]);
+            }
+        }
+    }
+    z2.iter().sum::<f64>() / z2.len() as f64
+}
+
+/// The reported variances summed over patches and channels.
+fn total_variance(rows: &[PatchRow]) -> f64 {
+    rows.iter().map(|r| r.variance.unwrap().element_sum()).sum()
+}
+
+/// Sends `signal` (`INT`, `TERM`) to process `pid` with the system's `kill`.
+fn signal(pid: u32, signal: &str) {
+    let ok = Command::new("kill")
+        .args([&format!("-{signal}"), &pid.to_string()])
+        .status()
+        .expect("kill runs")
+        .success();
+    assert!(ok, "kill -{signal} {pid}");
+}
+
+/// Starts a solve without an end of its own (`--time 600`), waits until its first step is
+/// saved (so it is stepping), sends `signals`, and returns its output.
+fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
+    let state = dir.join("state");
+    let child = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args([
+            "solve",
+            SCENE,
+            "--time",
+            "600",
+            "--threads",
+            "2",
+            "--quiet",
+            "--save",
+            &path(dir, "state"),
+            "--patches",
+            &path(dir, "p.csv"),
+            "--stats",
+            &path(dir, "s.json"),
+            "--image",
+            &path(dir, "i.png"),
+            "--size",
+            "32x32",
+            "--spp",
+            "1",
+            "--gltf",
+            &path(dir, "g.glb"),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("mcrad starts");
+    let start = Instant::now();
+    while !state.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no step saved in 60 s"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    for s in signals {
+        signal(child.id(), s);
+    }
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn a_signal_stops_the_solve_writes_every_output_and_exits_130() {
+    for sig in ["INT", "TERM"] {
+        let dir = tempfile::tempdir().unwrap();
+        let o = interrupted_solve(dir.path(), &[sig]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(130), "SIG{sig}: {err}");
+        assert!(err.contains("interrupted"), "{err}");
+        let rows = read_csv(&path(dir.path(), "p.csv"));
+        assert_eq!(rows.len(), 943);
+        assert!(rows.iter().all(|r| r.variance.is_some()));
+        let s = stats(&path(dir.path(), "s.json"));
+        assert_eq!(s["stop"], "stopped", "{s}");
+        assert!(s["rays"].as_u64().unwrap() >= 100_000, "{s}");
+        let png = std::fs::read(dir.path().join("i.png")).unwrap();
+        assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"));
+        let glb = std::fs::read(dir.path().join("g.glb")).unwrap();
+        assert!(glb.starts_with(b"glTF"));
+        // The state saved at the stop holds the solution written: merged with it (weights
+        // 1/2 each) it gives the same values and half the variance.
+        let merged = path(dir.path(), "from-state.csv");
+        mcrad(&[
+            "merge",
+            &path(dir.path(), "state"),
+            &path(dir.path(), "p.csv"),
+            "--patches",
+            &merged,
+            "-q",
+        ]);
+        for (m, r) in read_csv(&merged).iter().zip(&rows) {
+            assert_eq!(m.radiosity, r.radiosity);
+            assert_eq!(m.variance, r.variance.map(|v| 0.5 * v));
+        }
+    }
+    // A second signal stops at once, with nothing written.
+    let dir = tempfile::tempdir().unwrap();
+    let o = interrupted_solve(dir.path(), &["INT", "INT"]);
+    assert_eq!(o.status.code(), Some(130));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("stopped at once"), "{err}");
+    assert!(!dir.path().join("p.csv").exists());
+}
+
+#[test]
+fn a_run_in_three_pieces_agrees_with_one_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = path(dir.path(), "state");
+    let (first, pieces, one) = (
+        path(dir.path(), "first.csv"),
+        path(dir.path(), "pieces.csv"),
+        path(dir.path(), "one.csv"),
+    );
+    let (pieces_json, one_json) = (path(dir.path(), "p.json"), path(dir.path(), "o.json"));
+    let base = ["solve", SCENE, "--threads", "2", "-q"];
+    let piece = |extra: &[&str]| {
+        let mut args = base.to_vec();
+        args.extend_from_slice(&["--rays", "3e5", "--seed", "1", "--save", &state]);
+        args.extend_from_slice(extra);
+        mcrad(&args);
+    };
+    piece(&["--patches", &first]);
+    piece(&["--resume", &state]);
+    piece(&["--resume", &state, "--patches", &pieces, "--stats", &pieces_json]);
+    let mut args = base.to_vec();
+    args.extend_from_slice(&[
+        "--rays",
+        "9e5",
+        "--seed",
+        "101",
+        "--patches",
+        &one,
+        "--stats",
+        &one_json,
+    ]);
+    mcrad(&args);
+    // The rays add up: three pieces of 3e5 cast what one run of 9e5 casts (each method
+    // spends its budget to within its pass sizes: 2%).
+    let rays = |f: &str| stats(f)["rays"].as_u64().unwrap() as f64;
+    let (r3, r1) = (rays(&pieces_json), rays(&one_json));
+    assert!((r3 - r1).abs() < 0.02 * r1, "pieces {r3} rays, one run {r1}");
+    let (first, pieces, one) = (read_csv(&first), read_csv(&pieces), read_csv(&one));
+    let z2 = mean_z2(&pieces, &one);
+    assert!((0.6..1.5).contains(&z2), "mean z² {z2}");
+    // Three pieces report about a third of one piece's variance (0.33-0.35 measured).
+    let ratio = total_variance(&pieces) / total_variance(&first);
+    assert!((0.25..0.42).contains(&ratio), "variance ratio {ratio}");
+}
+
+#[test]
+fn a_resume_of_another_run_is_refused_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = path(dir.path(), "state");
+    mcrad(&[
+        "solve", SCENE, "--threads", "2", "-q", "--rays", "1e5", "--save", &state,
+    ]);
+    for (extra, expect) in [
+        (&["--method", "prr"][..], "--method combined"),
+        (&["--seed", "4"][..], "--seed 0"),
+        (&["--max-edge", "0.2"][..], "the default subdivision"),
+        (&["--unshot-threshold", "0.01"][..], "--unshot-threshold"),
+    ] {
+        let mut args = vec![
+            "solve", SCENE, "--threads", "2", "-q", "--rays", "1e5", "--resume", &state,
+        ];
+        args.extend_from_slice(extra);
+        let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+            .args(&args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(
+            err.starts_with("error: ") && err.contains(expect) && err.lines().count() == 1,
+            "{extra:?}: {err}"
+        );
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args([
+            "solve",
+            "scenes/furnace.obj",
+            "--threads",
+            "2",
+            "--rays",
+            "1e5",
+            "--resume",
+            &state,
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("another scene or mesh"), "{err}");
+}
+
+#[test]
+fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for seed in 1..=4 {
+        let csv = path(dir.path(), &format!("s{seed}.csv"));
+        mcrad(&[
+            "solve",
+            SCENE,
+            "--threads",
+            "2",
+            "-q",
+            "--rays",
+            "2e5",
+            "--seed",
+            &seed.to_string(),
+            "--patches",
+            &csv,
+        ]);
+        runs.push(csv);
+    }
+    let one = path(dir.path(), "one.csv");
+    mcrad(&[
+        "solve", SCENE, "--threads", "2", "-q", "--rays", "8e5", "--seed", "99", "--patches",
+        &one,
+    ]);
+    let merged = path(dir.path(), "merged.csv");
+    let mut args = vec!["merge"];
+    args.extend(runs.iter().map(String::as_str));
+    args.extend_from_slice(&["--patches", &merged]);
+    let o = mcrad(&args);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("4 runs merged"));
+    let (merged, one) = (read_csv(&merged), read_csv(&one));
+    let z2 = mean_z2(&merged, &one);
+    assert!((0.6..1.5).contains(&z2), "mean z² {z2}");
+    // The merge reports about a quarter of one run's variance, which is what one run of four
+    // times the rays reports (1.00-1.02 of it measured with 5e5-ray runs).
+    let single = runs.iter().map(|r| total_variance(&read_csv(r))).sum::<f64>() / 4.0;
+    let quarter = total_variance(&merged) / single;
+    assert!((0.2..0.3).contains(&quarter), "merged / single {quarter}");
+    let against_one = total_variance(&merged) / total_variance(&one);
+    assert!((0.8..1.25).contains(&against_one), "merged / 4x run {against_one}");
+    // Runs of different meshes are refused.
+    let coarse = path(dir.path(), "coarse.csv");
+    mcrad(&[
+        "solve",
+        SCENE,
+        "--threads",
+        "2",
+        "-q",
+        "--rays",
+        "1e5",
+        "--no-subdivide",
+        "--patches",
+        &coarse,
+    ]);
+    let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args(["merge", &runs[0], &coarse, "--patches", &path(dir.path(), "x.csv")])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("different meshes"), "{err}");
+}
