@@ -174,7 +174,11 @@ impl Solve {
                 |l| format!("--max-edge {l}"),
             )
         };
-        let ambient = if self.ambient { "--ambient" } else { "no --ambient" };
+        let ambient = if self.ambient {
+            "--ambient"
+        } else {
+            "no --ambient"
+        };
         [
             ("method", format!("--method {}", self.method().name())),
             (

@@ -43,8 +43,13 @@ pub struct Merge {
 const AREA_TOLERANCE: f64 = 1e-6;
 
 pub fn run(args: &Merge) -> Result<()> {
-    let runs: Vec<Vec<PatchRow>> = args.runs.iter().map(|p| read_run(p)).collect::<Result<_>>()?;
+    let runs: Vec<Vec<PatchRow>> = args
+        .runs
+        .iter()
+        .map(|p| read_run(p))
+        .collect::<Result<_>>()?;
     check_same_patches(&args.runs, &runs)?;
+    check_independent(&args.runs, &runs)?;
     let (merged, weights) = merge_runs(&args.runs, &runs)?;
     let file = std::fs::File::create(&args.patches)
         .with_context(|| format!("could not create {}", args.patches.display()))?;
@@ -109,6 +114,24 @@ fn check_same_patches(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
                 x.patch,
                 y.area,
                 x.area
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a run given twice (the same file, or the same seed): its noise would count as
+/// independent and the merged variance would be too small.
+fn check_independent(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
+    for (a, x) in runs.iter().enumerate() {
+        for (b, y) in runs.iter().enumerate().skip(a + 1) {
+            let same = x.iter().zip(y).all(|(p, q)| p.radiosity == q.radiosity);
+            ensure!(
+                !same,
+                "{} and {} hold the same solution (the same run, or the same seed): merge \
+                 independent runs, each with its own --seed",
+                paths[a].display(),
+                paths[b].display()
             );
         }
     }
@@ -199,7 +222,9 @@ mod tests {
     }
 
     fn paths(n: usize) -> Vec<PathBuf> {
-        (0..n).map(|k| PathBuf::from(format!("run{k}.csv"))).collect()
+        (0..n)
+            .map(|k| PathBuf::from(format!("run{k}.csv")))
+            .collect()
     }
 
     #[test]
@@ -230,7 +255,9 @@ mod tests {
         // A run with no variance at all cannot be weighted against runs that have them.
         let c = vec![row(0, 1.0, 3.0, None), row(1, 1.0, 9.0, None)];
         let a = vec![row(0, 1.0, 1.0, Some(1.0)), row(1, 1.0, 5.0, Some(1.0))];
-        let err = merge_runs(&paths(2), &[a, c.clone()]).unwrap_err().to_string();
+        let err = merge_runs(&paths(2), &[a, c.clone()])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("run1.csv has no variances"), "{err}");
         // None has them: equal weights, blank variances.
         let (m, _) = merge_runs(&paths(2), &[c.clone(), c]).unwrap();
@@ -251,16 +278,37 @@ mod tests {
         let short = vec![row(0, 1.0, 1.0, Some(1.0))];
         let renumbered = vec![row(0, 1.0, 1.0, Some(1.0)), row(2, 2.0, 1.0, Some(1.0))];
         let resized = vec![row(0, 1.0, 1.0, Some(1.0)), row(1, 2.1, 1.0, Some(1.0))];
-        let rounded = vec![row(0, 1.0, 1.0, Some(1.0)), row(1, 2.000_000_1, 1.0, Some(1.0))];
+        let rounded = vec![
+            row(0, 1.0, 1.0, Some(1.0)),
+            row(1, 2.000_000_1, 1.0, Some(1.0)),
+        ];
         let p = paths(2);
         for (b, expect) in [
             (short, "has 1 patches, run0.csv has 2"),
             (renumbered, "row 2 of run1.csv is patch 2"),
             (resized, "patch 1 has area 2.1 in run1.csv"),
         ] {
-            let err = check_same_patches(&p, &[a.clone(), b]).unwrap_err().to_string();
+            let err = check_same_patches(&p, &[a.clone(), b])
+                .unwrap_err()
+                .to_string();
             assert!(err.contains(expect), "{err}");
         }
-        check_same_patches(&p, &[a, rounded]).unwrap();
+        check_same_patches(&p, &[a.clone(), rounded]).unwrap();
+        let err = check_independent(&paths(3), &[a.clone(), short_copy(&a), a])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("run0.csv and run2.csv hold the same solution"),
+            "{err}"
+        );
+    }
+
+    fn short_copy(rows: &[PatchRow]) -> Vec<PatchRow> {
+        rows.iter()
+            .map(|r| PatchRow {
+                radiosity: r.radiosity + 1.0,
+                ..*r
+            })
+            .collect()
     }
 }

@@ -203,7 +203,16 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         stop: solution.stop,
         setup_seconds,
     };
-    finish(args, &loaded, &mesh, &bvh, &estimate, &identity.patch, &run, &bar)?;
+    finish(
+        args,
+        &loaded,
+        &mesh,
+        &bvh,
+        &estimate,
+        &identity.patch,
+        &run,
+        &bar,
+    )?;
     if interrupted {
         eprintln!(
             "interrupted: the outputs hold the last complete solution ({} steps, {} rays{})",

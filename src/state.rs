@@ -108,10 +108,10 @@ impl RunState {
             format: FORMAT,
             version: env!("CARGO_PKG_VERSION").to_string(),
             fingerprint: fingerprint(id.mesh),
-            scene: id
-                .scene
-                .file_name()
-                .map_or_else(|| id.scene.display().to_string(), |n| n.display().to_string()),
+            scene: id.scene.file_name().map_or_else(
+                || id.scene.display().to_string(),
+                |n| n.display().to_string(),
+            ),
             seed: id.seed,
             options: id.options.clone(),
             pieces,
@@ -151,8 +151,8 @@ impl RunState {
     pub fn load(path: &Path) -> Result<RunState> {
         let file = std::fs::File::open(path)
             .with_context(|| format!("could not read the saved state {}", path.display()))?;
-        let state: RunState = ciborium::from_reader(std::io::BufReader::new(file))
-            .map_err(|e| {
+        let state: RunState =
+            ciborium::from_reader(std::io::BufReader::new(file)).map_err(|e| {
                 anyhow::anyhow!(
                     "{} is not a state saved by mcrad --save ({e})",
                     path.display()

@@ -8,7 +8,7 @@
 //! correlated across patches (a gather reads the whole shooting solution), so the mean of
 //! 2 800 `z²` is noisier than independent draws would make it: over three seeds each it measured
 //! 0.99-1.11 for the pieces and 1.08-1.11 for the merge. The test accepts `[0.6, 1.5]`; reusing
-//! a piece's random streams gives about 2 (its noise counted once, its variance divided by
+//! a piece's random streams gives 2.3 (measured: its noise counted once, its variance divided by
 //! three), dropping a piece fails the ray count.
 
 use mcrad_export::{PatchRow, read_patch_csv};
@@ -140,21 +140,40 @@ fn a_signal_stops_the_solve_writes_every_output_and_exits_130() {
         assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"));
         let glb = std::fs::read(dir.path().join("g.glb")).unwrap();
         assert!(glb.starts_with(b"glTF"));
-        // The state saved at the stop holds the solution written: merged with it (weights
-        // 1/2 each) it gives the same values and half the variance.
-        let merged = path(dir.path(), "from-state.csv");
+        // The state saved at the stop holds the solution written (merged with it, the
+        // same solution is refused) and continues.
+        let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+            .args([
+                "merge",
+                &path(dir.path(), "state"),
+                &path(dir.path(), "p.csv"),
+                "--patches",
+                &path(dir.path(), "x.csv"),
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("hold the same solution"), "{err}");
+        let more = path(dir.path(), "s2.json");
         mcrad(&[
-            "merge",
-            &path(dir.path(), "state"),
-            &path(dir.path(), "p.csv"),
-            "--patches",
-            &merged,
+            "solve",
+            SCENE,
+            "--threads",
+            "2",
             "-q",
+            "--rays",
+            "1e5",
+            "--resume",
+            &path(dir.path(), "state"),
+            "--stats",
+            &more,
         ]);
-        for (m, r) in read_csv(&merged).iter().zip(&rows) {
-            assert_eq!(m.radiosity, r.radiosity);
-            assert_eq!(m.variance, r.variance.map(|v| 0.5 * v));
-        }
+        let total = stats(&more)["rays"].as_u64().unwrap();
+        let before = s["rays"].as_u64().unwrap();
+        assert!(
+            total > before && total <= before + 100_000,
+            "{before} then {total}"
+        );
     }
     // A second signal stops at once, with nothing written: see the next test.
 }
@@ -178,8 +197,17 @@ fn a_second_signal_stops_at_once_and_writes_nothing() {
     // One shooting wave of a 1e10-ray budget takes minutes: the first signal waits for it.
     let mut child = Command::new(env!("CARGO_BIN_EXE_mcrad"))
         .args([
-            "solve", SCENE, "--method", "shoot", "--rays", "1e10", "--threads", "2", "-q",
-            "--patches", &csv,
+            "solve",
+            SCENE,
+            "--method",
+            "shoot",
+            "--rays",
+            "1e10",
+            "--threads",
+            "2",
+            "-q",
+            "--patches",
+            &csv,
         ])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .stderr(Stdio::piped())
@@ -187,7 +215,10 @@ fn a_second_signal_stops_at_once_and_writes_nothing() {
         .expect("mcrad starts");
     let start = Instant::now();
     while !catches_sigint(child.id()) {
-        assert!(start.elapsed() < Duration::from_secs(60), "no handler in 60 s");
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no handler in 60 s"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     signal(child.id(), "INT");
@@ -198,12 +229,18 @@ fn a_second_signal_stops_at_once_and_writes_nothing() {
     } else {
         first
     };
-    assert!(first.starts_with("interrupted: stopping after the current step"), "{first}");
+    assert!(
+        first.starts_with("interrupted: stopping after the current step"),
+        "{first}"
+    );
     signal(child.id(), "TERM");
     let rest: Vec<String> = lines.map(Result::unwrap).collect();
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(130), "{rest:?}");
-    assert!(rest.iter().any(|l| l.contains("stopped at once")), "{rest:?}");
+    assert!(
+        rest.iter().any(|l| l.contains("stopped at once")),
+        "{rest:?}"
+    );
     assert!(!Path::new(&csv).exists());
 }
 
@@ -226,7 +263,14 @@ fn a_run_in_three_pieces_agrees_with_one_run() {
     };
     piece(&["--patches", &first]);
     piece(&["--resume", &state]);
-    piece(&["--resume", &state, "--patches", &pieces, "--stats", &pieces_json]);
+    piece(&[
+        "--resume",
+        &state,
+        "--patches",
+        &pieces,
+        "--stats",
+        &pieces_json,
+    ]);
     let mut args = base.to_vec();
     args.extend_from_slice(&[
         "--rays",
@@ -243,7 +287,10 @@ fn a_run_in_three_pieces_agrees_with_one_run() {
     // spends its budget to within its pass sizes: 2%).
     let rays = |f: &str| stats(f)["rays"].as_u64().unwrap() as f64;
     let (r3, r1) = (rays(&pieces_json), rays(&one_json));
-    assert!((r3 - r1).abs() < 0.02 * r1, "pieces {r3} rays, one run {r1}");
+    assert!(
+        (r3 - r1).abs() < 0.02 * r1,
+        "pieces {r3} rays, one run {r1}"
+    );
     let (first, pieces, one) = (read_csv(&first), read_csv(&pieces), read_csv(&one));
     let z2 = mean_z2(&pieces, &one);
     assert!((0.6..1.5).contains(&z2), "mean z² {z2}");
@@ -257,7 +304,15 @@ fn a_resume_of_another_run_is_refused_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();
     let state = path(dir.path(), "state");
     mcrad(&[
-        "solve", SCENE, "--threads", "2", "-q", "--rays", "1e5", "--save", &state,
+        "solve",
+        SCENE,
+        "--threads",
+        "2",
+        "-q",
+        "--rays",
+        "1e5",
+        "--save",
+        &state,
     ]);
     for (extra, expect) in [
         (&["--method", "prr"][..], "--method combined"),
@@ -266,7 +321,15 @@ fn a_resume_of_another_run_is_refused_with_the_reason() {
         (&["--unshot-threshold", "0.01"][..], "--unshot-threshold"),
     ] {
         let mut args = vec![
-            "solve", SCENE, "--threads", "2", "-q", "--rays", "1e5", "--resume", &state,
+            "solve",
+            SCENE,
+            "--threads",
+            "2",
+            "-q",
+            "--rays",
+            "1e5",
+            "--resume",
+            &state,
         ];
         args.extend_from_slice(extra);
         let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
@@ -322,7 +385,16 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
     }
     let one = path(dir.path(), "one.csv");
     mcrad(&[
-        "solve", SCENE, "--threads", "2", "-q", "--rays", "8e5", "--seed", "99", "--patches",
+        "solve",
+        SCENE,
+        "--threads",
+        "2",
+        "-q",
+        "--rays",
+        "8e5",
+        "--seed",
+        "99",
+        "--patches",
         &one,
     ]);
     let merged = path(dir.path(), "merged.csv");
@@ -336,11 +408,18 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
     assert!((0.6..1.5).contains(&z2), "mean z² {z2}");
     // The merge reports about a quarter of one run's variance, which is what one run of four
     // times the rays reports (1.00-1.02 of it measured with 5e5-ray runs).
-    let single = runs.iter().map(|r| total_variance(&read_csv(r))).sum::<f64>() / 4.0;
+    let single = runs
+        .iter()
+        .map(|r| total_variance(&read_csv(r)))
+        .sum::<f64>()
+        / 4.0;
     let quarter = total_variance(&merged) / single;
     assert!((0.2..0.3).contains(&quarter), "merged / single {quarter}");
     let against_one = total_variance(&merged) / total_variance(&one);
-    assert!((0.8..1.25).contains(&against_one), "merged / 4x run {against_one}");
+    assert!(
+        (0.8..1.25).contains(&against_one),
+        "merged / 4x run {against_one}"
+    );
     // Runs of different meshes are refused.
     let coarse = path(dir.path(), "coarse.csv");
     mcrad(&[
@@ -356,7 +435,13 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
         &coarse,
     ]);
     let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
-        .args(["merge", &runs[0], &coarse, "--patches", &path(dir.path(), "x.csv")])
+        .args([
+            "merge",
+            &runs[0],
+            &coarse,
+            "--patches",
+            &path(dir.path(), "x.csv"),
+        ])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
