@@ -119,23 +119,45 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         let seconds = start.elapsed().as_secs_f64();
         bar.set_position(step.rays.min(rays));
         bar.set_message(format!("step {}", step.index));
-        if let Some(t) = tracer.as_mut()
-            && let Err(e) = t.record(seconds, step.rays, step.radiosity)
-        {
-            trace_error = Some(e);
-            return ControlFlow::Break(());
-        }
         complete_steps = step.variance.is_some();
-        if let (Some(path), Some(variance)) = (save, step.variance) {
-            // The solution so far, merged with the saved pieces, replaces the state on disk.
-            let saved = Estimate::new(step.radiosity.to_vec(), Some(variance.to_vec()), step.rays)
-                .map_err(anyhow::Error::from)
-                .and_then(|e| state_after(&identity, resumed.as_ref(), &e, step.index, 0))
-                .and_then(|state| state.save(path));
-            if let Err(e) = saved {
+        // The solution so far: this run's step, merged with the saved pieces when it continues
+        // them (the trace and the state show the whole run).
+        let wanted = (resumed.is_some() && tracer.is_some()) || (save.is_some() && complete_steps);
+        let so_far = wanted
+            .then(|| {
+                let e = Estimate::new(
+                    step.radiosity.to_vec(),
+                    step.variance.map(<[_]>::to_vec),
+                    step.rays,
+                )?;
+                state_after(&identity, resumed.as_ref(), &e, step.index, 0)
+            })
+            .transpose();
+        let so_far = match so_far {
+            Ok(s) => s,
+            Err(e) => {
                 save_error = Some(e);
                 return ControlFlow::Break(());
             }
+        };
+        if let Some(t) = tracer.as_mut() {
+            let recorded = match (&so_far, resumed.is_some()) {
+                (Some(state), true) => state
+                    .estimate()
+                    .and_then(|e| t.record(seconds, e.rays(), e.radiosity())),
+                _ => t.record(seconds, step.rays, step.radiosity),
+            };
+            if let Err(e) = recorded {
+                trace_error = Some(e);
+                return ControlFlow::Break(());
+            }
+        }
+        if let (Some(path), Some(state)) = (save, &so_far)
+            && complete_steps
+            && let Err(e) = state.save(path)
+        {
+            save_error = Some(e);
+            return ControlFlow::Break(());
         }
         if interrupt::requested() {
             return ControlFlow::Break(());

@@ -152,11 +152,14 @@ impl RunState {
         let file = std::fs::File::open(path)
             .with_context(|| format!("could not read the saved state {}", path.display()))?;
         let state: RunState =
-            ciborium::from_reader(std::io::BufReader::new(file)).map_err(|e| {
-                anyhow::anyhow!(
-                    "{} is not a state saved by mcrad --save ({e})",
+            ciborium::from_reader(std::io::BufReader::new(file)).map_err(|e| match e {
+                ciborium::de::Error::Io(e) => {
+                    anyhow::anyhow!("could not read the saved state {}: {e}", path.display())
+                }
+                _ => anyhow::anyhow!(
+                    "{} is not a state saved by mcrad --save (or it is damaged)",
                     path.display()
-                )
+                ),
             })?;
         ensure!(
             state.format == FORMAT,

@@ -360,6 +360,18 @@ fn a_resume_of_another_run_is_refused_with_the_reason() {
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("another scene or mesh"), "{err}");
+    // A file that is not a state.
+    let o = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args(["solve", SCENE, "--rays", "1e5", "--resume", SCENE])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("is not a state saved by mcrad --save"),
+        "{err}"
+    );
+    assert_eq!(o.status.code(), Some(1));
 }
 
 #[test]
