@@ -17,7 +17,7 @@
 
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::schedule::{Kind, Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
@@ -392,4 +392,58 @@ fn the_ambient_term_changes_exactly_the_methods_that_use_it() {
             method.uses_ambient()
         );
     }
+}
+
+#[test]
+fn a_step_with_a_variance_is_the_solution_so_far() {
+    // `Step::variance` marks a step that is a complete answer: a caller that keeps it (the
+    // CLI's `--save`, an interrupted run) keeps what the run returns when stopped there.
+    let (mesh, bvh) = cornell(Subdivision::None);
+    let mut complete = Vec::new();
+    let random = Method::ALL
+        .into_iter()
+        .filter(|m| m.kind() != Kind::Deterministic);
+    for method in random {
+        let config = ScheduleConfig {
+            rays: 400_000,
+            seed: 5,
+            ..Default::default()
+        };
+        let mut last = None;
+        let solution = run(method, &mesh, &bvh, &config, &mut |step| {
+            last = Some((
+                step.radiosity.to_vec(),
+                step.variance.map(<[DVec3]>::to_vec),
+                step.rays,
+            ));
+            if step.index == 2 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .unwrap();
+        let (radiosity, variance, rays) = last.unwrap();
+        let Some(variance) = variance else {
+            continue;
+        };
+        complete.push(method);
+        let e = &solution.estimate;
+        assert_eq!(e.radiosity(), radiosity.as_slice(), "{method:?}");
+        assert_eq!(e.rays(), rays, "{method:?}");
+        // A patch no ray reached gets its "no information" variance only at the end.
+        for (v, s) in e.variance().unwrap().iter().zip(&variance) {
+            assert!(*s == DVec3::ZERO || v == s, "{method:?}: {v} against {s}");
+        }
+    }
+    assert_eq!(
+        complete,
+        [
+            Method::Prr,
+            Method::ProgressiveGather,
+            Method::ProgressiveTwoPass,
+            Method::Combined,
+            Method::Bidirectional
+        ]
+    );
 }
