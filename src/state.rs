@@ -186,7 +186,15 @@ impl RunState {
             _ => Path::new("."),
         };
         let fail = || format!("could not write the state {}", path.display());
-        let mut tmp = tempfile::NamedTempFile::new_in(dir).with_context(fail)?;
+        let mut builder = tempfile::Builder::new();
+        // A temporary file is private (0600); the state is an ordinary file (0666 less the
+        // umask, as `File::create` makes it), readable where the outputs are.
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let mut tmp = builder
+            .prefix(".mcrad-state")
+            .tempfile_in(dir)
+            .with_context(fail)?;
         {
             let mut out = std::io::BufWriter::new(tmp.as_file_mut());
             ciborium::into_writer(self, &mut out).with_context(fail)?;
