@@ -65,6 +65,7 @@ fn total_variance(rows: &[PatchRow]) -> f64 {
     rows.iter().map(|r| r.variance.unwrap().element_sum()).sum()
 }
 
+#[cfg(target_os = "linux")]
 /// Sends `signal` (`INT`, `TERM`) to process `pid` with the system's `kill`.
 fn signal(pid: u32, signal: &str) {
     let ok = Command::new("kill")
@@ -75,6 +76,7 @@ fn signal(pid: u32, signal: &str) {
     assert!(ok, "kill -{signal} {pid}");
 }
 
+#[cfg(target_os = "linux")]
 /// Starts a solve without an end of its own (`--time 600`), waits until its first step is
 /// saved (so it is stepping), sends `signals`, and returns its output.
 fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
@@ -122,6 +124,8 @@ fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
     child.wait_with_output().unwrap()
 }
 
+// Signals through `kill`, the handler seen in `/proc`.
+#[cfg(target_os = "linux")]
 #[test]
 fn a_signal_stops_the_solve_writes_every_output_and_exits_130() {
     for sig in ["INT", "TERM"] {
@@ -178,6 +182,7 @@ fn a_signal_stops_the_solve_writes_every_output_and_exits_130() {
     // A second signal stops at once, with nothing written: see the next test.
 }
 
+#[cfg(target_os = "linux")]
 /// True once process `pid` catches SIGINT (its handler is installed): bit 2 of `SigCgt` in
 /// `/proc/PID/status`.
 fn catches_sigint(pid: u32) -> bool {
@@ -189,6 +194,8 @@ fn catches_sigint(pid: u32) -> bool {
         .is_some_and(|mask| mask & (1 << 1) != 0)
 }
 
+// Signals through `kill`, the handler seen in `/proc`.
+#[cfg(target_os = "linux")]
 #[test]
 fn a_second_signal_stops_at_once_and_writes_nothing() {
     use std::io::{BufRead, BufReader};
