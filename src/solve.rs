@@ -8,8 +8,8 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_combine::Estimate;
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::StopReason;
 use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
+use mcrad_mc_radiosity::{Error as SolveError, StopReason};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::fs::File;
@@ -115,67 +115,99 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     // Whether the steps are complete solutions (they carry a variance): then the last one is
     // an answer even when the run is stopped.
     let mut complete_steps = false;
-    let solution: Solution = schedule::run(method, &mesh, &bvh, &config, &mut |step| {
-        let seconds = start.elapsed().as_secs_f64();
-        bar.set_position(step.rays.min(rays));
-        bar.set_message(format!("step {}", step.index));
-        complete_steps = step.variance.is_some();
-        // The solution so far: this run's step, merged with the saved pieces when it continues
-        // them (the trace and the state show the whole run).
-        let wanted = (resumed.is_some() && tracer.is_some()) || (save.is_some() && complete_steps);
-        let so_far = wanted
-            .then(|| {
-                let e = Estimate::new(
-                    step.radiosity.to_vec(),
-                    step.variance.map(<[_]>::to_vec),
-                    step.rays,
-                )?;
-                state_after(&identity, resumed.as_ref(), &e, step.index, 0)
-            })
-            .transpose();
-        let so_far = match so_far {
-            Ok(s) => s,
-            Err(e) => {
+    // The last step, kept for a signal that abandons the next one.
+    let mut last_step: Option<Solution> = None;
+    let result = schedule::run_cancellable(
+        method,
+        &mesh,
+        &bvh,
+        &config,
+        interrupt::cancel_flag(),
+        &mut |step| {
+            let seconds = start.elapsed().as_secs_f64();
+            bar.set_position(step.rays.min(rays));
+            bar.set_message(format!("step {}", step.index));
+            complete_steps = step.variance.is_some();
+            // The solution so far: this run's step, merged with the saved pieces when it continues
+            // them (the trace and the state show the whole run).
+            let wanted =
+                (resumed.is_some() && tracer.is_some()) || (save.is_some() && complete_steps);
+            let so_far = wanted
+                .then(|| {
+                    let e = Estimate::new(
+                        step.radiosity.to_vec(),
+                        step.variance.map(<[_]>::to_vec),
+                        step.rays,
+                    )?;
+                    state_after(&identity, resumed.as_ref(), &e, step.index, 0)
+                })
+                .transpose();
+            let so_far = match so_far {
+                Ok(s) => s,
+                Err(e) => {
+                    save_error = Some(e);
+                    return ControlFlow::Break(());
+                }
+            };
+            if let Some(t) = tracer.as_mut() {
+                let recorded = match (&so_far, resumed.is_some()) {
+                    (Some(state), true) => state
+                        .estimate()
+                        .and_then(|e| t.record(seconds, e.rays(), e.radiosity())),
+                    _ => t.record(seconds, step.rays, step.radiosity),
+                };
+                if let Err(e) = recorded {
+                    trace_error = Some(e);
+                    return ControlFlow::Break(());
+                }
+            }
+            if let (Some(path), Some(state)) = (save, &so_far)
+                && complete_steps
+                && let Err(e) = state.save(path)
+            {
                 save_error = Some(e);
                 return ControlFlow::Break(());
             }
-        };
-        if let Some(t) = tracer.as_mut() {
-            let recorded = match (&so_far, resumed.is_some()) {
-                (Some(state), true) => state
-                    .estimate()
-                    .and_then(|e| t.record(seconds, e.rays(), e.radiosity())),
-                _ => t.record(seconds, step.rays, step.radiosity),
-            };
-            if let Err(e) = recorded {
-                trace_error = Some(e);
+            if let Ok(estimate) = Estimate::new(
+                step.radiosity.to_vec(),
+                step.variance.map(<[_]>::to_vec),
+                step.rays,
+            ) {
+                last_step = Some(Solution {
+                    estimate,
+                    steps: step.index,
+                    escaped_rays: 0,
+                    unshot_fraction: f64::NAN,
+                    stop: StopReason::Stopped,
+                });
+                interrupt::step_kept();
+            }
+            if interrupt::requested() {
                 return ControlFlow::Break(());
             }
-        }
-        if let (Some(path), Some(state)) = (save, &so_far)
-            && complete_steps
-            && let Err(e) = state.save(path)
-        {
-            save_error = Some(e);
-            return ControlFlow::Break(());
-        }
-        if interrupt::requested() {
-            return ControlFlow::Break(());
-        }
-        if let Some(budget) = deadline {
-            // Setup counts against the budget: the time left is measured from the start of
-            // loading. At the speed of the run so far, size the rest to what fits.
-            let left = budget - setup.elapsed().as_secs_f64();
-            let fits = rays_that_fit(left, seconds, step.rays);
-            if fits == 0 {
-                return ControlFlow::Break(());
+            if let Some(budget) = deadline {
+                // Setup counts against the budget: the time left is measured from the start of
+                // loading. At the speed of the run so far, size the rest to what fits.
+                let left = budget - setup.elapsed().as_secs_f64();
+                let fits = rays_that_fit(left, seconds, step.rays);
+                if fits == 0 {
+                    return ControlFlow::Break(());
+                }
+                if step.next_rays > fits {
+                    step.limit_rays_left(fits);
+                }
             }
-            if step.next_rays > fits {
-                step.limit_rays_left(fits);
-            }
-        }
-        ControlFlow::Continue(())
-    })?;
+            ControlFlow::Continue(())
+        },
+    );
+    // A signal that abandoned a step: the answer is the last complete one.
+    let abandoned = matches!(result, Err(SolveError::Cancelled));
+    let solution = match result {
+        Err(SolveError::Cancelled) => last_step
+            .take()
+            .context("interrupted before the first step completed: nothing to write")?,
+        other => other?,
+    };
     if let Some(e) = trace_error {
         return Err(e);
     }
@@ -220,8 +252,9 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         iterations: state.steps,
         seed: args.seed,
         threads,
-        escaped_rays: state.escaped_rays,
-        unshot_fraction: solution.unshot_fraction,
+        // Not counted by the steps: unknown when a step was abandoned.
+        escaped_rays: (!abandoned).then_some(state.escaped_rays),
+        unshot_fraction: (!abandoned).then_some(solution.unshot_fraction),
         stop: solution.stop,
         setup_seconds,
     };
@@ -237,7 +270,12 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     )?;
     if interrupted {
         eprintln!(
-            "interrupted: the outputs hold the last complete solution ({} steps, {} rays{})",
+            "interrupted: {}the outputs hold the last complete step ({} steps, {} rays{})",
+            if abandoned {
+                "the step in progress was abandoned; "
+            } else {
+                ""
+            },
             state.steps,
             estimate.rays(),
             if save.is_some() && (complete_steps || solution.stop != StopReason::Stopped) {
@@ -324,7 +362,7 @@ fn finish(
     bar.finish_and_clear();
     if !args.quiet {
         println!(
-            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} steps, {:.2}% unshot, {} escaped rays, {} threads)",
+            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} steps, {}% unshot, {} escaped rays, {} threads)",
             args.scene.display(),
             run.patches,
             run.rays,
@@ -332,8 +370,10 @@ fn finish(
             run.rays_per_second / 1e6,
             run.method,
             run.iterations,
-            100.0 * run.unshot_fraction,
-            run.escaped_rays,
+            run.unshot_fraction
+                .map_or_else(|| "?".to_string(), |u| format!("{:.2}", 100.0 * u)),
+            run.escaped_rays
+                .map_or_else(|| "?".to_string(), |n| n.to_string()),
             run.threads
         );
     }

@@ -77,16 +77,16 @@ fn signal(pid: u32, signal: &str) {
 }
 
 #[cfg(target_os = "linux")]
-/// Starts a solve without an end of its own (`--time 600`), waits until its first step is
-/// saved (so it is stepping), sends `signals`, and returns its output.
-fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
+/// Starts a long solve (`budget`: `--time 600`, or a ray budget), waits until its first step
+/// is saved (so it is stepping), sends `signal` and returns its output. `grace` is the
+/// environment's `MCRAD_INTERRUPT_GRACE`, the seconds before the step in progress is abandoned.
+fn interrupted_solve(dir: &Path, budget: [&str; 2], grace: &str, signal_name: &str) -> Output {
     let state = dir.join("state");
-    let child = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+    let mut child = Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .env("MCRAD_INTERRUPT_GRACE", grace)
         .args([
             "solve",
             SCENE,
-            "--time",
-            "600",
             "--threads",
             "2",
             "--quiet",
@@ -105,6 +105,7 @@ fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
             "--gltf",
             &path(dir, "g.glb"),
         ])
+        .args(budget)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -113,14 +114,13 @@ fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
     let start = Instant::now();
     while !state.exists() {
         assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "no step saved in 60 s"
+            start.elapsed() < Duration::from_secs(60) && child.try_wait().unwrap().is_none(),
+            "no step saved: {:?}",
+            child.kill().map(|()| child.wait_with_output())
         );
         std::thread::sleep(Duration::from_millis(10));
     }
-    for s in signals {
-        signal(child.id(), s);
-    }
+    signal(child.id(), signal_name);
     child.wait_with_output().unwrap()
 }
 
@@ -128,17 +128,25 @@ fn interrupted_solve(dir: &Path, signals: &[&str]) -> Output {
 #[cfg(target_os = "linux")]
 #[test]
 fn a_signal_stops_the_solve_writes_every_output_and_exits_130() {
-    for sig in ["INT", "TERM"] {
+    // SIGINT in a `--time` run: its next step (2e5 rays) ends within the grace of 1 s.
+    // SIGTERM in a run whose second step is 1.3e6 rays, with no grace: that step is abandoned.
+    for (sig, budget, grace, abandoned) in [
+        ("INT", ["--time", "600"], "1", false),
+        ("TERM", ["--rays", "4e7"], "0", true),
+    ] {
         let dir = tempfile::tempdir().unwrap();
-        let o = interrupted_solve(dir.path(), &[sig]);
+        let o = interrupted_solve(dir.path(), budget, grace, sig);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(130), "SIG{sig}: {err}");
-        assert!(err.contains("interrupted"), "{err}");
+        assert!(err.contains("interrupted: "), "{err}");
+        assert_eq!(err.contains("abandoned;"), abandoned, "{err}");
         let rows = read_csv(&path(dir.path(), "p.csv"));
         assert_eq!(rows.len(), 943);
         assert!(rows.iter().all(|r| r.variance.is_some()));
         let s = stats(&path(dir.path(), "s.json"));
         assert_eq!(s["stop"], "stopped", "{s}");
+        // The abandoned step's counts are unknown, not made up.
+        assert_eq!(s["escaped_rays"].is_null(), abandoned, "{s}");
         assert!(s["rays"].as_u64().unwrap() >= 100_000, "{s}");
         let png = std::fs::read(dir.path().join("i.png")).unwrap();
         assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"));
@@ -237,7 +245,7 @@ fn a_second_signal_stops_at_once_and_writes_nothing() {
         first
     };
     assert!(
-        first.starts_with("interrupted: stopping after the current step"),
+        first.starts_with("interrupted: stopping at the end of the current step"),
         "{first}"
     );
     signal(child.id(), "TERM");

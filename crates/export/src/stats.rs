@@ -26,13 +26,15 @@ pub struct RunStats {
     pub seed: u64,
     /// Worker threads used.
     pub threads: usize,
-    /// Rays that hit nothing.
-    pub escaped_rays: u64,
-    /// Unshot power left at the end as a fraction of the emitted power (channels summed).
-    pub unshot_fraction: f64,
+    /// Rays that hit nothing; `None` (written `null`) when the run was stopped in the middle
+    /// of a step and the count of its last complete step is not known.
+    pub escaped_rays: Option<u64>,
+    /// Unshot power left at the end as a fraction of the emitted power (channels summed);
+    /// `None` (`null`) as for `escaped_rays`.
+    pub unshot_fraction: Option<f64>,
     /// Why the run ended, written as [`StopReason::name`]: `converged` (the accuracy target
     /// was reached), `budget` (the ray budget was spent) or `stopped` (stopped early: a time
-    /// budget or an error target).
+    /// budget, an error target or a signal).
     pub stop: StopReason,
     /// Seconds spent loading the scene, meshing and building the BVH.
     pub setup_seconds: f64,
@@ -69,8 +71,8 @@ mod tests {
             iterations: 7,
             seed: 3,
             threads: 2,
-            escaped_rays: 0,
-            unshot_fraction: 0.01,
+            escaped_rays: Some(0),
+            unshot_fraction: Some(0.01),
             stop: StopReason::BudgetSpent,
             setup_seconds: 0.1,
         };

@@ -6,16 +6,19 @@ use crate::sampling::Discrete;
 use crate::surface::SurfaceSampler;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// The scene an estimator works on: the `mesh` (patches with area, reflectance `rho` and
 /// emission `E` in W/m²), the `caster` that finds first hits on it, and the samplers derived
 /// from the mesh once per run: uniform points and cosine-distributed rays on each patch, and
-/// emitters drawn in proportion to their power `sum_c E_c A` (W).
+/// emitters drawn in proportion to their power `sum_c E_c A` (W); and optionally a flag that
+/// cancels the run (the estimators check it between jobs of rays).
 pub struct Context<'a, C: RayCaster> {
     mesh: &'a Mesh,
     caster: &'a C,
     sampler: SurfaceSampler,
     emitters: Option<Discrete>,
+    cancel: Option<&'a AtomicBool>,
 }
 
 impl<'a, C: RayCaster> Context<'a, C> {
@@ -32,6 +35,30 @@ impl<'a, C: RayCaster> Context<'a, C> {
             caster,
             sampler: SurfaceSampler::new(mesh),
             emitters: Discrete::new(&power),
+            cancel: None,
+        }
+    }
+
+    /// This context with a cancellation flag: once `cancel` is true, the estimators skip the
+    /// jobs not yet started and return [`Error::Cancelled`] (the flag only stops work; it
+    /// never changes a result that is returned).
+    pub fn with_cancel(mut self, cancel: Option<&'a AtomicBool>) -> Context<'a, C> {
+        self.cancel = cancel;
+        self
+    }
+
+    /// True once the run is cancelled: a job that sees it casts nothing.
+    pub(crate) fn cancelled(&self) -> bool {
+        self.cancel.is_some_and(|c| c.load(Ordering::Relaxed))
+    }
+
+    /// [`Error::Cancelled`] once the run is cancelled: an estimator calls it after its
+    /// parallel jobs, whose results are incomplete then.
+    pub(crate) fn check_cancelled(&self) -> Result<(), Error> {
+        if self.cancelled() {
+            Err(Error::Cancelled)
+        } else {
+            Ok(())
         }
     }
 

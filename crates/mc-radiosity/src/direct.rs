@@ -140,6 +140,9 @@ pub fn direct<C: RayCaster>(
     let seen: Vec<Tally> = jobs
         .par_iter()
         .map(|job| {
+            if ctx.cancelled() {
+                return Tally::default();
+            }
             let i = job.item as usize;
             let frame = Frame::from_normal(patches[i].normal);
             let mut rng = key
@@ -154,6 +157,7 @@ pub fn direct<C: RayCaster>(
             tally
         })
         .collect();
+    ctx.check_cancelled()?;
     // Merge each patch's chunks in chunk order.
     let mut per_patch = vec![Tally::default(); patches.len()];
     for (job, t) in jobs.iter().zip(seen) {

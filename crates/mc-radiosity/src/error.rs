@@ -97,6 +97,10 @@ pub enum Error {
     /// sum: overflow).
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    /// The caller cancelled the run ([`run_cancellable`](crate::schedule::run_cancellable)):
+    /// the step in progress was abandoned; the observer has seen every complete step.
+    #[error("the run was cancelled")]
+    Cancelled,
     /// The reference solver (method `reference`) refused its input or failed.
     #[error(transparent)]
     Reference(#[from] mcrad_reference::ReferenceError),

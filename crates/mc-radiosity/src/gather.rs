@@ -203,6 +203,9 @@ fn round<C: RayCaster>(
     let patches = mesh.patches();
     let jobs = jobs(patches.len(), rays_per_patch);
     let seen = run(patches.len(), &jobs, |job| {
+        if ctx.cancelled() {
+            return Seen::default();
+        }
         let mut rng = key
             .item(job.item as u64)
             .substream(PATCH_GATHER + job.chunk as u64)
@@ -211,6 +214,7 @@ fn round<C: RayCaster>(
             sampler.ray(job.item as usize, &mut rng)
         })
     });
+    ctx.check_cancelled()?;
     finish(
         patches.iter().map(|p| (p.reflectance, p.emission)),
         &seen,
@@ -521,6 +525,9 @@ pub fn gather_corners<C: RayCaster>(
         .collect();
     let jobs = jobs(groups.len(), rays_per_vertex);
     let seen = run(groups.len(), &jobs, |job| {
+        if ctx.cancelled() {
+            return Seen::default();
+        }
         let g = job.item as usize;
         let mut rng = key
             .item(g as u64)
@@ -534,6 +541,7 @@ pub fn gather_corners<C: RayCaster>(
             exclude: NO_ID,
         })
     });
+    ctx.check_cancelled()?;
     let round = finish(
         (0..groups.len()).map(|g| {
             let p = &patches[groups.patches(g)[0] as usize];

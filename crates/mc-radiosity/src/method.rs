@@ -154,9 +154,10 @@ macro_rules! methods {
                 mesh: &Mesh,
                 caster: &C,
                 config: &ScheduleConfig,
+                cancel: Option<&std::sync::atomic::AtomicBool>,
                 observer: &mut Observer,
             ) -> Result<Solution, Error> {
-                let ctx = Context::new(mesh, caster);
+                let ctx = Context::new(mesh, caster).with_cancel(cancel);
                 match self {
                     $(Method::$variant => $runner(&ctx, config, observer),)*
                 }

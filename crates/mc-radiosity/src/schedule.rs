@@ -151,7 +151,24 @@ pub fn run<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
     crate::context::check_precision(mesh)?;
-    method.dispatch(mesh, caster, config, observer)
+    method.dispatch(mesh, caster, config, None, observer)
+}
+
+/// [`run`], cancelled when `cancel` becomes true (from another thread: a signal handler):
+/// the estimators skip the jobs of rays not yet started, and the run returns
+/// [`Error::Cancelled`] within about one job (4096 rays) per worker. The step in progress is
+/// abandoned; the last complete one is what the observer saw last. Until `cancel` is set the
+/// run is exactly [`run`]'s.
+pub fn run_cancellable<C: RayCaster>(
+    method: Method,
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    cancel: &std::sync::atomic::AtomicBool,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    crate::context::check_precision(mesh)?;
+    method.dispatch(mesh, caster, config, Some(cancel), observer)
 }
 
 fn shoot_config(config: &ScheduleConfig, rays: u64, seed: u64) -> ShootConfig {

@@ -293,8 +293,14 @@ pub fn shoot<C: RayCaster>(
         for batch in batches(&jobs) {
             let hits: Vec<Vec<u32>> = batch
                 .par_iter()
-                .map(|job| trace(job, sampler, caster, config.seed, wave))
+                .map(|job| {
+                    if ctx.cancelled() {
+                        return Vec::new();
+                    }
+                    trace(job, sampler, caster, config.seed, wave)
+                })
                 .collect();
+            ctx.check_cancelled()?;
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {
                 let p = per_ray[job.patch as usize];

@@ -132,6 +132,9 @@ fn step<C: RayCaster>(
     let hits: Vec<Vec<u32>> = jobs
         .par_iter()
         .map(|&(patch, chunk, n)| {
+            if ctx.cancelled() {
+                return Vec::new();
+            }
             let mut rng = key.item(patch as u64).substream(1 + chunk as u64).stream();
             (0..n)
                 .map(
@@ -143,6 +146,7 @@ fn step<C: RayCaster>(
                 .collect()
         })
         .collect();
+    ctx.check_cancelled()?;
     // Fold in job order: the sums do not depend on the thread count.
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
