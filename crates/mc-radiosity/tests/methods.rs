@@ -447,3 +447,42 @@ fn a_step_with_a_variance_is_the_solution_so_far() {
         ]
     );
 }
+
+#[test]
+fn a_cancelled_run_stops_with_cancelled_and_an_uncancelled_one_is_run() {
+    // The flag set at the first step: the next step's jobs are skipped and the run says so.
+    // Never set: the run is bit for bit `run`'s.
+    use mcrad_mc_radiosity::Error;
+    use mcrad_mc_radiosity::schedule::run_cancellable;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (mesh, bvh) = cornell(Subdivision::None);
+    let random = Method::ALL
+        .into_iter()
+        .filter(|m| m.kind() != Kind::Deterministic);
+    for method in random {
+        let config = ScheduleConfig {
+            rays: 400_000,
+            seed: 2,
+            ..Default::default()
+        };
+        let cancel = AtomicBool::new(false);
+        let result = run_cancellable(method, &mesh, &bvh, &config, &cancel, &mut |_| {
+            cancel.store(true, Ordering::Relaxed);
+            ControlFlow::Continue(())
+        });
+        assert!(
+            matches!(result, Err(Error::Cancelled)),
+            "{method:?}: {result:?}"
+        );
+        let never = AtomicBool::new(false);
+        let a = run_cancellable(method, &mesh, &bvh, &config, &never, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        let b = run(method, &mesh, &bvh, &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        assert_eq!(a.estimate, b.estimate, "{method:?}");
+    }
+}
