@@ -231,6 +231,11 @@ impl Doubling {
         self.left = self.left.min(rays);
     }
 
+    /// Gives back `rays` a pass was given and did not use, for the passes after it.
+    pub(crate) fn refund(&mut self, rays: u64) {
+        self.left = self.left.saturating_add(rays);
+    }
+
     /// Rays left in the budget after the passes taken so far.
     pub(crate) fn remaining(&self) -> u64 {
         self.left

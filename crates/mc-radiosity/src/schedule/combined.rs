@@ -39,7 +39,7 @@ use super::{
     Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
 };
 use crate::context::Context;
-use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::direct::split_with_budget;
 use crate::error::Error;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
@@ -148,17 +148,14 @@ fn with_context<C: RayCaster>(
         // Gather from the best solution so far: the combination, or the shooting at first.
         let input = run.merged.as_ref().unwrap_or(&shots_now.merged);
         let gather_budget = budget.saturating_sub(pass_rays);
-        let split = SplitConfig {
-            rays_per_patch: per_patch(mesh, gather_budget / 2),
-            samples_per_patch: per_patch(mesh, gather_budget / 4),
-            sampling: DirectSampling::EmittersAndCosine,
-        };
-        let g = two_pass_split(
+        let g = split_with_budget(
             ctx,
             input,
-            &split,
+            gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
+        // What the pass did not use (rays per patch are whole) goes to the passes after it.
+        passes.refund(budget.saturating_sub(pass_rays + g.rays()));
         gather_rays += g.rays();
         run.rays += g.rays();
         let g = accumulate(gathered.take(), g)?;
