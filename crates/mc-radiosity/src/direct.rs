@@ -57,7 +57,7 @@
 
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, check_input, gather_round_from};
+use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts};
 use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
@@ -398,13 +398,15 @@ fn shadow_fraction<C: RayCaster>(ctx: &Context<C>, key: StreamKey) -> f64 {
 /// [`shadow_fraction`]; the others score 0 without a ray), and the rays the direct light did
 /// not use (exactly counted) for the indirect gathering. Every count is fixed before the samples
 /// it sizes are drawn, from independent streams, so both parts stay unbiased and their
-/// variances are what [`two_pass_split`] reports.
+/// variances are what [`two_pass_split`] reports. Also returns the part of that variance the
+/// indirect gathering inherits from `shooting`'s ([`gather_round_parts`]; the direct light,
+/// from the exact emission, inherits nothing).
 pub(crate) fn split_with_budget<C: RayCaster>(
     ctx: &Context<C>,
     shooting: &Estimate,
     rays: u64,
     key: StreamKey,
-) -> Result<Estimate, Error> {
+) -> Result<(Estimate, Vec<DVec3>), Error> {
     let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
@@ -425,7 +427,7 @@ pub(crate) fn split_with_budget<C: RayCaster>(
         shooting.variance().map(<[DVec3]>::to_vec),
         shooting.rays(),
     )?;
-    let indirect =
-        gather_round_from(ctx, &indirect_input, Emission::Exclude, rays_per_patch, key)?.estimate;
-    join_split(patches, &indirect, &direct)
+    let (indirect, inherited) =
+        gather_round_parts(ctx, &indirect_input, Emission::Exclude, rays_per_patch, key)?;
+    Ok((join_split(patches, &indirect.estimate, &direct)?, inherited))
 }

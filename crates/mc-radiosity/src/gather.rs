@@ -183,6 +183,28 @@ pub fn gather_round_from<C: RayCaster>(
     )
 }
 
+/// [`gather_round_from`] with the inherited part of its variance apart: the round, and per
+/// patch and channel `rho_i² sum_j F_ij² V_j` ((W/m²)², the collision estimate; zeros for an
+/// input without variances), which the round's variance includes. A schedule that gathers
+/// several times from inputs sharing their noise (nested merges of the same shooting passes)
+/// needs it apart: the inherited parts of those gathers are correlated, their own parts are not.
+pub(crate) fn gather_round_parts<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &Estimate,
+    emission: Emission,
+    rays_per_patch: u32,
+    key: StreamKey,
+) -> Result<(GatherRound, Vec<DVec3>), Error> {
+    round_parts(
+        ctx,
+        input.radiosity(),
+        input.variance(),
+        emission,
+        rays_per_patch,
+        key,
+    )
+}
+
 /// [`gather_round`] with the input variance of [`gather_round_from`] optional.
 fn round<C: RayCaster>(
     ctx: &Context<C>,
@@ -192,6 +214,18 @@ fn round<C: RayCaster>(
     rays_per_patch: u32,
     key: StreamKey,
 ) -> Result<GatherRound, Error> {
+    Ok(round_parts(ctx, input, input_variance, emission, rays_per_patch, key)?.0)
+}
+
+/// [`round`] and the inherited part of its variance ([`gather_round_parts`]).
+fn round_parts<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &[DVec3],
+    input_variance: Option<&[DVec3]>,
+    emission: Emission,
+    rays_per_patch: u32,
+    key: StreamKey,
+) -> Result<(GatherRound, Vec<DVec3>), Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
@@ -211,12 +245,21 @@ fn round<C: RayCaster>(
             sampler.ray(job.item as usize, &mut rng)
         })
     });
-    finish(
+    let inherited = patches
+        .iter()
+        .zip(&seen)
+        .map(|(p, s)| {
+            let rho = p.reflectance.as_dvec3();
+            rho * rho * s.collision_mean()
+        })
+        .collect();
+    let round = finish(
         patches.iter().map(|p| (p.reflectance, p.emission)),
         &seen,
         emission,
         patches.len() as u64 * rays_per_patch as u64,
-    )
+    )?;
+    Ok((round, inherited))
 }
 
 /// Turns each item's moments into `[E] + rho mean` and `rho² s²/n`.

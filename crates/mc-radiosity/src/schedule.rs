@@ -315,6 +315,12 @@ impl Progressive {
 
     /// A complete shooting pass of `rays` rays, seeded by `tag`, its rays, escapes and unshot
     /// power counted in the run.
+    ///
+    /// The estimate's `rays` are the rays *asked* (`rays`), not those cast: the passes merge by
+    /// rays ([`ByRays`]), and the rays a pass casts beyond its budget (its roulette tail, long
+    /// at a reflectance near 1) grow with the power its paths carried, so weights from them
+    /// would favour the passes that came out high (PRR at rho 0.999, 20k rays: +37% at 2.5
+    /// standard errors). Weights fixed before the pass keep the merge unbiased.
     fn shoot<C: RayCaster>(
         &mut self,
         ctx: &Context<C>,
@@ -322,7 +328,7 @@ impl Progressive {
         rays: u64,
         tag: u64,
     ) -> Result<Shooting, Error> {
-        let s = shoot(
+        let mut s = shoot(
             ctx,
             &shoot_config(config, rays, derive_seed(config.seed, tag)),
             &mut |_| ControlFlow::Continue(()),
@@ -330,6 +336,11 @@ impl Progressive {
         self.rays += s.stats.rays;
         self.escaped_rays += s.stats.escaped_rays;
         self.unshot_fraction = unshot_fraction(&s);
+        s.estimate = Estimate::new(
+            s.estimate.radiosity().to_vec(),
+            s.estimate.variance().map(<[DVec3]>::to_vec),
+            rays.max(1),
+        )?;
         Ok(s)
     }
 

@@ -5,10 +5,23 @@
 //!
 //! 1. **Shoot** with a share `f_k` of its rays; the passes merge by their rays (Algorithm 1)
 //!    into the shooting estimate `S`.
-//! 2. **Gather** with the rest from the current combined solution `C` (from `S` in the first
-//!    pass), with the direct/indirect split: direct light by sampling the emitters, indirect
-//!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
-//!    (Algorithm 3) into the gathering estimate `G`.
+//! 2. **Gather** with the rest from the shooting estimate `S`, with the direct/indirect split:
+//!    direct light by sampling the emitters, indirect light by gathering `S - E`
+//!    ([`two_pass_split`](crate::two_pass_split), its direct samples sized by what they cost). The gathers merge by
+//!    their rays (Algorithm 3) into the gathering estimate `G`.
+//!
+//!    Not from the combination `C`, as the paper's Algorithm 4 does: `C`'s errors are
+//!    correlated between patches (every gather smooths its input's errors over the patches
+//!    that see them, and gathering from `C` feeds that back), so what a gather inherits from
+//!    it is neither known nor small, and `C` itself carries the previous merge's weights.
+//!    Measured by `cargo xtask calibrate` (8 seeds): gathering from `C`, spread between seeds
+//!    / reported variance was 4.3 at rho 0.9, 21 at 0.99, and the total power +0.17% (4.3
+//!    standard errors) at rho 0.5, +3.1% (4.7) at 0.9, +0.32% (4.2) in the tiny-light room;
+//!    gathering from `S`, 1.07 / 1.53 / 2.2, and no bias beyond 1.7 standard errors. `S`'s
+//!    errors are nearly independent between patches, so a gather inherits from it what the
+//!    collision estimate measures, `rho_i² sum_j F_ij² V_j`; the gathers of the passes inherit
+//!    from nested merges of the same shooting passes, so those parts are summed as correlated
+//!    (`Gathers`).
 //! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
 //!    [`Weighting`]. The default ([`run`], the registry's `combined`) is
 //!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
@@ -35,9 +48,7 @@
 //! the total error most: to shooting where the scene's patches are mostly lit directly and
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
-use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
-};
+use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate};
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
@@ -108,6 +119,7 @@ fn with_context<C: RayCaster>(
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
+    let mut gathers = Gathers::default();
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
@@ -129,14 +141,16 @@ fn with_context<C: RayCaster>(
         let s = run.shoot(ctx, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
-        shot_rays += pass_rays;
+        // The passes merge by the rays asked of them (see `Progressive::shoot`).
+        let asked = s.estimate.rays();
+        shot_rays += asked;
         shots = Some(match shots.take() {
             None => Shots {
                 merged: s.estimate,
                 ray_power,
             },
             Some(old) => {
-                let w = pass_rays as f64 / shot_rays as f64;
+                let w = asked as f64 / shot_rays as f64;
                 Shots {
                     merged: accumulate(Some(old.merged), s.estimate)?,
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
@@ -145,12 +159,13 @@ fn with_context<C: RayCaster>(
         });
         let shots_now = shots.as_ref().expect("just set");
 
-        // Gather from the best solution so far: the combination, or the shooting at first.
-        let input = run.merged.as_ref().unwrap_or(&shots_now.merged);
+        // Gather from the shooting estimate, whose errors are (nearly) independent between
+        // patches, so what a gather inherits from it is the collision term; not from the
+        // combination, whose errors the gathers themselves correlate (module documentation).
         let gather_budget = budget.saturating_sub(pass_rays);
-        let g = split_with_budget(
+        let (g, inherited) = split_with_budget(
             ctx,
-            input,
+            &shots_now.merged,
             gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
@@ -158,7 +173,8 @@ fn with_context<C: RayCaster>(
         passes.refund(budget.saturating_sub(pass_rays + g.rays()));
         gather_rays += g.rays();
         run.rays += g.rays();
-        let g = accumulate(gathered.take(), g)?;
+        gathers.add(g, &inherited)?;
+        let g = gathers.estimate()?;
         let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
         gathered = Some(g);
         if !run.replace(c, &mut passes, observer)? {
@@ -166,6 +182,60 @@ fn with_context<C: RayCaster>(
         }
     }
     run.finish(config.rays)
+}
+
+/// The gathers of the passes, merged by their rays (Algorithm 3), with their variance in two
+/// parts. A gather's own noise (its rays and direct-light samples) is independent of every
+/// other's; the noise it inherits from the shooting estimate it gathers from is not, since the
+/// passes gather from nested merges of the same shooting passes. With `a_k = n_k / n` the
+/// share of gather `k`'s rays, the merged variance is
+/// `sum_k a_k² own_k + (sum_k a_k sqrt(inherited_k))²`: the own parts independent, the
+/// inherited ones fully correlated (an upper bound that nested merges nearly reach).
+#[derive(Default)]
+struct Gathers {
+    /// The gathers merged by rays, with their own variances only.
+    own: Option<Estimate>,
+    /// `sum_k n_k sqrt(inherited_k)` per patch and channel (rays · W/m²).
+    inherited_sd: Vec<DVec3>,
+}
+
+impl Gathers {
+    /// Adds a gather `g` whose variance includes `inherited` (per patch and channel).
+    fn add(&mut self, g: Estimate, inherited: &[DVec3]) -> Result<(), Error> {
+        let n = g.rays() as f64;
+        let v = g.variance().ok_or(EstimateError::MissingVariance)?;
+        let own = v
+            .iter()
+            .zip(inherited)
+            .map(|(v, h)| (*v - *h).max(DVec3::ZERO))
+            .collect();
+        if self.inherited_sd.is_empty() {
+            self.inherited_sd = vec![DVec3::ZERO; inherited.len()];
+        }
+        for (sd, h) in self.inherited_sd.iter_mut().zip(inherited) {
+            *sd += n * h.max(DVec3::ZERO).sqrt();
+        }
+        let g = Estimate::new(g.radiosity().to_vec(), Some(own), g.rays())?;
+        self.own = Some(accumulate(self.own.take(), g)?);
+        Ok(())
+    }
+
+    /// The merged gathering estimate with its whole variance.
+    fn estimate(&self) -> Result<Estimate, Error> {
+        let own = self.own.as_ref().ok_or(EstimateError::MissingVariance)?;
+        let n = own.rays().max(1) as f64;
+        let v = own.variance().ok_or(EstimateError::MissingVariance)?;
+        let variance = v
+            .iter()
+            .zip(&self.inherited_sd)
+            .map(|(v, sd)| *v + (*sd / n) * (*sd / n))
+            .collect();
+        Ok(Estimate::new(
+            own.radiosity().to_vec(),
+            Some(variance),
+            own.rays(),
+        )?)
+    }
 }
 
 /// The reflected radiosity `R_i = (B_i - E_i)^+` the expected variances scale with (W/m²),

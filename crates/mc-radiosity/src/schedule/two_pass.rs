@@ -165,7 +165,7 @@ fn finish<C: RayCaster>(
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
         // Half for the direct light, sized by what its samples really cost; the rest gathers.
-        split_with_budget(ctx, &shooting, gather_budget, key)?
+        split_with_budget(ctx, &shooting, gather_budget, key)?.0
     } else {
         let r = gather_round_from(
             ctx,
