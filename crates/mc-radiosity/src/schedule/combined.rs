@@ -48,7 +48,9 @@
 //! the total error most: to shooting where the scene's patches are mostly lit directly and
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
-use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate};
+use super::{
+    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
+};
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
@@ -182,60 +184,6 @@ fn with_context<C: RayCaster>(
         }
     }
     run.finish(config.rays)
-}
-
-/// The gathers of the passes, merged by their rays (Algorithm 3), with their variance in two
-/// parts. A gather's own noise (its rays and direct-light samples) is independent of every
-/// other's; the noise it inherits from the shooting estimate it gathers from is not, since the
-/// passes gather from nested merges of the same shooting passes. With `a_k = n_k / n` the
-/// share of gather `k`'s rays, the merged variance is
-/// `sum_k a_k² own_k + (sum_k a_k sqrt(inherited_k))²`: the own parts independent, the
-/// inherited ones fully correlated (an upper bound that nested merges nearly reach).
-#[derive(Default)]
-struct Gathers {
-    /// The gathers merged by rays, with their own variances only.
-    own: Option<Estimate>,
-    /// `sum_k n_k sqrt(inherited_k)` per patch and channel (rays · W/m²).
-    inherited_sd: Vec<DVec3>,
-}
-
-impl Gathers {
-    /// Adds a gather `g` whose variance includes `inherited` (per patch and channel).
-    fn add(&mut self, g: Estimate, inherited: &[DVec3]) -> Result<(), Error> {
-        let n = g.rays() as f64;
-        let v = g.variance().ok_or(EstimateError::MissingVariance)?;
-        let own = v
-            .iter()
-            .zip(inherited)
-            .map(|(v, h)| (*v - *h).max(DVec3::ZERO))
-            .collect();
-        if self.inherited_sd.is_empty() {
-            self.inherited_sd = vec![DVec3::ZERO; inherited.len()];
-        }
-        for (sd, h) in self.inherited_sd.iter_mut().zip(inherited) {
-            *sd += n * h.max(DVec3::ZERO).sqrt();
-        }
-        let g = Estimate::new(g.radiosity().to_vec(), Some(own), g.rays())?;
-        self.own = Some(accumulate(self.own.take(), g)?);
-        Ok(())
-    }
-
-    /// The merged gathering estimate with its whole variance.
-    fn estimate(&self) -> Result<Estimate, Error> {
-        let own = self.own.as_ref().ok_or(EstimateError::MissingVariance)?;
-        let n = own.rays().max(1) as f64;
-        let v = own.variance().ok_or(EstimateError::MissingVariance)?;
-        let variance = v
-            .iter()
-            .zip(&self.inherited_sd)
-            .map(|(v, sd)| *v + (*sd / n) * (*sd / n))
-            .collect();
-        Ok(Estimate::new(
-            own.radiosity().to_vec(),
-            Some(variance),
-            own.rays(),
-        )?)
-    }
 }
 
 /// The reflected radiosity `R_i = (B_i - E_i)^+` the expected variances scale with (W/m²),
