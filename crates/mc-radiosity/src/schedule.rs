@@ -294,6 +294,12 @@ impl Doubling {
         self.left = self.left.saturating_add(rays);
     }
 
+    /// Takes `rays` a pass cast beyond what it was given (a shooting pass's roulette tail)
+    /// from the passes after it, so the run's total stays near its budget.
+    pub(crate) fn charge(&mut self, rays: u64) {
+        self.left = self.left.saturating_sub(rays);
+    }
+
     /// Rays left in the budget after the passes taken so far.
     pub(crate) fn remaining(&self) -> u64 {
         self.left

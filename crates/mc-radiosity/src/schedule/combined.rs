@@ -173,6 +173,8 @@ fn with_context<C: RayCaster>(
         )?;
         // What the pass did not use (rays per patch are whole) goes to the passes after it.
         passes.refund(budget.saturating_sub(pass_rays + g.rays()));
+        // And what the shooting cast beyond its share (its roulette tail) is taken from them.
+        passes.charge((pass_rays + g.rays()).saturating_sub(budget));
         gather_rays += g.rays();
         run.rays += g.rays();
         gathers.add(g, &inherited)?;
