@@ -34,6 +34,17 @@
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
+//!
+//! **The roulette's net power.** What the roulette adds or drops is spread by the bounces after
+//! it over the whole scene: every patch's reflected light is off by about the same share, an
+//! error common to all patches that per-patch variances do not hold and that gathering from the
+//! solution passes on (issue 16: at rho 0.99-0.999 with passes of a few thousand rays, the
+//! total power was off by 2-9 times what the patches' variances allowed). The reflected light
+//! is therefore scaled by `(emitted - unshot) / (emitted - unshot + roulette)` per channel
+//! (exact in a closed scene of uniform reflectance, where the reflected power is
+//! `rho / (1 - rho)` times the absorbed), leaving the patches' own noise; the variances are
+//! scaled with it. The bias of this ratio is of the order of the roulette's squared relative
+//! size.
 
 use crate::context::Context;
 use crate::error::Error;
@@ -164,7 +175,8 @@ pub struct Shooting {
     /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
     /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
     /// A patch no ray reached has variance 0 here (the schedules' outputs replace it with
-    /// `unreached_variance`'s "no information").
+    /// `unreached_variance`'s "no information"). The reflected part and its variance are
+    /// scaled to take out the finishing roulette's net power (module documentation).
     pub estimate: Estimate,
     /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
     pub unshot: Vec<DVec3>,
@@ -361,17 +373,10 @@ pub fn shoot<C: RayCaster>(
 }
 
 /// The factor per channel that takes the finishing roulette's net power out of the reflected
-/// light: `(emitted - unshot) / (emitted - unshot + roulette)`, 1 without a roulette.
-///
-/// The roulette adds or drops power (zero in expectation) which the bounces after it spread
-/// over the whole scene, so every patch's reflected light is off by about the same share: an
-/// error common to all patches (a closed furnace at rho 0.99 whose passes had 2-11k rays:
-/// total power off by 2-9 times what the patches' independent variances allow; gathering
-/// from it carried that error to every patch). In a closed scene of uniform reflectance the
-/// reflected power is `rho / (1 - rho)` times the absorbed, `emitted + roulette - unshot`, so
-/// this factor makes it exact; elsewhere it removes the common part and leaves the patches'
-/// own noise. It is a ratio of sums over the whole run, so the bias it adds is of the order
-/// of the roulette's squared relative size (below 1e-4 of the light where it matters).
+/// light: `(emitted - unshot) / (emitted - unshot + roulette)`, 1 without a roulette (see the
+/// module documentation). In a closed scene of uniform reflectance the reflected power is
+/// `rho / (1 - rho)` times the absorbed, `emitted + roulette - unshot`, so this factor makes
+/// it exact; elsewhere it removes the part common to all patches.
 fn roulette_correction(stats: &ShootStats) -> DVec3 {
     let kept = stats.emitted - stats.unshot;
     let actual = kept + stats.roulette;
