@@ -125,7 +125,8 @@ pub struct Solution {
     pub escaped_rays: u64,
     /// Unshot power left by the last shooting pass, as a fraction of the emitted power; for
     /// `gather`, the bound `rho_max^rounds` on the share of the reflected light its Jacobi
-    /// series has not yet summed.
+    /// rounds have not summed (the answer adds an extrapolation of it, its uncertainty in the
+    /// variance).
     pub unshot_fraction: f64,
     /// Why the run ended.
     pub stop: StopReason,
