@@ -57,8 +57,8 @@
 
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, check_input, gather_round_from};
-use crate::jobs::{DIRECT_LIGHT, Moments, jobs};
+use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts};
+use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
@@ -330,6 +330,15 @@ pub fn two_pass_split<C: RayCaster>(
     )?
     .estimate;
     let direct = direct(ctx, config.samples_per_patch, config.sampling, key)?.estimate;
+    join_split(patches, &indirect, &direct)
+}
+
+/// `E + D + indirect`, variances summed, rays of both.
+fn join_split(
+    patches: &[Patch],
+    indirect: &Estimate,
+    direct: &Estimate,
+) -> Result<Estimate, Error> {
     let radiosity = patches
         .iter()
         .zip(indirect.radiosity().iter().zip(direct.radiosity()))
@@ -347,4 +356,82 @@ pub fn two_pass_split<C: RayCaster>(
         Some(variance),
         indirect.rays() + direct.rays(),
     )?)
+}
+
+/// Pilot samples per patch of [`shadow_fraction`].
+const PILOT_SAMPLES: u32 = 16;
+
+/// The expected share of emitter samples of [`direct`] that cast a shadow ray (the emitter
+/// point faces `x` and is not on patch `i`), estimated without casting a ray from
+/// [`PILOT_SAMPLES`] draws of `(x, j, y)` per patch on the sub-stream `DIRECT_PILOT` of `key`
+/// (independent of the samples it sizes). 0 without emitters.
+fn shadow_fraction<C: RayCaster>(ctx: &Context<C>, key: StreamKey) -> f64 {
+    let (patches, sampler) = (ctx.mesh().patches(), ctx.sampler());
+    let Some(emitters) = ctx.emitters() else {
+        return 0.0;
+    };
+    let light = Light {
+        patches,
+        emitters,
+        mis: false,
+    };
+    let facing: u64 = (0..patches.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut rng = key.item(i as u64).substream(DIRECT_PILOT).stream();
+            let nx = patches[i].normal;
+            let mut n = 0u64;
+            for _ in 0..PILOT_SAMPLES {
+                let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                let j = emitters.sample(rng.uniform_f64());
+                let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                if j != i && light.geometry(x, nx, y, j).is_some() {
+                    n += 1;
+                }
+            }
+            n
+        })
+        .sum();
+    facing as f64 / (patches.len().max(1) as u64 * PILOT_SAMPLES as u64) as f64
+}
+
+/// [`two_pass_split`] with the split's samples sized to a ray budget `rays` (the schedules'
+/// gathering share): half of it for the direct light, whose samples per patch are sized by
+/// what a sample really costs, `q + 1` rays with [`DirectSampling::EmittersAndCosine`] (`q` the
+/// share of emitter samples that face the receiver and so cast a shadow ray, from
+/// [`shadow_fraction`]; the others score 0 without a ray), and the rays the direct light did
+/// not use (exactly counted) for the indirect gathering. Every count is fixed before the samples
+/// it sizes are drawn, from independent streams, so both parts stay unbiased and their
+/// variances are what [`two_pass_split`] reports. Also returns the part of that variance the
+/// indirect gathering inherits from `shooting`'s ([`gather_round_parts`]; the direct light,
+/// from the exact emission, inherits nothing).
+pub(crate) fn split_with_budget<C: RayCaster>(
+    ctx: &Context<C>,
+    shooting: &Estimate,
+    rays: u64,
+    key: StreamKey,
+) -> Result<(Estimate, Vec<DVec3>), Error> {
+    let mesh = ctx.mesh();
+    check_input(mesh, shooting.radiosity())?;
+    let patches = mesh.patches();
+    let n = patches.len().max(1) as u64;
+    let sampling = DirectSampling::EmittersAndCosine;
+    let cost = 1.0 + shadow_fraction(ctx, key);
+    let samples = ((rays / 2) as f64 / (n as f64 * cost)).floor();
+    let samples = samples.clamp(2.0, u32::MAX as f64) as u32;
+    let direct = direct(ctx, samples, sampling, key)?.estimate;
+    let rays_per_patch = (rays.saturating_sub(direct.rays()) / n).clamp(2, u32::MAX as u64) as u32;
+    let indirect_input = Estimate::new(
+        shooting
+            .radiosity()
+            .iter()
+            .zip(patches)
+            .map(|(b, p)| *b - p.emission.as_dvec3())
+            .collect(),
+        shooting.variance().map(<[DVec3]>::to_vec),
+        shooting.rays(),
+    )?;
+    let (indirect, inherited) =
+        gather_round_parts(ctx, &indirect_input, Emission::Exclude, rays_per_patch, key)?;
+    Ok((join_split(patches, &indirect.estimate, &direct)?, inherited))
 }

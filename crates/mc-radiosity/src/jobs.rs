@@ -14,6 +14,9 @@ pub(crate) const PATCH_GATHER: u64 = 1 << 40;
 pub(crate) const VERTEX_GATHER: u64 = 2 << 40;
 /// Sub-stream tag of direct-light sampling ([`direct`](crate::direct())).
 pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;
+/// Sub-stream tag of the pilot that sizes direct-light sampling to a ray budget
+/// ([`split_with_budget`](crate::direct::split_with_budget)).
+pub(crate) const DIRECT_PILOT: u64 = 4 << 40;
 
 /// Running mean and sum of squared deviations of per-ray samples, per RGB channel (Welford's
 /// update, Chan et al.'s merge), in f64. A constant sample has exactly zero deviation.

@@ -34,6 +34,17 @@
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
 //! is the power the finishing roulette added to survivors less what it dropped; its expectation
 //! is zero.
+//!
+//! **The roulette's net power.** What the roulette adds or drops is spread by the bounces after
+//! it over the whole scene: every patch's reflected light is off by about the same share, an
+//! error common to all patches that per-patch variances do not hold and that gathering from the
+//! solution passes on (issue 16: at rho 0.99-0.999 with passes of a few thousand rays, the
+//! total power was off by 2-9 times what the patches' variances allowed). The reflected light
+//! is therefore scaled by `(emitted - unshot) / (emitted - unshot + roulette)` per channel
+//! (exact in a closed scene of uniform reflectance, where the reflected power is
+//! `rho / (1 - rho)` times the absorbed), leaving the patches' own noise; the variances are
+//! scaled with it. The bias of this ratio is of the order of the roulette's squared relative
+//! size.
 
 use crate::context::Context;
 use crate::error::Error;
@@ -164,7 +175,8 @@ pub struct Shooting {
     /// each hit adds an independent term `x = rho_j U_i / (n_i A_j)`, and `sum x²` estimates the
     /// variance of the sum (compound Poisson, conditional on the unshot powers that were shot).
     /// A patch no ray reached has variance 0 here (the schedules' outputs replace it with
-    /// `unreached_variance`'s "no information").
+    /// `unreached_variance`'s "no information"). The reflected part and its variance are
+    /// scaled to take out the finishing roulette's net power (module documentation).
     pub estimate: Estimate,
     /// Unshot power left on each patch (W per channel): what the ambient term redistributes.
     pub unshot: Vec<DVec3>,
@@ -345,6 +357,13 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    // The roulette's net power, a random surplus or deficit that the later bounces spread over
+    // every patch: take it out of the reflected light (see the module documentation).
+    let scale = roulette_correction(&stats);
+    for (r, q) in reflected.iter_mut().zip(&mut squares) {
+        *r *= scale;
+        *q *= scale * scale;
+    }
     radiosity_so_far(patches, &reflected, &mut radiosity);
     let variance = squares
         .iter()
@@ -357,6 +376,28 @@ pub fn shoot<C: RayCaster>(
         unshot,
         stats,
     })
+}
+
+/// The factor per channel that takes the finishing roulette's net power out of the reflected
+/// light: `(emitted - unshot) / (emitted - unshot + roulette)`, 1 without a roulette (see the
+/// module documentation). In a closed scene of uniform reflectance the reflected power is
+/// `rho / (1 - rho)` times the absorbed, `emitted + roulette - unshot`, so this factor makes
+/// it exact; elsewhere it removes the part common to all patches.
+fn roulette_correction(stats: &ShootStats) -> DVec3 {
+    let kept = stats.emitted - stats.unshot;
+    let actual = kept + stats.roulette;
+    let f = |k: f64, a: f64, r: f64| {
+        if r != 0.0 && k > 0.0 && a > 0.0 {
+            k / a
+        } else {
+            1.0
+        }
+    };
+    DVec3::new(
+        f(kept.x, actual.x, stats.roulette.x),
+        f(kept.y, actual.y, stats.roulette.y),
+        f(kept.z, actual.z, stats.roulette.z),
+    )
 }
 
 /// The ray count the waves plan for: the budget, or without one (`u64::MAX`) a horizon that

@@ -5,10 +5,23 @@
 //!
 //! 1. **Shoot** with a share `f_k` of its rays; the passes merge by their rays (Algorithm 1)
 //!    into the shooting estimate `S`.
-//! 2. **Gather** with the rest from the current combined solution `C` (from `S` in the first
-//!    pass), with the direct/indirect split: direct light by sampling the emitters, indirect
-//!    light by gathering `C - E` ([`two_pass_split`]). The gathers merge by their rays
-//!    (Algorithm 3) into the gathering estimate `G`.
+//! 2. **Gather** with the rest from the shooting estimate `S`, with the direct/indirect split:
+//!    direct light by sampling the emitters, indirect light by gathering `S - E`
+//!    ([`two_pass_split`](crate::two_pass_split), its direct samples sized by what they cost). The gathers merge by
+//!    their rays (Algorithm 3) into the gathering estimate `G`.
+//!
+//!    Not from the combination `C`, as the paper's Algorithm 4 does: `C`'s errors are
+//!    correlated between patches (every gather smooths its input's errors over the patches
+//!    that see them, and gathering from `C` feeds that back), so what a gather inherits from
+//!    it is neither known nor small, and `C` itself carries the previous merge's weights.
+//!    Measured by `cargo xtask calibrate` (8 seeds): gathering from `C`, spread between seeds
+//!    / reported variance was 4.3 at rho 0.9, 21 at 0.99, and the total power +0.17% (4.3
+//!    standard errors) at rho 0.5, +3.1% (4.7) at 0.9, +0.32% (4.2) in the tiny-light room;
+//!    gathering from `S`, 1.07 / 1.53 / 2.2, and no bias beyond 1.7 standard errors. `S`'s
+//!    errors are nearly independent between patches, so a gather inherits from it what the
+//!    collision estimate measures, `rho_i² sum_j F_ij² V_j`; the gathers of the passes inherit
+//!    from nested merges of the same shooting passes, so those parts are summed as correlated
+//!    (`Gathers`).
 //! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
 //!    [`Weighting`]. The default ([`run`], the registry's `combined`) is
 //!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
@@ -36,10 +49,10 @@
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
+    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
 };
 use crate::context::Context;
-use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::direct::split_with_budget;
 use crate::error::Error;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
@@ -108,6 +121,7 @@ fn with_context<C: RayCaster>(
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
+    let mut gathers = Gathers::default();
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
@@ -129,14 +143,16 @@ fn with_context<C: RayCaster>(
         let s = run.shoot(ctx, config, shoot_budget, k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
-        shot_rays += pass_rays;
+        // The passes merge by the rays asked of them (see `Progressive::shoot`).
+        let asked = s.estimate.rays();
+        shot_rays += asked;
         shots = Some(match shots.take() {
             None => Shots {
                 merged: s.estimate,
                 ray_power,
             },
             Some(old) => {
-                let w = pass_rays as f64 / shot_rays as f64;
+                let w = asked as f64 / shot_rays as f64;
                 Shots {
                     merged: accumulate(Some(old.merged), s.estimate)?,
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
@@ -145,23 +161,24 @@ fn with_context<C: RayCaster>(
         });
         let shots_now = shots.as_ref().expect("just set");
 
-        // Gather from the best solution so far: the combination, or the shooting at first.
-        let input = run.merged.as_ref().unwrap_or(&shots_now.merged);
+        // Gather from the shooting estimate, whose errors are (nearly) independent between
+        // patches, so what a gather inherits from it is the collision term; not from the
+        // combination, whose errors the gathers themselves correlate (module documentation).
         let gather_budget = budget.saturating_sub(pass_rays);
-        let split = SplitConfig {
-            rays_per_patch: per_patch(mesh, gather_budget / 2),
-            samples_per_patch: per_patch(mesh, gather_budget / 4),
-            sampling: DirectSampling::EmittersAndCosine,
-        };
-        let g = two_pass_split(
+        let (g, inherited) = split_with_budget(
             ctx,
-            input,
-            &split,
+            &shots_now.merged,
+            gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
+        // What the pass did not use (rays per patch are whole) goes to the passes after it.
+        passes.refund(budget.saturating_sub(pass_rays + g.rays()));
+        // And what the shooting cast beyond its share (its roulette tail) is taken from them.
+        passes.charge((pass_rays + g.rays()).saturating_sub(budget));
         gather_rays += g.rays();
         run.rays += g.rays();
-        let g = accumulate(gathered.take(), g)?;
+        gathers.add(g, &inherited)?;
+        let g = gathers.estimate()?;
         let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
         gathered = Some(g);
         if !run.replace(c, &mut passes, observer)? {

@@ -4,6 +4,8 @@ use super::{Observer, ScheduleConfig, Solution, Step, per_patch};
 use crate::context::Context;
 use crate::error::Error;
 use crate::gather::{GatherConfig, gather};
+use glam::DVec3;
+use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
 use mcrad_raycast::RayCaster;
 use std::ops::ControlFlow;
@@ -32,7 +34,13 @@ pub(crate) fn run<C: RayCaster>(
         seed: config.seed,
     };
     let per_round = mesh.patches().len() as u64 * rays_per_patch as u64;
+    // The last rounds' solutions, newest last, for the series' remainder.
+    let mut history: Vec<Vec<DVec3>> = Vec::with_capacity(HISTORY + 1);
     let g = gather(ctx, &gather_config, &mut |p| {
+        if history.len() == HISTORY {
+            history.remove(0);
+        }
+        history.push(p.radiosity.to_vec());
         let limit = super::no_limit();
         let flow = observer(&Step {
             index: p.rounds,
@@ -48,8 +56,9 @@ pub(crate) fn run<C: RayCaster>(
         }
         flow
     })?;
+    let estimate = with_remainder(mesh, g.estimate, &history, g.rounds)?;
     Ok(Solution {
-        estimate: g.estimate,
+        estimate,
         steps: g.rounds,
         escaped_rays: g.stats.escaped_rays,
         unshot_fraction: series_remainder(mesh, g.rounds),
@@ -84,4 +93,102 @@ fn rounds_needed(mesh: &Mesh) -> u64 {
 /// `rho_max^rounds` (reported as the solution's unshot fraction: light not yet propagated).
 fn series_remainder(mesh: &Mesh, rounds: u32) -> f64 {
     rho_max(mesh).powi(rounds.min(i32::MAX as u32) as i32)
+}
+
+/// Rounds kept for [`with_remainder`]: three increments, two ratios.
+const HISTORY: usize = 4;
+
+/// The Jacobi series' remainder added to a truncated gathering, with its uncertainty.
+///
+/// After round `m` the increments `d_m = B_m - B_{m-1}` shrink geometrically by the dominant
+/// eigenvalue of `rho F`, so the light still missing is about `d_m q / (1 - q)`. Per channel,
+/// `q` is the ratio of the increments' total powers `sum_i A_i d_m,i / sum_i A_i d_{m-1},i`
+/// (in `[0, rho_max]`); the remainder is spread as the reflected light `B_m - E` is,
+/// `B_i += (B_m,i - E_i) r` with `r = q sum_i A_i d_m,i / ((1 - q) sum_i A_i (B_m,i - E_i))`
+/// (exact in a furnace, where every round is a uniform multiple of the last). Its variance,
+/// added to the last round's, is `(B_m,i - E_i)² r² delta²` with `delta` the relative
+/// uncertainty of `q / (1 - q)`: the change of the ratio between the last two pairs of rounds
+/// over `1 - q`, plus the relative noise of `sum A d_m` (its rounds' variances), at least
+/// `1e-3`. A series that cannot be sized (fewer than 3 rounds, an increment within two
+/// standard deviations of its noise, or not shrinking) adds nothing to `B`, and to the
+/// variance the bound `rho_max / (1 - rho_max)` times the last increment (or its noise) in
+/// power, spread as the reflected light, and never more than `rho_max^m / (1 - rho_max^m)` of
+/// it after `m` rounds: missing light is reported, not hidden.
+fn with_remainder(
+    mesh: &Mesh,
+    last: Estimate,
+    history: &[Vec<DVec3>],
+    rounds: u32,
+) -> Result<Estimate, Error> {
+    let patches = mesh.patches();
+    let Some(variance) = last.variance() else {
+        return Ok(last);
+    };
+    let b = last.radiosity();
+    if history.len() < 2 || history.last().map(Vec::as_slice) != Some(b) {
+        return Ok(last);
+    }
+    let rho = rho_max(mesh);
+    let power = |x: &dyn Fn(usize) -> DVec3| -> DVec3 {
+        patches.iter().enumerate().map(|(i, p)| x(i) * p.area).sum()
+    };
+    let n = history.len();
+    let incr = |k: usize| power(&|i| history[k][i] - history[k - 1][i]);
+    let d1 = incr(n - 1);
+    let reflected = power(&|i| (b[i] - patches[i].emission.as_dvec3()).max(DVec3::ZERO));
+    // The variance of `sum_i A_i B_m,i` as if the patches' errors were independent.
+    let noise: DVec3 = patches
+        .iter()
+        .zip(variance)
+        .map(|(p, v)| *v * p.area * p.area)
+        .sum();
+    // Per channel: the remainder's share `r` of the reflected light, its relative uncertainty
+    // `delta`, and the standard deviation `open` of a remainder that cannot be sized, as a
+    // share of the reflected light.
+    let (mut r, mut delta, mut open) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    for c in 0..3 {
+        if reflected[c] <= 0.0 {
+            continue;
+        }
+        // `sum A d_m` is the difference of two rounds' powers.
+        let sd = (2.0 * noise[c]).sqrt();
+        let q = (n >= 3).then(|| d1[c] / incr(n - 2)[c]);
+        match q {
+            Some(q) if q.is_finite() && d1[c] > 2.0 * sd && q > 0.0 && q < 1.0 => {
+                let q = q.min(rho);
+                let drift = if n >= 4 {
+                    let q0 = incr(n - 2)[c] / incr(n - 3)[c];
+                    if q0.is_finite() {
+                        (q - q0).abs() / (1.0 - q)
+                    } else {
+                        1.0
+                    }
+                } else {
+                    1.0
+                };
+                r[c] = q / (1.0 - q) * d1[c] / reflected[c];
+                delta[c] = (drift + sd / d1[c]).max(1e-3);
+            }
+            // Converged to the noise, or not geometric yet: what is missing is at most the
+            // last increment (or its noise) times `rho_max / (1 - rho_max)`.
+            // Never beyond what the reflectance allows after `rounds` rounds,
+            // `rho_max^m / (1 - rho_max^m)` of the light gathered.
+            _ => {
+                let bound = series_remainder(mesh, rounds);
+                open[c] = (rho / (1.0 - rho) * (d1[c].max(0.0) + sd) / reflected[c])
+                    .min(bound / (1.0 - bound).max(1e-12));
+            }
+        }
+    }
+    let (radiosity, variance) = b
+        .iter()
+        .zip(variance)
+        .zip(patches)
+        .map(|((b, v), p)| {
+            let refl = (*b - p.emission.as_dvec3()).max(DVec3::ZERO);
+            let (add, open) = (refl * r, refl * open);
+            (*b + add, *v + add * add * delta * delta + open * open)
+        })
+        .unzip();
+    Ok(Estimate::new(radiosity, Some(variance), last.rays())?)
 }

@@ -1,12 +1,12 @@
 //! Algorithm 2 of the paper: progressive gathering from one shooting solution.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, per_patch, shoot_config,
-    unshot_fraction, with_ambient,
+    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, per_patch,
+    shoot_config, unshot_fraction, with_ambient,
 };
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_from};
+use crate::gather::{Emission, gather_round_parts};
 use crate::shoot::shoot;
 use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
@@ -53,9 +53,11 @@ pub(crate) fn run<C: RayCaster>(
         first_pass_rays: Some(first.max(min_pass)),
         ..config.clone()
     });
+    // Every gather inherits the same shooting noise: their inherited parts add as correlated.
+    let mut gathers = Gathers::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
-        let r = gather_round_from(
+        let (r, inherited) = gather_round_parts(
             ctx,
             &shooting,
             Emission::Include,
@@ -64,7 +66,8 @@ pub(crate) fn run<C: RayCaster>(
         )?;
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, &mut passes, observer)? {
+        gathers.add(r.estimate, &inherited)?;
+        if !run.replace(gathers.estimate()?, &mut passes, observer)? {
             break;
         }
     }

@@ -1,18 +1,19 @@
 //! Algorithm 3 of the paper: progressive two-pass.
 
 use super::{
-    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
-    with_ambient,
+    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
+    per_patch, with_ambient,
 };
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_from};
+use crate::gather::{Emission, gather_round_parts};
 use mcrad_combine::Estimate;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
 /// Algorithm 3: progressive two-pass. Pass `k` spends half its rays refining the shooting
-/// solution (PRR) and half regathering from the refined solution; gathers merge by rays.
+/// solution (PRR) and half regathering from the refined solution; gathers merge by rays
+/// ([`Gathers`]: their inherited noise added as correlated).
 pub(crate) fn run<C: RayCaster>(
     ctx: &Context<C>,
     config: &ScheduleConfig,
@@ -23,12 +24,14 @@ pub(crate) fn run<C: RayCaster>(
     let mut passes = Doubling::at_least(config, min_pass);
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();
+    let mut gathers = Gathers::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let s = run.shoot(ctx, config, budget / 2, k)?;
+        passes.charge(s.stats.rays.saturating_sub(budget / 2));
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);
-        let r = gather_round_from(
+        let (r, inherited) = gather_round_parts(
             ctx,
             &refined,
             Emission::Include,
@@ -38,7 +41,9 @@ pub(crate) fn run<C: RayCaster>(
         shooting = Some(refined);
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
-        if !run.step(r.estimate, &mut passes, observer)? {
+        // The gathers inherit from nested merges of the same shooting passes.
+        gathers.add(r.estimate, &inherited)?;
+        if !run.replace(gathers.estimate()?, &mut passes, observer)? {
             break;
         }
     }

@@ -16,6 +16,7 @@ pub(crate) fn run<C: RayCaster>(
     let mut run = Progressive::default();
     while let Some(budget) = passes.next() {
         let s = run.shoot(ctx, config, budget, run.steps as u64)?;
+        passes.charge(s.stats.rays.saturating_sub(budget));
         if !run.step(with_ambient(mesh, config, s)?, &mut passes, observer)? {
             break;
         }

@@ -5,7 +5,7 @@ use super::{
     shoot_config, unshot_fraction, with_ambient,
 };
 use crate::context::Context;
-use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
+use crate::direct::split_with_budget;
 use crate::error::Error;
 use crate::gather::{Emission, gather_round_from};
 use crate::method::StopReason;
@@ -166,13 +166,8 @@ fn finish<C: RayCaster>(
     } = shot;
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
-        // Direct samples cost two rays each (an emitter sample and a cosine ray).
-        let split = SplitConfig {
-            rays_per_patch: per_patch(mesh, gather_budget / 2),
-            samples_per_patch: per_patch(mesh, gather_budget / 4),
-            sampling: DirectSampling::EmittersAndCosine,
-        };
-        two_pass_split(ctx, &shooting, &split, key)?
+        // Half for the direct light, sized by what its samples really cost; the rest gathers.
+        split_with_budget(ctx, &shooting, gather_budget, key)?.0
     } else {
         let r = gather_round_from(
             ctx,
