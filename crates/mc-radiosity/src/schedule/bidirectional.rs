@@ -21,13 +21,16 @@
 //! the transfer: the step is unbiased for any densities, and dividing by the expected `t_i`
 //! rather than the drawn count keeps it so under stochastic rounding. A small bright light gets
 //! many rays (its power) and lights the scene by shooting; a large dim wall gets rays for its
-//! area and gathers. The variance reported is `sum c²` over the contributions `c` a patch
-//! received.
+//! area and gathers. The variance reported for `R_j` is, summed over the source patches `i`
+//! whose `n_i` rays reached it, the sample variance of the sum of those rays' contributions
+//! `c` to it, `n_i / (n_i - 1) (sum c² - (sum c)² / n_i)` (every ray of `i` is one draw, a
+//! contribution 0 where it missed `j`): the rays of one source are drawn `n_i` at a time, not
+//! as a Poisson process, so `sum c²` alone would over-report.
 //!
 //! The schedule: the first pass shoots (an unbiased first solution), every later pass is a step
 //! from the solution so far, and the passes merge by their rays (as Algorithms 1-3 do).
 
-use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution};
+use super::{Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution};
 use crate::context::Context;
 use crate::error::Error;
 use crate::gather::check_input;
@@ -55,22 +58,29 @@ pub(crate) fn run<C: RayCaster>(
     let min_pass = 2 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
     let mut run = Progressive::default();
+    // Every step inherits the noise of the solution so far, which all later steps share: the
+    // inherited parts add as correlated (the first pass, a shooting, inherits nothing).
+    let mut steps = Gathers::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let estimate = match &run.merged {
-            None => run.shoot(ctx, config, budget, k)?.estimate,
+        match &run.merged {
+            None => {
+                let shot = run.shoot(ctx, config, budget, k)?.estimate;
+                let none = vec![DVec3::ZERO; mesh.patches().len()];
+                steps.add(shot, &none)?;
+            }
             Some(solution) => {
-                let e = step(
+                let (e, inherited) = step(
                     ctx,
-                    solution.radiosity(),
+                    solution,
                     budget,
                     StreamKey::new(config.seed).derive(GATHER_TAG + k),
                 )?;
                 run.rays += e.rays();
-                e
+                steps.add(e, &inherited)?;
             }
-        };
-        if !run.step(estimate, &mut passes, observer)? {
+        }
+        if !run.replace(steps.estimate()?, &mut passes, observer)? {
             break;
         }
     }
@@ -80,14 +90,17 @@ pub(crate) fn run<C: RayCaster>(
     Ok(solution)
 }
 
-/// One bidirectional Jacobi step from `input` with about `rays` rays (module documentation).
+/// One bidirectional Jacobi step from `solution` with about `rays` rays (module
+/// documentation), and the part of its variance inherited from `solution`'s,
+/// `rho_j² sum_i F_ji² V_i` per patch `j` (included in the estimate's variance).
 fn step<C: RayCaster>(
     ctx: &Context<C>,
-    input: &[DVec3],
+    solution: &Estimate,
     rays: u64,
     key: StreamKey,
-) -> Result<Estimate, Error> {
+) -> Result<(Estimate, Vec<DVec3>), Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
+    let input = solution.radiosity();
     check_input(mesh, input)?;
     let patches = mesh.patches();
     let power: Vec<f64> = patches
@@ -147,28 +160,110 @@ fn step<C: RayCaster>(
         })
         .collect();
     ctx.check_cancelled()?;
-    // Fold in job order: the sums do not depend on the thread count.
+    // Fold in job order: the sums do not depend on the thread count. The jobs of a patch are
+    // consecutive; its rays are one sample set per receiver, whose mean is taken out of the
+    // squares once the patch is done (see `SampleSets`).
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
     let mut cast = 0u64;
+    let mut sets = SampleSets::default();
+    // `sum_i F_ji² V_i` of patch `j` from its own rays: two independent cosine rays of `j` hit
+    // the same `i` with probability `F_ji²` (collisions of consecutive rays, as gathers do).
+    let (mut collisions, mut pairs) = (vec![DVec3::ZERO; patches.len()], vec![0u64; patches.len()]);
+    let input_variance = solution.variance();
     for (&(i, _, _), hits) in jobs.iter().zip(&hits) {
         let i = i as usize;
+        if let Some(v) = input_variance {
+            for pair in hits.windows(2) {
+                pairs[i] += 1;
+                if pair[0] == pair[1] && pair[0] != NOTHING {
+                    collisions[i] += v[pair[0] as usize];
+                }
+            }
+        }
+        if sets.source != Some(i) {
+            sets.finish(&mut squares);
+            sets.source = Some(i);
+        }
         cast += hits.len() as u64;
+        sets.rays += hits.len() as u64;
         for &j in hits.iter().filter(|&&j| j != NOTHING) {
             let j = j as usize;
             let both = density[i] + density[j];
             let to_j = patches[j].reflectance.as_dvec3() * input[i] / (patches[j].area * both);
             let to_i = patches[i].reflectance.as_dvec3() * input[j] / (patches[i].area * both);
             reflected[j] += to_j;
-            squares[j] += to_j * to_j;
             reflected[i] += to_i;
-            squares[i] += to_i * to_i;
+            sets.to.push((j, to_j));
+            sets.to.push((i, to_i));
         }
     }
+    sets.finish(&mut squares);
     let radiosity = patches
         .iter()
         .zip(&reflected)
         .map(|(p, r)| p.emission.as_dvec3() + *r)
         .collect();
-    Ok(Estimate::new(radiosity, Some(squares), cast)?)
+    let inherited: Vec<DVec3> = patches
+        .iter()
+        .zip(collisions.iter().zip(&pairs))
+        .map(|(p, (c, &n))| {
+            let rho = p.reflectance.as_dvec3();
+            if n == 0 {
+                DVec3::ZERO
+            } else {
+                rho * rho * *c / n as f64
+            }
+        })
+        .collect();
+    let variance = squares
+        .iter()
+        .zip(&inherited)
+        .map(|(s, h)| *s + *h)
+        .collect();
+    Ok((Estimate::new(radiosity, Some(variance), cast)?, inherited))
+}
+
+/// The contributions of one source patch's rays, gathered to add each receiver's sample
+/// variance to its squares: per receiver, of `n` draws (the source's rays, 0 where a ray did
+/// not reach it), `n / (n - 1) (sum c² - (sum c)² / n)`, the unbiased variance estimate of their
+/// sum; `sum c²` for a source of one ray (no spread to measure; the Poisson bound).
+#[derive(Default)]
+struct SampleSets {
+    /// The source patch, or none before the first.
+    source: Option<usize>,
+    /// Rays the source cast (every ray a draw, hit or not).
+    rays: u64,
+    /// `(receiver, contribution)` of the source's rays, the shooting use to the patch hit and
+    /// the gathering use to the source itself, in ray order.
+    to: Vec<(usize, DVec3)>,
+}
+
+impl SampleSets {
+    /// Adds the source's per-receiver variances to `squares` and starts afresh.
+    fn finish(&mut self, squares: &mut [DVec3]) {
+        if self.source.take().is_some() {
+            let n = self.rays as f64;
+            // Stable sort: equal receivers keep ray order, so the sums are reproducible.
+            self.to.sort_by_key(|&(j, _)| j);
+            let mut start = 0;
+            while start < self.to.len() {
+                let j = self.to[start].0;
+                let end = start + self.to[start..].partition_point(|&(k, _)| k == j);
+                let (sum, sum_sq) = self.to[start..end]
+                    .iter()
+                    .fold((DVec3::ZERO, DVec3::ZERO), |(s, q), &(_, c)| {
+                        (s + c, q + c * c)
+                    });
+                squares[j] += if self.rays > 1 {
+                    ((sum_sq - sum * sum / n) * (n / (n - 1.0))).max(DVec3::ZERO)
+                } else {
+                    sum_sq
+                };
+                start = end;
+            }
+        }
+        self.rays = 0;
+        self.to.clear();
+    }
 }
