@@ -208,6 +208,22 @@ impl Frame {
         self.lift(min.abs().max(max.abs()))
     }
 
+    /// Refuses a scene whose largest [`Frame::lift`] exceeds [`CANONICAL_EXTENT_MIN`], at
+    /// least half the scene's canonical extent: beyond, ray origins would be lifted off their
+    /// surface by more than the scene's size (f32 coordinates far from the origin are that
+    /// coarse), and the boxes padded by it would overflow `f32` surface areas.
+    pub(crate) fn check_lift(&self, min: Vec3, max: Vec3) -> Result<(), BuildError> {
+        if self.max_lift(min, max) <= CANONICAL_EXTENT_MIN {
+            return Ok(());
+        }
+        let magnitude = min.abs().max(max.abs()).max_element();
+        Err(BuildError::FarFromOrigin {
+            magnitude,
+            extent: (max.as_dvec3() - min.as_dvec3()).max_element() as f32,
+            spacing: magnitude.next_up() - magnitude,
+        })
+    }
+
     /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero),
     /// `lift` being [`Frame::lift`] of `p`: the canonical point (rounded to `f32` like a
     /// vertex) plus the lift. Rounded to `f32`, that is the `f32` sum the fast path of

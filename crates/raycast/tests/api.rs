@@ -344,3 +344,46 @@ fn axis_aligned_rays_with_negative_zeros_hit() {
     let b = SurfacePoint::free(vec3(0.3, -2.0, 0.6));
     assert!(bvh.occluded(&a, &b) && bvh.occluded(&b, &a));
 }
+
+#[test]
+fn coordinates_up_to_f32_max_build_or_are_refused_clearly() {
+    // 40 unit-spaced triangles (more than a leaf holds) scaled by `size` and moved to `at`
+    let cluster = |at: Vec3, size: f32| -> (Vec<[Vec3; 3]>, Vec<u32>) {
+        let tris = (0..40)
+            .map(|i| {
+                let c = at + vec3(0.0, i as f32 * size, 0.0);
+                [c, c + Vec3::X * size, c + Vec3::Z * size]
+            })
+            .collect();
+        (tris, (0..40).collect())
+    };
+    // far but large enough for f32 to place its points: built, and rays hit it
+    for (at, size) in [
+        (vec3(1e36, 0.0, 0.0), 1e31),
+        (vec3(-1e20, 1e20, 0.0), 1e15),
+        (Vec3::splat(-f32::MAX / 2.0), f32::MAX / 100.0),
+    ] {
+        let (tris, ids) = cluster(at, size);
+        let (bvh, oracle) = casters(&tris, &ids);
+        let target = tris[5][0] + (Vec3::X + Vec3::Z) * (size / 3.0);
+        let ray = Ray::new(target - Vec3::Y * 0.5 * size, Vec3::Y);
+        let (a, b) = (bvh.closest_hit(&ray), oracle.closest_hit(&ray));
+        assert!(a.is_some(), "at {at}, size {size}: no hit");
+        assert_eq!(a.map(|h| h.id), b.map(|h| h.id), "at {at}, size {size}");
+    }
+    // so far out for its size that f32 cannot place its points (this panicked in the
+    // collapse: overflowing box areas made a leaf of 40 triangles)
+    for (at, size) in [(vec3(1e38, 0.0, 0.0), 1.0e30), (vec3(f32::MAX, 0.0, 0.0), 1e25)] {
+        let (tris, ids) = cluster(at, size);
+        for e in [
+            Bvh::build(&tris, &ids).unwrap_err(),
+            BruteForce::build(&tris, &ids).unwrap_err(),
+        ] {
+            assert!(
+                matches!(e, BuildError::FarFromOrigin { magnitude, .. } if magnitude >= at.x),
+                "{e:?}"
+            );
+            assert!(e.to_string().contains("move the scene near the origin"), "{e}");
+        }
+    }
+}
