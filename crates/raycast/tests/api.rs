@@ -373,7 +373,10 @@ fn coordinates_up_to_f32_max_build_or_are_refused_clearly() {
     }
     // so far out for its size that f32 cannot place its points (this panicked in the
     // collapse: overflowing box areas made a leaf of 40 triangles)
-    for (at, size) in [(vec3(1e38, 0.0, 0.0), 1.0e30), (vec3(f32::MAX, 0.0, 0.0), 1e25)] {
+    for (at, size) in [
+        (vec3(1e38, 0.0, 0.0), 1.0e30),
+        (vec3(f32::MAX, 0.0, 0.0), 1e25),
+    ] {
         let (tris, ids) = cluster(at, size);
         for e in [
             Bvh::build(&tris, &ids).unwrap_err(),
@@ -383,7 +386,10 @@ fn coordinates_up_to_f32_max_build_or_are_refused_clearly() {
                 matches!(e, BuildError::FarFromOrigin { magnitude, .. } if magnitude >= at.x),
                 "{e:?}"
             );
-            assert!(e.to_string().contains("move the scene near the origin"), "{e}");
+            assert!(
+                e.to_string().contains("move the scene near the origin"),
+                "{e}"
+            );
         }
     }
 }
