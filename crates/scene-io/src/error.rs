@@ -4,10 +4,19 @@ use glam::Vec3;
 use std::fmt;
 use std::path::PathBuf;
 
-/// Formats a vector as `(x, y, z)` with Rust's shortest round-trip float format, so `NaN`, `inf`
-/// and the exact offending values show.
+/// Formats a vector as `(x, y, z)` with Rust's shortest round-trip float format (in exponent
+/// notation below 1e-4 and from 1e7), so `NaN`, `inf` and the exact offending values show.
 pub(crate) fn fmt_vec3(v: Vec3) -> String {
-    format!("({}, {}, {})", v.x, v.y, v.z)
+    format!("({}, {}, {})", fmt_f32(v.x), fmt_f32(v.y), fmt_f32(v.z))
+}
+
+/// A number as short as it reads: exponent notation far from 1 (`1e38`, `5e-9`), else plain.
+fn fmt_f32(x: f32) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e7).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
 }
 
 /// Where in a file an error was found; shown after the file name.

@@ -438,13 +438,7 @@ fn hostile_input_is_refused_at_its_line_with_short_escaped_quotes() {
         e.innermost(),
         SceneError::CoordinateTooLarge { vertex: 13, .. }
     ));
-    assert_contains(
-        &m,
-        &[
-            "box.obj line 27: vertex 13",
-            "(100000000000000000000000000000000000000, 0, 0)",
-        ],
-    );
+    assert_contains(&m, &["box.obj line 27: vertex 13", "(1e38, 0, 0)"]);
     // a CR and a 400 KB line are escaped and cut
     let long = "x".repeat(400_000);
     let (m, _) = load_err(&format!("{}v 1 2 {long}\r\n", box_obj()), MTL);
