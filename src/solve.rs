@@ -54,8 +54,10 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
         _ => usize::MAX,
     };
     let mesh = Mesh::build_at_most(scene, subdivision, max_patches)
-        .map_err(|e| mesh_error(e, args, subdivision))?;
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+        .map_err(|e| mesh_error(e, args, subdivision))
+        .with_context(|| args.scene.display().to_string())?;
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())
+        .with_context(|| args.scene.display().to_string())?;
     let mut tracer = match (&args.reference, &args.trace) {
         (Some(reference), Some(trace)) => {
             Some(Tracer::new(&mesh, reference, trace, args.no_subdivide)?)

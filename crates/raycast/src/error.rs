@@ -41,8 +41,8 @@ pub enum BuildError {
     /// from the origin, see the crate docs) would exceed the scene itself. Refused rather than
     /// traced wrongly; coordinates up to `f32::MAX` are otherwise accepted.
     #[error(
-        "the scene is {extent:e} units across but reaches {magnitude:e} units from the origin, \
-         where f32 coordinates are {spacing:e} apart: too coarse to trace rays on it (move the \
+        "the scene is {extent} units across but reaches {magnitude:e} units from the origin, \
+         where f32 coordinates are {spacing} apart: too coarse to trace rays on it (move the \
          scene near the origin)"
     )]
     FarFromOrigin {

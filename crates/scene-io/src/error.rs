@@ -392,12 +392,12 @@ pub enum Warning {
         /// How many of them had an emitting material (their light is lost).
         emitters: usize,
     },
-    /// Faces that repeat an earlier face (the same material and positions in the same cyclic
-    /// order, so the same front side) were removed: they would only hide each other. Example:
-    /// `dropped 11999 duplicate faces (the same vertices, side and material as an earlier
-    /// face); the first is face 1`.
+    /// Faces, or triangles of split faces, that repeat an earlier one (the same material and
+    /// positions in the same cyclic order, so the same front side) were removed: they would
+    /// only hide each other. Example: `dropped 11999 duplicate faces or face parts (the same
+    /// vertices, side and material as an earlier one); the first is face 1`.
     DuplicateFacesDropped {
-        /// How many faces were dropped.
+        /// How many faces or parts were dropped.
         count: usize,
         /// [`source`](crate::Face::source) of the first one dropped.
         first_source: u32,
@@ -482,8 +482,8 @@ impl fmt::Display for Warning {
                 first_source,
             } => write!(
                 f,
-                "dropped {count} duplicate faces (the same vertices, side and material as an \
-                 earlier face); the first is face {first_source}"
+                "dropped {count} duplicate faces or face parts (the same vertices, side and \
+                 material as an earlier one); the first is face {first_source}"
             ),
             Warning::FacesSplit {
                 count,

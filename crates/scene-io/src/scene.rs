@@ -86,9 +86,16 @@ impl Scene {
     /// Errors (see [`SceneError`]; faces are named by their `source` number, materials by
     /// name): no faces, a non-finite position, a face with fewer than 3 vertices, a vertex or
     /// material index out of range, a reflectance channel outside `[0, 1)` or non-finite, an
-    /// emission channel negative or non-finite, and no emitting face left after the repairs.
+    /// emission channel negative or non-finite, and no emitting face left after the repairs
+    /// (naming emitting faces dropped as degenerate); and the limits: a coordinate beyond
+    /// [`MAX_COORDINATE`](crate::MAX_COORDINATE), a face of more than
+    /// [`MAX_FACE_VERTICES`](crate::MAX_FACE_VERTICES) vertices, more than
+    /// [`MAX_FACES`](crate::MAX_FACES) faces.
     ///
     /// Repairs, each reported by one counted [`Warning`]:
+    /// - **Duplicate faces are dropped** ([`Warning::DuplicateFacesDropped`]): a face, or a
+    ///   triangle of a split face, with the same material and positions in the same cyclic
+    ///   order as an earlier one (a face and its reverse, a two-sided surface, are kept).
     /// - **Degenerate faces are dropped** ([`Warning::DegenerateFacesDropped`]): a face whose
     ///   area (`|sum of fan cross products| / 2`, in f64) is `<= 1e-12 * d²` with `d` the
     ///   diagonal of the bounding box of the vertices the faces use, or exactly zero.
@@ -156,19 +163,29 @@ impl Scene {
                 }
                 Shape::Split(tris) => {
                     let before = kept.len();
+                    let mut repeated = false;
                     for t in tris {
                         let tri = [pts[t[0]], pts[t[1]], pts[t[2]]];
-                        if polygon::vector_area2(&tri).length() / 2.0 > degenerate_area {
-                            kept.push(Face {
-                                vertices: vec![ring[t[0]], ring[t[1]], ring[t[2]]],
-                                material: face.material,
-                                source: face.source,
-                            });
+                        if polygon::vector_area2(&tri).length() / 2.0 <= degenerate_area {
+                            continue;
                         }
+                        let vertices = vec![ring[t[0]], ring[t[1]], ring[t[2]]];
+                        // (a self-overlapping outline such as `f 1 2 3 1 2 3` splits into
+                        // copies of one triangle)
+                        if seen.is_duplicate(&vertices, face.material, &positions) {
+                            duplicates.add(face.source);
+                            repeated = true;
+                            continue;
+                        }
+                        kept.push(Face {
+                            vertices,
+                            material: face.material,
+                            source: face.source,
+                        });
                     }
                     if kept.len() > before {
                         split.add(face.source);
-                    } else {
+                    } else if !repeated {
                         drop(&mut dropped);
                     }
                 }
@@ -367,8 +384,9 @@ fn used_bounds(positions: &[Vec3], faces: &[Face]) -> Option<Bounds> {
     ))
 }
 
-/// The faces seen so far, to find duplicates: a face with the same material and the same
-/// positions in the same cyclic order (so the same front side) as an earlier one. Faces are
+/// The faces seen so far, to find duplicates: a face (or a triangle of a split face) with the
+/// same material and the same positions in the same cyclic order (so the same front side) as
+/// an earlier one. Faces are
 /// remembered by a 128-bit hash (16 bytes each; two different faces share one with
 /// probability about `n² / 2^129`).
 #[derive(Default)]

@@ -507,6 +507,17 @@ fn duplicate_faces_are_dropped_once_each_and_two_sided_faces_kept() {
             first_source: 6
         }]
     );
+    // a self-overlapping outline splits into copies of one triangle: one is kept
+    let obj = format!("{}f{}\n", box_obj(), " 1 2 3".repeat(300));
+    let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
+    let loaded = load_ok(&dir, "box.obj");
+    let parts = loaded
+        .scene
+        .faces()
+        .iter()
+        .filter(|f| f.source == 6)
+        .count();
+    assert_eq!(parts, 1, "{:?}", loaded.warnings);
 }
 
 #[test]
