@@ -18,7 +18,7 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 
 /// Cases of a normal test run.
-const DEFAULT_CASES: u64 = 200;
+const DEFAULT_CASES: u64 = 600;
 
 /// The most patches a case solves (more are meshed, then skipped: this is about input
 /// handling, not speed).
@@ -192,7 +192,7 @@ fn pipeline(scene: &Path, method: Method, seed: u64) -> Reached {
         _ => Subdivision::default_for(&loaded.scene),
     };
     let limit = if method.kind() == Kind::Deterministic {
-        300
+        100
     } else {
         MAX_SOLVED_PATCHES
     };
@@ -205,6 +205,11 @@ fn pipeline(scene: &Path, method: Method, seed: u64) -> Reached {
     let config = ScheduleConfig {
         rays: 500 + seed % 4000,
         seed,
+        // the reference solver to a rough tolerance (1e-4 takes seconds on a small light)
+        reference: mcrad_reference::ReferenceConfig {
+            visibility_tolerance: 0.1,
+            ..Default::default()
+        },
         ..ScheduleConfig::default()
     };
     match schedule::run(method, &mesh, &bvh, &config, &mut |_| {
@@ -322,7 +327,15 @@ fn mutated_scenes_never_panic_any_stage() {
         }
         std::fs::write(&scene, &bytes).unwrap();
         let method = Method::ALL[rng.below(Method::ALL.len())];
+        let start = std::time::Instant::now();
         let outcome = catch_unwind(AssertUnwindSafe(|| pipeline(&scene, method, case)));
+        if std::env::var("MCRAD_FUZZ_VERBOSE").is_ok() {
+            eprintln!(
+                "case {case}: {} {method}, {:.3} s, {outcome:?}",
+                base.display(),
+                start.elapsed().as_secs_f64()
+            );
+        }
         if let Ok(r) = outcome {
             *reached.entry(r).or_insert(0u64) += 1;
         } else {
