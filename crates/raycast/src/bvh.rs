@@ -137,7 +137,7 @@ impl Bvh {
     /// Errors: empty input, `ids.len() != triangles.len()`, a NaN or infinite vertex, an id
     /// equal to [`NO_ID`](crate::NO_ID), a scene so far from the origin for its size that
     /// `f32` cannot place points on it ([`BuildError::FarFromOrigin`]: farther than about
-    /// `2^21` times its extent). Degenerate triangles are accepted (and never hit).
+    /// `2^31` times its extent). Degenerate triangles are accepted (and never hit).
     pub fn build(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<Bvh, BuildError> {
         Bvh::build_with(triangles, ids, BvhPreset::default())
     }

@@ -36,10 +36,11 @@ pub enum BuildError {
         /// Index of the triangle in the input list.
         triangle: usize,
     },
-    /// The scene lies so far from the origin, for its size, that `f32` coordinates cannot
-    /// place points on it: the surface offsets of ray origins (which grow with the distance
-    /// from the origin, see the crate docs) would exceed the scene itself. Refused rather than
-    /// traced wrongly; coordinates up to `f32::MAX` are otherwise accepted.
+    /// The scene lies so far from the origin, for its size (about `2^31` times its extent or
+    /// more), that `f32` coordinates cannot place points on it: the surface offsets of ray
+    /// origins (which grow with the distance from the origin, see the crate docs) would dwarf
+    /// the scene and overflow the hierarchy's box areas. Refused rather than traced wrongly;
+    /// coordinates up to `f32::MAX` are otherwise accepted.
     #[error(
         "the scene is {extent} units across but reaches {magnitude:e} units from the origin, \
          where f32 coordinates are {spacing} apart: too coarse to trace rays on it (move the \

@@ -432,6 +432,8 @@ fn hostile_input_is_refused_at_its_line_with_short_escaped_quotes() {
         &m,
         &["box.obj line 27:", "60000 vertices", "triangulate it"],
     );
+    // the message is complete, so the wrapped error is not also the source (said once)
+    assert!(std::error::Error::source(&e).is_none());
     // coordinates beyond the limit (areas would overflow f32)
     let (m, e) = load_err(&format!("{}v 1e38 0 0\n", box_obj()), MTL);
     assert!(matches!(
