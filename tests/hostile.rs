@@ -306,6 +306,10 @@ fn hostile_options_are_refused_at_once_or_bounded() {
         let line = check("box.obj", extra, &run, &[2]).unwrap();
         assert!(line.contains(part), "{line}");
     }
+    // a device as the reference solution: refused, not read forever
+    let extra = ["--reference", "/dev/zero", "--trace", "t.csv"];
+    let line = check("box.obj", &extra, &solve(&dir, "box.obj", &extra), &[1]).unwrap();
+    assert!(line.contains("/dev/zero is not a regular file"), "{line}");
     // millions of patches for the reference solver: refused before the mesh is built
     let extra = ["--method", "reference", "--max-edge", "0.0004"];
     let line = check("box.obj", &extra, &solve(&dir, "box.obj", &extra), &[1]).unwrap();

@@ -146,6 +146,13 @@ pub enum ReadCsvError {
         /// The underlying error.
         reason: std::io::Error,
     },
+    /// The path is not a regular file (a device, pipe or directory).
+    #[error("{} is not a regular file (a device, pipe or directory): only regular files are read",
+        path.display())]
+    NotAFile {
+        /// The path.
+        path: std::path::PathBuf,
+    },
     /// A line is not a patch row.
     #[error("{path} line {line}: {reason}")]
     Parse {
@@ -175,11 +182,19 @@ struct ReadRow {
 /// lines and spaces around fields are ignored), or one with the header `patch,area,r,g,b` and
 /// no variance columns, as other tools write them (variances `None`). Every number must be finite, and the three
 /// variances all given or all blank.
+///
+/// Only a regular file is read (a device such as `/dev/zero` would never end).
 pub fn read_patch_csv(path: &std::path::Path) -> Result<Vec<PatchRow>, ReadCsvError> {
-    let file = std::fs::File::open(path).map_err(|source| ReadCsvError::Io {
+    let io = |source| ReadCsvError::Io {
         path: path.to_path_buf(),
         reason: source,
-    })?;
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    if !file.metadata().map_err(io)?.is_file() {
+        return Err(ReadCsvError::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
     read_rows(std::io::BufReader::new(file), path)
 }
 
