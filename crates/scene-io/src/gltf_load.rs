@@ -373,6 +373,10 @@ impl Geometry<'_> {
             return Err(SceneError::IndexOutOfRange { index, count });
         }
         let mut triangles = triangles(mode, &indices)?;
+        // (checked before the faces are made: instancing multiplies a small file's triangles)
+        if self.faces.len() + triangles.len() > crate::MAX_FACES {
+            return Err(SceneError::TooManyFaces);
+        }
         if world.determinant() < 0.0 {
             for t in &mut triangles {
                 t.swap(1, 2);
