@@ -65,15 +65,15 @@ pub struct Solve {
     /// Seed of all random streams: the same seed gives the same answer on any thread count.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Worker threads (default: all cores).
-    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    /// Worker threads, 1 to 256 (default: all cores). The answer is the same on any count.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=MAX_THREADS))]
     pub threads: Option<u16>,
     /// One patch per input face, faces in file order.
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's
     /// bounding-box diagonal × `DEFAULT_MAX_EDGE_FRACTION`.
-    #[arg(long, value_name = "L", allow_negative_numbers = true, help = max_edge_help())]
+    #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length, help = max_edge_help())]
     pub max_edge: Option<f32>,
     /// Stop shooting when the unshot power is below this fraction of the emitted power. The
     /// power left unshot is missing from the answer (a bias of about this fraction), so the
@@ -127,7 +127,16 @@ pub struct Solve {
     /// No progress bar and no summary line (errors and warnings still go to stderr).
     #[arg(long, short)]
     pub quiet: bool,
+    /// Read files the scene names (OBJ mtllib, glTF buffer URIs) even outside the scene
+    /// file's folder: absolute paths, file: URIs, '..' that climbs out of it, links out of it.
+    /// Without it they are refused.
+    #[arg(long)]
+    pub allow_outside_paths: bool,
 }
+
+/// The most worker threads `--threads` accepts: more only add overhead (the answer does not
+/// depend on the count).
+pub const MAX_THREADS: i64 = 256;
 
 impl Solve {
     /// The method to run: `--method`, with `--split` turning `two-pass` into `two-pass-split`
@@ -292,7 +301,18 @@ fn parse_seconds(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Parses a count written as an integer (`2000000`) or in float notation (`2e6`).
+/// Parses a positive finite length (`--max-edge`).
+fn parse_length(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!(
+            "'{s}' is not a positive finite length in scene units"
+        )),
+    }
+}
+
+/// Parses a count written as an integer (`2000000`) or in float notation (`2e6`), at least 1
+/// and at most `u64::MAX`; each way to miss says which.
 fn parse_count(s: &str) -> Result<u64, String> {
     if let Ok(n) = s.parse::<u64>() {
         return if n >= 1 {
@@ -302,8 +322,21 @@ fn parse_count(s: &str) -> Result<u64, String> {
         };
     }
     let x: f64 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
-    if !x.is_finite() || x < 1.0 || x.fract() != 0.0 || x > u64::MAX as f64 {
-        return Err(format!("'{s}' is not a whole number of at least 1"));
+    if x.is_nan() {
+        return Err(format!("'{s}' is not a number"));
+    }
+    if x < 1.0 {
+        return Err(format!("'{s}' is less than 1"));
+    }
+    // (u64::MAX as f64 is 2^64, one past the largest count)
+    if x >= u64::MAX as f64 {
+        return Err(format!(
+            "'{s}' is too large: at most {} (about 1.8e19)",
+            u64::MAX
+        ));
+    }
+    if x.fract() != 0.0 {
+        return Err(format!("'{s}' is not a whole number"));
     }
     Ok(x as u64)
 }
@@ -365,5 +398,28 @@ mod tests {
         for bad in ["0", "-5", "1.5", "abc", "nan", "inf", "1e30"] {
             assert!(parse_count(bad).is_err(), "{bad}");
         }
+        // each miss is called what it is
+        assert_eq!(
+            parse_count("1e30").unwrap_err(),
+            "'1e30' is too large: at most 18446744073709551615 (about 1.8e19)"
+        );
+        assert!(parse_count("inf").unwrap_err().contains("too large"));
+        assert_eq!(
+            parse_count("1.5").unwrap_err(),
+            "'1.5' is not a whole number"
+        );
+        assert_eq!(parse_count("-5").unwrap_err(), "'-5' is less than 1");
+        assert_eq!(parse_count("1.8e19"), Ok(18_000_000_000_000_000_000));
+    }
+
+    #[test]
+    fn lengths_and_thread_counts_are_checked_when_parsed() {
+        assert_eq!(super::parse_length("0.5"), Ok(0.5));
+        for bad in ["0", "-1", "inf", "nan", "1e39", "x"] {
+            assert!(super::parse_length(bad).is_err(), "{bad}");
+        }
+        let parse = |t: &str| Args::try_parse_from(["mcrad", "solve", "s.obj", "--threads", t]);
+        assert!(parse("256").is_ok());
+        assert!(parse("257").is_err() && parse("1000").is_err() && parse("0").is_err());
     }
 }

@@ -10,7 +10,7 @@ use mcrad_combine::Estimate;
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
 use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
 use mcrad_mc_radiosity::{Error as SolveError, StopReason};
-use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_meshing::{Mesh, MeshError, Subdivision};
 use mcrad_raycast::Bvh;
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
@@ -55,7 +55,11 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         }
     }
     let setup = Instant::now();
-    let loaded = mcrad_scene_io::load(&args.scene)?;
+    let options = mcrad_scene_io::LoadOptions {
+        allow_outside_paths: args.allow_outside_paths,
+        ..Default::default()
+    };
+    let loaded = mcrad_scene_io::load_with(&args.scene, &options)?;
     for warning in &loaded.warnings {
         eprintln!("warning: {}: {warning}", args.scene.display());
     }
@@ -66,8 +70,17 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         args.max_edge
             .map_or_else(|| Subdivision::default_for(scene), Subdivision::MaxEdge)
     };
-    let mesh = Mesh::build(scene, subdivision)?;
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let method = args.method();
+    // the reference solver refuses a large mesh: stop building it there
+    let max_patches = match method.kind() {
+        Kind::Deterministic => args.schedule_config().reference.max_patches,
+        _ => usize::MAX,
+    };
+    let mesh = Mesh::build_at_most(scene, subdivision, max_patches)
+        .map_err(|e| mesh_error(e, args, subdivision))
+        .with_context(|| args.scene.display().to_string())?;
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())
+        .with_context(|| args.scene.display().to_string())?;
     let mut tracer = match (&args.reference, &args.trace) {
         (Some(reference), Some(trace)) => {
             Some(Tracer::new(&mesh, reference, trace, args.no_subdivide)?)
@@ -311,6 +324,29 @@ fn state_after(
     match resumed {
         Some(state) => state.continued(estimate, steps, escaped_rays),
         None => Ok(RunState::new(id, estimate, 1, steps, escaped_rays)),
+    }
+}
+
+/// A meshing error with advice that names only the flags the user gave: `--max-edge` is
+/// suggested as a change of the user's own value, or as an alternative to the default
+/// subdivision (whose edge length is said).
+fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::Error {
+    let advice = match (args.max_edge, subdivision) {
+        (Some(_), _) => "choose a larger --max-edge".to_string(),
+        (None, Subdivision::MaxEdge(l)) => format!(
+            "the default subdivision cuts edges longer than the bounding-box diagonal / {} = {l} \
+             scene units; pass a larger --max-edge, or --no-subdivide",
+            1.0 / mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION
+        ),
+        (None, _) => "use a scene with fewer faces".to_string(),
+    };
+    match e {
+        MeshError::PatchLimit { limit } => anyhow::anyhow!(
+            "--method reference accepts at most {limit} patches and this mesh has more (its \
+             form factors take work and memory that grow as the square of the patch count); \
+             {advice}"
+        ),
+        e => anyhow::anyhow!("{e}; {advice}"),
     }
 }
 

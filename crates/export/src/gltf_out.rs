@@ -294,7 +294,7 @@ pub fn write_glb<W: Write>(
     glb.to_writer(out).map_err(|e| match e {
         gltf::Error::Io(source) => ExportError::Io {
             what: "glTF binary",
-            source,
+            reason: source,
         },
         other => gltf_error(other.to_string()),
     })
@@ -399,7 +399,7 @@ fn gltf_error(reason: String) -> ExportError {
 fn json_error(source: serde_json::Error) -> ExportError {
     ExportError::Json {
         what: "glTF document",
-        source,
+        reason: source,
     }
 }
 

@@ -16,22 +16,20 @@ pub use stats::RunStats;
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     /// The output could not be written.
-    #[error("could not write {what}: {source}")]
+    #[error("could not write {what}: {reason}")]
     Io {
         /// What was being written.
         what: &'static str,
         /// The underlying error.
-        #[source]
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// Serialising to JSON failed.
-    #[error("could not encode {what} as JSON: {source}")]
+    #[error("could not encode {what} as JSON: {reason}")]
     Json {
         /// What was being written.
         what: &'static str,
         /// The underlying error.
-        #[source]
-        source: serde_json::Error,
+        reason: serde_json::Error,
     },
     /// The glTF output could not be assembled: inconsistent or non-finite input, or a file too
     /// large for GLB.

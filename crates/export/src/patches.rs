@@ -69,7 +69,7 @@ pub fn write_patch_csv<W: Write>(
 ) -> Result<(), ExportError> {
     let fail = |e: csv::Error| ExportError::Io {
         what: "the patch CSV",
-        source: e.into(),
+        reason: e.into(),
     };
     let mut csv = csv::WriterBuilder::new()
         .has_headers(false)
@@ -80,7 +80,7 @@ pub fn write_patch_csv<W: Write>(
     }
     csv.flush().map_err(|source| ExportError::Io {
         what: "the patch CSV",
-        source,
+        reason: source,
     })
 }
 
@@ -139,13 +139,19 @@ mod tests {
 #[derive(Debug, thiserror::Error)]
 pub enum ReadCsvError {
     /// The file could not be read.
-    #[error("could not read {path}: {source}")]
+    #[error("could not read {path}: {reason}")]
     Io {
         /// The file.
         path: std::path::PathBuf,
         /// The underlying error.
-        #[source]
-        source: std::io::Error,
+        reason: std::io::Error,
+    },
+    /// The path is not a regular file (a device, pipe or directory).
+    #[error("{} is not a regular file (a device, pipe or directory): only regular files are read",
+        path.display())]
+    NotAFile {
+        /// The path.
+        path: std::path::PathBuf,
     },
     /// A line is not a patch row.
     #[error("{path} line {line}: {reason}")]
@@ -176,11 +182,19 @@ struct ReadRow {
 /// lines and spaces around fields are ignored), or one with the header `patch,area,r,g,b` and
 /// no variance columns, as other tools write them (variances `None`). Every number must be finite, and the three
 /// variances all given or all blank.
+///
+/// Only a regular file is read (a device such as `/dev/zero` would never end).
 pub fn read_patch_csv(path: &std::path::Path) -> Result<Vec<PatchRow>, ReadCsvError> {
-    let file = std::fs::File::open(path).map_err(|source| ReadCsvError::Io {
+    let io = |source| ReadCsvError::Io {
         path: path.to_path_buf(),
-        source,
-    })?;
+        reason: source,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    if !file.metadata().map_err(io)?.is_file() {
+        return Err(ReadCsvError::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
     read_rows(std::io::BufReader::new(file), path)
 }
 
@@ -198,7 +212,7 @@ fn read_rows<R: std::io::Read>(
         match e.into_kind() {
             csv::ErrorKind::Io(source) => ReadCsvError::Io {
                 path: path.to_path_buf(),
-                source,
+                reason: source,
             },
             csv::ErrorKind::UnequalLengths {
                 expected_len, len, ..

@@ -45,13 +45,13 @@ impl RunStats {
     pub fn write_json<W: Write>(&self, mut out: W) -> Result<(), ExportError> {
         serde_json::to_writer_pretty(&mut out, self).map_err(|source| ExportError::Json {
             what: "the run statistics",
-            source,
+            reason: source,
         })?;
         writeln!(out)
             .and_then(|_| out.flush())
             .map_err(|source| ExportError::Io {
                 what: "the run statistics",
-                source,
+                reason: source,
             })
     }
 }

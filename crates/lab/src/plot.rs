@@ -88,11 +88,10 @@ pub enum PlotError {
         reason: String,
     },
     /// The PNG could not be written.
-    #[error("could not write the plot: {source}")]
+    #[error("could not write the plot: {reason}")]
     Io {
         /// The underlying error.
-        #[source]
-        source: std::io::Error,
+        reason: std::io::Error,
     },
 }
 
@@ -131,7 +130,7 @@ pub fn line_plot(path: &Path, spec: &PlotSpec) -> Result<(), PlotError> {
     image
         .save_with_format(path, image::ImageFormat::Png)
         .map_err(|e| match e {
-            image::ImageError::IoError(source) => PlotError::Io { source },
+            image::ImageError::IoError(source) => PlotError::Io { reason: source },
             other => plot_error(format!("could not encode {}: {other}", path.display())),
         })
 }

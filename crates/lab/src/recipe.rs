@@ -28,22 +28,20 @@ pub struct Recipe {
 #[derive(Debug, thiserror::Error)]
 pub enum RecipeError {
     /// The file could not be read or written.
-    #[error("could not access {}: {source}", path.display())]
+    #[error("could not access {}: {reason}", path.display())]
     Io {
         /// The recipe file.
         path: PathBuf,
         /// The underlying error.
-        #[source]
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// The file is not a recipe.
-    #[error("could not parse {}: {source}", path.display())]
+    #[error("could not parse {}: {reason}", path.display())]
     Json {
         /// The recipe file.
         path: PathBuf,
         /// The underlying error.
-        #[source]
-        source: serde_json::Error,
+        reason: serde_json::Error,
     },
 }
 
@@ -52,11 +50,11 @@ impl Recipe {
     pub fn read(path: &Path) -> Result<Recipe, RecipeError> {
         let text = std::fs::read_to_string(path).map_err(|source| RecipeError::Io {
             path: path.to_path_buf(),
-            source,
+            reason: source,
         })?;
         serde_json::from_str(&text).map_err(|source| RecipeError::Json {
             path: path.to_path_buf(),
-            source,
+            reason: source,
         })
     }
 
@@ -64,11 +62,11 @@ impl Recipe {
     pub fn write(&self, path: &Path) -> Result<(), RecipeError> {
         let text = serde_json::to_string_pretty(self).map_err(|source| RecipeError::Json {
             path: path.to_path_buf(),
-            source,
+            reason: source,
         })?;
         std::fs::write(path, text + "\n").map_err(|source| RecipeError::Io {
             path: path.to_path_buf(),
-            source,
+            reason: source,
         })
     }
 

@@ -41,7 +41,15 @@ pub enum TraceError {
     },
     /// The trace could not be written.
     #[error("could not write the trace: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+// (not `#[from]`: that would also make the I/O error the `source()`, which the message
+// already says)
+impl From<std::io::Error> for TraceError {
+    fn from(e: std::io::Error) -> TraceError {
+        TraceError::Io(e)
+    }
 }
 
 /// The relative difference between a reference row's area and its patch's beyond which

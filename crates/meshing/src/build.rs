@@ -30,11 +30,12 @@ impl Subdivision {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MeshError {
     /// The maximum edge length is not a positive finite number.
-    #[error("--max-edge must be a positive length in scene units, got {0}")]
+    #[error("the maximum patch edge must be a positive length in scene units, got {0}")]
     BadMaxEdge(f32),
-    /// Subdivision would create more patches than the limit.
+    /// Subdivision would create more patches than the limit (checked before any work).
     #[error(
-        "subdividing to edges of at most {max_edge} would make about {estimate} patches (limit {limit}); choose a larger --max-edge"
+        "subdividing to edges of at most {max_edge} scene units would make about {estimate:.1e} \
+         patches, more than the limit of {limit:.1e}"
     )]
     TooManyPatches {
         /// The requested maximum edge length (scene units).
@@ -43,6 +44,13 @@ pub enum MeshError {
         estimate: u64,
         /// The limit.
         limit: u64,
+    },
+    /// The mesh has more patches than the caller's limit of [`Mesh::build_at_most`] (found
+    /// while building, which stops there).
+    #[error("the mesh has more than {limit} patches")]
+    PatchLimit {
+        /// The limit.
+        limit: usize,
     },
 }
 
@@ -87,6 +95,17 @@ pub struct Mesh {
 impl Mesh {
     /// Builds the mesh of `scene` with the given subdivision.
     pub fn build(scene: &Scene, subdivision: Subdivision) -> Result<Mesh, MeshError> {
+        Mesh::build_at_most(scene, subdivision, usize::MAX)
+    }
+
+    /// [`Mesh::build`], refusing a mesh of more than `max_patches` patches
+    /// ([`MeshError::PatchLimit`]) as soon as the faces built so far exceed it, so that a
+    /// caller with a small limit (the reference solver's) refuses a huge mesh at once.
+    pub fn build_at_most(
+        scene: &Scene,
+        subdivision: Subdivision,
+        max_patches: usize,
+    ) -> Result<Mesh, MeshError> {
         let max_edge = match subdivision {
             Subdivision::None => None,
             Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => Some(l),
@@ -120,7 +139,18 @@ impl Mesh {
             };
             match max_edge {
                 None => mesh.push_patch(&face.vertices, &template),
-                Some(l) => cutter.cut_face(&mut mesh, &face.vertices, l, &template),
+                Some(l) => {
+                    // every patch cut from it is a triangle or quad of edges <= l (area <= l²):
+                    // refuse before cutting a face that alone would pass the limit
+                    let at_least = scene.face_area(face) / (l as f64 * l as f64);
+                    if mesh.patches.len() as f64 + at_least.floor() > max_patches as f64 {
+                        return Err(MeshError::PatchLimit { limit: max_patches });
+                    }
+                    cutter.cut_face(&mut mesh, &face.vertices, l, &template);
+                }
+            }
+            if mesh.patches.len() > max_patches {
+                return Err(MeshError::PatchLimit { limit: max_patches });
             }
         }
         Ok(mesh)

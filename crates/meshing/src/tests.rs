@@ -1,6 +1,6 @@
 //! Tests of patch geometry and subdivision.
 
-use crate::{Mesh, Subdivision};
+use crate::{Mesh, MeshError, Subdivision};
 use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Face, Material, Scene};
 
@@ -190,5 +190,31 @@ fn bad_max_edge_and_absurd_counts_are_errors() {
         assert!(Mesh::build(&scene, Subdivision::MaxEdge(bad)).is_err());
     }
     let err = Mesh::build(&scene, Subdivision::MaxEdge(1e-6)).unwrap_err();
-    assert!(err.to_string().contains("--max-edge"), "{err}");
+    assert!(matches!(err, MeshError::TooManyPatches { .. }), "{err}");
+    // the library names no command-line flag: the CLI adds advice about the flags given
+    assert!(!err.to_string().contains("--"), "{err}");
+    assert!(err.to_string().contains("4.9e13 patches"), "{err}");
+}
+
+#[test]
+fn a_patch_limit_refuses_before_cutting_a_face_that_alone_exceeds_it() {
+    let scene = mixed_scene();
+    let all = Mesh::build(&scene, Subdivision::MaxEdge(0.05)).unwrap();
+    let n = all.patches().len();
+    assert!(n > 100, "{n}");
+    let exact = Mesh::build_at_most(&scene, Subdivision::MaxEdge(0.05), n).unwrap();
+    assert_eq!(exact.patches().len(), n);
+    assert_eq!(
+        Mesh::build_at_most(&scene, Subdivision::MaxEdge(0.05), n - 1).unwrap_err(),
+        MeshError::PatchLimit { limit: n - 1 }
+    );
+    // 1e-3 edges would make millions of patches of one face (refused before it is cut)
+    assert_eq!(
+        Mesh::build_at_most(&scene, Subdivision::MaxEdge(1e-3), 10_000).unwrap_err(),
+        MeshError::PatchLimit { limit: 10_000 }
+    );
+    assert_eq!(
+        Mesh::build_at_most(&scene, Subdivision::None, 1).unwrap_err(),
+        MeshError::PatchLimit { limit: 1 }
+    );
 }

@@ -28,6 +28,7 @@ impl BruteForce {
     pub fn build(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<BruteForce, BuildError> {
         let bounds = frame::validate(triangles, ids)?;
         let frame = Frame::new(bounds.0, bounds.1);
+        frame.check_lift(bounds.0, bounds.1)?;
         let tris = triangles.iter().map(|t| t.map(|v| v.as_dvec3())).collect();
         Ok(BruteForce {
             tris,

@@ -135,7 +135,9 @@ impl Bvh {
     /// front), triangle `i` tagged with `ids[i]`, using [`BvhPreset::Fast`] (the default).
     ///
     /// Errors: empty input, `ids.len() != triangles.len()`, a NaN or infinite vertex, an id
-    /// equal to [`NO_ID`](crate::NO_ID). Degenerate triangles are accepted (and never hit).
+    /// equal to [`NO_ID`](crate::NO_ID), a scene so far from the origin for its size that
+    /// `f32` cannot place points on it ([`BuildError::FarFromOrigin`]: farther than about
+    /// `2^31` times its extent). Degenerate triangles are accepted (and never hit).
     pub fn build(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<Bvh, BuildError> {
         Bvh::build_with(triangles, ids, BvhPreset::default())
     }
@@ -149,6 +151,7 @@ impl Bvh {
     ) -> Result<Bvh, BuildError> {
         let bounds = frame::validate(triangles, ids)?;
         let frame = Frame::new(bounds.0, bounds.1);
+        frame.check_lift(bounds.0, bounds.1)?;
         let canonical: Vec<Triangle> = triangles
             .par_iter()
             .map(|t| Triangle {

@@ -36,6 +36,24 @@ pub enum BuildError {
         /// Index of the triangle in the input list.
         triangle: usize,
     },
+    /// The scene lies so far from the origin, for its size (about `2^31` times its extent or
+    /// more), that `f32` coordinates cannot place points on it: the surface offsets of ray
+    /// origins (which grow with the distance from the origin, see the crate docs) would dwarf
+    /// the scene and overflow the hierarchy's box areas. Refused rather than traced wrongly;
+    /// coordinates up to `f32::MAX` are otherwise accepted.
+    #[error(
+        "the scene is {extent} units across but reaches {magnitude:e} units from the origin, \
+         where f32 coordinates are {spacing} apart: too coarse to trace rays on it (move the \
+         scene near the origin)"
+    )]
+    FarFromOrigin {
+        /// The largest coordinate magnitude (scene units).
+        magnitude: f32,
+        /// The largest side of the scene's bounding box (scene units).
+        extent: f32,
+        /// The spacing of `f32` values at `magnitude` (scene units).
+        spacing: f32,
+    },
     /// The hierarchy would hold more triangle slots than the traversal can address
     /// (`2^29` packets of 4, counting triangles that spatial splits put in several leaves and
     /// the unused lanes of packets).

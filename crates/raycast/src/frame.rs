@@ -24,6 +24,10 @@ const INNER_MARGIN: f64 = 0.5 * APPROACH_MARGIN;
 /// square root and a division at the start of every query.
 const UNIT_TOLERANCE: f32 = 4.0 * f32::EPSILON;
 
+/// The largest origin lift (canonical units) a scene may need, `2^20`: box areas padded by it
+/// stay far below `f32::MAX` (see [`Frame::check_lift`]).
+const MAX_LIFT: f64 = (1u64 << 20) as f64;
+
 /// Lower end of the canonical extent: the largest bounding-box side lies in `[512, 1024)`.
 const CANONICAL_EXTENT_MIN: f64 = 512.0;
 
@@ -206,6 +210,23 @@ impl Frame {
     /// The largest [`Frame::lift`] of a point within these bounds.
     pub(crate) fn max_lift(&self, min: Vec3, max: Vec3) -> f64 {
         self.lift(min.abs().max(max.abs()))
+    }
+
+    /// Refuses a scene whose largest [`Frame::lift`] exceeds [`MAX_LIFT`] (a scene farther
+    /// from the origin than about `2^31` to `2^32` times its size): its boxes, padded by the
+    /// lift, would overflow `f32` surface areas and distances. (Long before that, from about
+    /// `2^21` times its size, origins are lifted by more than the scene's size: the solver
+    /// refuses such scenes by the spacing of `f32` at their smallest patch.)
+    pub(crate) fn check_lift(&self, min: Vec3, max: Vec3) -> Result<(), BuildError> {
+        if self.max_lift(min, max) <= MAX_LIFT {
+            return Ok(());
+        }
+        let magnitude = min.abs().max(max.abs()).max_element();
+        Err(BuildError::FarFromOrigin {
+            magnitude,
+            extent: (max.as_dvec3() - min.as_dvec3()).max_element() as f32,
+            spacing: magnitude.next_up() - magnitude,
+        })
     }
 
     /// The lifted origin (canonical, `f64`) of a point leaving along `normal` (unit or zero),

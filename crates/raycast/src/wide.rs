@@ -270,12 +270,14 @@ impl Plan {
             let mut best = (f32::INFINITY, 0u8);
             for k in j.saturating_sub(r.useful).max(1)..=l.useful.min(j - 1) {
                 let c = l.cost[k - 1] + r.cost[j - k - 1];
-                if c < best.0 {
+                // (the first split is taken even at an infinite cost: overflowing areas must
+                // still give a valid plan)
+                if c < best.0 || best.1 == 0 {
                     best = (c, k as u8);
                 }
             }
             *slot = best;
-            if best.0 < below {
+            if best.0 < below || children == 0 {
                 (children, left, below) = (j as u8, best.1, best.0);
             }
         }
@@ -286,7 +288,8 @@ impl Plan {
             f32::INFINITY
         };
         let mut plan = Plan {
-            leaf: as_leaf <= as_node,
+            // (a leaf holds at most LEAF_MAX triangles even when both costs are infinite)
+            leaf: count as usize <= LEAF_MAX && as_leaf <= as_node,
             split: [0; WIDTH],
             children,
             left,
@@ -740,6 +743,27 @@ mod tests {
             "{} nodes",
             wide.nodes.len()
         );
+    }
+
+    #[test]
+    fn infinite_costs_still_give_valid_plans() {
+        // boxes whose surface areas overflow f32: every cost is infinite, and the plan must
+        // still make leaves of at most LEAF_MAX triangles and wide nodes of 2+ slots
+        let (_, leaf) = Plan::leaf(4, f32::INFINITY);
+        let mut below = leaf;
+        for level in 0..6 {
+            let (plan, costs) = Plan::inner(f32::INFINITY, &below, &leaf);
+            assert!(
+                !plan.leaf || costs.count as usize <= LEAF_MAX,
+                "level {level}: a leaf of {} triangles",
+                costs.count
+            );
+            if !plan.leaf {
+                assert!(plan.children >= 2 && plan.left >= 1, "level {level}");
+            }
+            below = costs;
+        }
+        assert!(below.count as usize > LEAF_MAX);
     }
 
     #[test]

@@ -344,3 +344,58 @@ fn axis_aligned_rays_with_negative_zeros_hit() {
     let b = SurfacePoint::free(vec3(0.3, -2.0, 0.6));
     assert!(bvh.occluded(&a, &b) && bvh.occluded(&b, &a));
 }
+
+#[test]
+fn coordinates_up_to_f32_max_build_or_are_refused_clearly() {
+    // 40 unit-spaced triangles (more than a leaf holds) scaled by `size` and moved to `at`
+    let cluster = |at: Vec3, size: f32| -> (Vec<[Vec3; 3]>, Vec<u32>) {
+        let tris = (0..40)
+            .map(|i| {
+                let c = at + vec3(0.0, i as f32 * size, 0.0);
+                [c, c + Vec3::X * size, c + Vec3::Z * size]
+            })
+            .collect();
+        (tris, (0..40).collect())
+    };
+    // far but large enough for f32 to place its points: built, and rays hit it
+    for (at, size) in [
+        (vec3(1e36, 0.0, 0.0), 1e31),
+        (vec3(-1e20, 1e20, 0.0), 1e15),
+        (Vec3::splat(-f32::MAX / 2.0), f32::MAX / 100.0),
+    ] {
+        let (tris, ids) = cluster(at, size);
+        let (bvh, oracle) = casters(&tris, &ids);
+        let target = tris[5][0] + (Vec3::X + Vec3::Z) * (size / 3.0);
+        let ray = Ray::new(target - Vec3::Y * 0.5 * size, Vec3::Y);
+        let (a, b) = (bvh.closest_hit(&ray), oracle.closest_hit(&ray));
+        assert!(a.is_some(), "at {at}, size {size}: no hit");
+        assert_eq!(a.map(|h| h.id), b.map(|h| h.id), "at {at}, size {size}");
+    }
+    // far out for its size (1e8 times): origins are lifted by more than the scene's size,
+    // so answers are coarse (the solver refuses such scenes), but it builds and answers
+    let (tris, ids) = cluster(vec3(1e38, 0.0, 0.0), 1e30);
+    let bvh = Bvh::build(&tris, &ids).unwrap();
+    let hit = bvh.closest_hit(&Ray::new(tris[5][0] - Vec3::Y * 1e31, Vec3::Y));
+    assert!(hit.is_none_or(|h| h.distance.is_finite()));
+    // so far out for its size that f32 cannot place its points and box areas would overflow
+    // (this panicked in the collapse: infinite costs made a leaf of 40 triangles)
+    for (at, size) in [
+        (vec3(1e38, 0.0, 0.0), 1e26),
+        (vec3(f32::MAX, 0.0, 0.0), 1e25),
+    ] {
+        let (tris, ids) = cluster(at, size);
+        for e in [
+            Bvh::build(&tris, &ids).unwrap_err(),
+            BruteForce::build(&tris, &ids).unwrap_err(),
+        ] {
+            assert!(
+                matches!(e, BuildError::FarFromOrigin { magnitude, .. } if magnitude >= at.x),
+                "{e:?}"
+            );
+            assert!(
+                e.to_string().contains("move the scene near the origin"),
+                "{e}"
+            );
+        }
+    }
+}

@@ -156,7 +156,7 @@ pub enum ReferenceError {
     #[error(
         "the mesh has {patches} patches, more than the reference solver's limit of {limit}: \
          its form factors take work and memory that grow as the square of the patch count; \
-         use a coarser mesh (a larger --max-edge)"
+         use a coarser mesh"
     )]
     TooManyPatches {
         /// Patches in the mesh.

@@ -77,22 +77,20 @@ pub enum ImageError {
         scale: f32,
     },
     /// Encoding or writing the EXR file failed.
-    #[error("could not write EXR {}: {source}", path.display())]
+    #[error("could not write EXR {}: {reason}", path.display())]
     Exr {
         /// The output file.
         path: PathBuf,
         /// The underlying error.
-        #[source]
-        source: exr::error::Error,
+        reason: exr::error::Error,
     },
     /// Encoding or writing the PNG file failed.
-    #[error("could not write PNG {}: {source}", path.display())]
+    #[error("could not write PNG {}: {reason}", path.display())]
     Png {
         /// The output file.
         path: PathBuf,
         /// The underlying error.
-        #[source]
-        source: ::image::ImageError,
+        reason: ::image::ImageError,
     },
 }
 
@@ -115,7 +113,7 @@ pub fn write_exr(image: &Image, path: &Path) -> Result<(), ImageError> {
     .to_file(path)
     .map_err(|source| ImageError::Exr {
         path: path.to_path_buf(),
-        source,
+        reason: source,
     })
 }
 
@@ -141,7 +139,7 @@ pub fn write_png(image: &Image, path: &Path, exposure: Exposure) -> Result<(), I
     )
     .map_err(|source| ImageError::Png {
         path: path.to_path_buf(),
-        source,
+        reason: source,
     })
 }
 

@@ -4,10 +4,19 @@ use glam::Vec3;
 use std::fmt;
 use std::path::PathBuf;
 
-/// Formats a vector as `(x, y, z)` with Rust's shortest round-trip float format, so `NaN`, `inf`
-/// and the exact offending values show.
+/// Formats a vector as `(x, y, z)` with Rust's shortest round-trip float format (in exponent
+/// notation below 1e-4 and from 1e7), so `NaN`, `inf` and the exact offending values show.
 pub(crate) fn fmt_vec3(v: Vec3) -> String {
-    format!("({}, {}, {})", v.x, v.y, v.z)
+    format!("({}, {}, {})", fmt_f32(v.x), fmt_f32(v.y), fmt_f32(v.z))
+}
+
+/// A number as short as it reads: exponent notation far from 1 (`1e38`, `5e-9`), else plain.
+fn fmt_f32(x: f32) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-4..1e7).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
 }
 
 /// Where in a file an error was found; shown after the file name.
@@ -42,7 +51,7 @@ impl fmt::Display for Location {
             name: &Option<String>,
         ) -> fmt::Result {
             match name {
-                Some(n) => write!(f, "{what} {i} '{n}'"),
+                Some(n) => write!(f, "{what} {i} {}", crate::quote(n)),
                 None => write!(f, "{what} {i}"),
             }
         }
@@ -72,19 +81,57 @@ impl fmt::Display for Location {
 ///
 /// Errors found in a file come wrapped in [`SceneError::InFile`], which names the file and the
 /// line or glTF primitive; [`SceneError::innermost`] gives the wrapped error. Every message
-/// (`Display`) is complete on its own: it includes the message of its `source`, so print the
-/// error with `{}` rather than walking the `source()` chain (which would repeat it).
+/// (`Display`) is complete on its own: it includes the message of the error it wraps, so
+/// `source()` is `None` for every variant (a reporter that walks the chain, such as anyhow's
+/// `{:#}`, says each cause once). Input quoted in a message is escaped and cut short (see
+/// [`quote`](crate::quote)).
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SceneError {
     /// A file could not be read. Example: `cannot read scenes/box.obj: No such file or directory
     /// (os error 2)`.
-    #[error("cannot read {}: {source}", path.display())]
+    #[error("cannot read {}: {reason}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
         /// The operating system's reason.
-        source: std::io::Error,
+        reason: std::io::Error,
+    },
+    /// A file to read is not a regular file (a device such as `/dev/zero`, a pipe or a
+    /// directory): only regular files are read. Example: `/dev/zero is not a regular file (a
+    /// device, pipe or directory): only regular files are read`.
+    #[error("{} is not a regular file (a device, pipe or directory): only regular files are read",
+        path.display())]
+    NotAFile {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A file is larger than [`LoadOptions::max_file_bytes`](crate::LoadOptions). Example:
+    /// `big.obj is 2147483648 bytes, more than the limit of 1073741824 bytes per file`.
+    #[error("{} is {bytes} bytes, more than the limit of {limit} bytes per file", path.display())]
+    FileTooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size (or the bytes read when it claimed less), at least `limit + 1`.
+        bytes: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// A scene names a file outside its folder and
+    /// [`LoadOptions::allow_outside_paths`](crate::LoadOptions) is off (wrapped in
+    /// [`SceneError::InFile`], naming the scene file). Example (wrapped): `'../../etc/passwd' is
+    /// outside the scene's folder: its '..' climbs out of it (files outside it are read only
+    /// when allowed: mcrad --allow-outside-paths)`.
+    #[error(
+        "{} is outside the scene's folder: {why} (files outside it are read only when \
+        allowed: mcrad --allow-outside-paths)",
+        crate::quote(name)
+    )]
+    OutsideScene {
+        /// The name as the scene file gives it (`mtllib` argument, buffer URI).
+        name: String,
+        /// Why it is outside.
+        why: crate::Outside,
     },
     /// The file extension is none of `.obj`, `.gltf`, `.glb`. Example: `scene.ply: unsupported
     /// scene format (expected .obj, .gltf or .glb)`.
@@ -96,7 +143,7 @@ pub enum SceneError {
     /// An OBJ file names (by `mtllib`) a material library that cannot be read. Example:
     /// `box.obj line 2: cannot read material library dir/box.mtl named by mtllib: No such file
     /// or directory (os error 2)`.
-    #[error("{} line {line}: cannot read material library {} named by mtllib: {source}",
+    #[error("{} line {line}: cannot read material library {} named by mtllib: {reason}",
         obj.display(), mtl.display())]
     MissingMtl {
         /// The OBJ file.
@@ -106,18 +153,18 @@ pub enum SceneError {
         /// The MTL path as the OBJ resolves it (relative to the OBJ's directory).
         mtl: PathBuf,
         /// The operating system's reason.
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// An error found in a file, with the file and the place in it. Example: `box.obj line 57:
     /// face uses vertex 99 but only 36 vertices are defined in total`.
-    #[error("{}{location}: {source}", path.display())]
+    #[error("{}{location}: {error}", path.display())]
     InFile {
         /// The file (OBJ, MTL, glTF or GLB).
         path: PathBuf,
         /// Where in the file.
         location: Location,
         /// What is wrong there.
-        source: Box<SceneError>,
+        error: Box<SceneError>,
     },
     /// The file is malformed: the message says how. Example (wrapped): `box.obj line 4: vertex
     /// needs 3 numbers, found 'v 1 2'`.
@@ -159,6 +206,36 @@ pub enum SceneError {
     NoFaces {
         /// Degenerate faces dropped (0 when the input had no faces at all).
         dropped: usize,
+    },
+    /// A face has more vertices than [`MAX_FACE_VERTICES`](crate::MAX_FACE_VERTICES): splitting
+    /// such polygons would take too long. Example (wrapped): `a face has 60000 vertices, more
+    /// than the 1024 supported: triangulate it`.
+    #[error(
+        "a face has {count} vertices, more than the {} supported: triangulate it",
+        crate::MAX_FACE_VERTICES
+    )]
+    TooManyFaceVertices {
+        /// The face's vertex count.
+        count: usize,
+    },
+    /// The scene has more faces than [`MAX_FACES`](crate::MAX_FACES) (counting every instance
+    /// of a glTF mesh). Example: `the scene has more than 16777216 faces (glTF: counting every
+    /// instance of a mesh)`.
+    #[error(
+        "the scene has more than {} faces (glTF: counting every instance of a mesh)",
+        crate::MAX_FACES
+    )]
+    TooManyFaces,
+    /// A coordinate's magnitude exceeds [`MAX_COORDINATE`](crate::MAX_COORDINATE): face areas
+    /// would overflow `f32`. Example: `vertex 3 has a coordinate beyond ±1e18 scene units (1e38,
+    /// 0, 0): scale the scene down`.
+    #[error("vertex {vertex} has a coordinate beyond ±{:e} scene units {}: scale the scene down",
+        crate::MAX_COORDINATE, fmt_vec3(*position))]
+    CoordinateTooLarge {
+        /// The vertex, numbered as in [`SceneError::NonFinitePosition`].
+        vertex: usize,
+        /// The position as read.
+        position: Vec3,
     },
     /// A position has a NaN or infinite coordinate. Example: `vertex 12 has a non-finite
     /// coordinate (NaN, 0, 1)`.
@@ -203,8 +280,8 @@ pub enum SceneError {
     },
     /// A reflectance channel is outside `[0, 1)` or not finite. Example: `material 'red' has
     /// reflectance (1.2, 0.1, 0.1): each channel must be in [0, 1)`.
-    #[error("material '{material}' has reflectance {}: each channel must be in [0, 1)",
-        fmt_vec3(*reflectance))]
+    #[error("material {} has reflectance {}: each channel must be in [0, 1)",
+        crate::quote(material), fmt_vec3(*reflectance))]
     BadReflectance {
         /// The material's name.
         material: String,
@@ -213,18 +290,30 @@ pub enum SceneError {
     },
     /// An emission channel is negative or not finite. Example: `material 'lamp' has negative
     /// emission (-1, 0, 0): each channel must be finite and >= 0 W/m²`.
-    #[error("material '{material}' has {} emission {}: each channel must be finite and >= 0 W/m²",
-        if emission.is_finite() { "negative" } else { "non-finite" }, fmt_vec3(*emission))]
+    #[error("material {} has {} emission {}: each channel must be finite and >= 0 W/m²",
+        crate::quote(material), if emission.is_finite() { "negative" } else { "non-finite" },
+        fmt_vec3(*emission))]
     BadEmission {
         /// The material's name.
         material: String,
         /// The emitted radiosity `E` in W/m² as computed from the file.
         emission: Vec3,
     },
-    /// No face emits. Example: `the scene has no emitting face (no material with emission > 0 is
-    /// used by any face)`.
-    #[error("the scene has no emitting face (no material with emission > 0 is used by any face)")]
-    NoEmitter,
+    /// No face emits. Examples: `the scene has no emitting face (no material with emission > 0
+    /// is used by any face)`; when the only emitters were degenerate: `the scene has no
+    /// emitting face left: its 1 emitting face was dropped as degenerate (area 5.0e-13, at most
+    /// 3.0e-12 counts as zero: 1e-12 of the bounding-box diagonal squared); the first is face
+    /// 1`.
+    #[error("{}", no_emitter_message(dropped_emitters, *smallest_dropped_area, *degenerate_area))]
+    NoEmitter {
+        /// Emitting faces dropped as degenerate: `(count, source of the first)`, `None` when
+        /// no face uses an emitting material at all.
+        dropped_emitters: Option<(usize, u32)>,
+        /// The largest area of those dropped emitting faces, scene units².
+        smallest_dropped_area: f64,
+        /// The area at or below which a face counts as degenerate, scene units².
+        degenerate_area: f64,
+    },
 }
 
 fn obj_index_message(index: i64, available: usize) -> String {
@@ -234,6 +323,21 @@ fn obj_index_message(index: i64, available: usize) -> String {
             "face uses vertex {i} (relative) but only {available} vertices are defined so far"
         ),
         i => format!("face uses vertex {i} but only {available} vertices are defined in total"),
+    }
+}
+
+fn no_emitter_message(dropped: &Option<(usize, u32)>, area: f64, degenerate: f64) -> String {
+    match dropped {
+        None => "the scene has no emitting face (no material with emission > 0 is used by any \
+                 face)"
+            .to_string(),
+        Some((count, first)) => format!(
+            "the scene has no emitting face left: its {count} emitting face{s} {was} dropped as \
+             degenerate (area {area:.1e}, at most {degenerate:.1e} counts as zero: 1e-12 of the \
+             bounding-box diagonal squared); the first is face {first}",
+            s = if *count == 1 { "" } else { "s" },
+            was = if *count == 1 { "was" } else { "were" },
+        ),
     }
 }
 
@@ -251,7 +355,7 @@ impl SceneError {
     /// The error inside any [`SceneError::InFile`] wrappers: what is wrong, without where.
     pub fn innermost(&self) -> &SceneError {
         match self {
-            SceneError::InFile { source, .. } => source.innermost(),
+            SceneError::InFile { error, .. } => error.innermost(),
             other => other,
         }
     }
@@ -261,7 +365,7 @@ impl SceneError {
         SceneError::InFile {
             path: path.into(),
             location,
-            source: Box::new(self),
+            error: Box::new(self),
         }
     }
 
@@ -282,6 +386,18 @@ pub enum Warning {
     /// faces (zero or near-zero area); the first is face 7`.
     DegenerateFacesDropped {
         /// How many faces were dropped.
+        count: usize,
+        /// [`source`](crate::Face::source) of the first one dropped.
+        first_source: u32,
+        /// How many of them had an emitting material (their light is lost).
+        emitters: usize,
+    },
+    /// Faces, or triangles of split faces, that repeat an earlier one (the same material and
+    /// positions in the same cyclic order, so the same front side) were removed: they would
+    /// only hide each other. Example: `dropped 11999 duplicate faces or face parts (the same
+    /// vertices, side and material as an earlier one); the first is face 1`.
+    DuplicateFacesDropped {
+        /// How many faces or parts were dropped.
         count: usize,
         /// [`source`](crate::Face::source) of the first one dropped.
         first_source: u32,
@@ -349,10 +465,25 @@ impl fmt::Display for Warning {
             Warning::DegenerateFacesDropped {
                 count,
                 first_source,
+                emitters,
+            } => {
+                write!(
+                    f,
+                    "dropped {count} degenerate faces (zero or near-zero area); the first is face \
+                     {first_source}"
+                )?;
+                if *emitters > 0 {
+                    write!(f, "; {emitters} of them emitted light, which is lost")?;
+                }
+                Ok(())
+            }
+            Warning::DuplicateFacesDropped {
+                count,
+                first_source,
             } => write!(
                 f,
-                "dropped {count} degenerate faces (zero or near-zero area); the first is face \
-                 {first_source}"
+                "dropped {count} duplicate faces or face parts (the same vertices, side and \
+                 material as an earlier one); the first is face {first_source}"
             ),
             Warning::FacesSplit {
                 count,
@@ -362,7 +493,9 @@ impl fmt::Display for Warning {
                 "split {count} non-planar or non-convex faces into triangles; the first is face \
                  {first_source}"
             ),
-            Warning::MaterialDefaulted { name, what } => write!(f, "material '{name}': {what}"),
+            Warning::MaterialDefaulted { name, what } => {
+                write!(f, "material {}: {what}", crate::quote(name))
+            }
             Warning::DefaultMaterial { faces } => write!(
                 f,
                 "{faces} faces have no material and use the built-in '{}' (reflectance 0.5, no \
@@ -371,7 +504,8 @@ impl fmt::Display for Warning {
             ),
             Warning::UnknownMaterial { name, line } => write!(
                 f,
-                "usemtl '{name}' on line {line} names no material of the MTL files"
+                "usemtl {} on line {line} names no material of the MTL files",
+                crate::quote(name)
             ),
             Warning::PrimitivesSkipped { count } => write!(
                 f,
@@ -379,8 +513,8 @@ impl fmt::Display for Warning {
             ),
             Warning::ReflectanceClamped { material, count } => write!(
                 f,
-                "material '{material}': {count} reflectance channels of exactly 1.0 clamped to \
-                 0.999"
+                "material {}: {count} reflectance channels of exactly 1.0 clamped to 0.999",
+                crate::quote(material)
             ),
             Warning::TexturesIgnored { materials } => write!(
                 f,

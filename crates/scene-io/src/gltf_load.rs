@@ -3,11 +3,11 @@
 //! `emissiveFactor * KHR_materials_emissive_strength` as the emitted radiance `L`, so `E = pi L`.
 
 use crate::error::{Location, SceneError, Warning};
+use crate::files::{self, LoadOptions};
 use crate::{Camera, Face, Loaded, Material, Scene};
 use glam::{Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
-use std::fs;
 use std::path::Path;
 
 /// What a reflectance channel of exactly 1.0 becomes (the solver needs `rho < 1`).
@@ -33,11 +33,8 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// [`Loaded::camera`] (its node's world transform applied; orthographic cameras are ignored).
 ///
 /// Errors name the file and, for geometry, the node, mesh and primitive.
-pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
-    let bytes = fs::read(path).map_err(|source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
+    let bytes = files::read_file(path, options)?;
     let in_file = |e: SceneError| e.in_file(path, Location::File);
     let invalid = |e: gltf::Error| in_file(SceneError::parse(format!("not valid glTF: {e}")));
     // Validation in `gltf-json` 1.4 panics on a POSITION accessor index out of range: parse,
@@ -47,7 +44,7 @@ pub(crate) fn load_gltf(path: &Path) -> Result<Loaded, SceneError> {
     let json = document.into_json();
     check_position_indices(&json).map_err(in_file)?;
     let document = gltf::Document::from_json(json).map_err(invalid)?;
-    let buffers = load_buffers(&document, path, blob).map_err(in_file)?;
+    let buffers = load_buffers(&document, path, blob, options).map_err(in_file)?;
 
     let mut warnings = Vec::new();
     let mut materials = convert_materials(&document, &mut warnings);
@@ -154,35 +151,48 @@ fn check_position_indices(json: &gltf::json::Root) -> Result<(), SceneError> {
     Ok(())
 }
 
-/// Reads every buffer: embedded (`data:` URI), GLB binary chunk, or a file relative to the
-/// glTF's directory.
+/// Reads every buffer: embedded (`data:` URI), GLB binary chunk, or a file (a relative path
+/// in the glTF's folder, or with `options.allow_outside_paths` any path or `file:` URI), read
+/// under the policy of [`LoadOptions`].
 fn load_buffers(
     document: &gltf::Document,
     path: &Path,
     mut blob: Option<Vec<u8>>,
+    options: &LoadOptions,
 ) -> Result<Vec<gltf::buffer::Data>, SceneError> {
     let base = path.parent().unwrap_or(Path::new(""));
     let mut buffers = Vec::new();
     for buffer in document.buffers() {
         let i = buffer.index();
-        let mut file = None;
-        if let gltf::buffer::Source::Uri(uri) = buffer.source()
-            && !uri.starts_with("data:")
-        {
-            // `gltf` panics on a percent-encoding that is not UTF-8: check first.
-            let decoded = percent_decode(uri).ok_or_else(|| {
-                SceneError::parse(format!("buffer {i} has a URI that is not UTF-8: '{uri}'"))
-            })?;
-            file = Some(base.join(decoded));
-        }
-        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), Some(base), &mut blob)
-            .map_err(|e| match (e, &file) {
-                (gltf::Error::Io(source), Some(f)) => SceneError::Io {
-                    path: f.clone(),
-                    source,
-                },
-                (e, _) => SceneError::parse(format!("cannot read buffer {i}: {e}")),
-            })?;
+        let data = match buffer.source() {
+            gltf::buffer::Source::Uri(uri) if !uri.starts_with("data:") => {
+                // as `gltf` reads URIs: `file:` or a relative path (percent-decoded), no other
+                // scheme
+                let name = if uri.starts_with("file:") {
+                    uri.to_string()
+                } else if uri.contains(':') {
+                    return Err(SceneError::Unsupported {
+                        what: format!("buffer {i} URI {}", crate::quote(uri)),
+                    });
+                } else {
+                    // (`gltf` panics on a percent-encoding that is not UTF-8: checked here)
+                    percent_decode(uri).ok_or_else(|| {
+                        SceneError::parse(format!(
+                            "buffer {i} has a URI that is not UTF-8: {}",
+                            crate::quote(uri)
+                        ))
+                    })?
+                };
+                let file = files::resolve_named(path, &name, true, options)?;
+                let mut bytes = files::read_file(&file, options)?;
+                while !bytes.len().is_multiple_of(4) {
+                    bytes.push(0);
+                }
+                gltf::buffer::Data(bytes)
+            }
+            source => gltf::buffer::Data::from_source_and_blob(source, Some(base), &mut blob)
+                .map_err(|e| SceneError::parse(format!("cannot read buffer {i}: {e}")))?,
+        };
         if data.len() < buffer.length() {
             return Err(SceneError::parse(format!(
                 "buffer {i} has {} bytes but its byteLength is {}",
@@ -363,6 +373,10 @@ impl Geometry<'_> {
             return Err(SceneError::IndexOutOfRange { index, count });
         }
         let mut triangles = triangles(mode, &indices)?;
+        // (checked before the faces are made: instancing multiplies a small file's triangles)
+        if self.faces.len() + triangles.len() > crate::MAX_FACES {
+            return Err(SceneError::TooManyFaces);
+        }
         if world.determinant() < 0.0 {
             for t in &mut triangles {
                 t.swap(1, 2);

@@ -16,6 +16,11 @@
 //! every face of a [`Scene`] is planar, has non-zero area and can be fanned from its first
 //! vertex. Faces keep their input number ([`Face::source`]) through drops and splits.
 //!
+//! Hostile input is bounded ([`LoadOptions`], and the limits [`MAX_FACE_VERTICES`],
+//! [`MAX_FACES`], [`MAX_COORDINATE`]): only regular files are read, each of at most
+//! [`LoadOptions::max_file_bytes`], and files a scene names (`mtllib`, glTF buffer URIs) must lie
+//! inside the scene file's folder unless [`LoadOptions::allow_outside_paths`] is set.
+//!
 //! Loading never prints and never panics on bad input: repairs (dropped or split faces,
 //! defaulted materials, skipped primitives) are returned as counted [`Warning`]s next to the
 //! scene, and bad input is a typed [`SceneError`] whose message names the file, the line (OBJ,
@@ -42,6 +47,7 @@
 //! ```
 
 mod error;
+mod files;
 mod gltf_load;
 mod obj;
 mod obj_text;
@@ -49,6 +55,7 @@ mod polygon;
 mod scene;
 
 pub use error::{Location, SceneError, Warning};
+pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
 pub use scene::{Bounds, Face, Material, Scene};
 
 use glam::Vec3;
@@ -79,17 +86,65 @@ pub struct Camera {
     pub fov_y_degrees: f32,
 }
 
+/// The most vertices a face may have ([`SceneError::TooManyFaceVertices`] beyond): splitting a
+/// non-convex polygon takes time quadratic in its vertices.
+pub const MAX_FACE_VERTICES: usize = 1024;
+
+/// The most faces a scene may have ([`SceneError::TooManyFaces`] beyond), counting every
+/// instance of a glTF mesh: 2^24, about 0.8 GB of faces before subdivision.
+pub const MAX_FACES: usize = 1 << 24;
+
+/// The largest coordinate magnitude accepted, in scene units
+/// ([`SceneError::CoordinateTooLarge`] beyond): areas and bounding-box diagonals of faces
+/// within it stay finite in `f32` (`(2e18)² * 14 < f32::MAX`).
+pub const MAX_COORDINATE: f32 = 1e18;
+
+/// The most characters of input a message quotes (see [`quote`]).
+pub const QUOTE_MAX_CHARS: usize = 60;
+
+/// Input text as messages quote it: in single quotes, control characters (a stray CR, NUL,
+/// escape sequences) escaped as Rust does (`\r`, `\u{1b}`), and cut after
+/// [`QUOTE_MAX_CHARS`] characters with the total length said, so a message stays one short line
+/// whatever the file holds.
+///
+/// ```
+/// assert_eq!(mcrad_scene_io::quote("v 1 2\r"), "'v 1 2\\r'");
+/// let long = "f 1 2 3 ".repeat(1000);
+/// assert!(mcrad_scene_io::quote(&long).ends_with("... (8000 bytes)"));
+/// ```
+pub fn quote(text: &str) -> String {
+    let mut out = String::from("'");
+    for (shown, c) in text.chars().enumerate() {
+        if shown == QUOTE_MAX_CHARS {
+            out.push_str(&format!("'... ({} bytes)", text.len()));
+            return out;
+        }
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out.push('\'');
+    out
+}
+
 /// Loads a scene from `path`, choosing the reader by extension: `.obj` (with the `.mtl` files it
-/// names), `.gltf` or `.glb`.
+/// names), `.gltf` or `.glb`, under the default [`LoadOptions`].
 pub fn load(path: &Path) -> Result<Loaded, SceneError> {
+    load_with(path, &LoadOptions::default())
+}
+
+/// [`load`] under `options`: which files the scene may name, how large a file may be.
+pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
     match path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .as_deref()
     {
-        Some("obj") => obj::load_obj(path),
-        Some("gltf") | Some("glb") => gltf_load::load_gltf(path),
+        Some("obj") => obj::load_obj(path, options),
+        Some("gltf") | Some("glb") => gltf_load::load_gltf(path, options),
         _ => Err(SceneError::UnsupportedFormat {
             path: path.to_path_buf(),
         }),

@@ -2,11 +2,11 @@
 //! reflectance, `Ke` as the emitted radiosity `E` in W/m².
 
 use crate::error::{Location, SceneError, Warning};
+use crate::files::{self, LoadOptions};
 use crate::obj_text::{self, ObjText};
 use crate::{Face, Loaded, Material, Scene};
 use glam::Vec3;
 use std::cell::RefCell;
-use std::fs;
 use std::path::{Path, PathBuf};
 
 /// Loads an OBJ file and the MTL files it names (relative to its directory).
@@ -24,18 +24,15 @@ use std::path::{Path, PathBuf};
 /// Errors name the file (OBJ or MTL) and the line: unreadable OBJ ([`SceneError::Io`]), unreadable
 /// MTL ([`SceneError::MissingMtl`]), malformed statements, face indices out of range (negative,
 /// relative indices allowed), non-finite coordinates, and everything [`Scene::new`] rejects.
-pub(crate) fn load_obj(path: &Path) -> Result<Loaded, SceneError> {
-    let bytes = fs::read(path).map_err(|source| SceneError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
+    let bytes = files::read_file(path, options)?;
     let text = String::from_utf8_lossy(&bytes);
     let obj =
         obj_text::scan_obj(&text).map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
 
     let libs = MtlLibs {
         obj: path,
-        dir: path.parent().unwrap_or(Path::new("")),
+        options,
         lines: &obj.mtllib_lines,
         state: RefCell::new(MtlState::default()),
     };
@@ -94,7 +91,7 @@ pub(crate) fn load_obj(path: &Path) -> Result<Loaded, SceneError> {
 /// each material was defined.
 struct MtlLibs<'a> {
     obj: &'a Path,
-    dir: &'a Path,
+    options: &'a LoadOptions,
     /// Line of each `mtllib`, in the order `tobj` asks for them.
     lines: &'a [usize],
     state: RefCell<MtlState>,
@@ -113,20 +110,31 @@ impl MtlLibs<'_> {
         let mut state = self.state.borrow_mut();
         let line = self.lines.get(state.calls).copied().unwrap_or(0);
         state.calls += 1;
-        let mtl = self.dir.join(name);
         let fail = |state: &mut MtlState, e: SceneError, tobj_error| {
             state.error.get_or_insert(e);
             Err(tobj_error)
         };
-        let bytes = match fs::read(&mtl) {
+        let named = name.to_string_lossy();
+        let mtl = match files::resolve_named(self.obj, &named, false, self.options) {
+            Ok(mtl) => mtl,
+            Err(e) => {
+                let e = e.in_file(self.obj, Location::Line(line));
+                return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
+            }
+        };
+        let bytes = match files::read_file(&mtl, self.options) {
             Ok(b) => b,
-            Err(source) => {
+            Err(SceneError::Io { reason, .. }) => {
                 let e = SceneError::MissingMtl {
                     obj: self.obj.to_path_buf(),
                     line,
                     mtl,
-                    source,
+                    reason,
                 };
+                return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
+            }
+            Err(e) => {
+                let e = e.in_file(self.obj, Location::Line(line));
                 return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
             }
         };
@@ -154,8 +162,8 @@ impl MtlLibs<'_> {
                     .position(|l| tobj::load_mtl_buf(&mut l.as_bytes()).is_err());
                 let e = match bad {
                     Some(i) => SceneError::parse(format!(
-                        "cannot parse '{}': {tobj_error}",
-                        mtl_text.text.lines().nth(i).unwrap_or("").trim()
+                        "cannot parse {}: {tobj_error}",
+                        crate::quote(mtl_text.text.lines().nth(i).unwrap_or("").trim())
                     ))
                     .in_file(&mtl, Location::Line(i + 1)),
                     None => SceneError::parse(format!("tobj cannot read it: {tobj_error}"))

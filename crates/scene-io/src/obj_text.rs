@@ -59,11 +59,20 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
                 let corners: Vec<&str> = words.collect();
                 if corners.len() < 3 {
                     let message = format!(
-                        "a face needs at least 3 vertices, found {}: '{}'",
+                        "a face needs at least 3 vertices, found {}: {}",
                         corners.len(),
-                        line.trim()
+                        crate::quote(line.trim())
                     );
                     return Err((line_no, SceneError::parse(message)));
+                }
+                if corners.len() > crate::MAX_FACE_VERTICES {
+                    let e = SceneError::TooManyFaceVertices {
+                        count: corners.len(),
+                    };
+                    return Err((line_no, e));
+                }
+                if out.face_lines.len() >= crate::MAX_FACES {
+                    return Err((line_no, SceneError::TooManyFaces));
                 }
                 body.push('f');
                 for corner in corners {
@@ -121,8 +130,9 @@ fn parse_vertex(line: &str, numbers: Vec<&str>, number: usize) -> Result<Vec3, S
             Ok(x) => values.push(x),
             Err(_) => {
                 return Err(SceneError::parse(format!(
-                    "cannot parse vertex coordinate '{n}' in '{}'",
-                    line.trim()
+                    "cannot parse vertex coordinate {} in {}",
+                    crate::quote(n),
+                    crate::quote(line.trim())
                 )));
             }
         }
@@ -132,14 +142,20 @@ fn parse_vertex(line: &str, numbers: Vec<&str>, number: usize) -> Result<Vec3, S
         [x, y, z, w] => Vec3::new(x, y, z) / w,
         _ => {
             return Err(SceneError::parse(format!(
-                "a vertex needs 3 numbers (4 with w, 6 with a colour), found {}: '{}'",
+                "a vertex needs 3 numbers (4 with w, 6 with a colour), found {}: {}",
                 values.len(),
-                line.trim()
+                crate::quote(line.trim())
             )));
         }
     };
     if !p.is_finite() {
         return Err(SceneError::NonFinitePosition {
+            vertex: number,
+            position: p,
+        });
+    }
+    if p.abs().max_element() > crate::MAX_COORDINATE {
+        return Err(SceneError::CoordinateTooLarge {
             vertex: number,
             position: p,
         });
@@ -154,7 +170,8 @@ fn parse_face_index(corner: &str, count: usize) -> Result<i64, SceneError> {
     let v = corner.split('/').next().unwrap_or("");
     let Ok(index) = v.parse::<i64>() else {
         return Err(SceneError::parse(format!(
-            "cannot parse face vertex '{corner}'"
+            "cannot parse face vertex {}",
+            crate::quote(corner)
         )));
     };
     let bad = SceneError::ObjFaceVertex {
@@ -198,15 +215,18 @@ pub(crate) fn scan_mtl(text: &str) -> Result<MtlText, LineError> {
                         out.text.push_str(&format!("{k} {r} {r} {r}"));
                     }
                     [form, ..] if form == "spectral" || form == "xyz" => {
-                        let what = format!("'{k} {form}' colours (use '{k} r g b')");
+                        let what = format!(
+                            "{} colours (use '{k} r g b')",
+                            crate::quote(&format!("{k} {form}"))
+                        );
                         return Err((line_no, SceneError::Unsupported { what }));
                     }
                     [_, _, _] => out.text.push_str(line),
                     _ => {
                         let message = format!(
-                            "{k} needs 3 numbers (or 1 for grey), found {}: '{}'",
+                            "{k} needs 3 numbers (or 1 for grey), found {}: {}",
                             numbers.len(),
-                            line.trim()
+                            crate::quote(line.trim())
                         );
                         return Err((line_no, SceneError::parse(message)));
                     }

@@ -12,6 +12,9 @@ const MIN_FAN_FRACTION: f64 = 1e-7;
 const PLANARITY: f64 = 1e-2;
 /// Above this many vertices only apex 0 is tried for the fan (trying all is quadratic).
 const MAX_APEX_SEARCH: usize = 1024;
+/// Corner tests (each linear in the vertices) an ear clipping may make per vertex before it
+/// gives up and fans the rest (see [`ear_clip`]).
+const EAR_TESTS_PER_VERTEX: usize = 16;
 
 /// Twice the vector area of a polygon: the sum of the fan cross products
 /// `(p_i - p_0) x (p_{i+1} - p_0)`. Its direction is the Newell normal (front side), its length
@@ -138,8 +141,12 @@ fn in_triangle(p: DVec2, a: DVec2, b: DVec2, c: DVec2) -> bool {
 /// few reflex vertices takes about quadratic time. When a whole round finds no ear, a (nearly)
 /// collinear vertex is removed (its triangle has negligible area); when there is none either (a
 /// self-intersecting outline), the rest is fanned from its first vertex, keeping only the
-/// front-facing triangles.
+/// front-facing triangles. The same fallback ends a search that has tested
+/// [`EAR_TESTS_PER_VERTEX`] corners per vertex without finishing (outlines that touch
+/// themselves everywhere, such as `f 1 2 3 1 2 3 ...`), so the time stays quadratic in the
+/// vertices, never cubic.
 fn ear_clip(pts: &[DVec2], min_cross: f64) -> Vec<[usize; 3]> {
+    let mut tests_left = EAR_TESTS_PER_VERTEX * pts.len();
     let mut ring: Vec<usize> = (0..pts.len()).collect();
     let mut tris = Vec::with_capacity(pts.len().saturating_sub(2));
     // The corner at ring position `j`: its vertex, its neighbours and its doubled area.
@@ -170,7 +177,12 @@ fn ear_clip(pts: &[DVec2], min_cross: f64) -> Vec<[usize; 3]> {
     while ring.len() > 3 {
         let m = ring.len();
         j %= m;
-        if is_ear(&ring, j) {
+        if tests_left == 0 {
+            misses = m;
+        } else {
+            tests_left -= 1;
+        }
+        if misses < m && is_ear(&ring, j) {
             let (a, b, c, _) = corner(&ring, j);
             tris.push([a, b, c]);
             ring.remove(j);

@@ -86,9 +86,16 @@ impl Scene {
     /// Errors (see [`SceneError`]; faces are named by their `source` number, materials by
     /// name): no faces, a non-finite position, a face with fewer than 3 vertices, a vertex or
     /// material index out of range, a reflectance channel outside `[0, 1)` or non-finite, an
-    /// emission channel negative or non-finite, and no emitting face left after the repairs.
+    /// emission channel negative or non-finite, and no emitting face left after the repairs
+    /// (naming emitting faces dropped as degenerate); and the limits: a coordinate beyond
+    /// [`MAX_COORDINATE`](crate::MAX_COORDINATE), a face of more than
+    /// [`MAX_FACE_VERTICES`](crate::MAX_FACE_VERTICES) vertices, more than
+    /// [`MAX_FACES`](crate::MAX_FACES) faces.
     ///
     /// Repairs, each reported by one counted [`Warning`]:
+    /// - **Duplicate faces are dropped** ([`Warning::DuplicateFacesDropped`]): a face, or a
+    ///   triangle of a split face, with the same material and positions in the same cyclic
+    ///   order as an earlier one (a face and its reverse, a two-sided surface, are kept).
     /// - **Degenerate faces are dropped** ([`Warning::DegenerateFacesDropped`]): a face whose
     ///   area (`|sum of fan cross products| / 2`, in f64) is `<= 1e-12 * d²` with `d` the
     ///   diagonal of the bounding box of the vertices the faces use, or exactly zero.
@@ -124,14 +131,31 @@ impl Scene {
         let mut kept = Vec::with_capacity(faces.len());
         let mut dropped = Tally::default();
         let mut split = Tally::default();
+        let mut duplicates = Tally::default();
+        let mut seen = Duplicates::default();
+        // emitting faces dropped as degenerate, and the largest area among them
+        let mut dark = Tally::default();
+        let mut dark_area = 0.0f64;
         for face in faces {
             let ring = merge_repeated(&face.vertices, &positions);
+            if seen.is_duplicate(&ring, face.material, &positions) {
+                duplicates.add(face.source);
+                continue;
+            }
             let pts: Vec<DVec3> = ring
                 .iter()
                 .map(|&v| positions[v as usize].as_dvec3())
                 .collect();
+            let emits = materials[face.material as usize].is_emitter();
+            let mut drop = |dropped: &mut Tally| {
+                dropped.add(face.source);
+                if emits {
+                    dark.add(face.source);
+                    dark_area = dark_area.max(polygon::vector_area2(&pts).length() / 2.0);
+                }
+            };
             match polygon::classify(&pts, degenerate_area) {
-                Shape::Degenerate => dropped.add(face.source),
+                Shape::Degenerate => drop(&mut dropped),
                 Shape::Fan { apex } => {
                     let mut vertices = ring;
                     vertices.rotate_left(apex);
@@ -139,20 +163,30 @@ impl Scene {
                 }
                 Shape::Split(tris) => {
                     let before = kept.len();
+                    let mut repeated = false;
                     for t in tris {
                         let tri = [pts[t[0]], pts[t[1]], pts[t[2]]];
-                        if polygon::vector_area2(&tri).length() / 2.0 > degenerate_area {
-                            kept.push(Face {
-                                vertices: vec![ring[t[0]], ring[t[1]], ring[t[2]]],
-                                material: face.material,
-                                source: face.source,
-                            });
+                        if polygon::vector_area2(&tri).length() / 2.0 <= degenerate_area {
+                            continue;
                         }
+                        let vertices = vec![ring[t[0]], ring[t[1]], ring[t[2]]];
+                        // (a self-overlapping outline such as `f 1 2 3 1 2 3` splits into
+                        // copies of one triangle)
+                        if seen.is_duplicate(&vertices, face.material, &positions) {
+                            duplicates.add(face.source);
+                            repeated = true;
+                            continue;
+                        }
+                        kept.push(Face {
+                            vertices,
+                            material: face.material,
+                            source: face.source,
+                        });
                     }
                     if kept.len() > before {
                         split.add(face.source);
-                    } else {
-                        dropped.add(face.source);
+                    } else if !repeated {
+                        drop(&mut dropped);
                     }
                 }
             }
@@ -167,13 +201,24 @@ impl Scene {
             .iter()
             .any(|f| materials[f.material as usize].is_emitter())
         {
-            return Err(SceneError::NoEmitter);
+            return Err(SceneError::NoEmitter {
+                dropped_emitters: dark.first.map(|first| (dark.count, first)),
+                smallest_dropped_area: dark_area,
+                degenerate_area,
+            });
         }
 
         let mut warnings = Vec::new();
         if let Some(first_source) = dropped.first {
             warnings.push(Warning::DegenerateFacesDropped {
                 count: dropped.count,
+                first_source,
+                emitters: dark.count,
+            });
+        }
+        if let Some(first_source) = duplicates.first {
+            warnings.push(Warning::DuplicateFacesDropped {
+                count: duplicates.count,
                 first_source,
             });
         }
@@ -254,13 +299,15 @@ impl Tally {
 }
 
 fn check_positions(positions: &[Vec3]) -> Result<(), SceneError> {
-    match positions.iter().position(|p| !p.is_finite()) {
-        Some(vertex) => Err(SceneError::NonFinitePosition {
-            vertex,
-            position: positions[vertex],
-        }),
-        None => Ok(()),
+    for (vertex, &position) in positions.iter().enumerate() {
+        if !position.is_finite() {
+            return Err(SceneError::NonFinitePosition { vertex, position });
+        }
+        if position.abs().max_element() > crate::MAX_COORDINATE {
+            return Err(SceneError::CoordinateTooLarge { vertex, position });
+        }
     }
+    Ok(())
 }
 
 fn check_materials(materials: &[Material]) -> Result<(), SceneError> {
@@ -285,7 +332,15 @@ fn check_materials(materials: &[Material]) -> Result<(), SceneError> {
 }
 
 fn check_faces(faces: &[Face], positions: usize, materials: usize) -> Result<(), SceneError> {
+    if faces.len() > crate::MAX_FACES {
+        return Err(SceneError::TooManyFaces);
+    }
     for f in faces {
+        if f.vertices.len() > crate::MAX_FACE_VERTICES {
+            return Err(SceneError::TooManyFaceVertices {
+                count: f.vertices.len(),
+            });
+        }
         if f.vertices.len() < 3 {
             return Err(SceneError::TooFewVertices {
                 face: f.source,
@@ -327,6 +382,38 @@ fn used_bounds(positions: &[Vec3], faces: &[Face]) -> Option<Bounds> {
             max: b.max.max(p),
         },
     ))
+}
+
+/// The faces seen so far, to find duplicates: a face (or a triangle of a split face) with the
+/// same material and the same positions in the same cyclic order (so the same front side) as
+/// an earlier one. Faces are
+/// remembered by a 128-bit hash (16 bytes each; two different faces share one with
+/// probability about `n² / 2^129`).
+#[derive(Default)]
+struct Duplicates {
+    seen: std::collections::HashSet<u128>,
+}
+
+impl Duplicates {
+    /// Whether the face (`ring` of vertices after [`merge_repeated`]) repeats an earlier one;
+    /// if not, remembers it.
+    fn is_duplicate(&mut self, ring: &[u32], material: u32, positions: &[Vec3]) -> bool {
+        use std::hash::{Hash, Hasher};
+        let mut key: Vec<[u32; 3]> = ring
+            .iter()
+            .map(|&v| positions[v as usize].to_array().map(f32::to_bits))
+            .collect();
+        // rotate the smallest position first: the same cycle gives the same key
+        if let Some(start) = (0..key.len()).min_by_key(|&i| key[i]) {
+            key.rotate_left(start);
+        }
+        let half = |salt: u64| {
+            let mut hasher = std::collections::hash_map::DefaultHasher::new();
+            (salt, material, &key).hash(&mut hasher);
+            hasher.finish() as u128
+        };
+        !self.seen.insert(half(1) << 64 | half(2))
+    }
 }
 
 /// The face's vertex ring with consecutive vertices at equal positions merged (cyclically).
@@ -479,7 +566,8 @@ mod tests {
             warnings,
             vec![Warning::DegenerateFacesDropped {
                 count: 4,
-                first_source: 10
+                first_source: 10,
+                emitters: 0
             }]
         );
     }
@@ -493,7 +581,9 @@ mod tests {
             Scene::new(p.clone(), f.clone(), m.clone())
                 .unwrap_err()
                 .to_string(),
-            "the scene has no emitting face (no material with emission > 0 is used by any face)"
+            "the scene has no emitting face left: its 1 emitting face was dropped as degenerate \
+             (area 0.0e0, at most 1.1e-11 counts as zero: 1e-12 of the bounding-box diagonal \
+             squared); the first is face 0"
         );
         f.truncate(1);
         assert_eq!(

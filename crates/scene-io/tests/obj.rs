@@ -221,7 +221,8 @@ fn degenerate_face_is_dropped_and_sources_are_kept() {
         warnings,
         vec![Warning::DegenerateFacesDropped {
             count: 3,
-            first_source: 1
+            first_source: 1,
+            emitters: 0
         }]
     );
     let sources: Vec<u32> = scene.faces().iter().map(|f| f.source).collect();
@@ -329,7 +330,7 @@ fn negative_emission() {
 #[test]
 fn no_emitter() {
     let (m, e) = load_err(&box_obj(), &MTL.replace("Ke 17 12 4", ""));
-    assert!(matches!(e.innermost(), SceneError::NoEmitter));
+    assert!(matches!(e.innermost(), SceneError::NoEmitter { .. }));
     assert_contains(&m, &["box.obj", "no emitting face"]);
 }
 
@@ -412,5 +413,159 @@ fn corrupted_files_error_without_panicking() {
     }
     for line in mtl_odd {
         run(&obj, &format!("{MTL}{line}\n"));
+    }
+}
+
+#[test]
+fn hostile_input_is_refused_at_its_line_with_short_escaped_quotes() {
+    // a face of more corners than supported, refused before any work
+    let corners = " 1 2 3".repeat(20_000);
+    let (m, e) = load_err(&format!("{}f{corners}\n", box_obj()), MTL);
+    assert!(
+        matches!(
+            e.innermost(),
+            SceneError::TooManyFaceVertices { count: 60_000 }
+        ),
+        "{e:?}"
+    );
+    assert_contains(
+        &m,
+        &["box.obj line 27:", "60000 vertices", "triangulate it"],
+    );
+    // the message is complete, so the wrapped error is not also the source (said once)
+    assert!(std::error::Error::source(&e).is_none());
+    // coordinates beyond the limit (areas would overflow f32)
+    let (m, e) = load_err(&format!("{}v 1e38 0 0\n", box_obj()), MTL);
+    assert!(matches!(
+        e.innermost(),
+        SceneError::CoordinateTooLarge { vertex: 13, .. }
+    ));
+    assert_contains(&m, &["box.obj line 27: vertex 13", "(1e38, 0, 0)"]);
+    // a CR and a 400 KB line are escaped and cut
+    let long = "x".repeat(400_000);
+    let (m, _) = load_err(&format!("{}v 1 2 {long}\r\n", box_obj()), MTL);
+    assert!(m.len() < 300, "{} bytes: {m:.300}", m.len());
+    assert!(!m.contains('\r') && m.contains("bytes)"), "{m}");
+    let (m, _) = load_err(&format!("{}v 1 2\r\n", box_obj()), MTL);
+    assert!(m.contains("'v 1 2'") && !m.contains('\r'), "{m}");
+    let (m, _) = load_err(&format!("{}f 1 2 x\u{1b}[2J\n", box_obj()), MTL);
+    assert!(m.contains("\\u{1b}[2J") && !m.contains('\u{1b}'), "{m}");
+}
+
+#[test]
+fn a_light_dropped_as_degenerate_is_named_as_the_reason() {
+    // the only light is 1e-6 across: 5e-13 m², below 1e-12 of the diagonal squared
+    let obj = format!(
+        "mtllib box.mtl\n{VERTICES}usemtl white\nf 1 2 3 4\nusemtl light\n\
+         v 0 0.5 0\nv 1e-6 0.5 0\nv 0 0.5 1e-6\nf 13 14 15\n"
+    );
+    let (m, e) = load_err(&obj, MTL);
+    assert!(
+        matches!(
+            e.innermost(),
+            SceneError::NoEmitter {
+                dropped_emitters: Some((1, 1)),
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert_contains(
+        &m,
+        &[
+            "emitting face was dropped as degenerate",
+            "area 5.0e-13",
+            "the first is face 1",
+        ],
+    );
+    // with another light left, the warning says light was lost
+    let obj = format!("{obj}f 9 10 11 12\n");
+    let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
+    let warnings = load_ok(&dir, "box.obj").warnings;
+    assert_eq!(warnings.len(), 1);
+    assert!(
+        warnings[0]
+            .to_string()
+            .contains("1 of them emitted light, which is lost")
+    );
+}
+
+#[test]
+fn duplicate_faces_are_dropped_once_each_and_two_sided_faces_kept() {
+    let mut obj = box_obj();
+    for _ in 0..1000 {
+        obj.push_str("f 10 11 12 9\n"); // the light again, rotated
+    }
+    obj.push_str("f 12 11 10 9\n"); // its back: a two-sided light is no duplicate
+    let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok(&dir, "box.obj");
+    assert_eq!(scene.faces().len(), 7);
+    assert_eq!(
+        warnings,
+        vec![Warning::DuplicateFacesDropped {
+            count: 1000,
+            first_source: 6
+        }]
+    );
+    // a self-overlapping outline splits into copies of one triangle: one is kept
+    let obj = format!("{}f{}\n", box_obj(), " 1 2 3".repeat(300));
+    let dir = write(&[("box.obj", &obj), ("box.mtl", MTL)]);
+    let loaded = load_ok(&dir, "box.obj");
+    let parts = loaded
+        .scene
+        .faces()
+        .iter()
+        .filter(|f| f.source == 6)
+        .count();
+    assert_eq!(parts, 1, "{:?}", loaded.warnings);
+}
+
+#[test]
+fn material_libraries_outside_the_folder_and_device_files_are_refused() {
+    let inner = TempDir::new().unwrap();
+    let scene_dir = inner.path().join("scene");
+    fs::create_dir(&scene_dir).unwrap();
+    fs::write(inner.path().join("box.mtl"), MTL).unwrap();
+    let obj = box_obj().replace("mtllib box.mtl", "mtllib ../box.mtl");
+    fs::write(scene_dir.join("box.obj"), &obj).unwrap();
+    let path = scene_dir.join("box.obj");
+    let e = load(&path).unwrap_err();
+    assert!(
+        matches!(e.innermost(), SceneError::OutsideScene { .. }),
+        "{e:?}"
+    );
+    assert_contains(
+        &e.to_string(),
+        &[
+            "box.obj line 2: '../box.mtl' is outside the scene's folder",
+            "--allow-outside-paths",
+        ],
+    );
+    let open = mcrad_scene_io::LoadOptions {
+        allow_outside_paths: true,
+        ..Default::default()
+    };
+    assert!(mcrad_scene_io::load_with(&path, &open).is_ok());
+    for (name, why) in [
+        ("/etc/passwd", "absolute path"),
+        ("/dev/zero", "absolute path"),
+    ] {
+        let (m, _) = load_err(&box_obj().replace("box.mtl", name), MTL);
+        assert_contains(&m, &["line 2", name, why]);
+    }
+    #[cfg(unix)]
+    {
+        let dir = write(&[("box.obj", &box_obj().replace("box.mtl", "/dev/zero"))]);
+        let e = mcrad_scene_io::load_with(&dir.path().join("box.obj"), &open).unwrap_err();
+        assert!(
+            matches!(e.innermost(), SceneError::NotAFile { .. }),
+            "{e:?}"
+        );
+        assert_contains(
+            &e.to_string(),
+            &["box.obj line 2: /dev/zero is not a regular file"],
+        );
     }
 }
