@@ -266,6 +266,7 @@ mod tests {
                 area: p.area,
                 radiosity: *b,
                 variance: None,
+                face: None,
             })
             .collect()
     }

@@ -185,6 +185,11 @@ impl AdaptiveMesh {
         &self.mesh
     }
 
+    /// The mesh of the current leaves, giving up the hierarchy.
+    pub fn into_mesh(self) -> Mesh {
+        self.mesh
+    }
+
     /// The bounds the refinement keeps.
     pub fn bounds(&self) -> AdaptiveBounds {
         self.bounds
@@ -372,7 +377,7 @@ fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
         }
         sum += a;
     }
-    ((sum - parent_area).abs() <= 1e-6 * parent_area).then_some(children)
+    ((sum - parent_area).abs() <= 1e-3 * parent_area).then_some(children)
 }
 
 /// The mesh of `leaves`: vertices shared where corners are equal as `f32`.
