@@ -137,8 +137,8 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     Ok(())
 }
 
-/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 10, refined with a
-/// quarter of the ray budget (a million rays with `--time` alone).
+/// The adaptive mesh of `--mesh adaptive`: the scene cut as the uniform default (the diagonal
+/// / 20), refined with a quarter of the ray budget (a million rays with `--time` alone).
 fn adaptive_mesh(
     args: &Solve,
     scene: &mcrad_scene_io::Scene,

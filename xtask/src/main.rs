@@ -34,7 +34,7 @@ tasks:
   gen-scenes
           writes the generated experiment scenes scenes/boxes-room.obj and
           scenes/table-room.obj (+ .mtl)
-  image-error IMAGE.exr REFERENCE.exr
+  image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]
           img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor
           have a neighbour that does), and the same over the darkest third of them
   gen-references [scene ...]
@@ -80,11 +80,24 @@ fn run() -> Result<()> {
         Some("gen-scenes") => gen_scenes::run(&root()),
         Some("image-error") => {
             let args: Vec<String> = std::env::args().skip(2).collect();
-            let [image, reference] = args.as_slice() else {
-                anyhow::bail!("usage: cargo xtask image-error IMAGE.exr REFERENCE.exr");
+            let (image, reference, diff) = match args.as_slice() {
+                [i, r] => (i, r, None),
+                [i, r, d] => (i, r, Some(d)),
+                _ => anyhow::bail!(
+                    "usage: cargo xtask image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]"
+                ),
             };
             let read = |p: &str| mcrad_render::read_exr(std::path::Path::new(p));
-            let e = mcrad_lab::compare::image_error(&read(image)?, &read(reference)?, 0.5)?;
+            let (image, reference) = (read(image)?, read(reference)?);
+            let e = mcrad_lab::compare::image_error(&image, &reference, 0.5)?;
+            if let Some(d) = diff {
+                let d_img = mcrad_lab::compare::difference_image(&image, &reference)?;
+                mcrad_render::write_png(
+                    &d_img,
+                    std::path::Path::new(d),
+                    mcrad_render::Exposure::Stops(0.0),
+                )?;
+            }
             println!(
                 "img_rel {:.4} dark_third {:.4} pixels {}",
                 e.relative, e.dark_third, e.pixels

@@ -81,10 +81,12 @@ pub struct AdaptiveBounds {
 }
 
 /// The default starting mesh as a fraction of the scene's bounding-box diagonal: no element
-/// edge longer than the diagonal / 10 (half the uniform default's resolution).
-pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 10.0;
+/// edge longer than the diagonal / 20, the uniform default, so an adaptive mesh is nowhere
+/// coarser than the uniform one (starting from the diagonal / 10 measured 3.7% image error
+/// against 6.9% on the table room at 2e6 rays).
+pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 20.0;
 
-/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (five
+/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (four
 /// halvings of the starting mesh).
 pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 320.0;
 

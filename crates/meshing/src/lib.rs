@@ -15,6 +15,7 @@
 
 mod adaptive;
 mod build;
+mod seams;
 mod smooth;
 mod subdivide;
 
@@ -23,6 +24,7 @@ pub use adaptive::{
     DEFAULT_MIN_EDGE_FRACTION, Refinement,
 };
 pub use build::{DEFAULT_MAX_EDGE_FRACTION, Mesh, MeshError, Patch, Subdivision};
+pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 
 #[cfg(test)]
