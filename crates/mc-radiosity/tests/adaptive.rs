@@ -81,6 +81,12 @@ fn elements_go_to_the_shadow_boundary_and_not_into_the_even_dark() {
                 p.centroid
             );
         }
+        // The hierarchy and its mesh hold well under 300 bytes per element.
+        assert!(
+            mesh.bytes_per_element() < 300.0,
+            "{} bytes",
+            mesh.bytes_per_element()
+        );
         // The dark floor far from the boundary (x < 1.5, B = 0 everywhere) is not refined.
         for p in floor.iter().filter(|p| p.centroid.x < 1.5) {
             assert_eq!(

@@ -396,5 +396,6 @@ fn build_mesh(templates: &[PatchTemplate], leaves: &[Leaf]) -> Mesh {
         }
         mesh.push_patch(&corners, &templates[leaf.template as usize]);
     }
+    mesh.shrink_to_fit();
     mesh
 }

@@ -143,6 +143,15 @@ impl Mesh {
         }
     }
 
+    /// Releases the arrays' spare capacity.
+    pub(crate) fn shrink_to_fit(&mut self) {
+        self.positions.shrink_to_fit();
+        self.corners.shrink_to_fit();
+        self.triangles.shrink_to_fit();
+        self.triangle_patch.shrink_to_fit();
+        self.patches.shrink_to_fit();
+    }
+
     /// Bytes of the mesh's arrays (their capacities; allocator overhead not counted).
     pub fn heap_bytes(&self) -> usize {
         self.positions.capacity() * size_of::<Vec3>()

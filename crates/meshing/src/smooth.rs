@@ -309,12 +309,14 @@ impl Tie<'_> {
         let own = &self.patches[q as usize];
         let vm = (va + vb) * 0.5;
         let (mut found, mut changed) = (false, false);
-        for i in start..end {
-            let p = self.incidences[i].1;
+        for (&(_, p), value) in self.incidences[start..end]
+            .iter()
+            .zip(&mut smoothed[start..end])
+        {
             if p != q && same_surface(own, &self.patches[p as usize], self.min_cosine) {
                 found = true;
-                if smoothed[i] != vm {
-                    smoothed[i] = vm;
+                if *value != vm {
+                    *value = vm;
                     changed = true;
                 }
             }
