@@ -548,3 +548,45 @@ fn adaptive_meshes_refuse_uniform_options() {
         );
     }
 }
+
+/// Every Monte Carlo method runs on an adaptive mesh (the method solves the refined mesh).
+#[test]
+fn every_method_solves_an_adaptive_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    for method in mcrad_mc_radiosity::Method::ALL {
+        if method == mcrad_mc_radiosity::Method::Reference {
+            continue; // deterministic and slow on thousands of patches; nothing adaptive-specific
+        }
+        let csv = path(dir.path(), &format!("{method}.csv"));
+        let o = cheap_adaptive(&["--method", method.name(), "--patches", &csv]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let rows = read_csv(&csv);
+        assert!(
+            rows.len() > 943 && rows.len() <= 1500,
+            "{method}: {}",
+            rows.len()
+        );
+        assert!(
+            rows.iter()
+                .all(|r| r.radiosity.is_finite() && r.face.is_some())
+        );
+    }
+}
+
+fn cheap_adaptive(extra: &[&str]) -> Output {
+    let mut args = vec![
+        "solve",
+        "scenes/cornell-box.obj",
+        "--mesh",
+        "adaptive",
+        "--max-patches",
+        "1500",
+        "--rays",
+        "2e5",
+        "--threads",
+        "2",
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    mcrad(&args)
+}
