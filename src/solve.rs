@@ -45,7 +45,12 @@ fn solve(args: &Solve, threads: usize) -> Result<()> {
     let (mesh, refinement) = if args.adaptive() {
         let (mesh, refined) = adaptive_mesh(args, scene, config.rays)?;
         if config.rays != u64::MAX {
-            config.rays = config.rays.saturating_sub(refined.rays).max(1);
+            // The method gets what the refinement left, and at least half the budget.
+            config.rays = config
+                .rays
+                .saturating_sub(refined.rays)
+                .max(config.rays / 2)
+                .max(1);
         }
         (mesh, Some(refined))
     } else {

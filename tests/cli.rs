@@ -573,6 +573,26 @@ fn every_method_solves_an_adaptive_mesh() {
     }
 }
 
+/// A budget too small for the refinement still solves: the rounds it cannot pay for are not
+/// started and the method keeps at least half the rays.
+#[test]
+fn a_small_budget_still_solves_an_adaptive_mesh() {
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--mesh",
+        "adaptive",
+        "--rays",
+        "3e4",
+        "--method",
+        "gather",
+        "--threads",
+        "2",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 fn cheap_adaptive(extra: &[&str]) -> Output {
     let mut args = vec![
         "solve",

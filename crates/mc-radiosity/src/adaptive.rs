@@ -55,7 +55,9 @@ const SHADOW_TAG: u64 = 0xada2_0000;
 #[derive(Debug, Clone, PartialEq)]
 pub struct AdaptiveConfig {
     /// Rays the refinement may cast in all (pilot, gathering rounds and shadow rays): a third
-    /// for the pilot shooting, the rest shared by the rounds.
+    /// for the pilot shooting, the rest shared by the rounds; a round the rest cannot pay for
+    /// (its shadow rays and 16 rays per element) is not started, and the last one may exceed
+    /// the budget by the refinement's growth of the mesh.
     pub rays: u64,
     /// The most refinement rounds.
     pub rounds: u32,
@@ -159,6 +161,12 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     };
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
+        // A round costs its shadow rays and at least 8 gathering rays and 4 emitter samples
+        // (two rays each) per element: stop when the budget cannot pay for it.
+        let cheapest = (u64::from(config.shadow_rays) + 16) * mesh.len() as u64;
+        if rays.saturating_add(cheapest) > config.rays {
+            break;
+        }
         let bvh = caster(mesh.mesh())?;
         let ctx = Context::new(mesh.mesh(), &bvh);
         let key = StreamKey::new(derive_seed(config.seed, SHADOW_TAG)).pass(u64::from(round));
