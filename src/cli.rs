@@ -71,6 +71,19 @@ pub struct Solve {
     /// One patch per input face, faces in file order.
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
+    /// How faces become patches: `uniform` (the default: every face cut to --max-edge, or the
+    /// default size) or `adaptive` (the default uniform mesh refined where the solution needs
+    /// it, within --min-edge and --max-patches; a quarter of the ray budget goes to the
+    /// refinement, then the method solves the refined mesh).
+    #[arg(long, value_enum, value_name = "KIND")]
+    pub mesh: Option<MeshArg>,
+    /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
+    /// bounding-box diagonal / 320.
+    #[arg(long, value_name = "L", allow_negative_numbers = true)]
+    pub min_edge: Option<f32>,
+    /// Adaptive meshes: at most N elements.
+    #[arg(long, value_name = "N", default_value_t = mcrad_meshing::DEFAULT_MAX_PATCHES)]
+    pub max_patches: usize,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's
     /// bounding-box diagonal × `DEFAULT_MAX_EDGE_FRACTION`.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length, help = max_edge_help())]
@@ -80,9 +93,14 @@ pub struct Solve {
     /// default is small: a run spends its budget. The paper's 0.01 stops sooner.
     #[arg(long, default_value_t = DEFAULT_UNSHOT_THRESHOLD, value_name = "FRACTION")]
     pub unshot_threshold: f64,
-    /// Write per-patch radiosity: `patch,area,r,g,b,var_r,var_g,var_b`.
+    /// Write per-patch radiosity: `patch,area,r,g,b,var_r,var_g,var_b,face` (`face`: the input
+    /// face the patch belongs to).
     #[arg(long, value_name = "F.csv")]
     pub patches: Option<PathBuf>,
+    /// --patches writes one row per input face instead (`patch` is the face number), the
+    /// area-weighted mean of its patches, with the header `patch,area,r,g,b,var_r,var_g,var_b`.
+    #[arg(long, requires = "patches")]
+    pub per_face: bool,
     /// Write run statistics as JSON.
     #[arg(long, value_name = "F.json")]
     pub stats: Option<PathBuf>,
@@ -223,6 +241,12 @@ impl Solve {
                 "--visibility-tolerance applies to --method reference only; ignored with --method {method}"
             ));
         }
+        if !self.adaptive() && self.min_edge.is_some() {
+            warnings.push("--min-edge applies to --mesh adaptive only; ignored".into());
+        }
+        if !self.adaptive() && self.max_patches != mcrad_meshing::DEFAULT_MAX_PATCHES {
+            warnings.push("--max-patches applies to --mesh adaptive only; ignored".into());
+        }
         if self.split && !matches!(method, Method::TwoPassSplit) {
             warnings.push(format!(
                 "--split applies to --method two-pass only; ignored with --method {method}"
@@ -257,6 +281,42 @@ fn max_edge_help() -> String {
          bounding-box diagonal / {}",
         1.0 / DEFAULT_MAX_EDGE_FRACTION
     )
+}
+
+/// How faces become patches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MeshArg {
+    /// Every face cut uniformly (`--max-edge`, or the scene's diagonal / 20).
+    Uniform,
+    /// The uniform default mesh refined where the solution varies beyond its noise or the
+    /// light's visibility changes.
+    Adaptive,
+}
+
+impl Solve {
+    /// Whether the mesh is adaptive (`--mesh adaptive`; uniform is the default).
+    pub fn adaptive(&self) -> bool {
+        self.mesh == Some(MeshArg::Adaptive)
+    }
+
+    /// Refuses option combinations that contradict each other.
+    pub fn check_mesh_options(&self) -> Result<(), String> {
+        if self.adaptive() {
+            if self.max_edge.is_some() {
+                return Err("--max-edge sets a uniform mesh; use --min-edge and --max-patches to bound --mesh adaptive".into());
+            }
+            if self.no_subdivide {
+                return Err("--no-subdivide sets one patch per face; it cannot be combined with --mesh adaptive".into());
+            }
+            if self.reference.is_some() {
+                return Err("--reference compares patch by patch with a fixed mesh; use it with --mesh uniform".into());
+            }
+            if self.max_patches == 0 {
+                return Err("--max-patches must be at least 1".into());
+            }
+        }
+        Ok(())
+    }
 }
 
 /// How renders are shaded.

@@ -181,6 +181,7 @@ fn merge_runs(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<(Vec<PatchRow
                 area: runs[0][i].area,
                 radiosity: value,
                 variance,
+                face: runs[0][i].face,
             }
         })
         .collect();
@@ -218,6 +219,7 @@ mod tests {
             area,
             radiosity: DVec3::splat(b),
             variance: v.map(DVec3::splat),
+            face: None,
         }
     }
 

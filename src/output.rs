@@ -82,7 +82,7 @@ pub fn write(
 ) -> Result<()> {
     let needs_corners =
         args.gltf.is_some() || (args.image.is_some() && args.shading == ShadingArg::Smooth);
-    let corners = needs_corners.then(|| mesh.corner_radiosity(radiosity, args.crease));
+    let corners = needs_corners.then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
     if let Some(path) = &args.image {
         let format = image_format(path)?;
         let camera = camera(args, file_camera, mesh, bvh)?;

@@ -8,9 +8,12 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_combine::Estimate;
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
+use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, Refined, refine};
 use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
 use mcrad_mc_radiosity::{Error as SolveError, StopReason};
-use mcrad_meshing::{Mesh, MeshError, Subdivision};
+use mcrad_meshing::{
+    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, Mesh, MeshError, Subdivision,
+};
 use mcrad_raycast::Bvh;
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
@@ -42,6 +45,7 @@ pub fn run(args: &Solve) -> Result<Outcome> {
 
 fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     crate::output::check(args)?;
+    args.check_mesh_options().map_err(anyhow::Error::msg)?;
     for warning in args.warnings() {
         eprintln!("warning: {warning}");
     }
@@ -64,21 +68,35 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         eprintln!("warning: {}: {warning}", args.scene.display());
     }
     let scene = &loaded.scene;
-    let subdivision = if args.no_subdivide {
-        Subdivision::None
+    let mut config = args.schedule_config();
+    let (mesh, refinement) = if args.adaptive() {
+        let (mesh, refined) = adaptive_mesh(args, scene, config.rays)?;
+        if config.rays != u64::MAX {
+            // The method gets what the refinement left, and at least half the budget.
+            config.rays = config
+                .rays
+                .saturating_sub(refined.rays)
+                .max(config.rays / 2)
+                .max(1);
+        }
+        (mesh, Some(refined))
     } else {
-        args.max_edge
-            .map_or_else(|| Subdivision::default_for(scene), Subdivision::MaxEdge)
+        let subdivision = if args.no_subdivide {
+            Subdivision::None
+        } else {
+            args.max_edge
+                .map_or_else(|| Subdivision::default_for(scene), Subdivision::MaxEdge)
+        };
+        // the reference solver refuses a large mesh: stop building it there
+        let max_patches = match method.kind() {
+            Kind::Deterministic => config.reference.max_patches,
+            _ => usize::MAX,
+        };
+        let mesh = Mesh::build_at_most(scene, subdivision, max_patches)
+            .map_err(|e| mesh_error(e, args, subdivision))
+            .with_context(|| args.scene.display().to_string())?;
+        (mesh, None)
     };
-    let method = args.method();
-    // the reference solver refuses a large mesh: stop building it there
-    let max_patches = match method.kind() {
-        Kind::Deterministic => args.schedule_config().reference.max_patches,
-        _ => usize::MAX,
-    };
-    let mesh = Mesh::build_at_most(scene, subdivision, max_patches)
-        .map_err(|e| mesh_error(e, args, subdivision))
-        .with_context(|| args.scene.display().to_string())?;
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())
         .with_context(|| args.scene.display().to_string())?;
     let mut tracer = match (&args.reference, &args.trace) {
@@ -108,7 +126,6 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         .filter(|_| method.kind() != Kind::Deterministic);
     let setup_seconds = setup.elapsed().as_secs_f64();
 
-    let mut config = args.schedule_config();
     // A continuation is an independent run with its own streams (piece number > 0).
     let piece = resumed.as_ref().map_or(0, |s| s.pieces);
     config.seed = piece_seed(args.seed, piece);
@@ -256,10 +273,11 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             state.save(path)?;
         }
     }
+    let refinement_rays = refinement.as_ref().map_or(0, |r| r.rays);
     let run = RunStats {
         method,
         patches: mesh.patches().len(),
-        rays: estimate.rays(),
+        rays: estimate.rays() + refinement_rays,
         seconds,
         rays_per_second: piece_rays as f64 / seconds.max(1e-9),
         iterations: state.steps,
@@ -281,6 +299,16 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         &run,
         &bar,
     )?;
+    if let Some(r) = refinement
+        && !args.quiet
+    {
+        println!(
+            "adaptive mesh: {} elements after {} refinement rounds ({} rays, counted above)",
+            run.patches,
+            r.rounds.iter().filter(|r| r.split > 0).count(),
+            r.rays
+        );
+    }
     if interrupted {
         eprintln!(
             "interrupted: {}the outputs hold the last complete step ({} steps, {} rays{})",
@@ -350,6 +378,44 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
     }
 }
 
+/// The adaptive mesh of `--mesh adaptive`: the scene cut as the uniform default (the diagonal
+/// / 20), refined with a quarter of the ray budget (a million rays with `--time` alone).
+fn adaptive_mesh(
+    args: &Solve,
+    scene: &mcrad_scene_io::Scene,
+    rays: u64,
+) -> Result<(Mesh, Refined)> {
+    let mut bounds = AdaptiveBounds::default_for(scene);
+    bounds.max_patches = args.max_patches;
+    if let Some(min_edge) = args.min_edge {
+        bounds.min_edge = min_edge;
+    }
+    let coarse =
+        Subdivision::MaxEdge(scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION);
+    let mut mesh = AdaptiveMesh::new(scene, coarse, bounds)?;
+    if mesh.len() > bounds.max_patches {
+        mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)?;
+    }
+    let config = AdaptiveConfig {
+        rays: if rays == u64::MAX {
+            1_000_000
+        } else {
+            (rays / 4).max(1)
+        },
+        seed: args.seed,
+        ..Default::default()
+    };
+    let refined = refine(&mut mesh, &config)?;
+    let unrefinable = refined.unrefinable();
+    if unrefinable > 0 {
+        eprintln!(
+            "warning: {unrefinable} elements could not be split into valid elements (slivers, \
+             tiny faces or coordinates far from the origin); kept as they are"
+        );
+    }
+    Ok((mesh.into_mesh(), refined))
+}
+
 /// The share of the time left a `--time` run plans to fill: the rest absorbs the per-step
 /// work that does not scale with rays and the writing of the outputs.
 const TIME_FILL: f64 = 0.97;
@@ -388,8 +454,13 @@ fn finish(
             area: p.area,
             radiosity: estimate.radiosity()[i],
             variance: estimate.variance().map(|v| v[i]),
+            face: Some(p.face),
         });
-        write_patch_csv(create(path)?, rows)?;
+        if args.per_face {
+            write_patch_csv(create(path)?, per_face(rows))?;
+        } else {
+            write_patch_csv(create(path)?, rows)?;
+        }
     }
     if let Some(path) = &args.stats {
         run.write_json(create(path)?)?;
@@ -414,6 +485,38 @@ fn finish(
         );
     }
     Ok(())
+}
+
+/// One row per input face, in face order: the area-weighted means `sum A_i B_i / sum A_i` of
+/// its patches' rows, with the variance of that mean `sum (A_i / A)² V_i` (patches taken as
+/// independent) and the face's area; `patch` is the face number, `face` is `None` (today's
+/// header).
+fn per_face(rows: impl Iterator<Item = PatchRow>) -> Vec<PatchRow> {
+    use std::collections::BTreeMap;
+    // face -> (area, sum A B, sum A² V, every patch had a variance)
+    let mut faces: BTreeMap<u32, (f64, glam::DVec3, glam::DVec3, bool)> = BTreeMap::new();
+    for r in rows {
+        let face = r.face.unwrap_or(r.patch);
+        let e = faces
+            .entry(face)
+            .or_insert((0.0, glam::DVec3::ZERO, glam::DVec3::ZERO, true));
+        e.0 += r.area;
+        e.1 += r.area * r.radiosity;
+        match r.variance {
+            Some(v) => e.2 += r.area * r.area * v,
+            None => e.3 = false,
+        }
+    }
+    faces
+        .into_iter()
+        .map(|(face, (area, sum, var, has_var))| PatchRow {
+            patch: face,
+            area,
+            radiosity: sum / area,
+            variance: has_var.then(|| var / (area * area)),
+            face: None,
+        })
+        .collect()
 }
 
 pub fn create(path: &Path) -> Result<BufWriter<File>> {

@@ -143,6 +143,8 @@ impl RunState {
                 area: self.area[i],
                 radiosity: DVec3::from_array(self.radiosity[i]),
                 variance: self.variance.as_ref().map(|v| DVec3::from_array(v[i])),
+                // A state keeps patch numbers, not input faces.
+                face: None,
             })
             .collect()
     }

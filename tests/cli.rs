@@ -434,3 +434,179 @@ fn a_time_and_no_ray_budget_finishes() {
         assert!(stats["rays"].as_u64().unwrap() > 0, "{method}: {stats}");
     }
 }
+
+/// `--mesh adaptive --per-face` against a fine uniform mesh's face means: equal within their
+/// reported noise (4 standard deviations of the difference, shooting on both, one seed each;
+/// the face variance is `sum (A_i/A)² V_i`), and the per-patch CSV lists leaf elements with
+/// their input face, within the patch budget.
+#[test]
+fn adaptive_face_means_match_the_uniform_mesh_within_noise() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, extra: &[&str]| {
+        let csv = path(dir.path(), name);
+        let mut args = vec![
+            "solve",
+            "scenes/cornell-box.obj",
+            "--method",
+            "shoot",
+            "--rays",
+            "4e6",
+            "--threads",
+            "2",
+            "--quiet",
+            "--patches",
+            &csv,
+        ];
+        args.extend_from_slice(extra);
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        csv
+    };
+    let adaptive = read_csv(&run(
+        "a.csv",
+        &[
+            "--mesh",
+            "adaptive",
+            "--max-patches",
+            "3000",
+            "--seed",
+            "1",
+            "--per-face",
+        ],
+    ));
+    // A fine uniform mesh: the default one's face means differ by its discretisation (the
+    // blocks' faces by 3-5%, the contact shadows washed out), a fine one's agree.
+    let uniform = read_csv(&run(
+        "u.csv",
+        &["--max-edge", "0.01", "--seed", "2", "--per-face"],
+    ));
+    assert_eq!(adaptive.len(), 19);
+    assert_eq!(uniform.len(), 19);
+    for (a, u) in adaptive.iter().zip(&uniform) {
+        assert_eq!(a.patch, u.patch);
+        assert!(
+            (a.area - u.area).abs() < 1e-6 * u.area,
+            "face {} area",
+            a.patch
+        );
+        assert_eq!(a.face, None, "--per-face keeps today's header");
+        let (va, vu) = (a.variance.unwrap(), u.variance.unwrap());
+        for c in 0..3 {
+            let z = (a.radiosity[c] - u.radiosity[c]) / (va[c] + vu[c]).sqrt().max(1e-300);
+            assert!(z.abs() < 4.0, "face {} channel {c}: z = {z}", a.patch);
+        }
+    }
+    // The leaf elements: a face for each, within the budget, areas adding up per face.
+    let leaves = read_csv(&run(
+        "l.csv",
+        &["--mesh", "adaptive", "--max-patches", "3000", "--seed", "1"],
+    ));
+    assert!(
+        leaves.len() > 943 && leaves.len() <= 3000,
+        "{}",
+        leaves.len()
+    );
+    for face in &adaptive {
+        let area: f64 = leaves
+            .iter()
+            .filter(|l| l.face == Some(face.patch))
+            .map(|l| l.area)
+            .sum();
+        assert!(
+            (area - face.area).abs() < 1e-6 * face.area,
+            "face {}",
+            face.patch
+        );
+    }
+}
+
+#[test]
+fn adaptive_meshes_refuse_uniform_options() {
+    for (extra, message) in [
+        (&["--max-edge", "0.1"][..], "--max-edge sets a uniform mesh"),
+        (
+            &["--min-edge", "0"][..],
+            "--min-edge must be a positive length",
+        ),
+    ] {
+        let mut args = vec!["--mesh", "adaptive", "--rays", "1e4"];
+        args.extend_from_slice(extra);
+        let mut full = vec![
+            "solve",
+            "scenes/cornell-box.obj",
+            "--threads",
+            "1",
+            "--quiet",
+        ];
+        full.extend_from_slice(&args);
+        let o = mcrad(&full);
+        assert!(!o.status.success());
+        assert!(
+            stderr(&o).starts_with("error: ") && stderr(&o).contains(message),
+            "{}",
+            stderr(&o)
+        );
+    }
+}
+
+/// Every Monte Carlo method runs on an adaptive mesh (the method solves the refined mesh).
+#[test]
+fn every_method_solves_an_adaptive_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    for method in mcrad_mc_radiosity::Method::ALL {
+        if method == mcrad_mc_radiosity::Method::Reference {
+            continue; // deterministic and slow on thousands of patches; nothing adaptive-specific
+        }
+        let csv = path(dir.path(), &format!("{method}.csv"));
+        let o = cheap_adaptive(&["--method", method.name(), "--patches", &csv]);
+        assert!(o.status.success(), "{method}: {}", stderr(&o));
+        let rows = read_csv(&csv);
+        assert!(
+            rows.len() > 943 && rows.len() <= 1500,
+            "{method}: {}",
+            rows.len()
+        );
+        assert!(
+            rows.iter()
+                .all(|r| r.radiosity.is_finite() && r.face.is_some())
+        );
+    }
+}
+
+/// A budget too small for the refinement still solves: the rounds it cannot pay for are not
+/// started and the method keeps at least half the rays.
+#[test]
+fn a_small_budget_still_solves_an_adaptive_mesh() {
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--mesh",
+        "adaptive",
+        "--rays",
+        "3e4",
+        "--method",
+        "gather",
+        "--threads",
+        "2",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+fn cheap_adaptive(extra: &[&str]) -> Output {
+    let mut args = vec![
+        "solve",
+        "scenes/cornell-box.obj",
+        "--mesh",
+        "adaptive",
+        "--max-patches",
+        "1500",
+        "--rays",
+        "2e5",
+        "--threads",
+        "2",
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    mcrad(&args)
+}

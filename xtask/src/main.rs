@@ -32,7 +32,11 @@ tasks:
           every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z²,
           spread/reported variance, power bias, budget use; writes docs/calibration.md
   gen-scenes
-          writes the generated experiment scene scenes/boxes-room.obj (+ .mtl)
+          writes the generated experiment scenes scenes/boxes-room.obj and
+          scenes/table-room.obj (+ .mtl)
+  image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]
+          img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor
+          have a neighbour that does), and the same over the darkest third of them
   gen-references [scene ...]
           reference solutions of the experiment scenes (default: all but cornell-2k)
           into scenes/reference/
@@ -74,6 +78,32 @@ fn run() -> Result<()> {
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
         Some("calibrate") => calibrate::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>()),
         Some("gen-scenes") => gen_scenes::run(&root()),
+        Some("image-error") => {
+            let args: Vec<String> = std::env::args().skip(2).collect();
+            let (image, reference, diff) = match args.as_slice() {
+                [i, r] => (i, r, None),
+                [i, r, d] => (i, r, Some(d)),
+                _ => anyhow::bail!(
+                    "usage: cargo xtask image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]"
+                ),
+            };
+            let read = |p: &str| mcrad_render::read_exr(std::path::Path::new(p));
+            let (image, reference) = (read(image)?, read(reference)?);
+            let e = mcrad_lab::compare::image_error(&image, &reference, 0.5)?;
+            if let Some(d) = diff {
+                let d_img = mcrad_lab::compare::difference_image(&image, &reference)?;
+                mcrad_render::write_png(
+                    &d_img,
+                    std::path::Path::new(d),
+                    mcrad_render::Exposure::Stops(0.0),
+                )?;
+            }
+            println!(
+                "img_rel {:.4} dark_third {:.4} pixels {}",
+                e.relative, e.dark_third, e.pixels
+            );
+            Ok(())
+        }
         Some("gen-references") => {
             let names: Vec<String> = std::env::args().skip(2).collect();
             speed::scenes::generate(&root(), &names)

@@ -37,6 +37,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             area: p.area,
             radiosity: estimate.radiosity()[i],
             variance: estimate.variance().map(|v| v[i]),
+            face: None,
         })
         .collect();
     let path = std::env::temp_dir().join(format!("mcrad-patches-{}.csv", std::process::id()));

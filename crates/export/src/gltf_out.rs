@@ -12,7 +12,10 @@
 //! - `_RADIOSITY` ([`RADIOSITY_ATTRIBUTE`], f32 vec3): the radiosity `B` itself in W/m², exact
 //!   to f32 rounding,
 //!
-//! and `u32` indices: each patch's fan triangles, counter-clockwise seen from the front. The mesh's
+//! and `u32` indices: each patch's fan triangles, counter-clockwise seen from the front; a patch
+//! with T-vertices on its edges ([`Mesh::edge_points`], where an adaptive mesh's finer elements
+//! meet a coarser one) is fanned from its centroid over its corners and those points instead,
+//! valued linearly along the edge, so the surface has no cracks and no seams there. The mesh's
 //! `extras` hold `{"mcrad": {"radiosity_attribute": "_RADIOSITY", "units": "W/m^2",
 //! "color_scale": s}}` with `s` the scale applied to `B / pi` for `COLOR_0`. The material is
 //! single-sided white, non-metallic and rough, and marked `KHR_materials_unlit` (listed in
@@ -321,10 +324,34 @@ fn deduplicate(mesh: &Mesh, corner_radiosity: &[DVec3]) -> Result<Geometry, Expo
     };
     let mut seen: HashMap<VertexKey, u32> = HashMap::new();
     let mut patch_vertices = Vec::new();
+    let edge_points = mesh.edge_points();
+    let mut vertex = |geometry: &mut Geometry, position: Vec3, normal: Vec3, b32: Vec3| {
+        let key = VertexKey {
+            position: bits(position),
+            normal: bits(normal),
+            radiosity: bits(b32),
+        };
+        let next = geometry.positions.len();
+        let index = *seen.entry(key).or_insert_with(|| next as u32);
+        if index as usize == next {
+            if next == u32::MAX as usize {
+                return Err(gltf_error(format!(
+                    "more than {} distinct vertices do not fit u32 indices",
+                    u32::MAX - 1
+                )));
+            }
+            geometry.positions.push(position);
+            geometry.normals.push(normal);
+            geometry.radiosity.push(b32);
+        }
+        Ok(index)
+    };
     for (p, patch) in mesh.patches().iter().enumerate() {
         let offset = mesh.corner_offset(p);
+        let corners = mesh.corners(patch);
         patch_vertices.clear();
-        for (k, &v) in mesh.corners(patch).iter().enumerate() {
+        let mut with_t_vertices = false;
+        for (k, &v) in corners.iter().enumerate() {
             let b = corner_radiosity[offset + k];
             let b32 = b.as_vec3();
             if !b32.is_finite() {
@@ -334,31 +361,35 @@ fn deduplicate(mesh: &Mesh, corner_radiosity: &[DVec3]) -> Result<Geometry, Expo
                 )));
             }
             let position = mesh.positions()[v as usize];
-            let key = VertexKey {
-                position: bits(position),
-                normal: bits(patch.normal),
-                radiosity: bits(b32),
-            };
-            let next = geometry.positions.len();
-            let index = *seen.entry(key).or_insert_with(|| next as u32);
-            if index as usize == next {
-                if next == u32::MAX as usize {
-                    return Err(gltf_error(format!(
-                        "more than {} distinct vertices do not fit u32 indices",
-                        u32::MAX - 1
-                    )));
-                }
-                geometry.positions.push(position);
-                geometry.normals.push(patch.normal);
-                geometry.radiosity.push(b32);
+            patch_vertices.push(vertex(&mut geometry, position, patch.normal, b32)?);
+            // T-vertices on the edge to the next corner, valued along it (no cracks, no seams).
+            let next = corner_radiosity[offset + (k + 1) % corners.len()];
+            for &(t, point) in edge_points.on_edge(offset + k) {
+                with_t_vertices = true;
+                let value = (b * (1.0 - t) + next * t).as_vec3();
+                patch_vertices.push(vertex(&mut geometry, point, patch.normal, value)?);
             }
-            patch_vertices.push(index);
         }
-        // The fan over the corners, as `Mesh` triangulates a patch: counter-clockwise.
-        for w in patch_vertices[1..].windows(2) {
-            geometry
-                .indices
-                .extend_from_slice(&[patch_vertices[0], w[0], w[1]]);
+        if with_t_vertices {
+            // A fan from the patch's centroid over its corners and T-vertices.
+            let mean = corner_radiosity[offset..offset + corners.len()]
+                .iter()
+                .sum::<DVec3>()
+                / corners.len() as f64;
+            let centre = vertex(&mut geometry, patch.centroid, patch.normal, mean.as_vec3())?;
+            for i in 0..patch_vertices.len() {
+                let j = (i + 1) % patch_vertices.len();
+                geometry
+                    .indices
+                    .extend_from_slice(&[centre, patch_vertices[i], patch_vertices[j]]);
+            }
+        } else {
+            // The fan over the corners, as `Mesh` triangulates a patch: counter-clockwise.
+            for w in patch_vertices[1..].windows(2) {
+                geometry
+                    .indices
+                    .extend_from_slice(&[patch_vertices[0], w[0], w[1]]);
+            }
         }
     }
     Ok(geometry)
@@ -663,6 +694,88 @@ mod tests {
         assert!(message(&huge, None).contains("not finite"));
         for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
             assert!(message(&values, Some(bad)).contains("exposure"));
+        }
+    }
+
+    #[test]
+    fn an_adaptive_mesh_is_written_without_cracks_or_seams() {
+        use mcrad_meshing::{AdaptiveBounds, AdaptiveMesh};
+        use std::collections::HashMap;
+        // Two unit squares side by side; the right one refined twice along the shared edge.
+        let positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+        ];
+        let faces = (0..2)
+            .map(|i| Face {
+                vertices: [vec![0, 1, 2, 3], vec![1, 4, 5, 2]][i].clone(),
+                material: 0,
+                source: i as u32,
+            })
+            .collect();
+        let materials = vec![Material {
+            name: "lamp".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ONE,
+        }];
+        let scene = Scene::new(positions, faces, materials).unwrap().0;
+        let bounds = AdaptiveBounds {
+            min_edge: 0.01,
+            max_patches: 100,
+        };
+        let mut adaptive = AdaptiveMesh::new(&scene, Subdivision::None, bounds).unwrap();
+        adaptive.refine(&[1]);
+        adaptive.refine(&[1, 4]);
+        let mesh = adaptive.mesh();
+        let values: Vec<DVec3> = (0..mesh.patches().len())
+            .map(|p| DVec3::new(1.0 + p as f64, 2.0, 3.0 + (p % 3) as f64))
+            .collect();
+        let corners = mesh.seamless_corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+        let back = read_back(&write(mesh, &corners, &GltfOptions::default()));
+        // Every triangle edge inside the two squares is used by exactly two triangles, in
+        // opposite directions, with the same values at its ends: no T-junction, no crack.
+        let mut edges: HashMap<([u32; 3], [u32; 3]), i32> = HashMap::new();
+        let key = |i: u32| back.positions[i as usize].map(f32::to_bits);
+        let mut ends: HashMap<[u32; 3], [f32; 3]> = HashMap::new();
+        for t in back.indices.chunks(3) {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                for v in [a, b] {
+                    let r = back.radiosity[v as usize];
+                    let old = *ends.entry(key(v)).or_insert(r);
+                    assert_eq!(old, r, "two values at {:?}", back.positions[v as usize]);
+                }
+                let (ka, kb) = (key(a), key(b));
+                if ka < kb {
+                    *edges.entry((ka, kb)).or_default() += 1;
+                } else {
+                    *edges.entry((kb, ka)).or_default() -= 1;
+                }
+            }
+        }
+        let outside = |p: [u32; 3]| {
+            let p = p.map(f32::from_bits);
+            p[0] == 0.0 || p[0] == 2.0 || p[1] == 0.0 || p[1] == 1.0
+        };
+        for ((a, b), count) in edges {
+            let on_boundary = outside(a) && outside(b) && {
+                let (pa, pb) = (a.map(f32::from_bits), b.map(f32::from_bits));
+                pa[0] == pb[0] && (pa[0] == 0.0 || pa[0] == 2.0)
+                    || pa[1] == pb[1] && (pa[1] == 0.0 || pa[1] == 1.0)
+            };
+            if !on_boundary {
+                assert_eq!(
+                    count,
+                    0,
+                    "an open edge {:?} - {:?}",
+                    a.map(f32::from_bits),
+                    b.map(f32::from_bits)
+                );
+            }
         }
     }
 }

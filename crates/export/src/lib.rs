@@ -9,7 +9,10 @@ mod patches;
 mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
-pub use patches::{PATCH_CSV_HEADER, PatchRow, ReadCsvError, read_patch_csv, write_patch_csv};
+pub use patches::{
+    PATCH_CSV_FACE_HEADER, PATCH_CSV_HEADER, PatchRow, ReadCsvError, read_patch_csv,
+    write_patch_csv,
+};
 pub use stats::RunStats;
 
 /// Why writing a result failed.

@@ -1,4 +1,4 @@
-//! The per-patch CSV: `patch,area,r,g,b,var_r,var_g,var_b`.
+//! The per-patch CSV: `patch,area,r,g,b,var_r,var_g,var_b`, and optionally `face`.
 
 use crate::ExportError;
 use glam::DVec3;
@@ -16,10 +16,20 @@ pub struct PatchRow {
     pub radiosity: DVec3,
     /// Estimated variance of `B` per channel, (W/m²)²; `None` is written as blank fields.
     pub variance: Option<DVec3>,
+    /// The input face the patch belongs to (its `source` index), written in a last column
+    /// `face` when the first row has one ([`PATCH_CSV_FACE_HEADER`]); `None` in files without
+    /// that column.
+    pub face: Option<u32>,
 }
 
 /// The header of the per-patch CSV.
 pub const PATCH_CSV_HEADER: [&str; 8] = ["patch", "area", "r", "g", "b", "var_r", "var_g", "var_b"];
+
+/// The header of a per-patch CSV whose rows name their input face: [`PATCH_CSV_HEADER`] and
+/// `face`.
+pub const PATCH_CSV_FACE_HEADER: [&str; 9] = [
+    "patch", "area", "r", "g", "b", "var_r", "var_g", "var_b", "face",
+];
 
 /// An `f64` written with Rust's shortest round-trip formatting (`Display`: no exponent,
 /// `2` for 2.0), which the CSV files have always used.
@@ -42,6 +52,20 @@ struct WriteRow {
     var_r: Option<Shortest>,
     var_g: Option<Shortest>,
     var_b: Option<Shortest>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    face: Option<FaceField>,
+}
+
+/// The `face` column's field: the face number, or blank.
+struct FaceField(Option<u32>);
+
+impl Serialize for FaceField {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self.0 {
+            Some(face) => serializer.serialize_u32(face),
+            None => serializer.serialize_str(""),
+        }
+    }
 }
 
 impl From<PatchRow> for WriteRow {
@@ -56,13 +80,16 @@ impl From<PatchRow> for WriteRow {
             var_r: v.map(|v| Shortest(v.x)),
             var_g: v.map(|v| Shortest(v.y)),
             var_b: v.map(|v| Shortest(v.z)),
+            face: None,
         }
     }
 }
 
 /// Writes the header `patch,area,r,g,b,var_r,var_g,var_b` and one line per row (`\n` line
 /// ends, no quoting). Numbers are written with Rust's shortest round-trip formatting, so reading
-/// them back gives the same f64; a `None` variance is three blank fields.
+/// them back gives the same f64; a `None` variance is three blank fields. When the first row
+/// has a [`PatchRow::face`], the header and every line end in a column `face`
+/// ([`PATCH_CSV_FACE_HEADER`]; a later row without one writes it blank).
 pub fn write_patch_csv<W: Write>(
     out: W,
     rows: impl IntoIterator<Item = PatchRow>,
@@ -74,9 +101,17 @@ pub fn write_patch_csv<W: Write>(
     let mut csv = csv::WriterBuilder::new()
         .has_headers(false)
         .from_writer(out);
-    csv.write_record(PATCH_CSV_HEADER).map_err(fail)?;
+    let mut rows = rows.into_iter().peekable();
+    let with_face = rows.peek().is_some_and(|r| r.face.is_some());
+    if with_face {
+        csv.write_record(PATCH_CSV_FACE_HEADER).map_err(fail)?;
+    } else {
+        csv.write_record(PATCH_CSV_HEADER).map_err(fail)?;
+    }
     for row in rows {
-        csv.serialize(WriteRow::from(row)).map_err(fail)?;
+        let mut written = WriteRow::from(row);
+        written.face = with_face.then_some(FaceField(row.face));
+        csv.serialize(written).map_err(fail)?;
     }
     csv.flush().map_err(|source| ExportError::Io {
         what: "the patch CSV",
@@ -96,12 +131,14 @@ mod tests {
                 area: 0.1 + 0.2,
                 radiosity: DVec3::new(1.0 / 3.0, 2.5e-12, 0.0),
                 variance: Some(DVec3::splat(1e-7)),
+                face: None,
             },
             PatchRow {
                 patch: 9,
                 area: 2.0,
                 radiosity: DVec3::ONE,
                 variance: None,
+                face: None,
             },
         ];
         let mut buf = Vec::new();
@@ -124,6 +161,7 @@ mod tests {
                 area: 0.1 + 0.2,
                 radiosity: DVec3::new(1e-7, 2.0, 1e21),
                 variance: Some(DVec3::new(0.5, 0.0, 3.25)),
+                face: None,
             }],
         )
         .unwrap();
@@ -176,11 +214,14 @@ struct ReadRow {
     var_r: Option<f64>,
     var_g: Option<f64>,
     var_b: Option<f64>,
+    #[serde(default)]
+    face: Option<u32>,
 }
 
 /// Reads a patch CSV written by [`write_patch_csv`] (blank variances read as `None`; blank
-/// lines and spaces around fields are ignored), or one with the header `patch,area,r,g,b` and
-/// no variance columns, as other tools write them (variances `None`). Every number must be finite, and the three
+/// lines and spaces around fields are ignored), with or without its last column `face`, or one
+/// with the header `patch,area,r,g,b` and no variance columns, as other tools write them
+/// (variances `None`). Every number must be finite, and the three
 /// variances all given or all blank.
 ///
 /// Only a regular file is read (a device such as `/dev/zero` would never end).
@@ -224,16 +265,20 @@ fn read_rows<R: std::io::Read>(
         .trim(csv::Trim::All)
         .from_reader(input);
     let header = csv.headers().map_err(from_csv)?.clone();
-    // The full header, or its first five columns (other tools write no variances).
+    // The full header with or without `face`, or its first five columns (other tools write
+    // no variances).
     let columns = header.len();
-    if !(columns == PATCH_CSV_HEADER.len() || columns == 5)
+    if !(columns == PATCH_CSV_FACE_HEADER.len()
+        || columns == PATCH_CSV_HEADER.len()
+        || columns == 5)
         || header
             .iter()
-            .ne(PATCH_CSV_HEADER[..columns].iter().copied())
+            .ne(PATCH_CSV_FACE_HEADER[..columns].iter().copied())
     {
         return Err(parse_err(
             1,
-            "the header must be patch,area,r,g,b,var_r,var_g,var_b or patch,area,r,g,b".into(),
+            "the header must be patch,area,r,g,b,var_r,var_g,var_b[,face] or patch,area,r,g,b"
+                .into(),
         ));
     }
     let mut rows = Vec::new();
@@ -255,7 +300,7 @@ fn read_rows<R: std::io::Read>(
                 format!(
                     "'{}' in column {} is not {what}",
                     record.get(field).unwrap_or(""),
-                    PATCH_CSV_HEADER[field.min(7)]
+                    PATCH_CSV_FACE_HEADER[field.min(8)]
                 ),
             )
         })?;
@@ -286,6 +331,7 @@ fn read_rows<R: std::io::Read>(
             area: row.area,
             radiosity: DVec3::new(row.r, row.g, row.b),
             variance,
+            face: row.face,
         });
     }
     Ok(rows)
@@ -305,12 +351,14 @@ mod read_tests {
                 area: 0.25,
                 radiosity: DVec3::new(1.0 / 3.0, 2.0, 0.0),
                 variance: Some(DVec3::splat(1e-9)),
+                face: None,
             },
             PatchRow {
                 patch: 4,
                 area: 1.5,
                 radiosity: DVec3::ONE,
                 variance: None,
+                face: None,
             },
         ];
         write_patch_csv(std::fs::File::create(&path).unwrap(), rows.clone()).unwrap();
@@ -362,5 +410,42 @@ mod read_tests {
                 .to_string()
                 .contains("header")
         );
+    }
+
+    #[test]
+    fn the_face_column_is_written_when_rows_have_faces_and_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.csv");
+        let rows = vec![
+            PatchRow {
+                patch: 0,
+                area: 0.5,
+                radiosity: DVec3::ONE,
+                variance: Some(DVec3::splat(0.25)),
+                face: Some(7),
+            },
+            PatchRow {
+                patch: 1,
+                area: 0.5,
+                radiosity: DVec3::ONE,
+                variance: None,
+                face: None,
+            },
+        ];
+        write_patch_csv(std::fs::File::create(&path).unwrap(), rows.clone()).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text,
+            "patch,area,r,g,b,var_r,var_g,var_b,face\n0,0.5,1,1,1,0.25,0.25,0.25,7\n1,0.5,1,1,1,,,,\n"
+        );
+        assert_eq!(read_patch_csv(&path).unwrap(), rows);
+        // Rows without faces keep today's header and columns.
+        let plain: Vec<PatchRow> = rows.iter().map(|r| PatchRow { face: None, ..*r }).collect();
+        write_patch_csv(std::fs::File::create(&path).unwrap(), plain.clone()).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.starts_with("patch,area,r,g,b,var_r,var_g,var_b\n0,0.5,1,1,1,0.25,0.25,0.25\n")
+        );
+        assert_eq!(read_patch_csv(&path).unwrap(), plain);
     }
 }

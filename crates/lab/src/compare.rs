@@ -166,3 +166,108 @@ mod tests {
         assert!(difference_image(&a, &b).is_err());
     }
 }
+
+/// The image error of a render against a converged picture of the same camera (issue 15):
+/// `img_rel = sqrt( sum_px,c (I - R)² / sum_px,c R² )` over the pixels that see no emitter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageError {
+    /// `img_rel` over every pixel kept (dimensionless).
+    pub relative: f64,
+    /// The same over the darkest third of the pixels kept (by the reference's luminance).
+    pub dark_third: f64,
+    /// Pixels kept: those that see no emitter and have no such neighbour.
+    pub pixels: usize,
+}
+
+/// [`ImageError`] of `actual` against `reference`. A pixel "sees an emitter" when the
+/// reference's luminance there is at least `emitter_fraction` of its largest (emitters are far
+/// brighter than what they light); such pixels and their eight neighbours are left out, since
+/// there the difference is the pixel filter's coverage of a light's edge, not the solution.
+pub fn image_error(
+    actual: &Image,
+    reference: &Image,
+    emitter_fraction: f32,
+) -> Result<ImageError, CompareError> {
+    if (actual.width, actual.height) != (reference.width, reference.height) {
+        return Err(CompareError::SizeMismatch {
+            a: (actual.width, actual.height),
+            b: (reference.width, reference.height),
+        });
+    }
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let lum = |p: Vec3| mcrad_render::luminance(p);
+    let brightest = reference.pixels.iter().map(|&p| lum(p)).fold(0.0, f32::max);
+    let emitter: Vec<bool> = reference
+        .pixels
+        .iter()
+        .map(|&p| brightest > 0.0 && lum(p) >= emitter_fraction * brightest)
+        .collect();
+    let mut kept = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let near = (y.saturating_sub(1)..(y + 2).min(h))
+                .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| emitter[yy * w + xx]));
+            if !near {
+                kept.push(y * w + x);
+            }
+        }
+    }
+    let error = |pixels: &[usize]| {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for &i in pixels {
+            let (a, r) = (actual.pixels[i].as_dvec3(), reference.pixels[i].as_dvec3());
+            num += (a - r).length_squared();
+            den += r.length_squared();
+        }
+        if den > 0.0 { (num / den).sqrt() } else { 0.0 }
+    };
+    let relative = error(&kept);
+    let mut by_luminance = kept.clone();
+    by_luminance.sort_by(|&a, &b| {
+        lum(reference.pixels[a])
+            .total_cmp(&lum(reference.pixels[b]))
+            .then(a.cmp(&b))
+    });
+    let dark_third = error(&by_luminance[..by_luminance.len() / 3]);
+    Ok(ImageError {
+        relative,
+        dark_third,
+        pixels: kept.len(),
+    })
+}
+
+#[cfg(test)]
+mod image_error_tests {
+    use super::*;
+
+    #[test]
+    fn image_error_is_relative_and_leaves_emitters_out() {
+        // A 6 × 6 reference of radiance 1, 2 and 3 by rows, and one emitter pixel.
+        let mut reference = Image {
+            width: 6,
+            height: 6,
+            pixels: (0..36)
+                .map(|i| Vec3::splat(1.0 + (i / 12) as f32))
+                .collect(),
+        };
+        reference.pixels[0] = Vec3::splat(100.0);
+        let brighter = Image {
+            pixels: reference.pixels.iter().map(|&p| p * 1.1).collect(),
+            ..reference.clone()
+        };
+        let e = image_error(&brighter, &reference, 0.5).unwrap();
+        assert!((e.relative - 0.1).abs() < 1e-6, "{e:?}");
+        assert!((e.dark_third - 0.1).abs() < 1e-6, "{e:?}");
+        assert_eq!(e.pixels, 36 - 4);
+        // A wrong emitter pixel does not count; a wrong dark pixel counts in the dark third.
+        let mut wrong = reference.clone();
+        wrong.pixels[0] = Vec3::ZERO;
+        wrong.pixels[2] = Vec3::splat(2.0);
+        let e = image_error(&wrong, &reference, 0.5).unwrap();
+        assert!(e.relative > 0.0 && e.dark_third > e.relative, "{e:?}");
+        assert_eq!(
+            image_error(&reference, &reference, 0.5).unwrap().relative,
+            0.0
+        );
+    }
+}

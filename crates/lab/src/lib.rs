@@ -4,7 +4,8 @@
 //! - [`trace`]: the error of a solution against a reference solution, `rms_rel` (see
 //!   [`mcrad_combine::rms_rel`]), matched patch by patch, and the `seconds,rays,rms_rel` trace
 //!   of a run;
-//! - [`compare`]: golden-image comparison of two renders tile by tile;
+//! - [`compare`]: golden-image comparison of two renders tile by tile, and the image error of
+//!   a render against a converged picture ([`compare::image_error`]);
 //! - [`recipe`]: the golden-image recipes `scenes/golden/<name>.json`;
 //! - `plot` (cargo feature `plot`): line plots as PNG with an embedded font.
 //!

@@ -274,6 +274,7 @@ mod tests {
                 area: p.area,
                 radiosity: *b,
                 variance: None,
+                face: None,
             })
             .collect()
     }

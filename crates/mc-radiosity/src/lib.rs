@@ -17,6 +17,9 @@
 //!   `E + direct + gathered indirect` of two-pass radiosity (section 1.5).
 //! - [`ambient`](ambient()) and [`with_ambient`] ([`ambient`](mod@ambient)): Cohen et al.'s
 //!   ambient term for the power a shooting run left unshot (section 3.1).
+//! - [`adaptive`]: adaptive meshing, refining an
+//!   [`AdaptiveMesh`](mcrad_meshing::AdaptiveMesh) where the measured solution varies beyond
+//!   its noise or the emitters' visibility changes within an element.
 //! - [`schedule`]: the methods behind one interface — single-pass shooting, gathering and
 //!   two-pass, the progressive Algorithms 1-4, bidirectional and the deterministic reference —
 //!   handing each complete intermediate solution to an observer that may stop the run.
@@ -28,6 +31,7 @@
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
 //! This crate does no I/O.
 
+pub mod adaptive;
 pub mod ambient;
 mod context;
 pub mod direct;

@@ -32,6 +32,12 @@ pub enum MeshError {
     /// The maximum edge length is not a positive finite number.
     #[error("the maximum patch edge must be a positive length in scene units, got {0}")]
     BadMaxEdge(f32),
+    /// The minimum edge of an adaptive mesh is not a positive finite number.
+    #[error("the minimum element edge must be a positive length in scene units, got {0}")]
+    BadMinEdge(f32),
+    /// The patch budget of an adaptive mesh is zero.
+    #[error("the patch budget of an adaptive mesh must be at least 1")]
+    BadMaxPatches,
     /// Subdivision would create more patches than the limit (checked before any work).
     #[error(
         "subdividing to edges of at most {max_edge} scene units would make about {estimate:.1e} \
@@ -154,6 +160,35 @@ impl Mesh {
             }
         }
         Ok(mesh)
+    }
+
+    /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`).
+    pub(crate) fn empty() -> Mesh {
+        Mesh {
+            positions: Vec::new(),
+            corners: Vec::new(),
+            triangles: Vec::new(),
+            triangle_patch: Vec::new(),
+            patches: Vec::new(),
+        }
+    }
+
+    /// Releases the arrays' spare capacity.
+    pub(crate) fn shrink_to_fit(&mut self) {
+        self.positions.shrink_to_fit();
+        self.corners.shrink_to_fit();
+        self.triangles.shrink_to_fit();
+        self.triangle_patch.shrink_to_fit();
+        self.patches.shrink_to_fit();
+    }
+
+    /// Bytes of the mesh's arrays (their capacities; allocator overhead not counted).
+    pub fn heap_bytes(&self) -> usize {
+        self.positions.capacity() * size_of::<Vec3>()
+            + self.corners.capacity() * size_of::<u32>()
+            + self.triangles.capacity() * size_of::<[u32; 3]>()
+            + self.triangle_patch.capacity() * size_of::<u32>()
+            + self.patches.capacity() * size_of::<Patch>()
     }
 
     /// Appends a vertex and returns its index.
@@ -306,6 +341,7 @@ impl Mesh {
 }
 
 /// What every patch cut from one face shares.
+#[derive(Debug, Clone, Copy)]
 pub(crate) struct PatchTemplate {
     pub reflectance: Vec3,
     pub emission: Vec3,

@@ -13,12 +13,22 @@
 //! both cut that edge into the same number of pieces (always true for the walls of boxes); where
 //! they do not, the mesh has T-junctions, which patch radiosity does not mind.
 
+mod adaptive;
 mod build;
+mod seams;
 mod smooth;
 mod subdivide;
 
+pub use adaptive::{
+    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, DEFAULT_MAX_PATCHES,
+    DEFAULT_MIN_EDGE_FRACTION, Refinement,
+};
 pub use build::{DEFAULT_MAX_EDGE_FRACTION, Mesh, MeshError, Patch, Subdivision};
+pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod adaptive_tests;

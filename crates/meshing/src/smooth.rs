@@ -5,8 +5,12 @@
 //! that belong to the same surface as its own patch, so linear interpolation over the patch
 //! shows smooth illumination while material boundaries and creases stay sharp.
 
+#[cfg(doc)]
+use crate::AdaptiveMesh;
+use crate::adaptive::midpoint;
 use crate::build::{Mesh, Patch};
 use glam::{DVec3, Vec3};
+use std::collections::HashMap;
 
 /// The default crease angle (degrees): neighbours whose normals differ from a corner's patch
 /// normal by more than this are another surface and are not averaged in.
@@ -36,7 +40,8 @@ impl Mesh {
     /// [`Patch::material`](crate::Patch::material), and a normal within
     /// `crease_angle_degrees` of `p`'s normal. `p` itself always counts, once however many of
     /// its corners fall on the point. A patch that only touches the point along an edge
-    /// (a T-junction) does not count.
+    /// (a T-junction) does not count ([`Mesh::seamless_corner_radiosity`] ties such points to
+    /// the edge instead).
     ///
     /// `crease_angle_degrees` is clamped to `[0, 180]` (NaN counts as 0);
     /// [`DEFAULT_CREASE_ANGLE_DEGREES`] suits most scenes. At 180 every patch of the same
@@ -52,6 +57,38 @@ impl Mesh {
         &self,
         patch_values: &[DVec3],
         crease_angle_degrees: f32,
+    ) -> Vec<DVec3> {
+        self.corner_values(patch_values, crease_angle_degrees, false)
+    }
+
+    /// [`Mesh::corner_radiosity`] without seams at T-vertices, for display (renders, GLB).
+    ///
+    /// Where a corner's point is the midpoint of an edge of a patch `q` of the same surface
+    /// (the T-vertices an [`AdaptiveMesh`]'s refinement makes next to a coarser element), the
+    /// corners there take `q`'s value interpolated along that edge instead of the
+    /// area-weighted mean, recursively for the halves of the edge, longest edges first. Linear
+    /// interpolation over each patch is then continuous across every such edge: `q` interpolates
+    /// between its two corner values along the edge, and the finer patches, piece by piece, do
+    /// the same. Only midpoints are looked for: T-junctions at other fractions of an edge
+    /// (uniform faces cut into different numbers of pieces) keep their area-weighted values.
+    /// On a mesh without T-vertices this is [`Mesh::corner_radiosity`].
+    ///
+    /// # Panics
+    /// If `patch_values.len()` differs from [`Mesh::patches`]`().len()`.
+    pub fn seamless_corner_radiosity(
+        &self,
+        patch_values: &[DVec3],
+        crease_angle_degrees: f32,
+    ) -> Vec<DVec3> {
+        self.corner_values(patch_values, crease_angle_degrees, true)
+    }
+
+    /// The corner values of [`Mesh::corner_radiosity`], T-vertices tied when `seamless`.
+    fn corner_values(
+        &self,
+        patch_values: &[DVec3],
+        crease_angle_degrees: f32,
+        seamless: bool,
     ) -> Vec<DVec3> {
         let patches = self.patches();
         assert_eq!(
@@ -81,6 +118,9 @@ impl Mesh {
                 smoothed.push(own_value + weighted / area);
             }
         }
+        if seamless {
+            self.tie_t_vertices(&incidences, &mut smoothed, min_cosine);
+        }
 
         let mut out = Vec::with_capacity(self.corner_count());
         for (p, patch) in patches.iter().enumerate() {
@@ -93,6 +133,66 @@ impl Mesh {
             }
         }
         out
+    }
+
+    /// Ties the values at T-vertices to the edges they lie on (see
+    /// [`Mesh::seamless_corner_radiosity`]): where the midpoint `m` of an edge `(a, b)` of patch
+    /// `q` is a corner of other patches of `q`'s surface, those corners get
+    /// `(v_q(a) + v_q(b)) / 2`, and the halves `(a, m)` and `(m, b)` are tied in turn. Edges are
+    /// tied longest first, repeated until nothing changes (a T-vertex depends only on longer
+    /// edges, so this ends).
+    fn tie_t_vertices(
+        &self,
+        incidences: &[(PointKey, u32)],
+        smoothed: &mut [DVec3],
+        min_cosine: f64,
+    ) {
+        let mut at: HashMap<PointKey, (usize, usize)> = HashMap::new();
+        let mut start = 0;
+        for group in incidences.chunk_by(|a, b| a.0 == b.0) {
+            at.insert(group[0].0, (start, start + group.len()));
+            start += group.len();
+        }
+        let positions = self.positions();
+        let mut edges: Vec<(f64, u32, Vec3, Vec3)> = Vec::new();
+        for (q, patch) in self.patches().iter().enumerate() {
+            let c = self.corners(patch);
+            for k in 0..c.len() {
+                let (a, b) = (
+                    positions[c[k] as usize],
+                    positions[c[(k + 1) % c.len()] as usize],
+                );
+                if at.contains_key(&point_key(midpoint(a, b))) {
+                    edges.push((a.as_dvec3().distance(b.as_dvec3()), q as u32, a, b));
+                }
+            }
+        }
+        if edges.is_empty() {
+            return;
+        }
+        edges.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+        let tie = Tie {
+            incidences,
+            at: &at,
+            patches: self.patches(),
+            min_cosine,
+        };
+        for _ in 0..64 {
+            let mut changed = false;
+            for &(_, q, a, b) in &edges {
+                let value = |p: Vec3| {
+                    let i = incidences
+                        .binary_search(&(point_key(p), q))
+                        .expect("a patch's corner is one of its incidences");
+                    smoothed[i]
+                };
+                let (va, vb) = (value(a), value(b));
+                changed |= tie.edge(smoothed, q, a, b, va, vb, 0);
+            }
+            if !changed {
+                break;
+            }
+        }
     }
 
     /// Every `(point, patch)` incidence, sorted by point and then patch, without repeats.
@@ -170,6 +270,63 @@ impl Mesh {
             }
         }
         groups
+    }
+}
+
+/// What tying an edge's T-vertices reads: see [`Mesh::tie_t_vertices`].
+struct Tie<'a> {
+    incidences: &'a [(PointKey, u32)],
+    at: &'a HashMap<PointKey, (usize, usize)>,
+    patches: &'a [Patch],
+    min_cosine: f64,
+}
+
+impl Tie<'_> {
+    /// Sets the values at the midpoint of `q`'s edge piece `(a, b)` (values `va`, `vb` at its
+    /// ends) for the patches of `q`'s surface with a corner there, and recurses into the halves;
+    /// whether any value changed.
+    #[allow(clippy::too_many_arguments)]
+    fn edge(
+        &self,
+        smoothed: &mut [DVec3],
+        q: u32,
+        a: Vec3,
+        b: Vec3,
+        va: DVec3,
+        vb: DVec3,
+        depth: u32,
+    ) -> bool {
+        if depth > 48 {
+            return false;
+        }
+        let m = midpoint(a, b);
+        if m == a || m == b {
+            return false;
+        }
+        let Some(&(start, end)) = self.at.get(&point_key(m)) else {
+            return false;
+        };
+        let own = &self.patches[q as usize];
+        let vm = (va + vb) * 0.5;
+        let (mut found, mut changed) = (false, false);
+        for (&(_, p), value) in self.incidences[start..end]
+            .iter()
+            .zip(&mut smoothed[start..end])
+        {
+            if p != q && same_surface(own, &self.patches[p as usize], self.min_cosine) {
+                found = true;
+                if *value != vm {
+                    *value = vm;
+                    changed = true;
+                }
+            }
+        }
+        if !found {
+            return false;
+        }
+        let left = self.edge(smoothed, q, a, m, va, vm, depth + 1);
+        let right = self.edge(smoothed, q, m, b, vm, vb, depth + 1);
+        changed | left | right
     }
 }
 

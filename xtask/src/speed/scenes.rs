@@ -195,6 +195,7 @@ pub fn generate(root: &Path, names: &[String]) -> Result<()> {
                 area: p.area,
                 radiosity: *b,
                 variance: None,
+                face: None,
             });
         mcrad_export::write_patch_csv(std::io::BufWriter::new(file), rows)?;
         eprintln!(

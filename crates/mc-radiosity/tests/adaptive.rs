@@ -1,0 +1,137 @@
+//! Adaptive refinement: it puts elements at a known shadow boundary and not where the light is
+//! even, keeps its bounds, and is the same on any thread count (fixed seeds).
+
+mod common;
+
+use common::{furnace, material, quad};
+use glam::Vec3;
+use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, refine};
+use mcrad_meshing::{AdaptiveBounds, AdaptiveMesh, Subdivision};
+use mcrad_scene_io::Scene;
+
+/// A 4 × 4 floor (z = 0, facing up), a 0.2 × 0.2 light at height 3 over (2, 2) facing down, and
+/// a blocker at height 1.5 over `x < 2.15`: the floor is dark for `x < 2.2`, lit beyond
+/// `x > 2.4`, with the penumbra between.
+fn shadow_scene() -> Scene {
+    let p = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(4.0, 0.0, 0.0),
+        Vec3::new(4.0, 4.0, 0.0),
+        Vec3::new(0.0, 4.0, 0.0),
+        Vec3::new(1.9, 1.9, 3.0),
+        Vec3::new(1.9, 2.1, 3.0),
+        Vec3::new(2.1, 2.1, 3.0),
+        Vec3::new(2.1, 1.9, 3.0),
+        Vec3::new(-1.0, -1.0, 1.5),
+        Vec3::new(2.15, -1.0, 1.5),
+        Vec3::new(2.15, 5.0, 1.5),
+        Vec3::new(-1.0, 5.0, 1.5),
+    ];
+    let faces = vec![
+        quad([0, 1, 2, 3], 0, 0),
+        quad([4, 5, 6, 7], 1, 1),
+        quad([8, 9, 10, 11], 0, 2),
+    ];
+    let materials = vec![material("white", 0.5, 0.0), material("light", 0.0, 10.0)];
+    Scene::new(p, faces, materials).unwrap().0
+}
+
+fn config(seed: u64) -> AdaptiveConfig {
+    AdaptiveConfig {
+        rays: 300_000,
+        rounds: 4,
+        seed,
+        ..Default::default()
+    }
+}
+
+fn refined(scene: &Scene, max_patches: usize, seed: u64) -> AdaptiveMesh {
+    let bounds = AdaptiveBounds {
+        min_edge: 0.05,
+        max_patches,
+    };
+    let mut mesh = AdaptiveMesh::new(scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
+    refine(&mut mesh, &config(seed)).unwrap();
+    mesh.mesh().validate().unwrap();
+    mesh
+}
+
+#[test]
+fn elements_go_to_the_shadow_boundary_and_not_into_the_even_dark() {
+    // Three seeds, each must pass (the marks are statistical: shadow rays and noise).
+    for seed in 1..=3 {
+        let mesh = refined(&shadow_scene(), 100_000, seed);
+        let floor: Vec<_> = mesh
+            .mesh()
+            .patches()
+            .iter()
+            .filter(|p| p.face == 0)
+            .collect();
+        // The penumbra x in [2.2, 2.4] is covered by elements of the finest size (0.0625).
+        let in_penumbra: Vec<_> = floor
+            .iter()
+            .filter(|p| (2.2..=2.4).contains(&p.centroid.x))
+            .collect();
+        assert!(!in_penumbra.is_empty());
+        for p in &in_penumbra {
+            assert!(
+                p.area <= 0.0625 * 0.0625 * 1.001,
+                "seed {seed}: an element of area {} at {} in the penumbra",
+                p.area,
+                p.centroid
+            );
+        }
+        // The hierarchy and its mesh hold well under 300 bytes per element.
+        assert!(
+            mesh.bytes_per_element() < 300.0,
+            "{} bytes",
+            mesh.bytes_per_element()
+        );
+        // The dark floor far from the boundary (x < 1.5, B = 0 everywhere) is not refined.
+        for p in floor.iter().filter(|p| p.centroid.x < 1.5) {
+            assert_eq!(
+                p.area, 0.25,
+                "seed {seed}: split in the dark at {}",
+                p.centroid
+            );
+        }
+    }
+}
+
+#[test]
+fn an_evenly_lit_furnace_is_not_refined() {
+    for seed in 1..=3 {
+        let scene = furnace(0.5);
+        let bounds = AdaptiveBounds {
+            min_edge: 0.01,
+            max_patches: 100_000,
+        };
+        let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.25), bounds).unwrap();
+        let before = mesh.len();
+        let r = refine(&mut mesh, &config(seed)).unwrap();
+        assert_eq!(mesh.len(), before, "seed {seed}: {:?}", r.rounds);
+        assert_eq!(r.estimate.len(), before);
+    }
+}
+
+#[test]
+fn the_patch_budget_holds_and_the_mesh_is_the_same_on_any_thread_count() {
+    let scene = shadow_scene();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| refined(&scene, 300, 7))
+    };
+    let (one, two) = (run(1), run(2));
+    // Splits add 3 or 1 elements, so the budget is nearly filled but never exceeded.
+    assert!(
+        one.len() <= 300 && one.len() > 290,
+        "{} elements",
+        one.len()
+    );
+    let centroids =
+        |m: &AdaptiveMesh| -> Vec<Vec3> { m.mesh().patches().iter().map(|p| p.centroid).collect() };
+    assert_eq!(centroids(&one), centroids(&two));
+}

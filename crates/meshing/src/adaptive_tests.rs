@@ -1,0 +1,247 @@
+//! Tests of adaptive refinement and of vertex radiosity at its T-vertices.
+
+use crate::{AdaptiveBounds, AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
+use glam::{DVec3, Vec3};
+use mcrad_scene_io::{Face, Material, Scene};
+use std::collections::BTreeMap;
+
+fn scene(positions: Vec<Vec3>, faces: Vec<Vec<u32>>) -> Scene {
+    let materials = vec![Material {
+        name: "lamp".into(),
+        reflectance: Vec3::splat(0.5),
+        emission: Vec3::ONE,
+    }];
+    let faces = faces
+        .into_iter()
+        .enumerate()
+        .map(|(i, vertices)| Face {
+            vertices,
+            material: 0,
+            source: i as u32,
+        })
+        .collect();
+    Scene::new(positions, faces, materials)
+        .expect("valid scene")
+        .0
+}
+
+/// A 4 × 2 quad, a triangle next to it and a 2 × 0.1 strip, offset by `origin`.
+fn shapes(origin: Vec3) -> Scene {
+    let p = [
+        (0.0, 0.0),
+        (4.0, 0.0),
+        (4.0, 2.0),
+        (0.0, 2.0),
+        (5.0, 1.0),
+        (0.0, 3.0),
+        (2.0, 3.0),
+        (2.0, 3.1),
+        (0.0, 3.1),
+    ]
+    .map(|(x, y)| origin + Vec3::new(x, y, 0.0))
+    .to_vec();
+    scene(p, vec![vec![0, 1, 2, 3], vec![1, 4, 2], vec![5, 6, 7, 8]])
+}
+
+fn face_areas(mesh: &Mesh) -> BTreeMap<u32, f64> {
+    let mut areas = BTreeMap::new();
+    for p in mesh.patches() {
+        *areas.entry(p.face).or_insert(0.0) += p.area;
+    }
+    areas
+}
+
+fn bounds(min_edge: f32, max_patches: usize) -> AdaptiveBounds {
+    AdaptiveBounds {
+        min_edge,
+        max_patches,
+    }
+}
+
+#[test]
+fn refining_everything_conserves_area_keeps_shapes_and_stops_at_the_minimum_edge() {
+    let s = shapes(Vec3::ZERO);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::None, bounds(0.1, 1_000_000)).unwrap();
+    let areas = face_areas(m.mesh());
+    let mut rounds = 0;
+    loop {
+        let all: Vec<u32> = (0..m.len() as u32).collect();
+        let r = m.refine(&all);
+        m.mesh().validate().unwrap();
+        assert_eq!(r.parent.len(), m.len());
+        assert!(r.parent.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!(r.unrefinable, 0);
+        for (face, area) in face_areas(m.mesh()) {
+            assert!(
+                (area - areas[&face]).abs() <= 1e-6 * areas[&face],
+                "face {face}"
+            );
+        }
+        rounds += 1;
+        if r.split == 0 {
+            break;
+        }
+        assert!(rounds < 20, "refinement does not terminate");
+    }
+    // No element edge below the minimum, none above twice it, and the thin strip was cut
+    // across its length only (its 0.1 side is never halved).
+    for p in m.mesh().patches() {
+        let c = m.mesh().corners(p);
+        for k in 0..c.len() {
+            let (a, b) = (
+                m.mesh().positions()[c[k] as usize],
+                m.mesh().positions()[c[(k + 1) % c.len()] as usize],
+            );
+            let e = a.distance(b);
+            assert!(
+                e >= 0.1 - 1e-6 || p.face == 1,
+                "edge {e} of face {}",
+                p.face
+            );
+        }
+        if p.face == 2 {
+            assert!(
+                (p.area - 0.0125).abs() < 1e-7,
+                "strip element of area {}",
+                p.area
+            );
+        }
+    }
+    // The 4 × 2 quad ends in elements of 0.125 × 0.125 (children similar to the parent).
+    let quads = m.mesh().patches().iter().filter(|p| p.face == 0).count();
+    assert_eq!(quads, 32 * 16);
+}
+
+#[test]
+fn the_patch_budget_is_respected_in_the_order_given() {
+    let s = shapes(Vec3::ZERO);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::None, bounds(0.01, 10)).unwrap();
+    assert_eq!(m.len(), 3);
+    // Splitting the triangle (+3) then the quad (+3) fits 9 <= 10; the strip (+1) would make 10.
+    let r = m.refine(&[1, 0, 2, 1]);
+    assert_eq!((r.split, r.held, m.len()), (3, 0, 10));
+    let r = m.refine(&[0]);
+    assert_eq!((r.split, r.held, m.len()), (0, 1, 10));
+    assert!(m.len() <= m.bounds().max_patches);
+}
+
+#[test]
+fn slivers_tiny_faces_and_faces_far_from_the_origin_terminate() {
+    // A needle, a 1e-6-area triangle and the shapes far from the origin, where f32 cannot halve
+    // the elements for long.
+    let needle = scene(
+        vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(10.0, 0.0, 0.0),
+            Vec3::new(5.0, 1e-4, 0.0),
+            Vec3::new(20.0, 0.0, 0.0),
+            Vec3::new(20.001, 0.0, 0.0),
+            Vec3::new(20.0, 0.002, 0.0),
+        ],
+        vec![vec![0, 1, 2], vec![3, 4, 5]],
+    );
+    let far = shapes(Vec3::new(3.0e6, -2.0e6, 1.0e6));
+    for s in [&needle, &far] {
+        let mut m = AdaptiveMesh::new(s, Subdivision::None, bounds(1e-9, 100_000)).unwrap();
+        let areas = face_areas(m.mesh());
+        let mut unrefinable = 0;
+        for _ in 0..60 {
+            let all: Vec<u32> = (0..m.len() as u32).collect();
+            let r = m.refine(&all);
+            unrefinable += r.unrefinable;
+            m.mesh().validate().unwrap();
+            if r.split == 0 {
+                break;
+            }
+        }
+        assert!(unrefinable > 0, "some element reached the limits of f32");
+        for (face, area) in face_areas(m.mesh()) {
+            assert!(
+                (area - areas[&face]).abs() <= 1e-5 * areas[&face],
+                "face {face}"
+            );
+        }
+    }
+    assert!(AdaptiveMesh::new(&needle, Subdivision::None, bounds(0.0, 5)).is_err());
+    assert!(AdaptiveMesh::new(&needle, Subdivision::None, bounds(0.1, 0)).is_err());
+}
+
+/// Linear interpolation of per-corner values along an edge of `patch` at fraction `t` from
+/// corner `k` to corner `k + 1` (what renders do along an element's edge).
+fn along(mesh: &Mesh, values: &[DVec3], patch: usize, k: usize, t: f64) -> (DVec3, DVec3) {
+    let p = &mesh.patches()[patch];
+    let c = mesh.corners(p);
+    let o = mesh.corner_offset(patch);
+    let k1 = (k + 1) % c.len();
+    let a = mesh.positions()[c[k] as usize].as_dvec3();
+    let b = mesh.positions()[c[k1] as usize].as_dvec3();
+    (a.lerp(b, t), values[o + k] * (1.0 - t) + values[o + k1] * t)
+}
+
+#[test]
+fn vertex_radiosity_is_continuous_across_t_vertices() {
+    // Two unit squares side by side (one face each); the right one is refined twice in its
+    // left column, so the shared edge x = 1 has T-vertices at y = 1/4, 1/2, 3/4 on one side.
+    let s = scene(
+        vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+        ],
+        vec![vec![0, 1, 2, 3], vec![1, 4, 5, 2]],
+    );
+    let mut m = AdaptiveMesh::new(&s, Subdivision::None, bounds(0.01, 1000)).unwrap();
+    m.refine(&[1]);
+    // Children of the right square: 0 is the left one, then [1 bottom-left, 2 bottom-right,
+    // 3 top-right, 4 top-left]; refine the two on the left edge again.
+    m.refine(&[1, 4]);
+    let mesh = m.mesh();
+    assert_eq!(mesh.patches().len(), 1 + 2 * 4 + 2);
+    let values: Vec<DVec3> = (0..mesh.patches().len())
+        .map(|p| DVec3::new(1.0 + p as f64, (p * p % 7) as f64, 10.0 / (1.0 + p as f64)))
+        .collect();
+    let corners = mesh.seamless_corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+    // The left square's edge x = 1 is its corners 1 -> 2; the finer elements' edges on x = 1.
+    let mut checked = 0;
+    for q in 1..mesh.patches().len() {
+        let c = mesh.corners(&mesh.patches()[q]);
+        for k in 0..c.len() {
+            let a = mesh.positions()[c[k] as usize];
+            let b = mesh.positions()[c[(k + 1) % c.len()] as usize];
+            if a.x != 1.0 || b.x != 1.0 {
+                continue;
+            }
+            for t in [0.0, 0.3, 0.5, 0.9, 1.0] {
+                let (point, fine) = along(mesh, &corners, q, k, t);
+                let s = point.y;
+                let (_, coarse) = along(mesh, &corners, 0, 1, s);
+                assert!(
+                    (fine - coarse).abs().max_element() < 1e-12,
+                    "at {point}: fine {fine}, coarse {coarse}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert_eq!(checked, 4 * 5);
+    // Without the tie the finer side would show its own area-weighted values: the check can
+    // fail (the middle T-vertex's area-weighted value differs from the coarse interpolation).
+    let mid = mesh
+        .patches()
+        .iter()
+        .enumerate()
+        .skip(1)
+        .find_map(|(q, p)| {
+            let c = mesh.corners(p);
+            (0..c.len()).find_map(|k| {
+                let v = mesh.positions()[c[k] as usize];
+                (v == Vec3::new(1.0, 0.5, 0.0)).then(|| mesh.corner_offset(q) + k)
+            })
+        })
+        .unwrap();
+    let (_, coarse) = along(mesh, &corners, 0, 1, 0.5);
+    assert_eq!(corners[mid], coarse);
+}
