@@ -79,7 +79,7 @@ pub struct Solve {
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
     /// bounding-box diagonal / 320.
-    #[arg(long, value_name = "L", allow_negative_numbers = true)]
+    #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub min_edge: Option<f32>,
     /// Adaptive meshes: at most N elements.
     #[arg(long, value_name = "N", default_value_t = mcrad_meshing::DEFAULT_MAX_PATCHES)]
@@ -361,7 +361,7 @@ fn parse_seconds(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Parses a positive finite length (`--max-edge`).
+/// Parses a positive finite length (`--max-edge`, `--min-edge`).
 fn parse_length(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
         Ok(x) if x.is_finite() && x > 0.0 => Ok(x),

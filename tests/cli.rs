@@ -526,7 +526,7 @@ fn adaptive_meshes_refuse_uniform_options() {
         (&["--max-edge", "0.1"][..], "--max-edge sets a uniform mesh"),
         (
             &["--min-edge", "0"][..],
-            "--min-edge must be a positive length",
+            "'0' is not a positive finite length",
         ),
     ] {
         let mut args = vec!["--mesh", "adaptive", "--rays", "1e4"];
