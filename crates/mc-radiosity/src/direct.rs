@@ -311,16 +311,7 @@ pub fn two_pass_split<C: RayCaster>(
     let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
-    let indirect_input = Estimate::new(
-        shooting
-            .radiosity()
-            .iter()
-            .zip(patches)
-            .map(|(b, p)| *b - p.emission.as_dvec3())
-            .collect(),
-        shooting.variance().map(<[DVec3]>::to_vec),
-        shooting.rays(),
-    )?;
+    let indirect_input = reflected_part(patches, shooting)?;
     let indirect = gather_round_from(
         ctx,
         &indirect_input,
@@ -331,6 +322,21 @@ pub fn two_pass_split<C: RayCaster>(
     .estimate;
     let direct = direct(ctx, config.samples_per_patch, config.sampling, key)?.estimate;
     join_split(patches, &indirect, &direct)
+}
+
+/// The light `shooting` says the patches reflect, `B - E` (W/m²), with its variance and rays:
+/// what the indirect gather of the split gathers from.
+fn reflected_part(patches: &[Patch], shooting: &Estimate) -> Result<Estimate, Error> {
+    Ok(Estimate::new(
+        shooting
+            .radiosity()
+            .iter()
+            .zip(patches)
+            .map(|(b, p)| *b - p.emission.as_dvec3())
+            .collect(),
+        shooting.variance().map(<[DVec3]>::to_vec),
+        shooting.rays(),
+    )?)
 }
 
 /// `E + D + indirect`, variances summed, rays of both.
@@ -421,16 +427,7 @@ pub(crate) fn split_with_budget<C: RayCaster>(
     let samples = samples.clamp(2.0, u32::MAX as f64) as u32;
     let direct = direct(ctx, samples, sampling, key)?.estimate;
     let rays_per_patch = (rays.saturating_sub(direct.rays()) / n).clamp(2, u32::MAX as u64) as u32;
-    let indirect_input = Estimate::new(
-        shooting
-            .radiosity()
-            .iter()
-            .zip(patches)
-            .map(|(b, p)| *b - p.emission.as_dvec3())
-            .collect(),
-        shooting.variance().map(<[DVec3]>::to_vec),
-        shooting.rays(),
-    )?;
+    let indirect_input = reflected_part(patches, shooting)?;
     let (indirect, inherited) =
         gather_round_parts(ctx, &indirect_input, Emission::Exclude, rays_per_patch, key)?;
     Ok((join_split(patches, &indirect.estimate, &direct)?, inherited))
