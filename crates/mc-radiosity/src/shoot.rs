@@ -11,9 +11,16 @@
 //! rest is absorbed. A back-face hit is absorbed whole; a ray that hits nothing escapes.
 //! A patch given no ray keeps its unshot power for a later wave.
 //!
-//! `phi_k = |U| / ((1 - rho_avg) R_k)` spreads the `R_k` rays still in the budget over the power
-//! still to come (`|U| / (1 - rho_avg)` by the geometric series of reflections, `rho_avg` the
-//! area-weighted mean reflectance), so the energy per ray stays nearly constant over the run.
+//! `phi_k = |U| / ((1 - r_k) R_k)` spreads the `R_k` rays still in the budget over the power
+//! still to come (`|U| / (1 - r_k)` by the geometric series of reflections), so the energy per
+//! ray stays nearly constant over the run. `r_k` is the share of the shot power that returns as
+//! unshot power (what front-face hits keep, `rho_j` of a ray's power), measured over the rays
+//! cast so far and drawn towards the area-weighted mean reflectance `rho_avg` with the weight
+//! of [`PRIOR_RAYS`] rays (before the first wave `r_0 = rho_avg`). In a closed scene the two
+//! agree; in an open one most power escapes and `rho_avg` would overstate what is to come by
+//! up to `1 / (1 - rho_avg)`, so that every wave cast a sliver of the budget and a scene of
+//! many small emitters at high reflectance took thousands of waves of `O(patches)` work each
+//! (issue 18: 162k open patches at `rho = 0.999` took 3800 waves for 2e4 rays).
 //! The run stops when the unshot power falls below a fraction of the emitted power, or when the
 //! observer says so.
 //!
@@ -188,6 +195,9 @@ pub struct Shooting {
 /// horizon of `max(2 × rays so far, UNBOUNDED_FIRST)` rays, so a wave casts at most as many rays
 /// as the run has cast so far (or this many at first) and its jobs stay bounded in memory.
 const UNBOUNDED_FIRST: u64 = 100_000;
+/// The weight, in rays, of the prior `rho_avg` in the measured share of power that returns
+/// (see the module documentation).
+const PRIOR_RAYS: f64 = 4.0;
 /// Rays traced per job: the unit of parallel work and of random streams.
 const JOB_RAYS: u64 = 4096;
 /// Rays traced before their hits are folded in, bounding the memory of hit records.
@@ -277,6 +287,9 @@ pub fn shoot<C: RayCaster>(
     // The budget, lowered when the observer limits the rays left.
     let mut budget = config.rays;
     let limit = Cell::new(u64::MAX);
+    // The power shot and the part of it kept as unshot power by front-face hits (channel
+    // sums, W): the measured share of power that returns.
+    let (mut sent, mut returned) = (0.0f64, 0.0f64);
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
@@ -286,7 +299,8 @@ pub fn shoot<C: RayCaster>(
         let budget_left = horizon(budget, stats.rays).saturating_sub(stats.rays);
         let wave = stats.waves as u64;
         let counts = if budget_left > 0 {
-            let phi = left / ((1.0 - rho_avg) * budget_left as f64);
+            let r = returning_share(returned, sent, stats.rays, rho_avg);
+            let phi = left / ((1.0 - r) * budget_left as f64);
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
@@ -317,6 +331,7 @@ pub fn shoot<C: RayCaster>(
             for (job, hits) in batch.iter().zip(&hits) {
                 let p = per_ray[job.patch as usize];
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
+                let mut kept_sum = DVec3::ZERO;
                 for &h in hits {
                     if h == MISS {
                         escaped += 1;
@@ -329,9 +344,12 @@ pub fn shoot<C: RayCaster>(
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
+                        kept_sum += kept;
                         absorbed += p - kept;
                     }
                 }
+                sent += total(p) * hits.len() as f64;
+                returned += total(kept_sum);
                 stats.absorbed += absorbed;
                 stats.escaped += p * escaped as f64;
                 stats.shot += p * hits.len() as f64;
@@ -398,6 +416,15 @@ fn roulette_correction(stats: &ShootStats) -> DVec3 {
         f(kept.y, actual.y, stats.roulette.y),
         f(kept.z, actual.z, stats.roulette.z),
     )
+}
+
+/// The share of shot power that returns as unshot power, `r` in `[0, 0.999]`: `returned /
+/// sent` measured over `rays` rays, drawn towards `prior` (the mean reflectance) with the weight
+/// of [`PRIOR_RAYS`] rays.
+fn returning_share(returned: f64, sent: f64, rays: u64, prior: f64) -> f64 {
+    let measured = if sent > 0.0 { returned / sent } else { prior };
+    let n = rays as f64;
+    ((measured * n + prior * PRIOR_RAYS) / (n + PRIOR_RAYS)).clamp(0.0, 0.999)
 }
 
 /// The ray count the waves plan for: the budget, or without one (`u64::MAX`) a horizon that

@@ -426,3 +426,49 @@ fn without_a_budget_waves_stay_bounded_and_a_cap_is_kept() {
         r.stats.finishing_rays
     );
 }
+
+/// Many small emitters in the open at high reflectance (issue 18's nested glTF nodes): almost
+/// all power escapes, so planning the waves by the mean reflectance (0.999) would make each
+/// wave cast about `(1 - 0.999)` of the budget, one wave after another over every patch. Planned
+/// by the measured share of power that returns, a few waves spend the budget. Exact: counts
+/// waves and rays, no statistics.
+#[test]
+fn a_small_budget_over_many_open_patches_takes_few_waves() {
+    let p = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+    ];
+    let scene = Scene::new(
+        p,
+        vec![common::quad([0, 1, 2, 3], 0, 0)],
+        vec![material("white lamp", 0.999, 1.0)],
+    )
+    .unwrap()
+    .0;
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.01)).unwrap();
+    assert!(mesh.patches().len() >= 10_000, "{}", mesh.patches().len());
+    let bvh = common::bvh(&mesh);
+    let rays = 20_000;
+    let r = shoot(
+        &Context::new(&mesh, &bvh),
+        &ShootConfig {
+            rays,
+            unshot_threshold: 1e-3,
+            seed: 5,
+        },
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap();
+    let s = &r.stats;
+    assert_eq!(s.escaped_rays, s.rays, "a lone plane: every ray escapes");
+    assert!(s.waves <= 8, "{} waves for {} rays: {s:?}", s.waves, s.rays);
+    // Nothing returns, so the run ends when every patch has shot, within the budget.
+    assert_eq!(s.stop, StopReason::Converged, "{s:?}");
+    assert!(
+        s.rays <= rays,
+        "{} rays for a budget of {rays}: {s:?}",
+        s.rays
+    );
+}
