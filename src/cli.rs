@@ -25,6 +25,33 @@ pub enum Command {
     /// Combine independent runs of one scene (different seeds) into one solution, per patch
     /// and channel by inverse variance.
     Merge(crate::merge::Merge),
+    /// Solve a glTF scene and bake its light into a copy of it: lightmap coordinates
+    /// (TEXCOORD_1) on the user's own primitives and an embedded lightmap (MOZ_lightmap), the
+    /// rest of the document kept. Takes every option of `solve`.
+    Bake(Bake),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct Bake {
+    #[command(flatten)]
+    pub solve: Solve,
+    /// The baked scene (.glb). The lightmap's linear values (incident irradiance, W/m²) are
+    /// written beside it as OUT.lightmap.exr.
+    #[arg(long, value_name = "OUT.glb")]
+    pub out: PathBuf,
+    /// Lightmap texel edge in scene units. Default: the size that gives the scene's surfaces
+    /// about half a 1024 x 1024 lightmap.
+    #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
+    pub texel: Option<f32>,
+}
+
+/// Where `mcrad bake` writes, carried through the solve.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeTarget {
+    /// The baked GLB.
+    pub out: PathBuf,
+    /// `--texel`.
+    pub texel: Option<f32>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -150,6 +177,9 @@ pub struct Solve {
     /// Without it they are refused.
     #[arg(long)]
     pub allow_outside_paths: bool,
+    /// Set by `mcrad bake`: bake the solution into the scene's glTF.
+    #[arg(skip)]
+    pub bake: Option<BakeTarget>,
 }
 
 /// The most worker threads `--threads` accepts: more only add overhead (the answer does not
@@ -413,7 +443,7 @@ mod tests {
         let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
         match Args::try_parse_from(argv).unwrap().command {
             Command::Solve(s) => s,
-            Command::Merge(_) => unreachable!("a solve command line"),
+            Command::Merge(_) | Command::Bake(_) => unreachable!("a solve command line"),
         }
     }
 

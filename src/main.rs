@@ -17,6 +17,14 @@ fn main() -> ExitCode {
     let result = match args.command {
         cli::Command::Solve(solve) => solve::run(&solve),
         cli::Command::Merge(merge) => merge::run(&merge).map(|()| solve::Outcome::Done),
+        cli::Command::Bake(bake) => {
+            let mut solve = bake.solve;
+            solve.bake = Some(cli::BakeTarget {
+                out: bake.out,
+                texel: bake.texel,
+            });
+            solve::run(&solve)
+        }
     };
     match result {
         Ok(solve::Outcome::Done) => ExitCode::SUCCESS,

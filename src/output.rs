@@ -53,6 +53,90 @@ pub fn check(args: &Solve) -> Result<()> {
             );
         }
     }
+    if let Some(bake) = &args.bake {
+        let ext = |p: &Path| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase)
+        };
+        if ext(&bake.out).as_deref() != Some("glb") {
+            bail!(
+                "--out {}: the file name must end in .glb (binary glTF)",
+                bake.out.display()
+            );
+        }
+        if !matches!(ext(&args.scene).as_deref(), Some("gltf" | "glb")) {
+            bail!(
+                "{}: bake writes into a glTF scene; give a .gltf or .glb file (OBJ scenes can \
+                 be converted first, e.g. with Blender or obj2gltf)",
+                args.scene.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Bakes the solution `radiosity` (W/m² per patch) into the scene's glTF (`mcrad bake`):
+/// writes the GLB and, beside it, the linear lightmap as EXR.
+pub fn bake(
+    args: &Solve,
+    target: &crate::cli::BakeTarget,
+    loaded: &mcrad_scene_io::Loaded,
+    mesh: &Mesh,
+    bvh: &Bvh,
+    radiosity: &[DVec3],
+    bar: &ProgressBar,
+) -> Result<()> {
+    let gltf = loaded
+        .gltf
+        .as_deref()
+        .context("bake writes into a glTF scene; give a .gltf or .glb file")?;
+    bar.reset();
+    bar.set_length(1);
+    bar.set_message("baking the lightmap");
+    let load_options = mcrad_scene_io::LoadOptions {
+        allow_outside_paths: args.allow_outside_paths,
+        ..Default::default()
+    };
+    let input = mcrad_bake::BakeInput {
+        path: &args.scene,
+        load_options: &load_options,
+        scene: &loaded.scene,
+        gltf,
+        mesh,
+        caster: bvh,
+        radiosity,
+    };
+    let options = mcrad_bake::BakeOptions {
+        texel: target.texel,
+        ..Default::default()
+    };
+    let baked = mcrad_bake::bake(&input, &options)
+        .with_context(|| format!("bake {}", args.scene.display()))?;
+    std::fs::write(&target.out, &baked.glb)
+        .with_context(|| format!("could not write {}", target.out.display()))?;
+    let exr = target.out.with_extension("lightmap.exr");
+    let image = mcrad_render::Image {
+        width: baked.lightmap.size,
+        height: baked.lightmap.size,
+        pixels: baked.lightmap.irradiance.clone(),
+    };
+    write_exr(&image, &exr)?;
+    bar.finish_and_clear();
+    if !args.quiet {
+        println!(
+            "baked {} primitive placements into {} ({} charts, {}x{} lightmap at {} units per \
+             texel, {} texels covered; linear lightmap in {})",
+            baked.primitives,
+            target.out.display(),
+            baked.charts,
+            baked.lightmap.size,
+            baked.lightmap.size,
+            baked.texel,
+            baked.lightmap.covered,
+            exr.display()
+        );
+    }
     Ok(())
 }
 

@@ -466,6 +466,9 @@ fn finish(
         run.write_json(create(path)?)?;
     }
     crate::output::write(args, mesh, bvh, estimate.radiosity(), loaded.camera, bar)?;
+    if let Some(target) = &args.bake {
+        crate::output::bake(args, target, loaded, mesh, bvh, estimate.radiosity(), bar)?;
+    }
     bar.finish_and_clear();
     if !args.quiet {
         println!(

@@ -55,7 +55,7 @@ use rayon::prelude::*;
 pub use self::camera::{Camera, CameraError};
 pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
 pub use self::image::{Image, ImageError, ImageReadError, read_exr, write_exr, write_png};
-pub use self::shade::Shading;
+pub use self::shade::{Shading, interpolate};
 pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_encode};
 
 /// The largest image side [`render`] accepts, pixels.

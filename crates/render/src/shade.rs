@@ -109,10 +109,12 @@ impl Shader {
 }
 
 /// Linear interpolation of per-corner `values` at `point` on a convex polygon with corner
-/// vertex indices `corners`: barycentric over the fan triangle `(0, j, j + 1)` that contains
-/// the point (or, for a point just outside through rounding, the one it is least outside of),
-/// with negative weights clamped to 0 and the rest renormalised.
-fn interpolate(positions: &[Vec3], corners: &[u32], values: &[Vec3], point: Vec3) -> Vec3 {
+/// vertex indices `corners` (into `positions`): barycentric over the fan triangle
+/// `(0, j, j + 1)` that contains the point (or, for a point just outside through rounding, the
+/// one it is least outside of), with negative weights clamped to 0 and the rest renormalised.
+/// This is how renders shade [`Shading::Smooth`]; bakers sample a solution the same way.
+/// `values` has one entry per corner, in the units of the quantity interpolated.
+pub fn interpolate(positions: &[Vec3], corners: &[u32], values: &[Vec3], point: Vec3) -> Vec3 {
     let a = positions[corners[0] as usize];
     let mut best: Option<(f32, usize, [f32; 3])> = None;
     for j in 1..corners.len() - 1 {

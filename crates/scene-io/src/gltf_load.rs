@@ -41,6 +41,15 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
     // check that, then validate.
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(&bytes).map_err(invalid)?;
+    // The JSON text as written (unknown extensions and extras included), for writing back.
+    let json_text = if bytes.starts_with(b"glTF") {
+        gltf::binary::Glb::from_slice(&bytes)
+            .map_err(invalid)?
+            .json
+            .into_owned()
+    } else {
+        bytes.clone()
+    };
     let json = document.into_json();
     check_position_indices(&json).map_err(in_file)?;
     let document = gltf::Document::from_json(json).map_err(invalid)?;
@@ -59,6 +68,7 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
         faces: Vec::new(),
         defaulted: 0,
         skipped: 0,
+        instances: Vec::new(),
     };
     let mut camera = None;
     walk_scene(&document, |node, world| {
@@ -77,7 +87,7 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
                 primitive: primitive.index(),
             };
             geometry
-                .add_primitive(&primitive, world)
+                .add_primitive(&primitive, [node.index(), mesh.index()], world)
                 .map_err(|e| e.in_file(path, location))?;
         }
         Ok(())
@@ -98,13 +108,25 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
             faces: geometry.defaulted,
         });
     }
-    let (scene, more) =
-        Scene::new(geometry.positions, geometry.faces, materials).map_err(in_file)?;
+    let Geometry {
+        positions,
+        faces,
+        instances,
+        ..
+    } = geometry;
+    let (scene, more) = Scene::new(positions, faces, materials).map_err(in_file)?;
     warnings.extend(more);
+    let gltf = GltfSource {
+        json: json_text,
+        document,
+        buffers,
+        instances,
+    };
     Ok(Loaded {
         scene,
         warnings,
         camera,
+        gltf: Some(Box::new(gltf)),
     })
 }
 
@@ -320,6 +342,8 @@ struct Geometry<'b> {
     defaulted: usize,
     /// Primitives skipped (no surface).
     skipped: usize,
+    /// The primitives that gave faces, in order.
+    instances: Vec<PrimitiveInstance>,
 }
 
 impl Geometry<'_> {
@@ -327,6 +351,7 @@ impl Geometry<'_> {
     fn add_primitive(
         &mut self,
         primitive: &gltf::Primitive,
+        [node, mesh]: [usize; 2],
         world: Mat4,
     ) -> Result<(), SceneError> {
         let mode = primitive.mode();
@@ -377,6 +402,14 @@ impl Geometry<'_> {
         if self.faces.len() + triangles.len() > crate::MAX_FACES {
             return Err(SceneError::TooManyFaces);
         }
+        self.instances.push(PrimitiveInstance {
+            node,
+            mesh,
+            primitive: primitive.index(),
+            first_face: self.faces.len() as u32,
+            vertex_offset: self.positions.len() as u32,
+            triangles: triangles.clone(),
+        });
         if world.determinant() < 0.0 {
             for t in &mut triangles {
                 t.swap(1, 2);
@@ -417,6 +450,44 @@ impl Geometry<'_> {
         }
         Ok(())
     }
+}
+
+/// The glTF document a scene was read from, kept for writing results back into it (baking):
+/// the document as parsed, its buffers' bytes (read under the same file policy as the scene),
+/// and which faces of the [`Scene`](crate::Scene) each triangle primitive gave.
+#[derive(Debug, Clone)]
+pub struct GltfSource {
+    /// The document's JSON text as in the file (the JSON chunk of a GLB), with everything the
+    /// parsed [`document`](Self::document) may not model (unknown extensions, extras).
+    pub json: Vec<u8>,
+    /// The parsed and validated document.
+    pub document: gltf::Document,
+    /// The bytes of each buffer, in document order.
+    pub buffers: Vec<gltf::buffer::Data>,
+    /// One entry per placed triangle primitive (a mesh used by two nodes appears twice), in
+    /// the order their faces were numbered.
+    pub instances: Vec<PrimitiveInstance>,
+}
+
+/// One triangle primitive placed by one node: faces `first_face..first_face + triangles.len()`
+/// of the scene (by [`Face::source`](crate::Face::source)), face `first_face + k` made of
+/// `triangles[k]`.
+#[derive(Debug, Clone)]
+pub struct PrimitiveInstance {
+    /// The node placing it (document index).
+    pub node: usize,
+    /// Its mesh (document index).
+    pub mesh: usize,
+    /// Its index among the mesh's primitives.
+    pub primitive: usize,
+    /// The source number of its first face.
+    pub first_face: u32,
+    /// The scene vertex index of the primitive's vertex 0: vertex `v` of the primitive is scene
+    /// vertex `vertex_offset + v`, placed by the node's world transform.
+    pub vertex_offset: u32,
+    /// Its triangles as vertex indices of the primitive, in the file's winding (before any
+    /// flip for a mirroring transform).
+    pub triangles: Vec<[u32; 3]>,
 }
 
 /// The triangles of a `TRIANGLES`, `TRIANGLE_STRIP` or `TRIANGLE_FAN` index list, as in the

@@ -56,6 +56,7 @@ mod scene;
 
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
+pub use gltf_load::{GltfSource, PrimitiveInstance};
 pub use scene::{Bounds, Face, Material, Scene};
 
 use glam::Vec3;
@@ -71,6 +72,9 @@ pub struct Loaded {
     /// The file's viewpoint, when it has one (glTF: the first perspective camera in node
     /// order; OBJ has none).
     pub camera: Option<Camera>,
+    /// For a glTF or GLB file, the document and which faces each primitive gave (for writing
+    /// results back into it); `None` for OBJ.
+    pub gltf: Option<Box<GltfSource>>,
 }
 
 /// A pinhole viewpoint from the scene file, in scene units.
@@ -127,6 +131,21 @@ pub fn quote(text: &str) -> String {
     }
     out.push('\'');
     out
+}
+
+/// The bytes of a file named `name` by the scene file `scene` (a glTF image URI, an MTL
+/// texture), under the same policy as the scene's own files: a relative name is relative to the
+/// scene's folder and must stay inside it unless [`LoadOptions::allow_outside_paths`]; only
+/// regular files of at most [`LoadOptions::max_file_bytes`]. `uri` says whether `name` is a
+/// URI (then `file:` applies and percent-escapes are the caller's to decode).
+pub fn read_named_file(
+    scene: &Path,
+    name: &str,
+    uri: bool,
+    options: &LoadOptions,
+) -> Result<Vec<u8>, SceneError> {
+    let file = files::resolve_named(scene, name, uri, options)?;
+    files::read_file(&file, options)
 }
 
 /// Loads a scene from `path`, choosing the reader by extension: `.obj` (with the `.mtl` files it

@@ -84,6 +84,7 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         scene,
         warnings,
         camera: None,
+        gltf: None,
     })
 }
 

@@ -1,0 +1,401 @@
+//! Baking a radiosity solution into the user's own glTF scene.
+//!
+//! The input document is kept whole (nodes, names, materials, textures, extras, unknown
+//! extensions); what changes:
+//! - every triangle primitive the solver saw gets a second UV set `TEXCOORD_1` into one
+//!   lightmap atlas. Its triangles are grouped into **charts** (triangles sharing an edge and a
+//!   plane), each flattened at a fixed texel size (scene units per texel) and packed with
+//!   `padding` empty texels around it. Vertices on a chart boundary are split (one copy per
+//!   chart), so every vertex attribute is copied for the new vertices; strips and fans become
+//!   triangle lists;
+//! - a mesh placed by several nodes is copied per node (each placement has its own light);
+//! - the **lightmap** holds the incident irradiance `H` (W/m², linear RGB) per texel, so that a
+//!   viewer shows outgoing radiance `L = albedo H / pi` with the material's own (textured)
+//!   albedo: `H = (B - E) / rho` per patch from the solution (`0` where `rho = 0`),
+//!   interpolated over the mesh's corners as renders are ([`mcrad_render::interpolate`]),
+//!   sampled at the point of the chart nearest to each texel centre, and dilated into the
+//!   padding so that bilinear lookups at chart edges never read an empty texel (no seams);
+//! - it is embedded as an 8-bit sRGB PNG of `H / intensity` and referenced from every baked
+//!   material through the `MOZ_lightmap` extension (`texCoord` 1, `intensity` in W/m²); the
+//!   linear values come back as [`Lightmap`] for an EXR beside the GLB;
+//! - all buffers and external images move into the GLB's one binary chunk.
+//!
+//! Deterministic: the charts, the packing and the texel values depend only on the scene, the
+//! solution and the options (texels are sampled in parallel and written in a fixed order).
+
+mod atlas;
+mod charts;
+mod document;
+
+use std::path::Path;
+
+use glam::{DVec2, DVec3, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::{Ray, RayCaster};
+use mcrad_scene_io::{GltfSource, LoadOptions, Scene, SceneError};
+use rayon::prelude::*;
+
+use crate::charts::Chart;
+use crate::document::{BakedPrimitive, Document};
+
+/// What went wrong while baking.
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    /// The texel size is not a positive finite length.
+    #[error("the texel size {0} is not a positive finite length")]
+    BadTexel(f32),
+    /// A chart does not fit the largest atlas at this texel size.
+    #[error(
+        "a flat part of the scene is {texels:.0} texels across, more than a {limit} x {limit} \
+         lightmap holds: choose a larger texel size"
+    )]
+    ChartTooLarge {
+        /// The chart's extent, texels.
+        texels: f64,
+        /// The largest atlas edge, texels.
+        limit: u32,
+    },
+    /// The charts together do not fit the largest atlas.
+    #[error(
+        "the lightmap needs about {texels:.0} texels, more than a {limit} x {limit} atlas \
+         holds: choose a larger texel size"
+    )]
+    AtlasFull {
+        /// Texels the charts need, padding included.
+        texels: f64,
+        /// The largest atlas edge, texels.
+        limit: u32,
+    },
+    /// The solution does not belong to the mesh.
+    #[error("the solution has {got} values, the mesh has {expected} patches")]
+    SolutionLength {
+        /// Patches of the mesh.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
+    /// A primitive's vertices are not where the scene has them.
+    #[error("primitive instance {0} names vertices the scene does not have")]
+    Vertices(usize),
+    /// The document cannot be rewritten.
+    #[error("{0}")]
+    Document(String),
+    /// The document uses something baking does not handle yet.
+    #[error("not supported yet: {0}")]
+    Unsupported(String),
+    /// An external image the document names cannot be embedded.
+    #[error("image {index}: {cause}")]
+    Image {
+        /// The image's index in the document.
+        index: usize,
+        /// Why it cannot be read.
+        cause: SceneError,
+    },
+}
+
+/// How to bake.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeOptions {
+    /// Edge of a lightmap texel in scene units (`> 0`); `None`: chosen so that the charts
+    /// take about [`DEFAULT_TEXELS`] texels.
+    pub texel: Option<f32>,
+    /// Texels of dilated padding around each chart (`>= 1`; bilinear filtering needs 1, mip
+    /// levels more).
+    pub padding: u32,
+    /// The largest atlas edge, texels.
+    pub max_atlas: u32,
+}
+
+/// The chart area, in texels, that the default texel size aims at (half a 1024² atlas).
+pub const DEFAULT_TEXELS: f64 = 512.0 * 1024.0;
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        BakeOptions {
+            texel: None,
+            padding: 2,
+            max_atlas: 8192,
+        }
+    }
+}
+
+/// The baked lightmap in linear values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lightmap {
+    /// Edge of the square atlas, texels.
+    pub size: u32,
+    /// Incident irradiance `H` per texel, W/m² per linear RGB channel, row-major, top row first
+    /// (`v = 0` of `TEXCOORD_1`); padding dilated, unused texels 0.
+    pub irradiance: Vec<Vec3>,
+    /// Texels inside or touching a chart (the rest is padding or unused).
+    pub covered: usize,
+}
+
+/// A baked document.
+#[derive(Debug, Clone)]
+pub struct Baked {
+    /// The GLB file's bytes.
+    pub glb: Vec<u8>,
+    /// The lightmap it embeds, linear.
+    pub lightmap: Lightmap,
+    /// The `MOZ_lightmap` intensity (W/m²): a decoded PNG texel of 1 is this irradiance.
+    pub intensity: f32,
+    /// The texel edge used, scene units.
+    pub texel: f32,
+    /// Charts in the atlas.
+    pub charts: usize,
+    /// Primitive placements given lightmap coordinates.
+    pub primitives: usize,
+}
+
+/// What a bake reads: the scene and the document it came from, the mesh solved on, a ray
+/// caster over that mesh (ids = patch indices, as [`Mesh::triangle_patch`]) and the radiosity
+/// per patch (W/m²).
+pub struct BakeInput<'a, C: RayCaster> {
+    /// The scene file (external images are named relative to it).
+    pub path: &'a Path,
+    /// The file policy the scene was read under (applies to the images too).
+    pub load_options: &'a LoadOptions,
+    /// The scene.
+    pub scene: &'a Scene,
+    /// The glTF document it was read from.
+    pub gltf: &'a GltfSource,
+    /// The mesh the solution is on.
+    pub mesh: &'a Mesh,
+    /// A ray caster over `mesh`.
+    pub caster: &'a C,
+    /// Radiosity `B` per patch, W/m² per channel.
+    pub radiosity: &'a [DVec3],
+}
+
+/// The irradiance `H = (B - E) / rho` (W/m² per channel) arriving at a patch of radiosity `B`,
+/// emission `E` and reflectance `rho`, from `B = E + rho H`; 0 in a channel where `rho` is 0
+/// (nothing is reflected, so the solution does not say) and never negative.
+pub fn incident(b: DVec3, e: DVec3, rho: DVec3) -> DVec3 {
+    let f = |b: f64, e: f64, r: f64| {
+        if r > 1e-6 {
+            ((b - e) / r).max(0.0)
+        } else {
+            0.0
+        }
+    };
+    DVec3::new(f(b.x, e.x, rho.x), f(b.y, e.y, rho.y), f(b.z, e.z, rho.z))
+}
+
+/// Bakes the solution into the document (see the crate documentation).
+pub fn bake<C: RayCaster>(
+    input: &BakeInput<'_, C>,
+    options: &BakeOptions,
+) -> Result<Baked, BakeError> {
+    let BakeInput {
+        scene, gltf, mesh, ..
+    } = *input;
+    let patches = mesh.patches();
+    if input.radiosity.len() != patches.len() {
+        return Err(BakeError::SolutionLength {
+            expected: patches.len(),
+            got: input.radiosity.len(),
+        });
+    }
+    let positions = scene.positions();
+    // world corners of every instance's triangles
+    let mut corners: Vec<Vec<Option<[Vec3; 3]>>> = Vec::with_capacity(gltf.instances.len());
+    for (i, inst) in gltf.instances.iter().enumerate() {
+        let at = |v: u32| positions.get((inst.vertex_offset + v) as usize).copied();
+        let mut list = Vec::with_capacity(inst.triangles.len());
+        for t in &inst.triangles {
+            let c = [at(t[0]), at(t[1]), at(t[2])];
+            match c {
+                [Some(a), Some(b), Some(c)] => list.push(Some([a, b, c])),
+                _ => return Err(BakeError::Vertices(i)),
+            }
+        }
+        corners.push(list);
+    }
+    let texel = match options.texel {
+        Some(t) if t.is_finite() && t > 0.0 => f64::from(t),
+        Some(t) => return Err(BakeError::BadTexel(t)),
+        None => {
+            let area: f64 = corners
+                .iter()
+                .flatten()
+                .flatten()
+                .map(|[a, b, c]| {
+                    let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+                    (b - a).cross(c - a).length() / 2.0
+                })
+                .sum();
+            (area / DEFAULT_TEXELS)
+                .sqrt()
+                .max(f64::from(f32::MIN_POSITIVE))
+        }
+    };
+    let mut charts: Vec<Chart> = Vec::new();
+    let mut chart_of: Vec<Vec<Option<usize>>> = Vec::with_capacity(gltf.instances.len());
+    for (i, inst) in gltf.instances.iter().enumerate() {
+        let first = charts.len();
+        let these = charts::charts_of(i, &inst.triangles, &corners[i], texel);
+        let mut of = vec![None; inst.triangles.len()];
+        for (c, chart) in these.iter().enumerate() {
+            for &k in &chart.triangles {
+                of[k as usize] = Some(first + c);
+            }
+        }
+        charts.extend(these);
+        chart_of.push(of);
+    }
+    let packing = atlas::pack(&charts, options.padding.max(1), options.max_atlas)?;
+    let padding = options.padding.max(1);
+
+    // irradiance per patch, then per mesh corner, interpolated as renders do
+    let h: Vec<DVec3> = patches
+        .iter()
+        .zip(input.radiosity)
+        .map(|(p, &b)| incident(b, p.emission.as_dvec3(), p.reflectance.as_dvec3()))
+        .collect();
+    let corner_h: Vec<Vec3> = mesh
+        .seamless_corner_radiosity(&h, mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)
+        .iter()
+        .map(|v| v.as_vec3())
+        .collect();
+    // the front normal of each input face (by source number), for the lookup rays
+    let mut front: Vec<Option<Vec3>> =
+        vec![None; gltf.instances.iter().map(|i| i.triangles.len()).sum()];
+    for face in scene.faces() {
+        if let Some(slot) = front.get_mut(face.source as usize) {
+            slot.get_or_insert(scene.face_normal(face));
+        }
+    }
+    let diagonal = scene.bounds().diagonal();
+    let lift = (0.05 * texel).max(1e-5 * diagonal);
+    let value_at = |point: DVec3, normal: Vec3| -> Option<Vec3> {
+        for side in [1.0f32, -1.0] {
+            let n = normal * side;
+            let origin = (point + n.as_dvec3() * lift).as_vec3();
+            let hit = input.caster.closest_hit(&Ray::new(origin, -n))?;
+            if f64::from(hit.distance) > 2.0 * lift + 1e-6 * diagonal {
+                continue;
+            }
+            let patch = patches.get(hit.id as usize)?;
+            let offset = mesh.corner_offset(hit.id as usize);
+            let corners = mesh.corners(patch);
+            let values = &corner_h[offset..offset + corners.len()];
+            return Some(mcrad_render::interpolate(
+                mesh.positions(),
+                corners,
+                values,
+                hit.point,
+            ));
+        }
+        None
+    };
+    let tiles: Vec<Vec<Option<Vec3>>> = charts
+        .par_iter()
+        .enumerate()
+        .map(|(c, chart)| {
+            let inst = &gltf.instances[chart.instance];
+            let world: Vec<[Vec3; 3]> = chart
+                .triangles
+                .iter()
+                .map(|&k| corners[chart.instance][k as usize].expect("charted"))
+                .collect();
+            atlas::samples(chart, &world, packing.rects[c], padding, texel)
+                .into_iter()
+                .map(|s| {
+                    let s = s?;
+                    let k = chart.triangles[s.triangle as usize];
+                    let source = (inst.first_face + k) as usize;
+                    let normal = front
+                        .get(source)
+                        .copied()
+                        .flatten()
+                        .unwrap_or(chart.axes[2].as_vec3());
+                    value_at(s.point, normal)
+                })
+                .collect()
+        })
+        .collect();
+    let size = packing.size;
+    let mut image: Vec<Option<Vec3>> = vec![None; (size as usize) * (size as usize)];
+    let mut covered = 0;
+    for (c, tile) in tiles.iter().enumerate() {
+        let [x0, y0] = packing.corners[c];
+        let [w, _] = packing.rects[c];
+        for (k, v) in tile.iter().enumerate() {
+            if let Some(v) = v {
+                let (x, y) = (x0 + k as u32 % w, y0 + k as u32 / w);
+                image[(y * size + x) as usize] = Some(*v);
+                covered += 1;
+            }
+        }
+    }
+    let irradiance = atlas::dilate(&mut image, size, padding + 1);
+
+    // the primitives' new vertices: one per (vertex, chart)
+    let mut baked = Vec::with_capacity(gltf.instances.len());
+    for (i, inst) in gltf.instances.iter().enumerate() {
+        let mut index: std::collections::HashMap<(u32, usize), u32> = Default::default();
+        let mut p = BakedPrimitive {
+            node: inst.node,
+            mesh: inst.mesh,
+            primitive: inst.primitive,
+            copies: Vec::new(),
+            uv: Vec::new(),
+            triangles: Vec::with_capacity(inst.triangles.len()),
+        };
+        for (k, t) in inst.triangles.iter().enumerate() {
+            let chart = chart_of[i][k];
+            let mut out = [0u32; 3];
+            for (j, &v) in t.iter().enumerate() {
+                let key = (v, chart.unwrap_or(usize::MAX));
+                out[j] = *index.entry(key).or_insert_with(|| {
+                    let uv = match chart {
+                        Some(c) => {
+                            let q = charts[c]
+                                .flatten(corners[i][k].expect("listed")[j].as_dvec3(), texel);
+                            let [x, y] = packing.corners[c];
+                            (DVec2::new(f64::from(x), f64::from(y)) + f64::from(padding) + q)
+                                / f64::from(size)
+                        }
+                        None => DVec2::ZERO,
+                    };
+                    p.copies.push(v);
+                    p.uv.push(uv);
+                    (p.copies.len() - 1) as u32
+                });
+            }
+            p.triangles.push(out);
+        }
+        baked.push(p);
+    }
+    let (png, intensity) = document::lightmap_png(&irradiance, size)?;
+    let mut doc = Document::new(&gltf.json, &gltf.buffers, input.path, input.load_options)?;
+    doc.bake(&baked, &png, intensity)?;
+    Ok(Baked {
+        glb: doc.into_glb()?,
+        lightmap: Lightmap {
+            size,
+            irradiance,
+            covered,
+        },
+        intensity,
+        texel: texel as f32,
+        charts: charts.len(),
+        primitives: baked.len(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn incident_irradiance_inverts_the_radiosity_equation() {
+        let h = incident(
+            DVec3::new(3.0, 2.0, 1.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.5, 0.25, 0.0),
+        );
+        assert_eq!(h, DVec3::new(4.0, 8.0, 0.0));
+    }
+}

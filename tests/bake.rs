@@ -1,0 +1,266 @@
+//! End-to-end tests of `mcrad bake`: the user's glTF kept whole, lightmap coordinates added,
+//! the lightmap's values those of the solution.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use serde_json::{Value, json};
+
+fn mcrad(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mcrad"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("mcrad runs")
+}
+
+/// Two copies (nodes `a` and `b`) of one mesh: an inward-facing unit cube of 6 quads, every
+/// face emitting `pi * 0.3` W/m² with reflectance 0.5, so `B = E / (1 - rho)` everywhere and
+/// the incident irradiance `H = (B - E) / rho = E / (1 - rho) = 0.6 pi`. Geometry in an
+/// external `box.bin`, a `TEXCOORD_0`, an external texture image, extras and an unknown
+/// extension to keep.
+fn write_box(dir: &Path) {
+    let faces: [[[f32; 3]; 4]; 6] = [
+        [[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.]],
+        [[0., 0., 1.], [0., 1., 1.], [1., 1., 1.], [1., 0., 1.]],
+        [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]],
+        [[0., 1., 0.], [1., 1., 0.], [1., 1., 1.], [0., 1., 1.]],
+        [[0., 0., 0.], [0., 1., 0.], [0., 1., 1.], [0., 0., 1.]],
+        [[1., 0., 0.], [1., 0., 1.], [1., 1., 1.], [1., 1., 0.]],
+    ];
+    let (mut pos, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for f in faces {
+        let b = (pos.len() / 12) as u16;
+        for p in f {
+            pos.extend(p.iter().flat_map(|x| x.to_le_bytes()));
+        }
+        for t in [[0f32, 0.], [1., 0.], [1., 1.], [0., 1.]] {
+            uv.extend(t.iter().flat_map(|x| x.to_le_bytes()));
+        }
+        for i in [b, b + 1, b + 2, b, b + 2, b + 3] {
+            idx.extend(i.to_le_bytes());
+        }
+    }
+    let mut bin = [pos.clone(), uv.clone(), idx.clone()].concat();
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    std::fs::write(dir.join("box.bin"), &bin).unwrap();
+    // a 1x1 white PNG (the texture is only carried along)
+    let png = [
+        0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44,
+        0x52, 0x00, 0x00, 0x00, 0x01, 0x00, 0x00, 0x00, 0x01, 0x08, 0x02, 0x00, 0x00, 0x00, 0x90,
+        0x77, 0x53, 0xde, 0x00, 0x00, 0x00, 0x0c, 0x49, 0x44, 0x41, 0x54, 0x08, 0xd7, 0x63, 0xf8,
+        0xff, 0xff, 0x3f, 0x00, 0x05, 0xfe, 0x02, 0xfe, 0xdc, 0xcc, 0x59, 0xe7, 0x00, 0x00, 0x00,
+        0x00, 0x49, 0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82,
+    ];
+    std::fs::write(dir.join("white.png"), png).unwrap();
+    let (p, u) = (pos.len(), uv.len());
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "extras": {"author": "test"},
+        "extensionsUsed": ["EXT_something_unknown"],
+        "buffers": [{"byteLength": bin.len(), "uri": "box.bin"}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": p},
+            {"buffer": 0, "byteOffset": p, "byteLength": u},
+            {"buffer": 0, "byteOffset": p + u, "byteLength": idx.len()}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 24, "type": "VEC3",
+             "min": [0, 0, 0], "max": [1, 1, 1]},
+            {"bufferView": 1, "componentType": 5126, "count": 24, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 36, "type": "SCALAR"}
+        ],
+        "images": [{"uri": "white.png"}],
+        "textures": [{"source": 0}],
+        "materials": [{
+            "name": "glow", "extras": {"keep": "me"},
+            "emissiveFactor": [0.3, 0.3, 0.3],
+            "pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0,
+                                     "baseColorTexture": {"index": 0}}
+        }],
+        "meshes": [{"name": "box", "primitives": [
+            {"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}
+        ]}],
+        "nodes": [{"name": "a", "mesh": 0}, {"name": "b", "mesh": 0, "translation": [3, 0, 0]}],
+        "scenes": [{"nodes": [0, 1]}],
+        "scene": 0
+    });
+    std::fs::write(dir.join("box.gltf"), doc.to_string()).unwrap();
+}
+
+/// The JSON chunk and binary chunk of a GLB.
+fn glb_parts(bytes: &[u8]) -> (Value, Vec<u8>) {
+    assert_eq!(&bytes[0..4], b"glTF");
+    let n = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    assert_eq!(&bytes[16..20], b"JSON");
+    let json = serde_json::from_slice(&bytes[20..20 + n]).unwrap();
+    let m = u32::from_le_bytes(bytes[20 + n..24 + n].try_into().unwrap()) as usize;
+    assert_eq!(&bytes[24 + n..28 + n], b"BIN\0");
+    (json, bytes[28 + n..28 + n + m].to_vec())
+}
+
+/// The `f32` elements of a float accessor.
+fn floats(doc: &Value, bin: &[u8], accessor: &Value) -> Vec<f32> {
+    let a = &doc["accessors"][accessor.as_u64().unwrap() as usize];
+    assert_eq!(a["componentType"], 5126);
+    let view = &doc["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
+    let start = view["byteOffset"].as_u64().unwrap_or(0) + a["byteOffset"].as_u64().unwrap_or(0);
+    let n = a["count"].as_u64().unwrap()
+        * match a["type"].as_str().unwrap() {
+            "VEC2" => 2,
+            "VEC3" => 3,
+            _ => 1,
+        };
+    (0..n)
+        .map(|k| {
+            let at = (start + 4 * k) as usize;
+            f32::from_le_bytes(bin[at..at + 4].try_into().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn bake_keeps_the_document_and_its_lightmap_holds_the_exact_furnace_irradiance() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    // gather is exact in a closed furnace (every patch sees the same radiosity)
+    let o = mcrad(
+        dir.path(),
+        &[
+            "bake",
+            "box.gltf",
+            "--out",
+            "out.glb",
+            "--method",
+            "gather",
+            "--rays",
+            "1e5",
+            "--texel",
+            "0.02",
+            "--threads",
+            "2",
+            "-q",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bytes = std::fs::read(dir.path().join("out.glb")).unwrap();
+    let (doc, bin) = glb_parts(&bytes);
+
+    // kept: names, extras, unknown extensions, the material and its texture (now embedded)
+    assert_eq!(doc["extras"]["author"], "test");
+    assert_eq!(doc["nodes"][0]["name"], "a");
+    assert_eq!(doc["nodes"][1]["name"], "b");
+    assert_eq!(doc["nodes"][1]["translation"], json!([3, 0, 0]));
+    assert_eq!(doc["materials"][0]["extras"]["keep"], "me");
+    assert_eq!(
+        doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["index"],
+        0
+    );
+    let used = doc["extensionsUsed"].as_array().unwrap();
+    assert!(
+        used.contains(&json!("EXT_something_unknown")) && used.contains(&json!("MOZ_lightmap"))
+    );
+    assert_eq!(doc["buffers"].as_array().unwrap().len(), 1);
+    assert!(
+        doc["buffers"][0].get("uri").is_none(),
+        "one embedded buffer"
+    );
+    assert!(
+        doc["images"][0].get("uri").is_none(),
+        "the texture is embedded"
+    );
+    assert_eq!(doc["images"][0]["mimeType"], "image/png");
+
+    // one mesh per placement, each with lightmap coordinates inside the atlas
+    let (ma, mb) = (&doc["nodes"][0]["mesh"], &doc["nodes"][1]["mesh"]);
+    assert_ne!(ma, mb, "the instanced mesh is copied for its second node");
+    let lightmap = &doc["materials"][0]["extensions"]["MOZ_lightmap"];
+    assert_eq!(lightmap["texCoord"], 1);
+    let intensity = lightmap["intensity"].as_f64().unwrap();
+    let exr = mcrad_render::read_exr(&dir.path().join("out.lightmap.exr")).unwrap();
+    assert_eq!(exr.width, exr.height);
+    let exact = 0.6 * std::f32::consts::PI;
+    for m in [ma, mb] {
+        let primitive = &doc["meshes"][m.as_u64().unwrap() as usize]["primitives"][0];
+        let uv = floats(&doc, &bin, &primitive["attributes"]["TEXCOORD_1"]);
+        let positions = floats(&doc, &bin, &primitive["attributes"]["POSITION"]);
+        let texcoord0 = floats(&doc, &bin, &primitive["attributes"]["TEXCOORD_0"]);
+        assert_eq!(uv.len() / 2, positions.len() / 3);
+        assert_eq!(uv.len(), texcoord0.len());
+        for t in uv.chunks(2) {
+            assert!(t.iter().all(|x| (0.0..=1.0).contains(x)), "{t:?}");
+            // the texel under every vertex (a chart corner) holds the exact irradiance
+            let x = ((t[0] * exr.width as f32) as u32).min(exr.width - 1);
+            let y = ((t[1] * exr.height as f32) as u32).min(exr.height - 1);
+            let h = exr.get(x, y).unwrap();
+            assert!(
+                (h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
+                "{h}"
+            );
+        }
+    }
+    // every texel is the exact value or unused (0): no chart reads another's light
+    let mut used_texels = 0;
+    for h in &exr.pixels {
+        if h.max_element() > 0.0 {
+            used_texels += 1;
+            assert!(
+                (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
+                "{h}"
+            );
+        }
+    }
+    // 12 faces of 1 m² at 0.02 m per texel: at least 12 * 2500 texels
+    assert!(used_texels >= 12 * 2500, "{used_texels}");
+    assert!(
+        (intensity as f32 - exact).abs() < 1e-3 * exact,
+        "{intensity}"
+    );
+
+    // the baked file is a valid scene again, with the same surfaces
+    let reloaded = mcrad_scene_io::load(&dir.path().join("out.glb")).unwrap();
+    assert_eq!(reloaded.scene.faces().len(), 24);
+}
+
+#[test]
+fn bake_refuses_what_it_cannot_write() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    let cases: [(&[&str], &str); 3] = [
+        (
+            &["bake", "box.gltf", "--out", "out.gltf"],
+            "must end in .glb",
+        ),
+        (
+            &["bake", "box.gltf", "--out", "o.glb", "--texel", "0"],
+            "not a positive finite",
+        ),
+        (
+            &[
+                "bake", "box.gltf", "--out", "o.glb", "--texel", "1e-5", "--rays", "1e4",
+            ],
+            "choose a larger texel size",
+        ),
+    ];
+    for (args, part) in cases {
+        let o = mcrad(dir.path(), args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(part), "{args:?}: {err}");
+    }
+    let cornell = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.obj");
+    let o = mcrad(
+        dir.path(),
+        &[
+            "bake",
+            cornell.to_str().unwrap(),
+            "--out",
+            "o.glb",
+            "--rays",
+            "1e4",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("give a .gltf or .glb file"), "{err}");
+}
