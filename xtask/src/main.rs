@@ -5,6 +5,7 @@ mod experiment;
 mod gen_scenes;
 mod regress;
 mod speed;
+mod viewer;
 
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -33,7 +34,11 @@ tasks:
           spread/reported variance, power bias, budget use; writes docs/calibration.md
   gen-scenes
           writes the generated experiment scenes scenes/boxes-room.obj and
-          scenes/table-room.obj (+ .mtl)
+          scenes/table-room.obj (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ
+  viewer-check [--docs]
+          bakes scenes/cornell-box.gltf (mcrad bake), renders the GLB with three.js in headless
+          Chromium (Debian's chromium; npm installs three in xtask/viewer) and compares it with
+          mcrad's render of the same solution; --docs updates docs/bake-cornell.png
   image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]
           img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor
           have a neighbour that does), and the same over the darkest third of them
@@ -77,7 +82,15 @@ fn run() -> Result<()> {
         }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
         Some("calibrate") => calibrate::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>()),
-        Some("gen-scenes") => gen_scenes::run(&root()),
+        Some("gen-scenes") => {
+            gen_scenes::run(&root())?;
+            viewer::write_cornell_gltf(&root())
+        }
+        Some("viewer-check") => {
+            let docs = std::env::args().nth(2).as_deref() == Some("--docs");
+            cargo(&["build", "--release", "--bin", "mcrad"])?;
+            viewer::run(&root(), &target_dir().join("release/mcrad"), docs)
+        }
         Some("image-error") => {
             let args: Vec<String> = std::env::args().skip(2).collect();
             let (image, reference, diff) = match args.as_slice() {

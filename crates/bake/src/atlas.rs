@@ -137,13 +137,19 @@ pub(crate) fn samples(
                 }
                 let slot = &mut best[(y * w + x) as usize];
                 if slot.is_none_or(|(b, _)| d < b) {
-                    // a hair inside the triangle, so the point lies on it, not on its edge
+                    // a hair inside the triangle, so the point lies on it, not on its edge;
+                    // placed by its barycentric weights on the triangle's own corners (exact
+                    // also for a triangle a little off the chart's plane)
                     let inside = near + (centroid - near) * 1e-4;
+                    let w = barycentric(inside, q);
+                    let point = tri[0].as_dvec3() * w[0]
+                        + tri[1].as_dvec3() * w[1]
+                        + tri[2].as_dvec3() * w[2];
                     *slot = Some((
                         d,
                         Sample {
                             triangle: k as u32,
-                            point: chart.lift(inside, texel),
+                            point,
                         },
                     ));
                 }
@@ -151,6 +157,15 @@ pub(crate) fn samples(
         }
     }
     best.into_iter().map(|b| b.map(|(_, s)| s)).collect()
+}
+
+/// Barycentric weights of `p` in triangle `t` (in the plane; the triangle non-degenerate).
+fn barycentric(p: DVec2, t: [DVec2; 3]) -> [f64; 3] {
+    let (e1, e2, d) = (t[1] - t[0], t[2] - t[0], p - t[0]);
+    let det = e1.perp_dot(e2);
+    let u = d.perp_dot(e2) / det;
+    let v = e1.perp_dot(d) / det;
+    [1.0 - u - v, u, v]
 }
 
 /// The point of triangle `t` nearest to `p` (all in the plane).

@@ -30,6 +30,7 @@ impl Chart {
     }
 
     /// The point of the plane at chart coordinates `q` (texels from the corner).
+    #[cfg(test)]
     pub fn lift(&self, q: DVec2, texel: f64) -> DVec3 {
         let q = (q + self.min) * texel;
         self.origin + self.axes[0] * q.x + self.axes[1] * q.y
@@ -62,8 +63,8 @@ impl Sets {
 /// The charts of one placed primitive whose triangle `k` has world corners `corners[k]`
 /// (`None`: a degenerate triangle, left out) and vertex indices `triangles[k]`. Triangles join
 /// a chart when they share an edge (two vertex indices) and their planes agree: normals within
-/// about 0.5° and each triangle's corners within `1e-5` of the chart size from the other's
-/// plane. Charts come in the order of their first triangle.
+/// about 0.5° and the other triangle's corners within `1e-3` of its size from the first's
+/// plane (texels are placed on each triangle's own corners, so a slight fold does not matter). Charts come in the order of their first triangle.
 pub(crate) fn charts_of(
     instance: usize,
     triangles: &[[u32; 3]],
@@ -87,15 +88,14 @@ pub(crate) fn charts_of(
                     let o = other as usize;
                     let m = normals[o].expect("only triangles with normals are recorded");
                     let [p, ..] = corners[k].expect("has a normal").map(|p| p.as_dvec3());
-                    let [q, ..] = corners[o].expect("has a normal").map(|p| p.as_dvec3());
-                    let scale = corners[k]
-                        .into_iter()
-                        .chain(corners[o])
-                        .flatten()
-                        .map(|c| (c.as_dvec3() - p).length())
+                    let other = corners[o].expect("has a normal").map(|p| p.as_dvec3());
+                    let scale = other.iter().map(|c| (c - p).length()).fold(texel, f64::max);
+                    let off = other
+                        .iter()
+                        .map(|q| (q - p).dot(n).abs())
                         .fold(0.0, f64::max);
-                    if n.dot(m) > 0.99996 && (q - p).dot(n).abs() <= 1e-5 * scale.max(texel) {
-                        sets.union(k as u32, other);
+                    if n.dot(m) > 0.99996 && off <= 1e-3 * scale {
+                        sets.union(k as u32, o as u32);
                     }
                 }
                 None => {
