@@ -43,6 +43,11 @@ pub struct Bake {
     /// about half a 1024 x 1024 lightmap.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub texel: Option<f32>,
+    /// Stop the solve once the 95th percentile (by area) of the patches' relative standard
+    /// error of incident irradiance is at most E (e.g. 0.02), or at --rays/--time, whichever
+    /// comes first. Methods without variances ignore it.
+    #[arg(long, value_name = "E", value_parser = parse_fraction)]
+    pub target_error: Option<f64>,
 }
 
 /// Where `mcrad bake` writes, carried through the solve.
@@ -52,6 +57,8 @@ pub struct BakeTarget {
     pub out: PathBuf,
     /// `--texel`.
     pub texel: Option<f32>,
+    /// `--target-error`.
+    pub target_error: Option<f64>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -388,6 +395,14 @@ fn parse_seconds(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
         _ => Err(format!("'{s}' is not a positive number of seconds")),
+    }
+}
+
+/// A positive finite number (a relative error such as 0.02).
+fn parse_fraction(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("'{s}' is not a positive finite number")),
     }
 }
 

@@ -22,6 +22,7 @@ fn main() -> ExitCode {
             solve.bake = Some(cli::BakeTarget {
                 out: bake.out,
                 texel: bake.texel,
+                target_error: bake.target_error,
             });
             solve::run(&solve)
         }

@@ -84,9 +84,10 @@ pub fn bake(
     loaded: &mcrad_scene_io::Loaded,
     mesh: &Mesh,
     bvh: &Bvh,
-    radiosity: &[DVec3],
+    estimate: &mcrad_combine::Estimate,
     bar: &ProgressBar,
-) -> Result<()> {
+) -> Result<serde_json::Value> {
+    let radiosity = estimate.radiosity();
     let gltf = loaded
         .gltf
         .as_deref()
@@ -106,6 +107,7 @@ pub fn bake(
         mesh,
         caster: bvh,
         radiosity,
+        variance: estimate.variance(),
     };
     let options = mcrad_bake::BakeOptions {
         texel: target.texel,
@@ -122,22 +124,57 @@ pub fn bake(
         pixels: baked.lightmap.irradiance.clone(),
     };
     write_exr(&image, &exr)?;
-    bar.finish_and_clear();
-    if !args.quiet {
-        println!(
-            "baked {} primitive placements into {} ({} charts, {}x{} lightmap at {} units per \
-             texel, {} texels covered; linear lightmap in {})",
-            baked.primitives,
-            target.out.display(),
-            baked.charts,
-            baked.lightmap.size,
-            baked.lightmap.size,
-            baked.texel,
-            baked.lightmap.covered,
-            exr.display()
-        );
-    }
-    Ok(())
+    let error = baked.texel_error.map(|e| {
+        serde_json::json!({
+            "texels": e.texels, "median": finite(e.median), "p95": finite(e.p95),
+            "max": finite(e.max)
+        })
+    });
+    Ok(serde_json::json!({
+        "out": target.out.display().to_string(),
+        "lightmap": exr.display().to_string(),
+        "primitives": baked.primitives,
+        "charts": baked.charts,
+        "atlas": baked.lightmap.size,
+        "texel": baked.texel,
+        "texels_covered": baked.lightmap.covered,
+        "intensity": baked.intensity,
+        "texel_relative_error": error,
+    }))
+}
+
+/// `x`, or `None` (JSON null) when it is not finite (a texel no light reached).
+fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+/// The line `mcrad bake` prints about what it wrote, from [`bake`]'s summary.
+pub fn bake_line(summary: &serde_json::Value) -> String {
+    let error = match &summary["texel_relative_error"] {
+        serde_json::Value::Null => String::new(),
+        e => format!(
+            "; texel relative error: median {}, 95th percentile {}",
+            percent(&e["median"]),
+            percent(&e["p95"])
+        ),
+    };
+    format!(
+        "baked {} primitive placements into {} ({} charts, {}x{} lightmap at {} units per \
+         texel{error}; linear lightmap in {})",
+        summary["primitives"],
+        summary["out"].as_str().unwrap_or("?"),
+        summary["charts"],
+        summary["atlas"],
+        summary["atlas"],
+        summary["texel"],
+        summary["lightmap"].as_str().unwrap_or("?"),
+    )
+}
+
+/// A relative error as a percentage ("unbounded" for null: no light reached some texels).
+fn percent(x: &serde_json::Value) -> String {
+    x.as_f64()
+        .map_or_else(|| "unbounded".to_string(), |x| format!("{:.2}%", 100.0 * x))
 }
 
 /// The camera for renders: `--camera`, else the scene file's, else framed automatically.

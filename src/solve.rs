@@ -147,6 +147,9 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let mut complete_steps = false;
     // The last step, kept for a signal that abandons the next one.
     let mut last_step: Option<Solution> = None;
+    // `mcrad bake --target-error`: stop once the texels' error is that small.
+    let target_error = args.bake.as_ref().and_then(|b| b.target_error);
+    let mut target_reached = false;
     let result = schedule::run_cancellable(
         method,
         &mesh,
@@ -215,6 +218,12 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             if interrupt::requested() {
                 return ControlFlow::Break(());
             }
+            if let (Some(target), Some(variance)) = (target_error, step.variance)
+                && irradiance_error_p95(&mesh, step.radiosity, variance) <= target
+            {
+                target_reached = true;
+                return ControlFlow::Break(());
+            }
             if let Some(budget) = deadline {
                 // Setup counts against the budget: the time left is measured from the start of
                 // loading. At the speed of the run so far, size the rest to what fits.
@@ -245,6 +254,13 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         return Err(e);
     }
     let interrupted = interrupt::requested();
+    if target_reached && !args.quiet {
+        eprintln!(
+            "--target-error {}: reached after {} rays",
+            target_error.unwrap_or(0.0),
+            solution.estimate.rays()
+        );
+    }
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     // The answer: this run, merged with the saved pieces when it continues them.
@@ -328,6 +344,20 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         return Ok(Outcome::Interrupted);
     }
     Ok(Outcome::Done)
+}
+
+/// The 95th percentile, by area, of the patches' relative standard error of incident
+/// irradiance ([`mcrad_bake::relative_error`]): what `--target-error` holds the bake to (texels
+/// take their patches' errors, and cover the surfaces in proportion to area).
+fn irradiance_error_p95(mesh: &Mesh, radiosity: &[glam::DVec3], variance: &[glam::DVec3]) -> f64 {
+    let patches = mesh.patches();
+    let errors: Vec<f64> = patches
+        .iter()
+        .enumerate()
+        .map(|(i, p)| mcrad_bake::relative_error(radiosity[i], p.emission.as_dvec3(), variance[i]))
+        .collect();
+    let areas: Vec<f64> = patches.iter().map(|p| p.area).collect();
+    mcrad_bake::weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)
 }
 
 /// The patch numbers `--patches` writes, in mesh order: the input face with
@@ -462,12 +492,26 @@ fn finish(
             write_patch_csv(create(path)?, rows)?;
         }
     }
-    if let Some(path) = &args.stats {
-        run.write_json(create(path)?)?;
-    }
     crate::output::write(args, mesh, bvh, estimate.radiosity(), loaded.camera, bar)?;
-    if let Some(target) = &args.bake {
-        crate::output::bake(args, target, loaded, mesh, bvh, estimate.radiosity(), bar)?;
+    let baked = match &args.bake {
+        Some(target) => Some(crate::output::bake(
+            args, target, loaded, mesh, bvh, estimate, bar,
+        )?),
+        None => None,
+    };
+    if let Some(path) = &args.stats {
+        match &baked {
+            // the run's statistics and, under "bake", what the bake wrote
+            Some(summary) => {
+                let mut json = serde_json::to_value(run).context("the run statistics")?;
+                json["bake"] = summary.clone();
+                let mut out = create(path)?;
+                serde_json::to_writer_pretty(&mut out, &json).context("the run statistics")?;
+                std::io::Write::write_all(&mut out, b"\n")
+                    .and_then(|()| std::io::Write::flush(&mut out))?;
+            }
+            None => run.write_json(create(path)?)?,
+        }
     }
     bar.finish_and_clear();
     if !args.quiet {
@@ -486,6 +530,9 @@ fn finish(
                 .map_or_else(|| "?".to_string(), |n| n.to_string()),
             run.threads
         );
+        if let Some(summary) = &baked {
+            println!("{}", crate::output::bake_line(summary));
+        }
     }
     Ok(())
 }

@@ -264,3 +264,50 @@ fn bake_refuses_what_it_cannot_write() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("give a .gltf or .glb file"), "{err}");
 }
+
+#[test]
+fn target_error_stops_the_solve_and_stats_report_the_texel_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.gltf");
+    let run = |target: &str, stats: &str| {
+        let o = mcrad(
+            dir.path(),
+            &[
+                "bake",
+                scene.to_str().unwrap(),
+                "--out",
+                "c.glb",
+                "--rays",
+                "4e6",
+                "--threads",
+                "2",
+                "--stats",
+                stats,
+                "-q",
+                "--target-error",
+                target,
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let json: Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join(stats)).unwrap()).unwrap();
+        json
+    };
+    // a loose target stops early, within it; a tight one runs to the budget, above it
+    let loose = run("0.2", "loose.json");
+    let tight = run("0.001", "tight.json");
+    let rays = |j: &Value| j["rays"].as_u64().unwrap();
+    assert!(rays(&loose) < 4_000_000 / 2, "{}", rays(&loose));
+    assert!(rays(&tight) >= 3_900_000, "{}", rays(&tight));
+    for (j, target, below) in [(&loose, 0.2, true), (&tight, 0.001, false)] {
+        let e = &j["bake"]["texel_relative_error"];
+        let p95 = e["p95"].as_f64().unwrap();
+        let median = e["median"].as_f64().unwrap();
+        assert!(
+            e["texels"].as_u64().unwrap() > 10_000 && median <= p95,
+            "{e}"
+        );
+        // texels take their patches' errors and weigh them by area, as the stop does
+        assert_eq!(p95 <= target * 1.05, below, "{e}");
+    }
+}

@@ -146,6 +146,8 @@ pub struct Baked {
     pub charts: usize,
     /// Primitive placements given lightmap coordinates.
     pub primitives: usize,
+    /// The texels' uncertainty, when the solution has variances.
+    pub texel_error: Option<TexelError>,
 }
 
 /// What a bake reads: the scene and the document it came from, the mesh solved on, a ray
@@ -166,6 +168,59 @@ pub struct BakeInput<'a, C: RayCaster> {
     pub caster: &'a C,
     /// Radiosity `B` per patch, W/m² per channel.
     pub radiosity: &'a [DVec3],
+    /// The estimated variance of `B` per patch, (W/m²)² per channel, when the method gives one.
+    pub variance: Option<&'a [DVec3]>,
+}
+
+/// How uncertain the baked texels are: over the covered texels, the relative standard error of
+/// each texel's irradiance, taken as that of its patch ([`relative_error`]; interpolation only
+/// lowers it). Percentiles count texels, so they weigh surfaces by their lightmap area.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexelError {
+    /// Texels counted (covered texels whose patch has a variance).
+    pub texels: usize,
+    /// The median relative standard error (dimensionless; infinite for texels no light
+    /// reached).
+    pub median: f64,
+    /// The 95th percentile.
+    pub p95: f64,
+    /// The largest.
+    pub max: f64,
+}
+
+/// The relative standard error of a patch's incident irradiance `H = (B - E) / rho`:
+/// `sqrt(sum_c var(B_c)) / sum_c (B_c - E_c)` over the RGB channels (`rho` cancels; the variance
+/// of `B` is that of its reflected part, `E` being exact). Infinite where no light arrives
+/// (`B = E`) and the variance is not 0; 0 where both are 0.
+pub fn relative_error(b: DVec3, e: DVec3, variance: DVec3) -> f64 {
+    let reflected = (b - e).element_sum();
+    let sd = variance.max(DVec3::ZERO).element_sum().sqrt();
+    if sd == 0.0 {
+        0.0
+    } else if reflected > 0.0 {
+        sd / reflected
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The `q`-quantile (in `[0, 1]`) of `values` weighted by `weights` (the smallest value whose
+/// cumulative weight reaches `q` of the total); `None` when the total weight is not positive.
+pub fn weighted_quantile(values: &[f64], weights: &[f64], q: f64) -> Option<f64> {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+    let total: f64 = weights.iter().sum();
+    if total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let mut sum = 0.0;
+    for &i in &order {
+        sum += weights[i];
+        if sum >= q * total {
+            return Some(values[i]);
+        }
+    }
+    order.last().map(|&i| values[i])
 }
 
 /// The irradiance `H = (B - E) / rho` (W/m² per channel) arriving at a patch of radiosity `B`,
@@ -191,10 +246,11 @@ pub fn bake<C: RayCaster>(
         scene, gltf, mesh, ..
     } = *input;
     let patches = mesh.patches();
-    if input.radiosity.len() != patches.len() {
+    let lengths = [Some(input.radiosity.len()), input.variance.map(<[_]>::len)];
+    if let Some(got) = lengths.into_iter().flatten().find(|&n| n != patches.len()) {
         return Err(BakeError::SolutionLength {
             expected: patches.len(),
-            got: input.radiosity.len(),
+            got,
         });
     }
     let positions = scene.positions();
@@ -268,7 +324,7 @@ pub fn bake<C: RayCaster>(
     }
     let diagonal = scene.bounds().diagonal();
     let lift = (0.05 * texel).max(1e-5 * diagonal);
-    let value_at = |point: DVec3, normal: Vec3| -> Option<Vec3> {
+    let value_at = |point: DVec3, normal: Vec3| -> Option<(Vec3, u32)> {
         for side in [1.0f32, -1.0] {
             let n = normal * side;
             let origin = (point + n.as_dvec3() * lift).as_vec3();
@@ -280,16 +336,12 @@ pub fn bake<C: RayCaster>(
             let offset = mesh.corner_offset(hit.id as usize);
             let corners = mesh.corners(patch);
             let values = &corner_h[offset..offset + corners.len()];
-            return Some(mcrad_render::interpolate(
-                mesh.positions(),
-                corners,
-                values,
-                hit.point,
-            ));
+            let h = mcrad_render::interpolate(mesh.positions(), corners, values, hit.point);
+            return Some((h, hit.id));
         }
         None
     };
-    let tiles: Vec<Vec<Option<Vec3>>> = charts
+    let tiles: Vec<Vec<Option<(Vec3, u32)>>> = charts
         .par_iter()
         .enumerate()
         .map(|(c, chart)| {
@@ -318,17 +370,40 @@ pub fn bake<C: RayCaster>(
     let size = packing.size;
     let mut image: Vec<Option<Vec3>> = vec![None; (size as usize) * (size as usize)];
     let mut covered = 0;
+    let mut texel_patches = Vec::new();
     for (c, tile) in tiles.iter().enumerate() {
         let [x0, y0] = packing.corners[c];
         let [w, _] = packing.rects[c];
         for (k, v) in tile.iter().enumerate() {
-            if let Some(v) = v {
+            if let Some((v, patch)) = v {
                 let (x, y) = (x0 + k as u32 % w, y0 + k as u32 / w);
                 image[(y * size + x) as usize] = Some(*v);
+                texel_patches.push(*patch);
                 covered += 1;
             }
         }
     }
+    let texel_error = input.variance.map(|variance| {
+        let errors: Vec<f64> = texel_patches
+            .iter()
+            .map(|&p| {
+                let i = p as usize;
+                relative_error(
+                    input.radiosity[i],
+                    patches[i].emission.as_dvec3(),
+                    variance[i],
+                )
+            })
+            .collect();
+        let ones = vec![1.0; errors.len()];
+        let q = |q: f64| weighted_quantile(&errors, &ones, q).unwrap_or(0.0);
+        TexelError {
+            texels: errors.len(),
+            median: q(0.5),
+            p95: q(0.95),
+            max: errors.iter().copied().fold(0.0, f64::max),
+        }
+    });
     let irradiance = atlas::dilate(&mut image, size, padding + 1);
 
     // the primitives' new vertices: one per (vertex, chart)
@@ -382,6 +457,7 @@ pub fn bake<C: RayCaster>(
         texel: texel as f32,
         charts: charts.len(),
         primitives: baked.len(),
+        texel_error,
     })
 }
 
@@ -397,5 +473,22 @@ mod tests {
             DVec3::new(0.5, 0.25, 0.0),
         );
         assert_eq!(h, DVec3::new(4.0, 8.0, 0.0));
+    }
+
+    #[test]
+    fn relative_errors_and_weighted_quantiles() {
+        let b = DVec3::new(3.0, 2.0, 1.0);
+        let e = DVec3::ZERO;
+        assert_eq!(relative_error(b, e, DVec3::new(9.0, 16.0, 11.0)), 1.0);
+        assert_eq!(relative_error(e, e, DVec3::ONE), f64::INFINITY);
+        assert_eq!(relative_error(e, e, DVec3::ZERO), 0.0);
+        let v = [4.0, 1.0, 3.0, 2.0];
+        assert_eq!(weighted_quantile(&v, &[1.0; 4], 0.5), Some(2.0));
+        assert_eq!(weighted_quantile(&v, &[1.0; 4], 0.95), Some(4.0));
+        assert_eq!(
+            weighted_quantile(&v, &[0.0, 0.0, 10.0, 1.0], 0.5),
+            Some(3.0)
+        );
+        assert_eq!(weighted_quantile(&v, &[0.0; 4], 0.5), None);
     }
 }
