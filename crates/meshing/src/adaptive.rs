@@ -26,8 +26,9 @@
 
 use crate::build::{Mesh, MeshError, PatchTemplate, Subdivision};
 use glam::{DVec3, Vec3};
-use mcrad_scene_io::Scene;
+use mcrad_scene_io::{Scene, SceneTextures};
 use std::collections::HashMap;
+use std::sync::Arc;
 
 /// One leaf element: a triangle (3 corners) or a convex quad (4), counter-clockwise from its
 /// front, with the template of its input face.
@@ -124,6 +125,8 @@ pub struct Refinement {
 /// positive area and lies within its input face; the leaves of a face tile it.
 #[derive(Debug, Clone)]
 pub struct AdaptiveMesh {
+    /// The scene's textured faces (elements take their reflectance from them).
+    textures: Option<Arc<SceneTextures>>,
     templates: Vec<PatchTemplate>,
     leaves: Vec<Leaf>,
     mesh: Mesh,
@@ -153,9 +156,11 @@ impl AdaptiveMesh {
             let template = *index
                 .entry((patch.face, patch.material))
                 .or_insert_with(|| {
+                    // the material's factors: a textured face's patches multiply them anew
+                    let material = &scene.materials()[patch.material as usize];
                     templates.push(PatchTemplate {
-                        reflectance: patch.reflectance,
-                        emission: patch.emission,
+                        reflectance: material.reflectance,
+                        emission: material.emission,
                         face: patch.face,
                         material: patch.material,
                     });
@@ -173,8 +178,10 @@ impl AdaptiveMesh {
                 template,
             });
         }
-        let mesh = build_mesh(&templates, &leaves);
+        let textures = scene.textures().cloned();
+        let mesh = build_mesh(&templates, &leaves, textures.clone());
         Ok(AdaptiveMesh {
+            textures,
             templates,
             leaves,
             mesh,
@@ -262,7 +269,7 @@ impl AdaptiveMesh {
                 }
             }
         }
-        self.mesh = build_mesh(&self.templates, &leaves);
+        self.mesh = build_mesh(&self.templates, &leaves, self.textures.clone());
         self.leaves = leaves;
         Refinement {
             parent,
@@ -383,8 +390,12 @@ fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
 }
 
 /// The mesh of `leaves`: vertices shared where corners are equal as `f32`.
-fn build_mesh(templates: &[PatchTemplate], leaves: &[Leaf]) -> Mesh {
-    let mut mesh = Mesh::empty();
+fn build_mesh(
+    templates: &[PatchTemplate],
+    leaves: &[Leaf],
+    textures: Option<Arc<SceneTextures>>,
+) -> Mesh {
+    let mut mesh = Mesh::empty(textures);
     let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len() * 2);
     let mut corners = Vec::with_capacity(4);
     for leaf in leaves {

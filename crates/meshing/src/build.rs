@@ -2,7 +2,8 @@
 
 use crate::subdivide::Cutter;
 use glam::{DVec3, Vec3};
-use mcrad_scene_io::Scene;
+use mcrad_scene_io::{Scene, SceneTextures};
+use std::sync::Arc;
 
 /// How faces become patches.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -96,6 +97,9 @@ pub struct Mesh {
     triangles: Vec<[u32; 3]>,
     triangle_patch: Vec<u32>,
     patches: Vec<Patch>,
+    /// The scene's textured faces: a patch of one takes its reflectance and emission from the
+    /// texture over its own area.
+    textures: Option<Arc<SceneTextures>>,
 }
 
 impl Mesh {
@@ -133,6 +137,7 @@ impl Mesh {
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
             patches: Vec::new(),
+            textures: scene.textures().cloned(),
         };
         let mut cutter = Cutter::default();
         for face in scene.faces() {
@@ -162,14 +167,16 @@ impl Mesh {
         Ok(mesh)
     }
 
-    /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`).
-    pub(crate) fn empty() -> Mesh {
+    /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`), its
+    /// patches textured by `textures`.
+    pub(crate) fn empty(textures: Option<Arc<SceneTextures>>) -> Mesh {
         Mesh {
             positions: Vec::new(),
             corners: Vec::new(),
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
             patches: Vec::new(),
+            textures,
         }
     }
 
@@ -225,6 +232,19 @@ impl Mesh {
             self.triangle_patch.push(id);
         }
         let normal = area2.normalize_or_zero();
+        // a textured face: the material's factors times the texture's mean over this patch
+        let (mut reflectance, mut emission) = (t.reflectance, t.emission);
+        if let Some(textures) = &self.textures {
+            let points: Vec<Vec3> = corners
+                .iter()
+                .map(|&c| self.positions[c as usize])
+                .collect();
+            if let Some((albedo, glow)) = textures.average(t.face, &points) {
+                reflectance =
+                    (reflectance * albedo).clamp(Vec3::ZERO, Vec3::splat(MAX_REFLECTANCE));
+                emission = (emission * glow).max(Vec3::ZERO);
+            }
+        }
         self.patches.push(Patch {
             area: area2.length() / 2.0,
             normal: normal.as_vec3(),
@@ -233,8 +253,8 @@ impl Mesh {
             } else {
                 p0.as_vec3()
             },
-            reflectance: t.reflectance,
-            emission: t.emission,
+            reflectance,
+            emission,
             face: t.face,
             material: t.material,
             first_corner,
@@ -340,7 +360,11 @@ impl Mesh {
     }
 }
 
-/// What every patch cut from one face shares.
+/// The largest reflectance a texture may give a patch (a texel of 1 under a factor of 1).
+const MAX_REFLECTANCE: f32 = 0.999;
+
+/// What every patch cut from one face shares (for a textured face, the material's factors,
+/// which the texture multiplies patch by patch).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PatchTemplate {
     pub reflectance: Vec3,

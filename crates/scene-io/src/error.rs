@@ -451,10 +451,21 @@ pub enum Warning {
         /// How many channels were clamped (1 to 3).
         count: usize,
     },
-    /// Textures were ignored: only `baseColorFactor` and `emissiveFactor` are used. Example:
-    /// `textures on 2 materials ignored (only baseColorFactor and emissiveFactor are used)`.
-    TexturesIgnored {
-        /// How many materials have a base-colour or emissive texture.
+    /// Textures that could not be read (missing file, unknown format such as KTX2 or WebP,
+    /// larger than [`MAX_TEXTURE_EDGE`](crate::MAX_TEXTURE_EDGE)): the faces using them keep
+    /// their material's factors alone. Example: `2 textures could not be read (texture 0: ...);
+    /// their faces use the material's factors alone`.
+    TexturesUnreadable {
+        /// How many textures.
+        count: usize,
+        /// The document index of the first.
+        first: usize,
+        /// Why the first could not be read.
+        reason: String,
+    },
+    /// Materials with `alphaMode` `MASK` or `BLEND`: their surfaces are treated as opaque.
+    AlphaIgnored {
+        /// How many materials.
         materials: usize,
     },
 }
@@ -516,10 +527,21 @@ impl fmt::Display for Warning {
                 "material {}: {count} reflectance channels of exactly 1.0 clamped to 0.999",
                 crate::quote(material)
             ),
-            Warning::TexturesIgnored { materials } => write!(
+            Warning::TexturesUnreadable {
+                count,
+                first,
+                reason,
+            } => write!(
                 f,
-                "textures on {materials} materials ignored (only baseColorFactor and \
-                 emissiveFactor are used)"
+                "{count} texture{} could not be read (texture {first}: {}); their faces use \
+                 the material's factors alone",
+                if *count == 1 { "" } else { "s" },
+                crate::quote(reason)
+            ),
+            Warning::AlphaIgnored { materials } => write!(
+                f,
+                "{materials} material{} with alphaMode MASK or BLEND: treated as opaque",
+                if *materials == 1 { "" } else { "s" }
             ),
         }
     }

@@ -26,8 +26,12 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// Materials are the document's, in order (unnamed ones are called `material<i>`):
 /// reflectance = `baseColorFactor` rgb (alpha ignored; channels of exactly 1.0 become 0.999,
 /// [`Warning::ReflectanceClamped`]; above 1 is an error), emission
-/// `E = pi * emissiveFactor * emissiveStrength` in W/m². Textures are ignored
-/// ([`Warning::TexturesIgnored`]). Primitives without a material get
+/// `E = pi * emissiveFactor * emissiveStrength` in W/m². Textured faces (`baseColorTexture`,
+/// `emissiveTexture` with a non-zero factor, `COLOR_0`) get a mapping in the scene's
+/// [`SceneTextures`](crate::SceneTextures), which multiplies those factors over each patch;
+/// textures that cannot be read are warned ([`Warning::TexturesUnreadable`]) and left out;
+/// `alphaMode` `MASK`/`BLEND` is treated as opaque ([`Warning::AlphaIgnored`]). Primitives
+/// without a material get
 /// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
 /// ([`Warning::DefaultMaterial`]). Skins and morph targets are ignored; the first perspective camera in node order becomes
 /// [`Loaded::camera`] (its node's world transform applied; orthographic cameras are ignored).
@@ -58,6 +62,7 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
     let mut warnings = Vec::new();
     let mut materials = convert_materials(&document, &mut warnings);
     let mut geometry = Geometry {
+        textures: crate::gltf_texture::TextureReader::new(&document, path, options, &buffers),
         buffers: &buffers,
         default_material: u32::try_from(materials.len()).map_err(|_| {
             in_file(SceneError::Unsupported {
@@ -112,10 +117,15 @@ pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, Sc
         positions,
         faces,
         instances,
+        textures,
         ..
     } = geometry;
-    let (scene, more) = Scene::new(positions, faces, materials).map_err(in_file)?;
+    warnings.extend(textures.warnings());
+    let (mut scene, more) = Scene::new(positions, faces, materials).map_err(in_file)?;
     warnings.extend(more);
+    if textures.out.faces.iter().any(Option::is_some) {
+        scene = scene.with_textures(textures.out);
+    }
     let gltf = GltfSource {
         json: json_text,
         document,
@@ -228,7 +238,7 @@ fn load_buffers(
 }
 
 /// Decodes `%XX` escapes as the `gltf` crate does; `None` if the result is not UTF-8.
-fn percent_decode(uri: &str) -> Option<String> {
+pub(crate) fn percent_decode(uri: &str) -> Option<String> {
     let hex = |b: Option<&u8>| b.and_then(|b| (*b as char).to_digit(16));
     let bytes = uri.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());
@@ -248,7 +258,7 @@ fn percent_decode(uri: &str) -> Option<String> {
 }
 
 fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> Vec<Material> {
-    let mut textured = 0;
+    let mut blended = 0;
     let materials = document
         .materials()
         .enumerate()
@@ -270,8 +280,8 @@ fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> 
                     count: clamped,
                 });
             }
-            if pbr.base_color_texture().is_some() || m.emissive_texture().is_some() {
-                textured += 1;
+            if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
+                blended += 1;
             }
             let radiance = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
             Material {
@@ -281,10 +291,8 @@ fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> 
             }
         })
         .collect();
-    if textured > 0 {
-        warnings.push(Warning::TexturesIgnored {
-            materials: textured,
-        });
+    if blended > 0 {
+        warnings.push(Warning::AlphaIgnored { materials: blended });
     }
     materials
 }
@@ -333,6 +341,8 @@ fn walk_scene<'a>(
 
 /// The scene's geometry as it is being collected.
 struct Geometry<'b> {
+    /// Textures and the mappings of textured faces.
+    textures: crate::gltf_texture::TextureReader<'b>,
     buffers: &'b [gltf::buffer::Data],
     /// Material index given to primitives without a material.
     default_material: u32,
@@ -431,6 +441,9 @@ impl Geometry<'_> {
             }
             self.positions.push(world.transform_point3(*p));
         }
+        let placed = &self.positions[offset as usize..];
+        self.textures
+            .add_primitive(primitive, self.faces.len(), &triangles, placed);
         let material = match primitive.material().index() {
             Some(i) => i as u32,
             None => {

@@ -49,15 +49,19 @@
 mod error;
 mod files;
 mod gltf_load;
+mod gltf_texture;
 mod obj;
 mod obj_text;
 mod polygon;
 mod scene;
+mod texture;
 
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
 pub use gltf_load::{GltfSource, PrimitiveInstance};
+pub use gltf_texture::MAX_TEXTURE_EDGE;
 pub use scene::{Bounds, Face, Material, Scene};
+pub use texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
 
 use glam::Vec3;
 use std::path::Path;

@@ -78,6 +78,7 @@ pub struct Scene {
     positions: Vec<Vec3>,
     faces: Vec<Face>,
     materials: Vec<Material>,
+    textures: Option<std::sync::Arc<crate::SceneTextures>>,
 }
 
 impl Scene {
@@ -232,8 +233,22 @@ impl Scene {
             positions,
             faces: kept,
             materials,
+            textures: None,
         };
         Ok((scene, warnings))
+    }
+
+    /// The scene with textured albedo and emission: the faces `textures` maps take their
+    /// reflectance and emission from it ([`SceneTextures::average`](crate::SceneTextures::average)
+    /// times the material's factors).
+    pub fn with_textures(mut self, textures: crate::SceneTextures) -> Scene {
+        self.textures = Some(std::sync::Arc::new(textures));
+        self
+    }
+
+    /// The textures and face mappings, when the scene has textured faces.
+    pub fn textures(&self) -> Option<&std::sync::Arc<crate::SceneTextures>> {
+        self.textures.as_ref()
     }
 
     /// Vertex positions in scene units.

@@ -300,7 +300,6 @@ fn default_material_skipped_primitives_textures_and_root_nodes_without_scene() {
     assert_eq!(
         warnings,
         vec![
-            Warning::TexturesIgnored { materials: 1 },
             Warning::PrimitivesSkipped { count: 1 },
             Warning::DefaultMaterial { faces: 2 },
         ]
@@ -491,4 +490,89 @@ fn first_perspective_camera_is_placed_by_its_node() {
         .camera
         .is_none()
     );
+}
+
+/// A 2 x 1 PNG: left texel white, right black.
+fn half_white_png() -> Vec<u8> {
+    let mut png = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut png),
+        &[255, 255, 255, 0, 0, 0],
+        2,
+        1,
+        image::ExtendedColorType::Rgb8,
+    )
+    .unwrap();
+    png
+}
+
+#[test]
+fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
+    let mut doc = two_quads();
+    // u = x, v = z over the quad
+    let uv: Vec<u8> = [[0f32, 0.], [0., 1.], [1., 1.], [1., 0.]]
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let view = doc.view(&uv);
+    doc.accessors.push(format!(
+        r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC2"}}"#
+    ));
+    let png = format!("data:image/png;base64,{}", base64(&half_white_png()));
+    let rest = |image: &str| {
+        format!(
+            r#""nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0,
+          "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":2}},"indices":1,"material":0}}]}}],
+          "samplers":[{{"wrapS":33071,"wrapT":33071}}],
+          "textures":[{{"source":0,"sampler":0}}],"images":[{{"uri":"{image}"}}],
+          "materials":[{{"emissiveFactor":[1,1,1],"alphaMode":"MASK",
+             "pbrMetallicRoughness":{{"baseColorFactor":[0.8,0.8,0.8,1],"baseColorTexture":{{"index":0}}}}}}]"#
+        )
+    };
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok("t.gltf", doc.gltf(&rest(&png)).as_bytes());
+    assert_eq!(warnings, vec![Warning::AlphaIgnored { materials: 1 }]);
+    let textures = scene.textures().expect("textured");
+    // the material's factor stays 0.8; the texture over a polygon of the quad: white (1) on
+    // the left quarter, black (0) on the right quarter (sRGB 0 and 255 decode to 0 and 1)
+    assert_eq!(scene.materials()[0].reflectance, Vec3::splat(0.8));
+    let strip = |x0: f32, x1: f32| {
+        [
+            Vec3::new(x0, 0., 0.),
+            Vec3::new(x0, 0., 1.),
+            Vec3::new(x1, 0., 1.),
+            Vec3::new(x1, 0., 0.),
+        ]
+    };
+    for source in 0..2 {
+        let (left, emission) = textures.average(source, &strip(0.0, 0.25)).unwrap();
+        let (right, _) = textures.average(source, &strip(0.75, 1.0)).unwrap();
+        assert!((left - Vec3::ONE).abs().max_element() < 1e-5, "{left}");
+        assert!(right.abs().max_element() < 1e-5, "{right}");
+        assert_eq!(emission, Vec3::ONE, "no emissive texture");
+    }
+    // a missing image: warned, the faces keep the factor alone
+    let Loaded {
+        scene, warnings, ..
+    } = load_ok("t.gltf", doc.gltf(&rest("missing.png")).as_bytes());
+    let unreadable = warnings
+        .iter()
+        .find(|w| {
+            matches!(
+                w,
+                Warning::TexturesUnreadable {
+                    count: 1,
+                    first: 0,
+                    ..
+                }
+            )
+        })
+        .unwrap_or_else(|| panic!("{warnings:?}"));
+    assert!(
+        unreadable.to_string().contains("missing.png"),
+        "{unreadable}"
+    );
+    assert!(scene.textures().is_none(), "nothing left to map");
 }

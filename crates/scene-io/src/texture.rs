@@ -1,0 +1,293 @@
+//! Textured albedo and emission: decoded textures with their mip chains, and how each face maps
+//! onto them.
+//!
+//! A face of a glTF scene whose material has a `baseColorTexture` or `emissiveTexture`, or whose
+//! primitive has vertex colours `COLOR_0`, gets a [`FaceMapping`]: its three corners, their
+//! texture coordinates and colours. The reflectance of any planar polygon lying in that face
+//! (a patch, an adaptive element) is then the material's `baseColorFactor` times the mean, over
+//! the polygon's area, of `COLOR_0 × baseColorTexture`; its emission likewise the factor times
+//! the mean of `emissiveTexture` ([`SceneTextures::average`]). Textures are decoded from sRGB
+//! to linear (as glTF specifies for colour textures) and sampled bilinearly at the mip level
+//! where each of the polygon's samples covers about one texel, so the mean is area-correct
+//! for polygons of any size against the texture's detail.
+
+use std::sync::Arc;
+
+use glam::{Vec2, Vec3};
+
+/// How texture coordinates outside `[0, 1]` wrap (glTF sampler `wrapS`/`wrapT`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Wrap {
+    /// `REPEAT` (glTF's default).
+    #[default]
+    Repeat,
+    /// `CLAMP_TO_EDGE`.
+    Clamp,
+    /// `MIRRORED_REPEAT`.
+    Mirror,
+}
+
+/// One mip level: linear RGB texels, row-major, top row first (`v = 0`).
+#[derive(Debug, Clone, PartialEq)]
+struct Level {
+    width: u32,
+    height: u32,
+    texels: Vec<Vec3>,
+}
+
+/// A decoded texture: linear RGB (unitless factors in `[0, 1]`), with its mip chain down to
+/// 1 × 1 (each level the 2 × 2 box average of the one above, odd edges clamped).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    levels: Vec<Level>,
+    wrap: [Wrap; 2],
+}
+
+/// sRGB-encoded `[0, 1]` to linear.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+impl Texture {
+    /// A texture of `width × height` linear texels (row-major, top row first) wrapping as
+    /// `wrap` (`[s, t]`); `None` when the sizes do not match or are zero.
+    pub fn new(width: u32, height: u32, texels: Vec<Vec3>, wrap: [Wrap; 2]) -> Option<Texture> {
+        if width == 0 || height == 0 || texels.len() as u64 != u64::from(width) * u64::from(height)
+        {
+            return None;
+        }
+        let mut levels = vec![Level {
+            width,
+            height,
+            texels,
+        }];
+        while let Some(top) = levels.last().filter(|l| l.width > 1 || l.height > 1) {
+            let (w, h) = (top.width.div_ceil(2), top.height.div_ceil(2));
+            let mut texels = Vec::with_capacity((w * h) as usize);
+            for y in 0..h {
+                for x in 0..w {
+                    let at = |dx: u32, dy: u32| {
+                        let (sx, sy) = (
+                            (2 * x + dx).min(top.width - 1),
+                            (2 * y + dy).min(top.height - 1),
+                        );
+                        top.texels[(sy * top.width + sx) as usize]
+                    };
+                    texels.push((at(0, 0) + at(1, 0) + at(0, 1) + at(1, 1)) / 4.0);
+                }
+            }
+            levels.push(Level {
+                width: w,
+                height: h,
+                texels,
+            });
+        }
+        Some(Texture { levels, wrap })
+    }
+
+    /// Width and height of the full-resolution level, texels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.levels[0].width, self.levels[0].height)
+    }
+
+    /// The bilinear lookup at `uv` (glTF convention: `(0, 0)` the top-left corner of the image)
+    /// on mip level `level` (clamped to the chain).
+    pub fn sample(&self, uv: Vec2, level: usize) -> Vec3 {
+        let l = &self.levels[level.min(self.levels.len() - 1)];
+        let x = uv.x * l.width as f32 - 0.5;
+        let y = uv.y * l.height as f32 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let texel = |i: f32, j: f32| {
+            let i = wrap(i as i64, l.width, self.wrap[0]);
+            let j = wrap(j as i64, l.height, self.wrap[1]);
+            l.texels[(j * l.width + i) as usize]
+        };
+        let top = texel(x0, y0) * (1.0 - fx) + texel(x0 + 1.0, y0) * fx;
+        let bottom = texel(x0, y0 + 1.0) * (1.0 - fx) + texel(x0 + 1.0, y0 + 1.0) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+}
+
+/// Texel index `i` wrapped into `0..n`.
+fn wrap(i: i64, n: u32, mode: Wrap) -> u32 {
+    let n = i64::from(n);
+    let r = match mode {
+        Wrap::Repeat => i.rem_euclid(n),
+        Wrap::Clamp => i.clamp(0, n - 1),
+        Wrap::Mirror => {
+            let m = i.rem_euclid(2 * n);
+            if m < n { m } else { 2 * n - 1 - m }
+        }
+    };
+    r as u32
+}
+
+/// How one triangle face maps onto its textures and vertex colours.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceMapping {
+    /// The face's corners (scene units), in the order of `uv` and `colors`.
+    pub corners: [Vec3; 3],
+    /// Texture coordinates of the corners (the set each texture names).
+    pub uv: [Vec2; 3],
+    /// Linear vertex colours (`COLOR_0` rgb, 1 without).
+    pub colors: [Vec3; 3],
+    /// The base-colour texture (index into [`SceneTextures::textures`]).
+    pub base: Option<u32>,
+    /// The emissive texture.
+    pub emissive: Option<u32>,
+}
+
+/// The textures of a scene and the mapping of each textured face, by face source number
+/// ([`Face::source`](crate::Face::source)).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SceneTextures {
+    /// The decoded textures.
+    pub textures: Vec<Arc<Texture>>,
+    /// `faces[source]`: the mapping of the face with that source number, if it has one.
+    pub faces: Vec<Option<FaceMapping>>,
+}
+
+/// Samples per fan triangle of a polygon (a 4 × 4 stratified pattern).
+const SAMPLES: usize = 16;
+
+impl SceneTextures {
+    /// The factors a polygon lying in face `source` applies to its material: `(albedo,
+    /// emission)`, each the mean over the polygon's area of `COLOR_0 × baseColorTexture` and of
+    /// `emissiveTexture` (1 where the face has none). `points` are the polygon's corners in scene
+    /// units, convex and planar, fanned from the first. `None` when the face has no mapping.
+    pub fn average(&self, source: u32, points: &[Vec3]) -> Option<(Vec3, Vec3)> {
+        let m = self.faces.get(source as usize)?.as_ref()?;
+        let [a, b, c] = m.corners.map(|p| p.as_dvec3());
+        let (e1, e2) = (b - a, c - a);
+        let n = e1.cross(e2);
+        let nn = n.length_squared();
+        if nn <= 0.0 || !nn.is_finite() {
+            return None;
+        }
+        // barycentric weights of p in the face (projected onto its plane)
+        let weights = |p: glam::DVec3| {
+            let d = p - a;
+            let u = d.cross(e2).dot(n) / nn;
+            let v = e1.cross(d).dot(n) / nn;
+            [1.0 - u - v, u, v].map(|w| w as f32)
+        };
+        let uv_area_face = (m.uv[1] - m.uv[0]).perp_dot(m.uv[2] - m.uv[0]).abs() / 2.0;
+        let face_area = (nn.sqrt() / 2.0) as f32;
+        let (mut albedo, mut emission, mut total) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
+        let p0 = points.first()?.as_dvec3();
+        for w in points.get(1..)?.windows(2) {
+            let (p1, p2) = (w[0].as_dvec3(), w[1].as_dvec3());
+            let area = ((p1 - p0).cross(p2 - p0).length() / 2.0) as f32;
+            if area.is_nan() || area <= 0.0 {
+                continue;
+            }
+            // texels each sample covers, on the base level, of the larger texture
+            let uv_area = uv_area_face * area / face_area;
+            let level = |t: Option<u32>| {
+                t.and_then(|t| self.textures.get(t as usize))
+                    .map_or(0, |t| {
+                        let (w, h) = t.size();
+                        let per_sample = uv_area * w as f32 * h as f32 / SAMPLES as f32;
+                        per_sample.max(1.0).sqrt().log2().floor() as usize
+                    })
+            };
+            let (base_level, emissive_level) = (level(m.base), level(m.emissive));
+            let (mut sa, mut se) = (Vec3::ZERO, Vec3::ZERO);
+            for k in 0..SAMPLES {
+                // stratified point of the unit square, warped uniformly onto the triangle
+                let (i, j) = ((k % 4) as f64, (k / 4) as f64);
+                let (s, t) = ((i + 0.5) / 4.0, (j + 0.5) / 4.0);
+                let r = s.sqrt();
+                let p = p0 * (1.0 - r) + p1 * (r * (1.0 - t)) + p2 * (r * t);
+                let wts = weights(p);
+                let uv = m.uv[0] * wts[0] + m.uv[1] * wts[1] + m.uv[2] * wts[2];
+                let color = m.colors[0] * wts[0] + m.colors[1] * wts[1] + m.colors[2] * wts[2];
+                let tex = |t: Option<u32>, level: usize| {
+                    t.and_then(|t| self.textures.get(t as usize))
+                        .map_or(Vec3::ONE, |t| t.sample(uv, level))
+                };
+                sa += color * tex(m.base, base_level);
+                se += tex(m.emissive, emissive_level);
+            }
+            albedo += sa / SAMPLES as f32 * area;
+            emission += se / SAMPLES as f32 * area;
+            total += area;
+        }
+        (total > 0.0).then(|| (albedo / total, emission / total))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn checker(n: u32) -> Texture {
+        let texels = (0..n * n)
+            .map(|i| {
+                let (x, y) = (i % n, i / n);
+                Vec3::splat(((x + y) % 2) as f32)
+            })
+            .collect();
+        Texture::new(n, n, texels, [Wrap::Repeat; 2]).unwrap()
+    }
+
+    #[test]
+    fn mips_average_and_lookups_wrap() {
+        let t = checker(8);
+        assert_eq!(t.levels.len(), 4);
+        assert_eq!(t.levels[3].texels, vec![Vec3::splat(0.5)]);
+        // texel centres are exact; repeat wraps by the texture's size
+        assert_eq!(t.sample(Vec2::new(0.5 / 8.0, 0.5 / 8.0), 0), Vec3::ZERO);
+        assert_eq!(t.sample(Vec2::new(1.5 / 8.0, 0.5 / 8.0), 0), Vec3::ONE);
+        assert_eq!(
+            t.sample(Vec2::new(1.0 + 1.5 / 8.0, 0.5 / 8.0), 0),
+            Vec3::ONE
+        );
+        assert_eq!(wrap(-1, 4, Wrap::Clamp), 0);
+        assert_eq!(wrap(5, 4, Wrap::Mirror), 2);
+        assert!(Texture::new(2, 2, vec![Vec3::ONE; 3], [Wrap::Repeat; 2]).is_none());
+    }
+
+    #[test]
+    fn a_polygon_takes_the_mean_of_its_footprint() {
+        // a unit square face (two triangles share the mapping of one: corners (0,0) (1,0) (0,1))
+        let t = Arc::new(checker(64));
+        let half = Texture::new(2, 1, vec![Vec3::ONE, Vec3::ZERO], [Wrap::Clamp; 2]).unwrap();
+        let face = |base| FaceMapping {
+            corners: [Vec3::ZERO, Vec3::X, Vec3::Y],
+            uv: [Vec2::ZERO, Vec2::X, Vec2::Y],
+            colors: [Vec3::ONE, Vec3::new(0.0, 1.0, 1.0), Vec3::ONE],
+            base: Some(base),
+            emissive: None,
+        };
+        let scene = SceneTextures {
+            textures: vec![t, Arc::new(half)],
+            faces: vec![Some(face(0)), Some(face(1))],
+        };
+        let square = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+        // the fine checker averages to 1/2 however it is cut; red follows COLOR_0 (x -> 0),
+        // whose mean over the square is 1/2 too
+        let (albedo, emission) = scene.average(0, &square).unwrap();
+        assert!(
+            (albedo - Vec3::new(0.25, 0.5, 0.5)).abs().max_element() < 0.02,
+            "{albedo}"
+        );
+        assert_eq!(emission, Vec3::ONE);
+        // the left half of the two-texel image is white: the left half square sees it whole
+        // (blended towards the other texel only within half a texel of the middle)
+        let left = [
+            Vec3::ZERO,
+            Vec3::new(0.25, 0.0, 0.0),
+            Vec3::new(0.25, 1.0, 0.0),
+            Vec3::Y,
+        ];
+        let (albedo, _) = scene.average(1, &left).unwrap();
+        assert!((albedo.y - 1.0).abs() < 1e-6, "{albedo}");
+        assert!(scene.average(2, &square).is_none());
+    }
+}
