@@ -65,13 +65,6 @@ pub fn check(args: &Solve) -> Result<()> {
                 bake.out.display()
             );
         }
-        if !matches!(ext(&args.scene).as_deref(), Some("gltf" | "glb")) {
-            bail!(
-                "{}: bake writes into a glTF scene; give a .gltf or .glb file (OBJ scenes can \
-                 be converted first, e.g. with Blender or obj2gltf)",
-                args.scene.display()
-            );
-        }
     }
     Ok(())
 }

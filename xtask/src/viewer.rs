@@ -11,8 +11,6 @@
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use mcrad_render::{Camera, Image};
-use mcrad_scene_io::Scene;
-use serde_json::json;
 use std::path::Path;
 use std::process::Command;
 
@@ -28,99 +26,20 @@ const SIZE: u32 = 256;
 /// Exposure of both renders, stops (`mcrad --exposure`): the Cornell box's walls near mid-grey.
 const STOPS: f32 = 0.0;
 
-/// A glTF document (JSON) and its binary buffer for `scene`, named `bin` in the document, with
-/// `camera` as its first camera (aspect 1).
-pub fn gltf_from_scene(scene: &Scene, camera: &Camera, bin_name: &str) -> (String, Vec<u8>) {
-    let mut bin = Vec::new();
-    let mut views = Vec::new();
-    let mut accessors = Vec::new();
-    let mut primitives = Vec::new();
-    let positions = scene.positions();
-    for (m, _) in scene.materials().iter().enumerate() {
-        let mut used: Vec<u32> = Vec::new();
-        let mut map = std::collections::HashMap::new();
-        let mut indices: Vec<u32> = Vec::new();
-        for f in scene.faces().iter().filter(|f| f.material as usize == m) {
-            for k in 1..f.vertices.len() - 1 {
-                for v in [f.vertices[0], f.vertices[k], f.vertices[k + 1]] {
-                    let i = *map.entry(v).or_insert_with(|| {
-                        used.push(v);
-                        used.len() as u32 - 1
-                    });
-                    indices.push(i);
-                }
-            }
-        }
-        if indices.is_empty() {
-            continue;
-        }
-        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        let start = bin.len();
-        for &v in &used {
-            let p = positions[v as usize];
-            lo = lo.min(p);
-            hi = hi.max(p);
-            bin.extend(p.to_array().iter().flat_map(|x| x.to_le_bytes()));
-        }
-        views.push(json!({"buffer": 0, "byteOffset": start, "byteLength": bin.len() - start, "target": 34962}));
-        accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126,
-            "count": used.len(), "type": "VEC3", "min": lo.to_array(), "max": hi.to_array()}));
-        let start = bin.len();
-        bin.extend(indices.iter().flat_map(|x| x.to_le_bytes()));
-        views.push(json!({"buffer": 0, "byteOffset": start, "byteLength": bin.len() - start, "target": 34963}));
-        accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5125,
-            "count": indices.len(), "type": "SCALAR"}));
-        primitives.push(json!({"attributes": {"POSITION": accessors.len() - 2},
-            "indices": accessors.len() - 1, "material": m}));
-    }
-    let materials: Vec<_> = scene
-        .materials()
-        .iter()
-        .map(|m| {
-            // glTF's emissive factor is radiance and at most 1: the rest in emissive strength
-            let l = m.emission / std::f32::consts::PI;
-            let strength = l.max_element().max(1.0);
-            json!({
-                "name": m.name,
-                "pbrMetallicRoughness": {
-                    "baseColorFactor": [m.reflectance.x, m.reflectance.y, m.reflectance.z, 1.0],
-                    "metallicFactor": 0.0, "roughnessFactor": 1.0
-                },
-                "emissiveFactor": (l / strength).to_array(),
-                "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": strength}}
-            })
-        })
-        .collect();
-    let (f, u, e) = (camera.forward(), camera.up(), camera.eye());
-    let r = f.cross(u);
-    let matrix = [
-        r.x, r.y, r.z, 0.0, u.x, u.y, u.z, 0.0, -f.x, -f.y, -f.z, 0.0, e.x, e.y, e.z, 1.0,
-    ];
-    let doc = json!({
-        "asset": {"version": "2.0", "generator": "cargo xtask gen-scenes"},
-        "extensionsUsed": ["KHR_materials_emissive_strength"],
-        "buffers": [{"byteLength": bin.len(), "uri": bin_name}],
-        "bufferViews": views,
-        "accessors": accessors,
-        "materials": materials,
-        "meshes": [{"name": "scene", "primitives": primitives}],
-        "cameras": [{"type": "perspective", "perspective": {
-            "yfov": camera.fov_y_degrees().to_radians(), "aspectRatio": 1.0,
-            "znear": 0.01, "zfar": 1000.0}}],
-        "nodes": [{"name": "scene", "mesh": 0}, {"name": "camera", "camera": 0, "matrix": matrix}],
-        "scenes": [{"nodes": [0, 1]}],
-        "scene": 0
-    });
-    (serde_json::to_string_pretty(&doc).expect("JSON"), bin)
-}
-
 /// Writes `scenes/cornell-box.gltf` and `.bin` from `scenes/cornell-box.obj`.
 pub fn write_cornell_gltf(root: &Path) -> Result<()> {
     let loaded = mcrad_scene_io::load(&root.join("scenes/cornell-box.obj"))?;
     let mesh = mcrad_meshing::Mesh::build(&loaded.scene, mcrad_meshing::Subdivision::None)?;
     let bvh = mcrad_raycast::Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
     let camera = Camera::frame_scene(&mesh, &bvh)?;
-    let (json, bin) = gltf_from_scene(&loaded.scene, &camera, "cornell-box.bin");
+    let camera = mcrad_scene_io::Camera {
+        eye: camera.eye(),
+        forward: camera.forward(),
+        up: camera.up(),
+        fov_y_degrees: camera.fov_y_degrees(),
+    };
+    let (json, bin) =
+        mcrad_bake::gltf_from_scene(&loaded.scene, Some(&camera), Some("cornell-box.bin"));
     for (name, bytes) in [
         ("cornell-box.gltf", json.into_bytes()),
         ("cornell-box.bin", bin),

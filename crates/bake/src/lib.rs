@@ -25,6 +25,7 @@
 
 mod atlas;
 mod charts;
+mod convert;
 mod document;
 
 use std::path::Path;
@@ -36,6 +37,7 @@ use mcrad_scene_io::{GltfSource, LoadOptions, Scene, SceneError};
 use rayon::prelude::*;
 
 use crate::charts::Chart;
+pub use crate::convert::{glb_from_scene, gltf_from_scene};
 use crate::document::{BakedPrimitive, Document};
 
 /// What went wrong while baking.
