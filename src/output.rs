@@ -86,8 +86,18 @@ pub fn bake(
         .as_deref()
         .context("bake writes into a glTF scene; give a .gltf or .glb file")?;
     bar.reset();
-    bar.set_length(1);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} charts, {msg}, ETA {eta}",
+        )
+        .expect("a valid template")
+        .progress_chars("=> "),
+    );
     bar.set_message("baking the lightmap");
+    let progress = |done: u64, total: u64| {
+        bar.set_length(total);
+        bar.set_position(done);
+    };
     let load_options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
         ..Default::default()
@@ -101,6 +111,7 @@ pub fn bake(
         caster: bvh,
         radiosity,
         variance: estimate.variance(),
+        progress: Some(&progress),
     };
     let options = mcrad_bake::BakeOptions {
         texel: target.texel,

@@ -172,6 +172,8 @@ pub struct BakeInput<'a, C: RayCaster> {
     pub radiosity: &'a [DVec3],
     /// The estimated variance of `B` per patch, (W/m²)² per channel, when the method gives one.
     pub variance: Option<&'a [DVec3]>,
+    /// Told `(charts sampled, charts)` as the texels are sampled (from any thread).
+    pub progress: Option<&'a (dyn Fn(u64, u64) + Sync)>,
 }
 
 /// How uncertain the baked texels are: over the covered texels, the relative standard error of
@@ -343,10 +345,15 @@ pub fn bake<C: RayCaster>(
         }
         None
     };
+    let done = std::sync::atomic::AtomicU64::new(0);
     let tiles: Vec<Vec<Option<(Vec3, u32)>>> = charts
         .par_iter()
         .enumerate()
         .map(|(c, chart)| {
+            if let Some(progress) = input.progress {
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                progress(n, charts.len() as u64);
+            }
             let inst = &gltf.instances[chart.instance];
             let world: Vec<[Vec3; 3]> = chart
                 .triangles
