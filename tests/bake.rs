@@ -344,3 +344,32 @@ fn target_error_stops_the_solve_and_stats_report_the_texel_error() {
         assert_eq!(p95 <= target * 1.05, below, "{e}");
     }
 }
+
+#[test]
+fn a_bake_is_the_same_for_a_seed_on_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    let bake = |threads: &str, out: &str| {
+        let o = mcrad(
+            dir.path(),
+            &[
+                "bake",
+                "box.gltf",
+                "--out",
+                out,
+                "--rays",
+                "2e5",
+                "--seed",
+                "3",
+                "--threads",
+                threads,
+                "-q",
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(dir.path().join(out)).unwrap()
+    };
+    let one = bake("1", "one.glb");
+    assert!(one == bake("2", "two.glb"), "1 and 2 threads differ");
+    assert!(one == bake("2", "again.glb"), "a second run differs");
+}

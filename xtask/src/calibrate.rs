@@ -90,7 +90,7 @@ enum Exact {
 }
 
 /// The calibration cases.
-pub const CASES: [Case; 6] = [
+pub const CASES: [Case; 7] = [
     Case {
         name: "furnace-0.5",
         what: "closed box, side 12, every face E = 1, rho = 0.5; exact B = 2",
@@ -138,6 +138,16 @@ pub const CASES: [Case; 6] = [
         build: tiny_light_room,
         exact: Exact::Reference,
         rays_factor: 5,
+        rho: None,
+    },
+    Case {
+        name: "textured",
+        what: "closed 2 m cube, 0.5 x 0.5 ceiling light, the floor textured by an 8 x 8 \
+               orange/blue checker (reflectance per patch from the texture), patches of at \
+               most 0.15; exact: the reference solver on the same patches",
+        build: textured_room,
+        exact: Exact::Reference,
+        rays_factor: 2,
         rho: None,
     },
 ];
@@ -244,6 +254,94 @@ fn tiny_light_room() -> (Scene, Subdivision) {
         .expect("the room is a valid scene")
         .0;
     (scene, Subdivision::MaxEdge(0.2))
+}
+
+/// A closed 2 m cube lit by a 0.5 × 0.5 ceiling light whose floor (two triangles) takes its
+/// reflectance from an 8 × 8 checker texture (`u = x / 2`, `v = z / 2`): patches of the floor
+/// differ in colour as the texture says, so every estimator's variance is checked on a scene
+/// whose reflectance varies within a face.
+fn textured_room() -> (Scene, Subdivision) {
+    let s = 2.0f32;
+    let l = 0.5f32;
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    let mut polygon = |ring: Vec<Vec3>, normal: Vec3, material: u32| {
+        let mut ring = ring;
+        if (ring[1] - ring[0]).cross(ring[2] - ring[0]).dot(normal) < 0.0 {
+            ring.reverse();
+        }
+        let base = positions.len() as u32;
+        let n = ring.len() as u32;
+        positions.extend(ring);
+        let source = faces.len() as u32;
+        faces.push(Face {
+            vertices: (base..base + n).collect(),
+            material,
+            source,
+        });
+    };
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    let floor = [Vec3::ZERO, s * x, s * x + s * z, s * z];
+    polygon(vec![floor[0], floor[1], floor[2]], y, 0); // faces 0 and 1: the textured floor
+    polygon(vec![floor[0], floor[2], floor[3]], y, 0);
+    polygon(vec![Vec3::ZERO, s * z, s * z + s * y, s * y], x, 1);
+    polygon(
+        vec![s * x, s * x + s * z, s * x + s * z + s * y, s * x + s * y],
+        -x,
+        1,
+    );
+    polygon(vec![Vec3::ZERO, s * x, s * x + s * y, s * y], z, 1);
+    polygon(
+        vec![s * z, s * z + s * x, s * z + s * x + s * y, s * z + s * y],
+        -z,
+        1,
+    );
+    let cs = [0.0, 0.5 * (s - l), 0.5 * (s + l), s];
+    for i in 0..3 {
+        for k in 0..3 {
+            let (x0, x1, z0, z1) = (cs[i], cs[i + 1], cs[k], cs[k + 1]);
+            let ring = vec![
+                Vec3::new(x0, s, z0),
+                Vec3::new(x1, s, z0),
+                Vec3::new(x1, s, z1),
+                Vec3::new(x0, s, z1),
+            ];
+            polygon(ring, -y, if i == 1 && k == 1 { 3 } else { 2 });
+        }
+    }
+    let materials = vec![
+        material("floor", Vec3::splat(0.9), 0.0),
+        material("wall", Vec3::splat(0.6), 0.0),
+        material("ceiling", Vec3::splat(0.7), 0.0),
+        material("light", Vec3::ZERO, 50.0),
+    ];
+    let (scene, _) = Scene::new(positions.clone(), faces, materials).expect("a valid scene");
+    let checker: Vec<Vec3> = (0..64)
+        .map(|i| {
+            if (i % 8 + i / 8) % 2 == 0 {
+                Vec3::new(0.9, 0.5, 0.1)
+            } else {
+                Vec3::new(0.1, 0.3, 0.8)
+            }
+        })
+        .collect();
+    let texture = mcrad_scene_io::Texture::new(8, 8, checker, [mcrad_scene_io::Wrap::Repeat; 2])
+        .expect("an 8 x 8 texture");
+    let mapping = |t: [usize; 3]| {
+        let corners = t.map(|i| positions[i]);
+        Some(mcrad_scene_io::FaceMapping {
+            corners,
+            uv: corners.map(|p| glam::Vec2::new(p.x, p.z) / s),
+            colors: [Vec3::ONE; 3],
+            base: Some(0),
+            emissive: None,
+        })
+    };
+    let textures = mcrad_scene_io::SceneTextures {
+        textures: vec![std::sync::Arc::new(texture)],
+        faces: vec![mapping([0, 1, 2]), mapping([3, 4, 5])],
+    };
+    (scene.with_textures(textures), Subdivision::MaxEdge(0.15))
 }
 
 /// The run's settings.

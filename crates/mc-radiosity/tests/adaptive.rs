@@ -38,7 +38,9 @@ fn shadow_scene() -> Scene {
 
 fn config(seed: u64) -> AdaptiveConfig {
     AdaptiveConfig {
-        rays: 300_000,
+        // (300k sufficed before shooting planned its waves by the measured share of power that
+        // returns; the marks at the penumbra's edge then missed one element for seed 1)
+        rays: 360_000,
         rounds: 4,
         seed,
         ..Default::default()
