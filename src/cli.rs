@@ -48,6 +48,10 @@ pub struct Bake {
     /// comes first. Methods without variances ignore it.
     #[arg(long, value_name = "E", value_parser = parse_fraction)]
     pub target_error: Option<f64>,
+    /// Bake into vertex colours (COLOR_0 on the scene's own vertices, split where flat parts
+    /// meet, times any COLOR_0 they had) instead of a lightmap.
+    #[arg(long, conflicts_with = "texel")]
+    pub vertex_colors: bool,
 }
 
 /// Where `mcrad bake` writes, carried through the solve.
@@ -59,6 +63,8 @@ pub struct BakeTarget {
     pub texel: Option<f32>,
     /// `--target-error`.
     pub target_error: Option<f64>,
+    /// `--vertex-colors`.
+    pub vertex_colors: bool,
 }
 
 #[derive(Debug, clap::Args)]

@@ -23,6 +23,7 @@ fn main() -> ExitCode {
                 out: bake.out,
                 texel: bake.texel,
                 target_error: bake.target_error,
+                vertex_colors: bake.vertex_colors,
             });
             solve::run(&solve)
         }

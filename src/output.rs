@@ -115,33 +115,42 @@ pub fn bake(
     };
     let options = mcrad_bake::BakeOptions {
         texel: target.texel,
+        vertex_colors: target.vertex_colors,
         ..Default::default()
     };
     let baked = mcrad_bake::bake(&input, &options)
         .with_context(|| format!("bake {}", args.scene.display()))?;
     std::fs::write(&target.out, &baked.glb)
         .with_context(|| format!("could not write {}", target.out.display()))?;
-    let exr = target.out.with_extension("lightmap.exr");
-    let image = mcrad_render::Image {
-        width: baked.lightmap.size,
-        height: baked.lightmap.size,
-        pixels: baked.lightmap.irradiance.clone(),
+    let exr = match &baked.lightmap {
+        Some(lightmap) => {
+            let path = target.out.with_extension("lightmap.exr");
+            let image = mcrad_render::Image {
+                width: lightmap.size,
+                height: lightmap.size,
+                pixels: lightmap.irradiance.clone(),
+            };
+            write_exr(&image, &path)?;
+            Some(path.display().to_string())
+        }
+        None => None,
     };
-    write_exr(&image, &exr)?;
     let error = baked.texel_error.map(|e| {
         serde_json::json!({
             "texels": e.texels, "median": finite(e.median), "p95": finite(e.p95),
             "max": finite(e.max)
         })
     });
+    let lightmap = baked.lightmap.as_ref();
     Ok(serde_json::json!({
         "out": target.out.display().to_string(),
-        "lightmap": exr.display().to_string(),
+        "lightmap": exr,
+        "vertex_colors": lightmap.is_none(),
         "primitives": baked.primitives,
         "charts": baked.charts,
-        "atlas": baked.lightmap.size,
-        "texel": baked.texel,
-        "texels_covered": baked.lightmap.covered,
+        "atlas": lightmap.map(|l| l.size),
+        "texel": lightmap.map(|_| baked.texel),
+        "texels_covered": lightmap.map(|l| l.covered),
         "intensity": baked.intensity,
         "texel_relative_error": error,
     }))
@@ -162,17 +171,24 @@ pub fn bake_line(summary: &serde_json::Value) -> String {
             percent(&e["p95"])
         ),
     };
-    format!(
-        "baked {} primitive placements into {} ({} charts, {}x{} lightmap at {} units per \
-         texel{error}; linear lightmap in {})",
-        summary["primitives"],
-        summary["out"].as_str().unwrap_or("?"),
-        summary["charts"],
-        summary["atlas"],
-        summary["atlas"],
-        summary["texel"],
-        summary["lightmap"].as_str().unwrap_or("?"),
-    )
+    let out = summary["out"].as_str().unwrap_or("?");
+    match summary["lightmap"].as_str() {
+        Some(exr) => format!(
+            "baked {} primitive placements into {out} ({} charts, {}x{} lightmap at {} units per \
+             texel{error}; linear lightmap in {exr})",
+            summary["primitives"],
+            summary["charts"],
+            summary["atlas"],
+            summary["atlas"],
+            summary["texel"],
+        ),
+        None => format!(
+            "baked {} primitive placements into {out} as vertex colours (COLOR_0 = H / {} W/m²{})",
+            summary["primitives"],
+            summary["intensity"],
+            error.replace("texel", "vertex"),
+        ),
+    }
 }
 
 /// A relative error as a percentage ("unbounded" for null: no light reached some texels).

@@ -111,6 +111,7 @@ fn floats(doc: &Value, bin: &[u8], accessor: &Value) -> Vec<f32> {
         * match a["type"].as_str().unwrap() {
             "VEC2" => 2,
             "VEC3" => 3,
+            "VEC4" => 4,
             _ => 1,
         };
     (0..n)
@@ -372,4 +373,58 @@ fn a_bake_is_the_same_for_a_seed_on_any_thread_count() {
     let one = bake("1", "one.glb");
     assert!(one == bake("2", "two.glb"), "1 and 2 threads differ");
     assert!(one == bake("2", "again.glb"), "a second run differs");
+}
+
+#[test]
+fn vertex_colours_hold_the_exact_furnace_irradiance() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    let o = mcrad(
+        dir.path(),
+        &[
+            "bake",
+            "box.gltf",
+            "--out",
+            "v.glb",
+            "--method",
+            "gather",
+            "--rays",
+            "1e5",
+            "--vertex-colors",
+            "-q",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (doc, bin) = glb_parts(&std::fs::read(dir.path().join("v.glb")).unwrap());
+    assert!(!dir.path().join("v.lightmap.exr").exists(), "no lightmap");
+    assert!(
+        doc["materials"][0]["extensions"]
+            .get("MOZ_lightmap")
+            .is_none()
+    );
+    let intensity = doc["asset"]["extras"]["mcradVertexIntensity"]
+        .as_f64()
+        .unwrap() as f32;
+    let exact = 0.6 * std::f32::consts::PI;
+    for node in 0..2 {
+        let m = doc["nodes"][node]["mesh"].as_u64().unwrap() as usize;
+        let attributes = &doc["meshes"][m]["primitives"][0]["attributes"];
+        assert!(attributes.get("TEXCOORD_1").is_none());
+        let colors = floats(&doc, &bin, &attributes["COLOR_0"]);
+        let positions = floats(&doc, &bin, &attributes["POSITION"]);
+        assert_eq!(
+            colors.len() / 4,
+            positions.len() / 3,
+            "one colour per vertex"
+        );
+        for c in colors.chunks(4) {
+            for &x in &c[..3] {
+                assert!(
+                    (x * intensity - exact).abs() < 1e-3 * exact,
+                    "{c:?} x {intensity}"
+                );
+            }
+            assert_eq!(c[3], 1.0);
+        }
+    }
 }

@@ -42,8 +42,11 @@ pub(crate) struct BakedPrimitive {
     pub primitive: usize,
     /// For each new vertex, the primitive vertex it copies.
     pub copies: Vec<u32>,
-    /// For each new vertex, its lightmap coordinate (`TEXCOORD_1`, 0..1, v down).
+    /// For each new vertex, its lightmap coordinate (`TEXCOORD_1`, 0..1, v down); empty when
+    /// baking vertex colours.
     pub uv: Vec<DVec2>,
+    /// For each new vertex, its colour `H / intensity` when baking vertex colours; else empty.
+    pub colors: Vec<Vec3>,
     /// Triangles over the new vertices, in the file's winding.
     pub triangles: Vec<[u32; 3]>,
 }
@@ -287,109 +290,132 @@ impl Document {
         accessors.len() - 1
     }
 
-    /// Rewrites the baked primitives (copying meshes used by several nodes, so each node's
-    /// primitives get their own lightmap coordinates), embeds the lightmap `png` and points
-    /// every baked material at it with `intensity` (W/m² per unit of the decoded texel).
+    /// Which mesh each node's baked primitives go to: the first node keeps the mesh, later
+    /// nodes placing the same mesh get a copy of it (made from the input's JSON).
+    fn placements(
+        &mut self,
+        primitives: &[BakedPrimitive],
+    ) -> Result<HashMap<usize, usize>, BakeError> {
+        let originals: Vec<Value> = array_mut(&mut self.root, "meshes").clone();
+        let mut owned: HashMap<usize, usize> = HashMap::new();
+        let mut target: HashMap<usize, usize> = HashMap::new();
+        for p in primitives {
+            if target.contains_key(&p.node) {
+                continue;
+            }
+            let mesh = if owned.insert(p.mesh, p.node).is_none() {
+                p.mesh
+            } else {
+                let copy = originals
+                    .get(p.mesh)
+                    .cloned()
+                    .ok_or_else(|| BakeError::Document(format!("mesh {} missing", p.mesh)))?;
+                let meshes = array_mut(&mut self.root, "meshes");
+                meshes.push(copy);
+                let m = meshes.len() - 1;
+                self.root["nodes"][p.node]["mesh"] = json!(m);
+                m
+            };
+            target.insert(p.node, mesh);
+        }
+        Ok(target)
+    }
+
+    /// Rewrites primitive `p` in `mesh` over its new vertices: every attribute and morph
+    /// target copied per new vertex (but those named in `replace`, which `extra` supplies),
+    /// triangle-list indices, and a material (the solver's grey default where it had none).
+    /// Returns the material index.
+    fn rewrite(
+        &mut self,
+        p: &BakedPrimitive,
+        mesh: usize,
+        extra: &[(&str, usize)],
+        default_material: &mut Option<usize>,
+    ) -> Result<usize, BakeError> {
+        let old = self.root["meshes"][mesh]["primitives"][p.primitive].clone();
+        let attributes = field(&old, "attributes")
+            .and_then(Value::as_object)
+            .cloned()
+            .unwrap_or_default();
+        let mut new_attributes = Map::new();
+        for (name, accessor) in &attributes {
+            if extra.iter().any(|(n, _)| n == name) {
+                continue;
+            }
+            let a = accessor
+                .as_u64()
+                .ok_or_else(|| BakeError::Document(format!("attribute {name} is not an index")))?;
+            let copy = self.gather(a, &p.copies, name == "POSITION")?;
+            new_attributes.insert(name.clone(), json!(copy));
+        }
+        for (name, accessor) in extra {
+            new_attributes.insert(name.to_string(), json!(accessor));
+        }
+        let mut primitive = old.as_object().cloned().unwrap_or_default();
+        primitive.insert("attributes".into(), Value::Object(new_attributes));
+        if let Some(targets) = field(&old, "targets").and_then(Value::as_array) {
+            let mut new_targets = Vec::new();
+            for t in targets {
+                let mut nt = Map::new();
+                for (name, a) in t.as_object().into_iter().flatten() {
+                    let a = a.as_u64().ok_or_else(|| {
+                        BakeError::Document(format!("target {name} is not an index"))
+                    })?;
+                    nt.insert(name.clone(), json!(self.gather(a, &p.copies, true)?));
+                }
+                new_targets.push(Value::Object(nt));
+            }
+            primitive.insert("targets".into(), Value::Array(new_targets));
+        }
+        primitive.insert("indices".into(), json!(self.push_indices(&p.triangles)));
+        primitive.insert("mode".into(), json!(4));
+        let material = match uint(&old, "material") {
+            Some(m) => m as usize,
+            None => *default_material.get_or_insert_with(|| {
+                // the solver's default (0.5 grey, not glTF's white metal)
+                let materials = array_mut(&mut self.root, "materials");
+                materials.push(json!({
+                    "name": "mcrad default",
+                    "pbrMetallicRoughness": {
+                        "baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0
+                    }
+                }));
+                materials.len() - 1
+            }),
+        };
+        primitive.insert("material".into(), json!(material));
+        self.root["meshes"][mesh]["primitives"][p.primitive] = Value::Object(primitive);
+        if !self.root["materials"][material].is_object() {
+            return Err(BakeError::Document(format!("material {material} missing")));
+        }
+        Ok(material)
+    }
+
+    /// Rewrites the baked primitives with their lightmap coordinates (`TEXCOORD_1`, from
+    /// `p.uv`), embeds the lightmap `png` and points every baked material at it with
+    /// `intensity` (W/m² per unit of the decoded texel).
     pub(crate) fn bake(
         &mut self,
         primitives: &[BakedPrimitive],
         png: &[u8],
         intensity: f32,
     ) -> Result<(), BakeError> {
-        // which mesh each node's primitives go to: the first node keeps the mesh, later ones
-        // get a copy made from the input's JSON
-        let originals: Vec<Value> = array_mut(&mut self.root, "meshes").clone();
-        let mut owner: HashMap<usize, usize> = HashMap::new();
-        let mut target: HashMap<usize, usize> = HashMap::new();
-        for p in primitives {
-            if target.contains_key(&p.node) {
-                continue;
-            }
-            let mesh = match owner.get(&p.mesh) {
-                None => {
-                    owner.insert(p.mesh, p.node);
-                    p.mesh
-                }
-                Some(_) => {
-                    let copy = originals
-                        .get(p.mesh)
-                        .cloned()
-                        .ok_or_else(|| BakeError::Document(format!("mesh {} missing", p.mesh)))?;
-                    let meshes = array_mut(&mut self.root, "meshes");
-                    meshes.push(copy);
-                    let m = meshes.len() - 1;
-                    self.root["nodes"][p.node]["mesh"] = json!(m);
-                    m
-                }
-            };
-            target.insert(p.node, mesh);
-        }
+        let target = self.placements(primitives)?;
         let texture = self.add_lightmap(png);
         let mut default_material = None;
         for p in primitives {
-            let mesh = target[&p.node];
-            let old = self.root["meshes"][mesh]["primitives"][p.primitive].clone();
-            let attributes = field(&old, "attributes")
-                .and_then(Value::as_object)
-                .cloned()
-                .unwrap_or_default();
-            let mut new_attributes = Map::new();
-            for (name, accessor) in &attributes {
-                if name == "TEXCOORD_1" {
-                    continue;
-                }
-                let a = accessor.as_u64().ok_or_else(|| {
-                    BakeError::Document(format!("attribute {name} is not an index"))
-                })?;
-                let copy = self.gather(a, &p.copies, name == "POSITION")?;
-                new_attributes.insert(name.clone(), json!(copy));
-            }
             let uv: Vec<f32> = p.uv.iter().flat_map(|u| [u.x as f32, u.y as f32]).collect();
             let uv = self.push_f32(&uv, "VEC2", p.uv.len(), 34962);
-            new_attributes.insert("TEXCOORD_1".into(), json!(uv));
-            let mut primitive = old.as_object().cloned().unwrap_or_default();
-            primitive.insert("attributes".into(), Value::Object(new_attributes));
-            if let Some(targets) = field(&old, "targets").and_then(Value::as_array) {
-                let mut new_targets = Vec::new();
-                for t in targets {
-                    let mut nt = Map::new();
-                    for (name, a) in t.as_object().into_iter().flatten() {
-                        let a = a.as_u64().ok_or_else(|| {
-                            BakeError::Document(format!("target {name} is not an index"))
-                        })?;
-                        nt.insert(name.clone(), json!(self.gather(a, &p.copies, true)?));
-                    }
-                    new_targets.push(Value::Object(nt));
-                }
-                primitive.insert("targets".into(), Value::Array(new_targets));
-            }
-            primitive.insert("indices".into(), json!(self.push_indices(&p.triangles)));
-            primitive.insert("mode".into(), json!(4));
-            let material = match uint(&old, "material") {
-                Some(m) => m as usize,
-                None => *default_material.get_or_insert_with(|| {
-                    // the solver's default (0.5 grey, not glTF's white metal)
-                    let materials = array_mut(&mut self.root, "materials");
-                    materials.push(json!({
-                        "name": "mcrad default",
-                        "pbrMetallicRoughness": {
-                            "baseColorFactor": [0.5, 0.5, 0.5, 1.0], "metallicFactor": 0.0
-                        }
-                    }));
-                    materials.len() - 1
-                }),
-            };
-            primitive.insert("material".into(), json!(material));
-            self.root["meshes"][mesh]["primitives"][p.primitive] = Value::Object(primitive);
-            let m = &mut self.root["materials"][material];
-            if !m.is_object() {
-                return Err(BakeError::Document(format!("material {material} missing")));
-            }
-            let extensions = m
+            let material = self.rewrite(
+                p,
+                target[&p.node],
+                &[("TEXCOORD_1", uv)],
+                &mut default_material,
+            )?;
+            let m = self.root["materials"][material]
                 .as_object_mut()
-                .expect("checked")
-                .entry("extensions")
-                .or_insert_with(|| json!({}));
+                .expect("checked by rewrite");
+            let extensions = m.entry("extensions").or_insert_with(|| json!({}));
             extensions["MOZ_lightmap"] =
                 json!({"index": texture, "texCoord": 1, "intensity": intensity});
         }
@@ -398,6 +424,96 @@ impl Document {
             used.push(json!("MOZ_lightmap"));
         }
         Ok(())
+    }
+
+    /// Rewrites the baked primitives with vertex colours instead: `COLOR_0` (float RGBA) is
+    /// `colors[k] = H / intensity` per new vertex, times the primitive's own `COLOR_0` where it
+    /// had one (its alpha kept); `intensity` (W/m²) goes to `asset.extras.mcradVertexIntensity`.
+    pub(crate) fn bake_colors(
+        &mut self,
+        primitives: &[BakedPrimitive],
+        intensity: f32,
+    ) -> Result<(), BakeError> {
+        let target = self.placements(primitives)?;
+        let mut default_material = None;
+        for p in primitives {
+            let mesh = target[&p.node];
+            let old =
+                &self.root["meshes"][mesh]["primitives"][p.primitive]["attributes"]["COLOR_0"];
+            let own = match old.as_u64() {
+                Some(a) => Some(self.colors(a, &p.copies)?),
+                None => None,
+            };
+            let rgba: Vec<f32> = p
+                .colors
+                .iter()
+                .enumerate()
+                .flat_map(|(k, c)| {
+                    let o = own.as_ref().map_or([1.0; 4], |o| o[k]);
+                    [c.x * o[0], c.y * o[1], c.z * o[2], o[3]]
+                })
+                .collect();
+            let colors = self.push_f32(&rgba, "VEC4", p.colors.len(), 34962);
+            self.rewrite(p, mesh, &[("COLOR_0", colors)], &mut default_material)?;
+        }
+        let asset = self.root["asset"]
+            .as_object_mut()
+            .ok_or_else(|| BakeError::Document("asset is not an object".into()))?;
+        let extras = asset.entry("extras").or_insert_with(|| json!({}));
+        if let Some(extras) = extras.as_object_mut() {
+            extras.insert("mcradVertexIntensity".into(), json!(intensity));
+        }
+        Ok(())
+    }
+
+    /// A `COLOR_0` accessor's values for vertices `copies`, as linear RGBA (alpha 1 for RGB).
+    fn colors(&self, index: u64, copies: &[u32]) -> Result<Vec<[f32; 4]>, BakeError> {
+        let bad = |why: &str| BakeError::Document(format!("COLOR_0 accessor {index}: {why}"));
+        let a = self.root["accessors"]
+            .get(index as usize)
+            .ok_or_else(|| bad("missing"))?;
+        if field(a, "sparse").is_some() {
+            return Err(BakeError::Unsupported(format!(
+                "accessor {index} is sparse"
+            )));
+        }
+        let ct = uint(a, "componentType").ok_or_else(|| bad("no type"))?;
+        let n = match field(a, "type").and_then(Value::as_str) {
+            Some("VEC3") => 3,
+            Some("VEC4") => 4,
+            _ => return Err(bad("not VEC3 or VEC4")),
+        };
+        let csize = component_size(ct).ok_or_else(|| bad("bad componentType"))?;
+        let view = &self.root["bufferViews"]
+            [uint(a, "bufferView").ok_or_else(|| bad("no view"))? as usize];
+        let stride = uint(view, "byteStride").map_or(n * csize, |s| s as usize);
+        let start =
+            (uint(view, "byteOffset").unwrap_or(0) + uint(a, "byteOffset").unwrap_or(0)) as usize;
+        let count = uint(a, "count").unwrap_or(0) as usize;
+        copies
+            .iter()
+            .map(|&c| {
+                let c = c as usize;
+                if c >= count {
+                    return Err(bad("a vertex index is past its count"));
+                }
+                let mut out = [1.0f32; 4];
+                for (k, o) in out.iter_mut().enumerate().take(n) {
+                    let at = start + c * stride + k * csize;
+                    let b = self
+                        .bin
+                        .get(at..at + csize)
+                        .ok_or_else(|| bad("past its buffer"))?;
+                    *o = match ct {
+                        5121 => f32::from(b[0]) / 255.0,
+                        5123 => f32::from(u16::from_le_bytes([b[0], b[1]])) / 65535.0,
+                        5126 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                        _ => return Err(bad("not float, unsigned byte or unsigned short")),
+                    };
+                }
+                Ok(out)
+            })
+            .collect()
     }
 
     /// Embeds the lightmap PNG with a linear, clamped sampler; the texture's index.

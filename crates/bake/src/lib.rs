@@ -106,6 +106,9 @@ pub struct BakeOptions {
     pub padding: u32,
     /// The largest atlas edge, texels.
     pub max_atlas: u32,
+    /// Bake into vertex colours (`COLOR_0`) instead of a lightmap: each vertex, split where
+    /// charts meet, takes `H / intensity` at its position.
+    pub vertex_colors: bool,
 }
 
 /// The chart area, in texels, that the default texel size aims at (half a 1024² atlas).
@@ -117,6 +120,7 @@ impl Default for BakeOptions {
             texel: None,
             padding: 2,
             max_atlas: 8192,
+            vertex_colors: false,
         }
     }
 }
@@ -138,9 +142,10 @@ pub struct Lightmap {
 pub struct Baked {
     /// The GLB file's bytes.
     pub glb: Vec<u8>,
-    /// The lightmap it embeds, linear.
-    pub lightmap: Lightmap,
-    /// The `MOZ_lightmap` intensity (W/m²): a decoded PNG texel of 1 is this irradiance.
+    /// The lightmap it embeds, linear (`None` for vertex colours).
+    pub lightmap: Option<Lightmap>,
+    /// The `MOZ_lightmap` intensity (W/m²): a decoded PNG texel of 1 is this irradiance (for
+    /// vertex colours: a colour of 1).
     pub intensity: f32,
     /// The texel edge used, scene units.
     pub texel: f32,
@@ -148,7 +153,8 @@ pub struct Baked {
     pub charts: usize,
     /// Primitive placements given lightmap coordinates.
     pub primitives: usize,
-    /// The texels' uncertainty, when the solution has variances.
+    /// The texels' (or, for vertex colours, the vertices') uncertainty, when the solution has
+    /// variances.
     pub texel_error: Option<TexelError>,
 }
 
@@ -225,6 +231,37 @@ pub fn weighted_quantile(values: &[f64], weights: &[f64], q: f64) -> Option<f64>
         }
     }
     order.last().map(|&i| values[i])
+}
+
+/// Instance `i`'s triangles over new vertices, one per (vertex, chart) (a triangle in no
+/// chart, a degenerate one, shares its vertices' chartless copies): `copies` and `triangles`
+/// filled, `uv` and `colors` empty.
+fn split_vertices(
+    inst: &mcrad_scene_io::PrimitiveInstance,
+    chart_of: &[Option<usize>],
+) -> BakedPrimitive {
+    let mut index: std::collections::HashMap<(u32, usize), u32> = Default::default();
+    let mut p = BakedPrimitive {
+        node: inst.node,
+        mesh: inst.mesh,
+        primitive: inst.primitive,
+        copies: Vec::new(),
+        uv: Vec::new(),
+        colors: Vec::new(),
+        triangles: Vec::with_capacity(inst.triangles.len()),
+    };
+    for (k, t) in inst.triangles.iter().enumerate() {
+        let chart = chart_of[k].unwrap_or(usize::MAX);
+        let mut out = [0u32; 3];
+        for (j, &v) in t.iter().enumerate() {
+            out[j] = *index.entry((v, chart)).or_insert_with(|| {
+                p.copies.push(v);
+                (p.copies.len() - 1) as u32
+            });
+        }
+        p.triangles.push(out);
+    }
+    p
 }
 
 /// The irradiance `H = (B - E) / rho` (W/m² per channel) arriving at a patch of radiosity `B`,
@@ -304,7 +341,6 @@ pub fn bake<C: RayCaster>(
         charts.extend(these);
         chart_of.push(of);
     }
-    let packing = atlas::pack(&charts, options.padding.max(1), options.max_atlas)?;
     let padding = options.padding.max(1);
 
     // irradiance per patch, then per mesh corner, interpolated as renders do
@@ -345,6 +381,85 @@ pub fn bake<C: RayCaster>(
         }
         None
     };
+    let errors_of = |patches_seen: &[u32]| -> Option<TexelError> {
+        let variance = input.variance?;
+        let errors: Vec<f64> = patches_seen
+            .iter()
+            .map(|&p| {
+                let i = p as usize;
+                relative_error(
+                    input.radiosity[i],
+                    patches[i].emission.as_dvec3(),
+                    variance[i],
+                )
+            })
+            .collect();
+        let ones = vec![1.0; errors.len()];
+        let q = |q: f64| weighted_quantile(&errors, &ones, q).unwrap_or(0.0);
+        Some(TexelError {
+            texels: errors.len(),
+            median: q(0.5),
+            p95: q(0.95),
+            max: errors.iter().copied().fold(0.0, f64::max),
+        })
+    };
+    if options.vertex_colors {
+        // each (vertex, chart) takes the solution a hair inside its triangle, at the vertex
+        let mut baked = Vec::with_capacity(gltf.instances.len());
+        let mut seen = Vec::new();
+        for (i, inst) in gltf.instances.iter().enumerate() {
+            let mut p = split_vertices(inst, &chart_of[i]);
+            let mut first_use: Vec<Option<(usize, usize)>> = vec![None; p.copies.len()];
+            for (k, t) in p.triangles.iter().enumerate() {
+                for (j, &v) in t.iter().enumerate() {
+                    first_use[v as usize].get_or_insert((k, j));
+                }
+            }
+            for use_ in first_use {
+                let Some((k, j)) = use_ else {
+                    p.colors.push(Vec3::ZERO);
+                    continue;
+                };
+                let value = corners[i][k].and_then(|c| {
+                    let centroid = (c[0] + c[1] + c[2]).as_dvec3() / 3.0;
+                    let at = c[j].as_dvec3();
+                    let normal = front
+                        .get((inst.first_face as usize) + k)
+                        .copied()
+                        .flatten()?;
+                    value_at(at + (centroid - at) * 1e-4, normal)
+                });
+                if let Some((_, patch)) = value {
+                    seen.push(patch);
+                }
+                p.colors.push(value.map_or(Vec3::ZERO, |(h, _)| h));
+            }
+            baked.push(p);
+        }
+        let intensity = baked
+            .iter()
+            .flat_map(|p| &p.colors)
+            .map(|c| c.max_element())
+            .fold(0.0f32, f32::max)
+            .max(f32::MIN_POSITIVE);
+        for p in &mut baked {
+            for c in &mut p.colors {
+                *c /= intensity;
+            }
+        }
+        let mut doc = Document::new(&gltf.json, &gltf.buffers, input.path, input.load_options)?;
+        doc.bake_colors(&baked, intensity)?;
+        return Ok(Baked {
+            glb: doc.into_glb()?,
+            lightmap: None,
+            intensity,
+            texel: texel as f32,
+            charts: charts.len(),
+            primitives: baked.len(),
+            texel_error: errors_of(&seen),
+        });
+    }
+    let packing = atlas::pack(&charts, padding, options.max_atlas)?;
     let done = std::sync::atomic::AtomicU64::new(0);
     let tiles: Vec<Vec<Option<(Vec3, u32)>>> = charts
         .par_iter()
@@ -392,64 +507,24 @@ pub fn bake<C: RayCaster>(
             }
         }
     }
-    let texel_error = input.variance.map(|variance| {
-        let errors: Vec<f64> = texel_patches
-            .iter()
-            .map(|&p| {
-                let i = p as usize;
-                relative_error(
-                    input.radiosity[i],
-                    patches[i].emission.as_dvec3(),
-                    variance[i],
-                )
-            })
-            .collect();
-        let ones = vec![1.0; errors.len()];
-        let q = |q: f64| weighted_quantile(&errors, &ones, q).unwrap_or(0.0);
-        TexelError {
-            texels: errors.len(),
-            median: q(0.5),
-            p95: q(0.95),
-            max: errors.iter().copied().fold(0.0, f64::max),
-        }
-    });
+    let texel_error = errors_of(&texel_patches);
     let irradiance = atlas::dilate(&mut image, size, padding + 1);
 
-    // the primitives' new vertices: one per (vertex, chart)
+    // the primitives' new vertices: one per (vertex, chart), placed in the atlas
     let mut baked = Vec::with_capacity(gltf.instances.len());
     for (i, inst) in gltf.instances.iter().enumerate() {
-        let mut index: std::collections::HashMap<(u32, usize), u32> = Default::default();
-        let mut p = BakedPrimitive {
-            node: inst.node,
-            mesh: inst.mesh,
-            primitive: inst.primitive,
-            copies: Vec::new(),
-            uv: Vec::new(),
-            triangles: Vec::with_capacity(inst.triangles.len()),
-        };
-        for (k, t) in inst.triangles.iter().enumerate() {
-            let chart = chart_of[i][k];
-            let mut out = [0u32; 3];
+        let mut p = split_vertices(inst, &chart_of[i]);
+        let mut uv = vec![DVec2::ZERO; p.copies.len()];
+        for (k, t) in p.triangles.iter().enumerate() {
+            let Some(c) = chart_of[i][k] else { continue };
             for (j, &v) in t.iter().enumerate() {
-                let key = (v, chart.unwrap_or(usize::MAX));
-                out[j] = *index.entry(key).or_insert_with(|| {
-                    let uv = match chart {
-                        Some(c) => {
-                            let q = charts[c]
-                                .flatten(corners[i][k].expect("listed")[j].as_dvec3(), texel);
-                            let [x, y] = packing.corners[c];
-                            (DVec2::new(f64::from(x), f64::from(y)) + f64::from(padding) + q)
-                                / f64::from(size)
-                        }
-                        None => DVec2::ZERO,
-                    };
-                    p.copies.push(v);
-                    p.uv.push(uv);
-                    (p.copies.len() - 1) as u32
-                });
+                let q = charts[c].flatten(corners[i][k].expect("listed")[j].as_dvec3(), texel);
+                let [x, y] = packing.corners[c];
+                uv[v as usize] = (DVec2::new(f64::from(x), f64::from(y)) + f64::from(padding) + q)
+                    / f64::from(size);
             }
-            p.triangles.push(out);
         }
+        p.uv = uv;
         baked.push(p);
     }
     let (png, intensity) = document::lightmap_png(&irradiance, size)?;
@@ -457,11 +532,11 @@ pub fn bake<C: RayCaster>(
     doc.bake(&baked, &png, intensity)?;
     Ok(Baked {
         glb: doc.into_glb()?,
-        lightmap: Lightmap {
+        lightmap: Some(Lightmap {
             size,
             irradiance,
             covered,
-        },
+        }),
         intensity,
         texel: texel as f32,
         charts: charts.len(),
