@@ -145,7 +145,10 @@ fn bake_keeps_the_document_and_its_lightmap_holds_the_exact_furnace_irradiance()
             "-q",
         ],
     );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // (the white texture is read: no warning)
+    assert!(!err.contains("warning"), "{err}");
     let bytes = std::fs::read(dir.path().join("out.glb")).unwrap();
     let (doc, bin) = glb_parts(&bytes);
 
@@ -426,5 +429,71 @@ fn vertex_colours_hold_the_exact_furnace_irradiance() {
             }
             assert_eq!(c[3], 1.0);
         }
+    }
+}
+
+#[test]
+fn many_instances_of_a_textured_mesh_each_get_their_own_light() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    // 60 placements of the one textured box mesh, in a parent-child hierarchy
+    let path = dir.path().join("box.gltf");
+    let mut doc: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    let nodes: Vec<Value> = (0..60)
+        .map(|i| {
+            let mut n = json!({"name": format!("box{i}"), "mesh": 0,
+                               "translation": [2.0 * (i % 8) as f64, 0, 2.0 * (i / 8) as f64]});
+            if i % 2 == 0 {
+                n["children"] = json!([i + 1]);
+            } else {
+                n["translation"] = json!([2.0, 0, 0]);
+            }
+            n
+        })
+        .collect();
+    let roots: Vec<usize> = (0..60).step_by(2).collect();
+    doc["nodes"] = json!(nodes);
+    doc["scenes"] = json!([{"nodes": roots}]);
+    std::fs::write(&path, doc.to_string()).unwrap();
+    let o = mcrad(
+        dir.path(),
+        &[
+            "bake", "box.gltf", "--out", "out.glb", "--method", "gather", "--rays", "2e5",
+            "--texel", "0.05", "-q",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (out, _) = glb_parts(&std::fs::read(dir.path().join("out.glb")).unwrap());
+    let meshes: std::collections::BTreeSet<u64> = (0..60)
+        .map(|i| out["nodes"][i]["mesh"].as_u64().unwrap())
+        .collect();
+    assert_eq!(meshes.len(), 60, "one mesh per placement");
+    assert_eq!(
+        out["nodes"][0]["children"],
+        json!([1]),
+        "the hierarchy is kept"
+    );
+    for m in &meshes {
+        let p = &out["meshes"][*m as usize]["primitives"][0];
+        assert!(
+            p["attributes"].get("TEXCOORD_1").is_some()
+                && p["attributes"].get("TEXCOORD_0").is_some()
+        );
+    }
+    // every box is a closed furnace: every used texel holds the exact irradiance
+    let exr = mcrad_render::read_exr(&dir.path().join("out.lightmap.exr")).unwrap();
+    let exact = 0.6 * std::f32::consts::PI;
+    let used: Vec<_> = exr
+        .pixels
+        .iter()
+        .filter(|h| h.max_element() > 0.0)
+        .collect();
+    // 6 faces of 1 m² per box at 0.05 per texel: at least 400 texels each
+    assert!(used.len() >= 60 * 6 * 400, "{}", used.len());
+    for h in used {
+        assert!(
+            (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
+            "{h}"
+        );
     }
 }
