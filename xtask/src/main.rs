@@ -1,5 +1,6 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
+mod bake_bench;
 mod calibrate;
 mod experiment;
 mod gen_scenes;
@@ -18,7 +19,8 @@ tasks:
   ci      what CI runs: cargo fmt --check, clippy -D warnings, cargo doc -D warnings, the
           release test suite
   bench   the shooting and ray-casting benchmarks (criterion), then tables of their medians;
-          `bench shooting` or `bench raycast` runs one of them
+          `bench shooting` or `bench raycast` runs one of them; `bench bake` times mcrad bake
+          on a generated 100k-triangle textured glTF of 8,400 instances
   regress golden-image regression of the bundled scenes (scenes/golden/);
           `regress --bless` re-renders the goldens and re-measures their noise thresholds
   experiment figure2
@@ -61,6 +63,10 @@ fn run() -> Result<()> {
     let task = std::env::args().nth(1);
     match task.as_deref() {
         Some("ci") => ci(),
+        Some("bench") if std::env::args().nth(2).as_deref() == Some("bake") => {
+            cargo(&["build", "--release", "--bin", "mcrad"])?;
+            bake_bench::run(&root(), &target_dir().join("release/mcrad"))
+        }
         Some("bench") => {
             let which = std::env::args().nth(2);
             if which.as_deref() != Some("raycast") {
