@@ -27,7 +27,7 @@ pub fn city() -> Result<Vec<u8>> {
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();
     let mut push = |bytes: &[u8], target: Option<u32>| {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let mut v = json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()});
@@ -130,10 +130,10 @@ pub fn city() -> Result<Vec<u8>> {
         "scene": 0
     });
     let mut json = serde_json::to_vec(&doc)?;
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + json.len() + 8 + bin.len();
