@@ -575,4 +575,28 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
         "{unreadable}"
     );
     assert!(scene.textures().is_none(), "nothing left to map");
+    // a KTX2 texture (the image crate reads none) and a texture over the size limit: warned
+    let ktx2 = format!(
+        "data:image/ktx2;base64,{}",
+        base64(b"\xabKTX 20\xbb\r\n\x1a\n rest of a KTX2 file")
+    );
+    let mut huge = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut huge),
+        &vec![0u8; 16385],
+        16385,
+        1,
+        image::ExtendedColorType::L8,
+    )
+    .unwrap();
+    let huge = format!("data:image/png;base64,{}", base64(&huge));
+    for image in [ktx2, huge] {
+        let Loaded { warnings, .. } = load_ok("t.gltf", doc.gltf(&rest(&image)).as_bytes());
+        assert!(
+            warnings
+                .iter()
+                .any(|w| matches!(w, Warning::TexturesUnreadable { count: 1, .. })),
+            "{warnings:?}"
+        );
+    }
 }
