@@ -129,25 +129,7 @@ pub fn city() -> Result<Vec<u8>> {
         "scenes": [{"nodes": roots}],
         "scene": 0
     });
-    let mut json = serde_json::to_vec(&doc)?;
-    while !json.len().is_multiple_of(4) {
-        json.push(b' ');
-    }
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let total = 12 + 8 + json.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&json);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    Ok(out)
+    Ok(mcrad_bake::glb(serde_json::to_vec(&doc)?, bin))
 }
 
 /// Writes the city and times two bakes of it.

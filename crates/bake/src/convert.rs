@@ -111,24 +111,8 @@ pub fn gltf_from_scene(
 
 /// [`gltf_from_scene`] as one GLB file's bytes.
 pub fn glb_from_scene(scene: &Scene, camera: Option<&Camera>) -> Vec<u8> {
-    let (json, mut bin) = gltf_from_scene(scene, camera, None);
-    let mut json = json.into_bytes();
-    while !json.len().is_multiple_of(4) {
-        json.push(b' ');
-    }
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length: 0,
-        },
-        json: json.into(),
-        bin: Some(bin.into()),
-    };
-    glb.to_vec().expect("writing to memory cannot fail")
+    let (json, bin) = gltf_from_scene(scene, camera, None);
+    crate::document::glb(json.into_bytes(), bin)
 }
 
 #[cfg(test)]

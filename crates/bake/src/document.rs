@@ -163,7 +163,7 @@ impl Document {
                 Some(u) if !u.starts_with("data:") => u.to_string(),
                 _ => continue,
             };
-            let name = percent_decode(&uri).ok_or_else(|| {
+            let name = mcrad_scene_io::percent_decode(&uri).ok_or_else(|| {
                 BakeError::Document(format!("image {i} has a URI that is not UTF-8"))
             })?;
             let bytes = mcrad_scene_io::read_named_file(scene, &name, true, options)
@@ -536,44 +536,31 @@ impl Document {
         self.align();
         let object = self.root.as_object_mut().expect("the root is an object");
         object.insert("buffers".into(), json!([{"byteLength": self.bin.len()}]));
-        let mut json = serde_json::to_vec(&self.root)
+        let json = serde_json::to_vec(&self.root)
             .map_err(|e| BakeError::Document(format!("cannot write the JSON: {e}")))?;
-        while !json.len().is_multiple_of(4) {
-            json.push(b' ');
-        }
-        let glb = gltf::binary::Glb {
-            header: gltf::binary::Header {
-                magic: *b"glTF",
-                version: 2,
-                length: 0,
-            },
-            json: json.into(),
-            bin: Some(self.bin.into()),
-        };
-        glb.to_vec()
-            .map_err(|e| BakeError::Document(format!("cannot write the GLB: {e}")))
+        Ok(glb(json, self.bin))
     }
 }
 
-/// Decodes `%XX` escapes; `None` if the result is not UTF-8.
-fn percent_decode(uri: &str) -> Option<String> {
-    let bytes = uri.as_bytes();
-    let hex = |b: u8| (b as char).to_digit(16);
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        if bytes[i] == b'%'
-            && i + 2 < bytes.len()
-            && let (Some(h), Some(l)) = (hex(bytes[i + 1]), hex(bytes[i + 2]))
-        {
-            out.push((h * 16 + l) as u8);
-            i += 3;
-            continue;
-        }
-        out.push(bytes[i]);
-        i += 1;
+/// A GLB file of this JSON chunk and binary chunk (each padded to 4 bytes as GLB requires:
+/// the JSON with spaces, the binary with zeros).
+pub fn glb(mut json: Vec<u8>, mut bin: Vec<u8>) -> Vec<u8> {
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
     }
-    String::from_utf8(out).ok()
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let glb = gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0,
+        },
+        json: json.into(),
+        bin: Some(bin.into()),
+    };
+    glb.to_vec().expect("writing to memory cannot fail")
 }
 
 /// The lightmap as an 8-bit sRGB PNG of `irradiance / intensity` (`size × size`, row-major,

@@ -38,6 +38,7 @@ use rayon::prelude::*;
 
 use crate::charts::Chart;
 pub use crate::convert::{glb_from_scene, gltf_from_scene};
+pub use crate::document::glb;
 use crate::document::{BakedPrimitive, Document};
 
 /// What went wrong while baking.

@@ -237,8 +237,9 @@ fn load_buffers(
     Ok(buffers)
 }
 
-/// Decodes `%XX` escapes as the `gltf` crate does; `None` if the result is not UTF-8.
-pub(crate) fn percent_decode(uri: &str) -> Option<String> {
+/// Decodes the `%XX` escapes of a URI as the `gltf` crate does; `None` if the result is not
+/// UTF-8.
+pub fn percent_decode(uri: &str) -> Option<String> {
     let hex = |b: Option<&u8>| b.and_then(|b| (*b as char).to_digit(16));
     let bytes = uri.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());

@@ -58,7 +58,7 @@ mod texture;
 
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
-pub use gltf_load::{GltfSource, PrimitiveInstance};
+pub use gltf_load::{GltfSource, PrimitiveInstance, percent_decode};
 pub use gltf_texture::MAX_TEXTURE_EDGE;
 pub use scene::{Bounds, Face, Material, Scene};
 pub use texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
