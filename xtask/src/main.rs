@@ -1,6 +1,7 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
 mod bake_bench;
+mod bake_check;
 mod calibrate;
 mod experiment;
 mod gen_scenes;
@@ -37,6 +38,9 @@ tasks:
   gen-scenes
           writes the generated experiment scenes scenes/boxes-room.obj and
           scenes/table-room.obj (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ
+  bake-check [--seeds K] [--rays N]
+          a textured Cornell-style room baked from K seeds of combined and from the reference
+          solver: per face, the baked texels' error against the variance the bake reports
   viewer-check [--docs]
           bakes scenes/cornell-box.gltf (mcrad bake), renders the GLB with three.js in headless
           Chromium (Debian's chromium; npm installs three in xtask/viewer) and compares it with
@@ -91,6 +95,9 @@ fn run() -> Result<()> {
         Some("gen-scenes") => {
             gen_scenes::run(&root())?;
             viewer::write_cornell_gltf(&root())
+        }
+        Some("bake-check") => {
+            bake_check::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>())
         }
         Some("viewer-check") => {
             let docs = std::env::args().nth(2).as_deref() == Some("--docs");

@@ -157,6 +157,24 @@ pub struct Baked {
     /// The texels' (or, for vertex colours, the vertices') uncertainty, when the solution has
     /// variances.
     pub texel_error: Option<TexelError>,
+    /// Per input face (by source number, ascending) that has texels: their mean irradiance and
+    /// its variance (empty for vertex colours).
+    pub face_texels: Vec<FaceTexels>,
+}
+
+/// The texels of one input face.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceTexels {
+    /// The face's source number ([`Face::source`](mcrad_scene_io::Face::source)).
+    pub source: u32,
+    /// Texels it covers or touches.
+    pub texels: usize,
+    /// Their mean incident irradiance `H`, W/m² per channel.
+    pub mean: DVec3,
+    /// The variance of that mean from the solution's, (W/m²)² per channel: texels on one patch
+    /// share its error, so `sum_p (n_p / n)² var(B_p) / rho_p²` over the patches `p` the face's
+    /// `n` texels fall on (`n_p` of them). `None` when the solution has no variances.
+    pub variance: Option<DVec3>,
 }
 
 /// What a bake reads: the scene and the document it came from, the mesh solved on, a ray
@@ -458,11 +476,12 @@ pub fn bake<C: RayCaster>(
             charts: charts.len(),
             primitives: baked.len(),
             texel_error: errors_of(&seen),
+            face_texels: Vec::new(),
         });
     }
     let packing = atlas::pack(&charts, padding, options.max_atlas)?;
     let done = std::sync::atomic::AtomicU64::new(0);
-    let tiles: Vec<Vec<Option<(Vec3, u32)>>> = charts
+    let tiles: Vec<Vec<Option<(Vec3, u32, u32)>>> = charts
         .par_iter()
         .enumerate()
         .map(|(c, chart)| {
@@ -487,7 +506,7 @@ pub fn bake<C: RayCaster>(
                         .copied()
                         .flatten()
                         .unwrap_or(chart.axes[2].as_vec3());
-                    value_at(s.point, normal)
+                    value_at(s.point, normal).map(|(h, patch)| (h, patch, source as u32))
                 })
                 .collect()
         })
@@ -496,18 +515,53 @@ pub fn bake<C: RayCaster>(
     let mut image: Vec<Option<Vec3>> = vec![None; (size as usize) * (size as usize)];
     let mut covered = 0;
     let mut texel_patches = Vec::new();
+    // per input face: texels, the sum of their values, and how many fell on each patch
+    let mut per_face: std::collections::BTreeMap<u32, (usize, DVec3, Vec<u32>)> =
+        Default::default();
     for (c, tile) in tiles.iter().enumerate() {
         let [x0, y0] = packing.corners[c];
         let [w, _] = packing.rects[c];
         for (k, v) in tile.iter().enumerate() {
-            if let Some((v, patch)) = v {
+            if let Some((v, patch, source)) = v {
                 let (x, y) = (x0 + k as u32 % w, y0 + k as u32 / w);
                 image[(y * size + x) as usize] = Some(*v);
                 texel_patches.push(*patch);
                 covered += 1;
+                let face = per_face.entry(*source).or_default();
+                face.0 += 1;
+                face.1 += v.as_dvec3();
+                face.2.push(*patch);
             }
         }
     }
+    let face_texels = per_face
+        .into_iter()
+        .map(|(source, (n, sum, mut hit))| {
+            let variance = input.variance.map(|variance| {
+                hit.sort_unstable();
+                let mut v = DVec3::ZERO;
+                for group in hit.chunk_by(|a, b| a == b) {
+                    let p = group[0] as usize;
+                    let rho = patches[p].reflectance.as_dvec3();
+                    let share = group.len() as f64 / n as f64;
+                    let per = |var: f64, r: f64| if r > 1e-6 { var / (r * r) } else { 0.0 };
+                    let vh = DVec3::new(
+                        per(variance[p].x, rho.x),
+                        per(variance[p].y, rho.y),
+                        per(variance[p].z, rho.z),
+                    );
+                    v += share * share * vh;
+                }
+                v
+            });
+            FaceTexels {
+                source,
+                texels: n,
+                mean: sum / n as f64,
+                variance,
+            }
+        })
+        .collect();
     let texel_error = errors_of(&texel_patches);
     let irradiance = atlas::dilate(&mut image, size, padding + 1);
 
@@ -543,6 +597,7 @@ pub fn bake<C: RayCaster>(
         charts: charts.len(),
         primitives: baked.len(),
         texel_error,
+        face_texels,
     })
 }
 
