@@ -379,7 +379,7 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
 }
 
 /// The adaptive mesh of `--mesh adaptive`: the scene cut as the uniform default (the diagonal
-/// / 20), refined with a quarter of the ray budget (a million rays with `--time` alone).
+/// / 20), refined with a quarter of the ray budget and of the time (`--time`).
 fn adaptive_mesh(
     args: &Solve,
     scene: &mcrad_scene_io::Scene,
@@ -398,10 +398,11 @@ fn adaptive_mesh(
     }
     let config = AdaptiveConfig {
         rays: if rays == u64::MAX {
-            1_000_000
+            u64::MAX
         } else {
             (rays / 4).max(1)
         },
+        seconds: args.time.map(|t| t / 4.0),
         seed: args.seed,
         ..Default::default()
     };
