@@ -427,8 +427,8 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
     }
 }
 
-/// The adaptive mesh of `--mesh adaptive`: the scene cut as the uniform default (the diagonal
-/// / 20), refined with a quarter of the ray budget (a million rays with `--time` alone).
+/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 40 (half the uniform
+/// default's edge), refined with a quarter of the ray budget and of the time (`--time`).
 fn adaptive_mesh(
     args: &Solve,
     scene: &mcrad_scene_io::Scene,
@@ -439,18 +439,27 @@ fn adaptive_mesh(
     if let Some(min_edge) = args.min_edge {
         bounds.min_edge = min_edge;
     }
-    let coarse =
-        Subdivision::MaxEdge(scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION);
-    let mut mesh = AdaptiveMesh::new(scene, coarse, bounds)?;
+    // The starting mesh: the diagonal / 40, else (beyond --max-patches) the uniform default's
+    // diagonal / 20, else one element per face.
+    let diagonal = scene.bounds().diagonal() as f32;
+    let mut mesh = AdaptiveMesh::new(
+        scene,
+        Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
+        bounds,
+    )?;
+    if mesh.len() > bounds.max_patches {
+        mesh = AdaptiveMesh::new(scene, Subdivision::default_for(scene), bounds)?;
+    }
     if mesh.len() > bounds.max_patches {
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)?;
     }
     let config = AdaptiveConfig {
         rays: if rays == u64::MAX {
-            1_000_000
+            u64::MAX
         } else {
             (rays / 4).max(1)
         },
+        seconds: args.time.map(|t| t / 4.0),
         seed: args.seed,
         ..Default::default()
     };

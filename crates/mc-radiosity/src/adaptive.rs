@@ -29,7 +29,8 @@
 //! varies beyond its own noise or its visibility of the light changes.
 //!
 //! Every random number comes from a stream keyed by (seed, round, element), and the marks are
-//! folded in element order, so the mesh is the same for a seed on any thread count.
+//! folded in element order, so the mesh is the same for a seed on any thread count (with a ray
+//! budget; a time budget, [`AdaptiveConfig::seconds`], sizes the rounds by the machine's speed).
 
 use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
@@ -42,6 +43,7 @@ use mcrad_random::{Stream, StreamKey, derive_seed};
 use mcrad_raycast::{BuildError, Bvh, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
+use std::time::Instant;
 
 /// Luminance weights of linear RGB (Rec. 709), used to compare colours by one number.
 const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
@@ -57,8 +59,14 @@ pub struct AdaptiveConfig {
     /// Rays the refinement may cast in all (pilot, gathering rounds and shadow rays): a third
     /// for the pilot shooting, the rest shared by the rounds; a round the rest cannot pay for
     /// (its shadow rays and 16 rays per element) is not started, and the last one may exceed
-    /// the budget by the refinement's growth of the mesh.
+    /// the budget by the refinement's growth of the mesh. `u64::MAX`: no ray budget (then
+    /// [`AdaptiveConfig::seconds`] bounds the refinement).
     pub rays: u64,
+    /// Wall-clock seconds the refinement may take (s), besides `rays`: a third for the pilot
+    /// shooting, the rest shared by the rounds, each sized to the rays that fit in the time
+    /// left at the speed measured so far (the mesh then depends on the machine's speed).
+    /// `None`: the ray budget alone.
+    pub seconds: Option<f64>,
     /// The most refinement rounds.
     pub rounds: u32,
     /// Shadow rays per element and round for the visibility test (0: no visibility test).
@@ -80,6 +88,7 @@ impl Default for AdaptiveConfig {
     fn default() -> Self {
         AdaptiveConfig {
             rays: 500_000,
+            seconds: None,
             rounds: 5,
             shadow_rays: 16,
             noise_sigmas: 2.0,
@@ -142,7 +151,13 @@ impl Refined {
 /// Refines `mesh` where the solution needs it (see the module documentation) and returns the
 /// last estimate on the refined mesh. Deterministic for a seed on any thread count.
 pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refined, AdaptiveError> {
-    let pilot_rays = (config.rays / 3).max(1);
+    let start = Instant::now();
+    let pilot_rays = if config.rays == u64::MAX {
+        u64::MAX
+    } else {
+        (config.rays / 3).max(1)
+    };
+    let pilot_seconds = config.seconds.map(|s| s / 3.0);
     let mut rays = 0;
     let mut estimate = {
         let bvh = caster(mesh.mesh())?;
@@ -154,19 +169,41 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
                 unshot_threshold: config.unshot_threshold,
                 seed: derive_seed(config.seed, PILOT_TAG),
             },
-            &mut |_| ControlFlow::Continue(()),
+            &mut |p| {
+                if let Some(seconds) = pilot_seconds {
+                    let fits = rays_that_fit(seconds, start, p.rays);
+                    if fits == 0 {
+                        return ControlFlow::Break(());
+                    }
+                    p.limit_rays_left(fits);
+                }
+                ControlFlow::Continue(())
+            },
         )?;
         rays += s.stats.rays;
         s.estimate
     };
+    let after_pilot = rays;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
+        // The budget: the rays, or those that fit in the time at the speed so far.
+        let budget = match config.seconds {
+            Some(seconds) => config
+                .rays
+                .min(rays.saturating_add(rays_that_fit(seconds, start, rays))),
+            None => config.rays,
+        };
         // A round costs its shadow rays and at least 8 gathering rays and 4 emitter samples
         // (two rays each) per element: stop when the budget cannot pay for it.
         let cheapest = (u64::from(config.shadow_rays) + 16) * mesh.len() as u64;
-        if rays.saturating_add(cheapest) > config.rays {
+        if rays.saturating_add(cheapest) > budget {
             break;
         }
+        // A ray budget is shared evenly by the rounds; a time budget by the rounds left.
+        let round_rays = match config.seconds {
+            Some(_) => (budget - rays) / u64::from(config.rounds - round),
+            None => (config.rays - after_pilot.min(config.rays)) / u64::from(config.rounds),
+        };
         let bvh = caster(mesh.mesh())?;
         let ctx = Context::new(mesh.mesh(), &bvh);
         let key = StreamKey::new(derive_seed(config.seed, SHADOW_TAG)).pass(u64::from(round));
@@ -209,7 +246,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         .map_err(Error::from)?;
         let bvh = caster(mesh.mesh())?;
         let ctx = Context::new(mesh.mesh(), &bvh);
-        let round_rays = (config.rays - pilot_rays.min(config.rays)) / u64::from(config.rounds);
         // Half the round's rays gather the indirect light, half sample the emitters (two rays a
         // sample).
         let per_patch = (round_rays / 2 / mesh.len() as u64).clamp(8, 1024) as u32;
@@ -230,6 +266,19 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         rays,
         rounds,
     })
+}
+
+/// The rays that fit in what is left of `seconds` since `start`, at the speed of the `rays`
+/// cast since then (0 when no time is left; `u64::MAX` before the first ray).
+fn rays_that_fit(seconds: f64, start: Instant, rays: u64) -> u64 {
+    let elapsed = start.elapsed().as_secs_f64();
+    if elapsed >= seconds {
+        return 0;
+    }
+    if rays == 0 || elapsed <= 0.0 {
+        return u64::MAX;
+    }
+    ((seconds - elapsed) * rays as f64 / elapsed).min(u64::MAX as f64) as u64
 }
 
 /// The BVH of `mesh`'s triangles tagged with their patch indices.
