@@ -183,7 +183,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         rays += s.stats.rays;
         s.estimate
     };
-    let after_pilot = rays;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
@@ -199,10 +198,11 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         if rays.saturating_add(cheapest) > budget {
             break;
         }
-        // A ray budget is shared evenly by the rounds; a time budget by the rounds left.
+        // A ray budget: what the pilot's third leaves, shared evenly by the rounds (the mesh
+        // depends on the budget alone); a time budget: what is left, by the rounds left.
         let round_rays = match config.seconds {
-            Some(_) => (budget - rays) / u64::from(config.rounds - round),
-            None => (config.rays - after_pilot.min(config.rays)) / u64::from(config.rounds),
+            Some(_) => (budget - rays.min(budget)) / u64::from(config.rounds - round),
+            None => (config.rays - pilot_rays.min(config.rays)) / u64::from(config.rounds),
         };
         let bvh = caster(mesh.mesh())?;
         let ctx = Context::new(mesh.mesh(), &bvh);
