@@ -5,7 +5,9 @@
 //! (same point, same surface) share a vertex, while creases and material boundaries — where the
 //! values or normals differ — stay sharp. Attributes:
 //!
-//! - `POSITION` (f32 vec3, scene units, with `min`/`max`),
+//! - `POSITION` (f32 vec3, scene units, with `min`/`max`), relative to the mesh's local origin
+//!   ([`Mesh::origin`]); the one node carries that origin as its `translation` (omitted when
+//!   zero), so the file sits where the scene is while its `f32` positions keep their precision,
 //! - `NORMAL` (f32 vec3, the patch's unit normal),
 //! - `COLOR_0` (f32 vec3, linear): the radiance `B / pi` times a colour scale, clamped to
 //!   `[0, 1]` (see [`GltfOptions::exposure`]),
@@ -257,8 +259,11 @@ pub fn write_glb<W: Write>(
         }],
         weights: None,
     });
+    // positions are in the mesh's local frame: the node puts them back where the scene is
+    let origin = mesh.origin();
     let node = root.push(json::Node {
         mesh: Some(mesh_index),
+        translation: (origin != Vec3::ZERO).then(|| origin.to_array()),
         ..Default::default()
     });
     let scene = root.push(json::Scene {

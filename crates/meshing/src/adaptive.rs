@@ -173,7 +173,7 @@ impl AdaptiveMesh {
                 template,
             });
         }
-        let mesh = build_mesh(&templates, &leaves);
+        let mesh = build_mesh(coarse.origin(), &templates, &leaves);
         Ok(AdaptiveMesh {
             templates,
             leaves,
@@ -262,7 +262,7 @@ impl AdaptiveMesh {
                 }
             }
         }
-        self.mesh = build_mesh(&self.templates, &leaves);
+        self.mesh = build_mesh(self.mesh.origin(), &self.templates, &leaves);
         self.leaves = leaves;
         Refinement {
             parent,
@@ -383,8 +383,8 @@ fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
 }
 
 /// The mesh of `leaves`: vertices shared where corners are equal as `f32`.
-fn build_mesh(templates: &[PatchTemplate], leaves: &[Leaf]) -> Mesh {
-    let mut mesh = Mesh::empty();
+fn build_mesh(origin: Vec3, templates: &[PatchTemplate], leaves: &[Leaf]) -> Mesh {
+    let mut mesh = Mesh::empty(origin);
     let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len() * 2);
     let mut corners = Vec::with_capacity(4);
     for leaf in leaves {
