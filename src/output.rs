@@ -204,9 +204,11 @@ fn camera(
     mesh: &Mesh,
     bvh: &Bvh,
 ) -> Result<Camera> {
+    // `--camera` and the file's camera are in world coordinates, the mesh in its local frame
+    let origin = mesh.origin().as_dvec3();
     let camera = match (args.camera, from_file) {
-        (Some(c), _) => return Ok(c),
-        (None, Some(c)) => Camera::from_scene(&c),
+        (Some(c), _) => return Ok(c.translated(origin)),
+        (None, Some(c)) => Camera::from_scene(&c).map(|c| c.translated(origin)),
         (None, None) => Camera::frame_scene(mesh, bvh),
     };
     camera.context("--camera")

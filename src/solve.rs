@@ -468,7 +468,7 @@ fn adaptive_mesh(
     if unrefinable > 0 {
         eprintln!(
             "warning: {unrefinable} elements could not be split into valid elements (slivers, \
-             tiny faces or coordinates far from the origin); kept as they are"
+             or faces too small for f32 coordinates at the scene's size); kept as they are"
         );
     }
     Ok((mesh.into_mesh(), refined))

@@ -266,7 +266,8 @@ impl RunState {
 }
 
 /// A 64-bit FNV-1a hash of what a solution depends on in the mesh: every patch's area,
-/// reflectance, emission and input face, and every triangle's corners, as their bit patterns.
+/// reflectance, emission and input face, the mesh's local origin (when not zero) and every triangle's corners
+/// (relative to it), as their bit patterns.
 /// Two meshes with the same fingerprint solve the same problem (up to a 2^-64 collision); any
 /// change of the scene file, its materials or the mesh options changes it.
 pub fn fingerprint(mesh: &Mesh) -> u64 {
@@ -279,6 +280,12 @@ pub fn fingerprint(mesh: &Mesh) -> u64 {
         }
     };
     eat(&(mesh.patches().len() as u64).to_le_bytes());
+    if mesh.origin() != glam::Vec3::ZERO {
+        // (a mesh around the world origin keeps the fingerprint states saved before had)
+        for x in mesh.origin().to_array() {
+            eat(&x.to_le_bytes());
+        }
+    }
     for p in mesh.patches() {
         eat(&p.area.to_le_bytes());
         for v in [p.reflectance, p.emission] {

@@ -497,3 +497,36 @@ fn many_instances_of_a_textured_mesh_each_get_their_own_light() {
         );
     }
 }
+
+#[test]
+fn a_scene_far_from_the_origin_bakes_as_at_the_origin() {
+    let dir = tempfile::tempdir().unwrap();
+    write_box(dir.path());
+    let path = dir.path().join("box.gltf");
+    let mut doc: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    doc["nodes"][0]["translation"] = json!([1e6, 0, 0]);
+    doc["nodes"][1]["translation"] = json!([1e6 + 3.0, 0, 0]);
+    std::fs::write(&path, doc.to_string()).unwrap();
+    let o = mcrad(
+        dir.path(),
+        &[
+            "bake", "box.gltf", "--out", "far.glb", "--method", "gather", "--rays", "1e5",
+            "--texel", "0.02", "-q",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let exr = mcrad_render::read_exr(&dir.path().join("far.lightmap.exr")).unwrap();
+    let exact = 0.6 * std::f32::consts::PI;
+    let used: Vec<_> = exr
+        .pixels
+        .iter()
+        .filter(|h| h.max_element() > 0.0)
+        .collect();
+    assert!(used.len() >= 2 * 6 * 2500, "{}", used.len());
+    for h in used {
+        assert!(
+            (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
+            "{h}"
+        );
+    }
+}

@@ -383,7 +383,10 @@ pub fn bake<C: RayCaster>(
     }
     let diagonal = scene.bounds().diagonal();
     let lift = (0.05 * texel).max(1e-5 * diagonal);
+    // the scene's (world) points in the mesh's local frame, where its caster works
+    let mesh_origin = mesh.origin().as_dvec3();
     let value_at = |point: DVec3, normal: Vec3| -> Option<(Vec3, u32)> {
+        let point = point - mesh_origin;
         for side in [1.0f32, -1.0] {
             let n = normal * side;
             let origin = (point + n.as_dvec3() * lift).as_vec3();

@@ -5,7 +5,9 @@
 //! (same point, same surface) share a vertex, while creases and material boundaries — where the
 //! values or normals differ — stay sharp. Attributes:
 //!
-//! - `POSITION` (f32 vec3, scene units, with `min`/`max`),
+//! - `POSITION` (f32 vec3, scene units, with `min`/`max`), relative to the mesh's local origin
+//!   ([`Mesh::origin`]); the one node carries that origin as its `translation` (omitted when
+//!   zero), so the file sits where the scene is while its `f32` positions keep their precision,
 //! - `NORMAL` (f32 vec3, the patch's unit normal),
 //! - `COLOR_0` (f32 vec3, linear): the radiance `B / pi` times a colour scale, clamped to
 //!   `[0, 1]` (see [`GltfOptions::exposure`]),
@@ -257,8 +259,11 @@ pub fn write_glb<W: Write>(
         }],
         weights: None,
     });
+    // positions are in the mesh's local frame: the node puts them back where the scene is
+    let origin = mesh.origin();
     let node = root.push(json::Node {
         mesh: Some(mesh_index),
+        translation: (origin != Vec3::ZERO).then(|| origin.to_array()),
         ..Default::default()
     });
     let scene = root.push(json::Scene {
@@ -482,6 +487,51 @@ mod tests {
         ];
         let scene = Scene::new(positions, faces, materials).unwrap().0;
         Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap()
+    }
+
+    #[test]
+    fn a_far_scene_is_written_local_with_its_origin_as_the_node_translation() {
+        // The corner moved 1e7 along x (exact in f32): positions in the file are the ones at
+        // the origin, and the node puts them back at 1e7.
+        let near = corner_mesh();
+        let positions: Vec<Vec3> = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ]
+        .map(|p| Vec3::from(p) + Vec3::new(1e7, 0.0, 0.0))
+        .to_vec();
+        let face = Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        };
+        let material = Material {
+            name: "lamp".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ONE,
+        };
+        let scene = Scene::new(positions, vec![face], vec![material]).unwrap().0;
+        let far = Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap();
+        assert_eq!(far.origin(), Vec3::new(1e7, 0.0, 0.0));
+        let got = read_back(&write(
+            &far,
+            &vec![DVec3::ONE; far.corner_count()],
+            &GltfOptions::default(),
+        ));
+        let node = got.document.nodes().next().unwrap();
+        let (translation, _, _) = node.transform().decomposed();
+        assert_eq!(translation, [1e7, 0.0, 0.0]);
+        assert!(got.positions.iter().all(|p| p[0].abs() <= 1.0));
+        // a mesh around the origin has no translation
+        let got = read_back(&write(
+            &near,
+            &corner_values(&near),
+            &GltfOptions::default(),
+        ));
+        let node = got.document.nodes().next().unwrap();
+        assert_eq!(node.transform().decomposed().0, [0.0; 3]);
     }
 
     /// Patch values varying over the scene, smoothed to corners.

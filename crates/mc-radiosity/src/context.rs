@@ -84,15 +84,17 @@ impl<'a, C: RayCaster> Context<'a, C> {
 }
 
 /// The largest spacing of `f32` coordinates accepted, as a fraction of the smallest patch's size
-/// (`sqrt(area)`): `2^-10`. Points on patches are drawn and rays start in `f32` world
-/// coordinates, and the ray caster lifts origins by a few `f32` spacings of the coordinate's
-/// magnitude, so the relative error of an answer is of the order of a few spacings per patch
+/// (`sqrt(area)`): `2^-10`. Points on patches are drawn and rays start in `f32` coordinates
+/// of the mesh's local frame (`Mesh::origin`), and the ray caster lifts origins by a few `f32`
+/// spacings of the coordinate's magnitude, so the relative error of an answer is of the order of a few spacings per patch
 /// size: a unit furnace in patches of 1/12 gave the origin's answer at 1e3 from it (ratio 7e-4),
-/// -0.04% at 1e4 (1.2e-2), -0.36% at 1e5, +10% at 1e6 and a panic at 1e7.
+/// -0.04% at 1e4 (1.2e-2), -0.36% at 1e5, +10% at 1e6 and a panic at 1e7 (measured before
+/// meshes were stored relative to their local origin; now the distance that matters is from the
+/// scene's centre).
 pub(crate) const MAX_SPACING_PER_SIZE: f64 = 1.0 / 1024.0;
 
-/// Checks that `f32` coordinates resolve the smallest patch of `mesh` where the scene lies
-/// ([`Error::FarFromOrigin`] otherwise).
+/// Checks that `f32` coordinates of the mesh's local frame resolve its smallest patch
+/// everywhere in the scene ([`Error::FarFromOrigin`] otherwise).
 pub(crate) fn check_precision(mesh: &Mesh) -> Result<(), Error> {
     let coordinate = mesh
         .positions()

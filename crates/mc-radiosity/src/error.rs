@@ -19,15 +19,18 @@ pub enum Error {
     /// The convergence threshold of Jacobi gathering is negative or not finite.
     #[error("the gathering threshold must be finite and >= 0, got {0}")]
     BadGatherThreshold(f64),
-    /// The scene lies so far from the origin, relative to its smallest patch, that `f32`
-    /// coordinates cannot place points on it: the answer would be silently wrong.
+    /// The scene is so large relative to its smallest patch that `f32` coordinates cannot
+    /// place points on that patch: the answer would be silently wrong. Coordinates are those of
+    /// the mesh's local frame (`Mesh::origin`, near the scene's centre), so where the scene lies
+    /// in the world does not matter, only its extent over its smallest patch (beyond about
+    /// `2^13`).
     #[error(
-        "coordinates reach {coordinate:e} scene units from the origin, where f32 points are \
-         {spacing:e} apart, more than 1/1024 of the smallest patch (patch {patch}, {size:e} \
-         across): move the scene near the origin (geometry is stored in f32)"
+        "coordinates reach {coordinate:e} scene units from the scene's centre, where f32 points \
+         are {spacing:e} apart, more than 1/1024 of the smallest patch (patch {patch}, {size:e} \
+         across): the scene is too large for its smallest patch (geometry is stored in f32)"
     )]
     FarFromOrigin {
-        /// The largest coordinate magnitude (scene units).
+        /// The largest coordinate magnitude in the mesh's local frame (scene units).
         coordinate: f64,
         /// The spacing of `f32` values there (scene units).
         spacing: f64,

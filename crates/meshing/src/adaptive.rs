@@ -181,7 +181,7 @@ impl AdaptiveMesh {
             });
         }
         let textures = scene.textures().cloned();
-        let mesh = build_mesh(&templates, &leaves, textures.clone());
+        let mesh = build_mesh(coarse.origin(), &templates, &leaves, textures.clone());
         Ok(AdaptiveMesh {
             textures,
             templates,
@@ -271,7 +271,12 @@ impl AdaptiveMesh {
                 }
             }
         }
-        self.mesh = build_mesh(&self.templates, &leaves, self.textures.clone());
+        self.mesh = build_mesh(
+            self.mesh.origin(),
+            &self.templates,
+            &leaves,
+            self.textures.clone(),
+        );
         self.leaves = leaves;
         Refinement {
             parent,
@@ -393,11 +398,12 @@ fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
 
 /// The mesh of `leaves`: vertices shared where corners are equal as `f32`.
 fn build_mesh(
+    origin: Vec3,
     templates: &[PatchTemplate],
     leaves: &[Leaf],
     textures: Option<Arc<SceneTextures>>,
 ) -> Mesh {
-    let mut mesh = Mesh::empty(textures);
+    let mut mesh = Mesh::empty(origin, textures);
     let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len() * 2);
     let mut corners = Vec::with_capacity(4);
     for leaf in leaves {

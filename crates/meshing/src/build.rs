@@ -71,7 +71,7 @@ pub struct Patch {
     pub area: f64,
     /// Unit geometric normal on the front side (vertices counter-clockwise seen from it).
     pub normal: Vec3,
-    /// Area centroid (scene units).
+    /// Area centroid (scene units, in the mesh's local frame: see [`Mesh::origin`]).
     pub centroid: Vec3,
     /// Diffuse reflectance `rho_i` per RGB channel, each in `[0, 1)`.
     pub reflectance: Vec3,
@@ -90,8 +90,13 @@ pub struct Patch {
 /// The radiosity mesh. Invariants (see [`Mesh::validate`]): every patch has >= 3 corners and >= 1
 /// triangle, positive finite area, unit normal; triangle `t` belongs to patch
 /// `triangle_patch()[t]`; each patch's triangles are contiguous and in patch order.
+///
+/// Positions, centroids and everything made from them are in the mesh's **local frame**: the
+/// world point of a local point `p` is `p + origin()` (see [`Mesh::origin`]). A scene far from
+/// the world origin thus keeps the `f32` resolution of a scene at the origin.
 #[derive(Debug, Clone)]
 pub struct Mesh {
+    origin: Vec3,
     positions: Vec<Vec3>,
     corners: Vec<u32>,
     triangles: Vec<[u32; 3]>,
@@ -131,8 +136,14 @@ impl Mesh {
                 });
             }
         }
+        let origin = local_origin(scene);
         let mut mesh = Mesh {
-            positions: scene.positions().to_vec(),
+            origin,
+            positions: scene
+                .positions()
+                .iter()
+                .map(|p| (p.as_dvec3() - origin.as_dvec3()).as_vec3())
+                .collect(),
             corners: Vec::new(),
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
@@ -167,10 +178,11 @@ impl Mesh {
         Ok(mesh)
     }
 
-    /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`), its
-    /// patches textured by `textures`.
-    pub(crate) fn empty(textures: Option<Arc<SceneTextures>>) -> Mesh {
+    /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`) whose
+    /// local frame has its origin at world point `origin`, its patches textured by `textures`.
+    pub(crate) fn empty(origin: Vec3, textures: Option<Arc<SceneTextures>>) -> Mesh {
         Mesh {
+            origin,
             positions: Vec::new(),
             corners: Vec::new(),
             triangles: Vec::new(),
@@ -235,9 +247,12 @@ impl Mesh {
         // a textured face: the material's factors times the texture's mean over this patch
         let (mut reflectance, mut emission) = (t.reflectance, t.emission);
         if let Some(textures) = &self.textures {
+            // (the mapping is in world coordinates; the mesh in its local frame)
             let points: Vec<Vec3> = corners
                 .iter()
-                .map(|&c| self.positions[c as usize])
+                .map(|&c| {
+                    (self.positions[c as usize].as_dvec3() + self.origin.as_dvec3()).as_vec3()
+                })
                 .collect();
             if let Some((albedo, glow)) = textures.average(t.face, &points) {
                 reflectance =
@@ -269,7 +284,17 @@ impl Mesh {
         &self.patches
     }
 
-    /// Vertex positions (scene units); the input's vertices first, then those subdivision made.
+    /// The world position (scene units) of the local frame's origin: every position of the
+    /// mesh is relative to it. It is the centre of the scene's bounding box rounded to a
+    /// multiple of `2^k`, the smallest power of two not below the box's diagonal, so it is
+    /// exactly zero for a scene around the world origin (positions are then the input's, bit for
+    /// bit) and, far from it, subtracting it from an input coordinate is exact.
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
+    /// Vertex positions (scene units, local frame: add [`Mesh::origin`] for world positions);
+    /// the input's vertices first, then those subdivision made.
     pub fn positions(&self) -> &[Vec3] {
         &self.positions
     }
@@ -371,6 +396,24 @@ pub(crate) struct PatchTemplate {
     pub emission: Vec3,
     pub face: u32,
     pub material: u32,
+}
+
+/// The origin of the local frame of `scene`'s mesh (see [`Mesh::origin`]): the bounding box's
+/// centre rounded to a multiple of the smallest power of two `>=` its diagonal.
+fn local_origin(scene: &Scene) -> Vec3 {
+    let b = scene.bounds();
+    let centre = (b.min.as_dvec3() + b.max.as_dvec3()) / 2.0;
+    let diagonal = b.diagonal();
+    if !(diagonal.is_finite() && diagonal > 0.0) {
+        return Vec3::ZERO;
+    }
+    let step = 2f64.powi(diagonal.log2().ceil() as i32);
+    let origin = ((centre / step).round() * step).as_vec3();
+    if origin.is_finite() {
+        origin
+    } else {
+        Vec3::ZERO
+    }
 }
 
 /// An upper estimate of the patch count a subdivision makes (to refuse absurd requests early).

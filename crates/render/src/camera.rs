@@ -1,6 +1,6 @@
 //! The pinhole camera: pixel coordinates to rays and back.
 
-use glam::{Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use mcrad_raycast::Ray;
 
 /// Why a camera could not be built.
@@ -110,6 +110,17 @@ impl Camera {
             camera.up,
             camera.fov_y_degrees,
         )
+    }
+
+    /// The same camera with its eye moved by `-offset` (scene units): the camera of a scene
+    /// whose positions are stored relative to `offset`, such as a mesh's local frame
+    /// (`mcrad_meshing::Mesh::origin`). The subtraction is done in `f64` and rounded once, so
+    /// a camera far from the world origin keeps its precision in the local frame.
+    pub fn translated(&self, offset: DVec3) -> Camera {
+        Camera {
+            eye: (self.eye.as_dvec3() - offset).as_vec3(),
+            ..*self
+        }
     }
 
     /// The eye (centre of projection), scene units.

@@ -24,13 +24,21 @@ fn scene(name: &str, subdivision: Subdivision) -> (Mesh, Bvh) {
 
 /// A 2 × 1 emitting quad in the plane z = 0 facing +z, emitted radiosity (3, 2, 1) W/m².
 fn lamp(subdivision: Subdivision) -> (Mesh, Bvh) {
+    lamp_at(0.0, subdivision)
+}
+
+/// [`lamp`] moved by `x` along the x axis.
+fn lamp_at(x: f64, subdivision: Subdivision) -> (Mesh, Bvh) {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(
         dir.path().join("l.mtl"),
         "newmtl lamp\nKd 0.5 0.5 0.5\nKe 3 2 1\n",
     )
     .unwrap();
-    let obj = "mtllib l.mtl\nv 0 0 0\nv 2 0 0\nv 2 1 0\nv 0 1 0\nusemtl lamp\nf 1 2 3 4\n";
+    let (a, b) = (x, x + 2.0);
+    let obj = format!(
+        "mtllib l.mtl\nv {a} 0 0\nv {b} 0 0\nv {b} 1 0\nv {a} 1 0\nusemtl lamp\nf 1 2 3 4\n"
+    );
     std::fs::write(dir.path().join("l.obj"), obj).unwrap();
     load(&dir.path().join("l.obj"), subdivision)
 }
@@ -216,6 +224,38 @@ fn a_uniformly_lit_wall_shows_e_over_pi() {
             assert!((*p - expected).abs().max_element() < 1e-6, "{p}");
         }
     }
+}
+
+#[test]
+fn a_scene_far_from_the_origin_renders_as_at_the_origin() {
+    // Issue 16: the lamp 1e7 along x (exact in f32) seen by the same camera moved with it, the
+    // camera translated into the mesh's local frame: the image is the origin's, bit for bit.
+    let view = |x: f64| {
+        let (mesh, bvh) = lamp_at(x, Subdivision::MaxEdge(0.3));
+        // (coordinates exact in f32 at 1e7, where f32 values are 1 apart)
+        let eye = Vec3::new((x + 1.0) as f32, 0.25, 3.0);
+        let look = Vec3::new((x + 1.0) as f32, 0.5, 0.0);
+        let camera = Camera::look_at(eye, look, Vec3::Y, 25.0)
+            .unwrap()
+            .translated(mesh.origin().as_dvec3());
+        let corners = per_corner(&mesh, |p| DVec3::new(1.0 + p.x as f64, 2.0, 3.0));
+        let image = render(
+            &mesh,
+            &bvh,
+            &camera,
+            Shading::Smooth(&corners),
+            &settings(24, 16, 4),
+            &no_progress,
+        )
+        .unwrap();
+        (mesh.origin(), image.pixels)
+    };
+    let (near_origin, near) = view(0.0);
+    let (far_origin, far) = view(1e7);
+    assert_eq!(near_origin, Vec3::ZERO);
+    assert_eq!(far_origin, Vec3::new(1e7, 0.0, 0.0));
+    assert!(near.iter().any(|p| p.max_element() > 0.0));
+    assert_eq!(near, far);
 }
 
 #[test]
