@@ -2,8 +2,10 @@
 //! Purgathofer 1993).
 //!
 //! The solver runs in waves. In wave `k` every patch `i` holding unshot power `U_i = dB_i A_i`
-//! (W, per RGB channel) is given `n_i = round_stochastic(|U_i| / phi_k)` rays, where `|.|` sums
-//! the channels and `phi_k` is the wave's energy per ray. Each ray leaves a uniform point of the
+//! (W, per RGB channel) is given `n_i` rays with `E[n_i] = |U_i| / phi_k`, `floor` or `ceil` of
+//! it, where `|.|` sums the channels and `phi_k` is the wave's energy per ray; the counts are
+//! drawn by systematic sampling of the cumulative power (one uniform offset per wave), so the
+//! wave's total is fixed and the small holders share their rays evenly. Each ray leaves a uniform point of the
 //! patch in a cosine-distributed direction carrying `U_i / n_i`, so the power a patch sends is
 //! exactly its unshot power whatever `n_i` is, and the expected power reaching patch `j` is
 //! `U_i F_ij`: the estimate is unbiased for any `n_i >= 1`. The front face of the first patch hit
@@ -433,17 +435,25 @@ fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3], out: 
     }
 }
 
-/// Ray counts of one wave: `n_i = round_stochastic(|U_i| / phi)`, at most `budget` in all, and
-/// at least one ray somewhere while power is left. Each patch's draw comes from its own stream.
+/// Ray counts of one wave: systematic sampling of the cumulative power, `n_i = floor(C_i + u) -
+/// floor(C_{i-1} + u)` with `C_i = sum_{k <= i} |U_k| / phi` and one uniform `u` for the wave,
+/// so `E[n_i] = |U_i| / phi` (each `n_i` is `floor` or `ceil` of it, as stochastic rounding
+/// gives) while the wave's total is `C_n` rounded, not a sum of independent roundings. At most
+/// `budget` in all, and at least one ray somewhere while power is left.
 fn allocate(unshot: &[DVec3], mut phi: f64, budget: u64, seed: u64, wave: u64) -> Vec<u64> {
-    let draws: Vec<f64> = (0..unshot.len())
-        .map(|i| Stream::new(seed, wave, i as u64, ALLOCATE).uniform_f64())
-        .collect();
+    let offset = Stream::new(seed, wave, u64::MAX, ALLOCATE).uniform_f64();
     loop {
+        let mut cumulative = offset;
+        let mut floor_before = offset.floor();
         let counts: Vec<u64> = unshot
             .iter()
-            .zip(&draws)
-            .map(|(u, &d)| stochastic_round(total(*u) / phi, d))
+            .map(|u| {
+                cumulative += total(*u) / phi;
+                let f = cumulative.floor();
+                let n = (f - floor_before) as u64;
+                floor_before = f;
+                n
+            })
             .collect();
         let sum: u64 = counts.iter().sum();
         if sum > budget {
