@@ -593,3 +593,50 @@ pub(crate) fn unreached_variance(
         estimate.rays(),
     )?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Systematic allocation: every count is `floor` or `ceil` of `|U_i| / phi`, the wave's total
+    /// is `floor` or `ceil` of their sum, and over many waves each patch's mean count is
+    /// `|U_i| / phi` (unbiased). The mean is checked to k = 5 standard errors of a count whose
+    /// fractional part is Bernoulli, `sqrt(f (1 - f) / waves)`: a false failure has probability
+    /// about 6e-7 per patch, 6e-6 for the test.
+    #[test]
+    fn systematic_counts_are_unbiased_with_a_fixed_total() {
+        let unshot: Vec<DVec3> = [0.3, 2.7, 0.05, 1.0, 0.0, 4.45, 0.2, 0.9, 0.61, 0.33]
+            .iter()
+            .map(|&u| DVec3::splat(u / 3.0))
+            .collect();
+        let phi = 0.5;
+        let x: Vec<f64> = unshot.iter().map(|u| total(*u) / phi).collect();
+        let c: f64 = x.iter().sum();
+        let waves = 20_000u64;
+        let mut sums = vec![0u64; x.len()];
+        for wave in 0..waves {
+            let counts = allocate(&unshot, phi, u64::MAX, 7, wave);
+            for ((n, x), s) in counts.iter().zip(&x).zip(&mut sums) {
+                assert!(
+                    *n == x.floor() as u64 || *n == x.ceil() as u64,
+                    "{n} from {x}"
+                );
+                *s += n;
+            }
+            let total: u64 = counts.iter().sum();
+            assert!(
+                total == c.floor() as u64 || total == c.ceil() as u64,
+                "{total} of {c}"
+            );
+        }
+        for (s, x) in sums.iter().zip(&x) {
+            let f = x - x.floor();
+            let se = (f * (1.0 - f) / waves as f64).sqrt();
+            let mean = *s as f64 / waves as f64;
+            assert!(
+                (mean - x).abs() <= 5.0 * se + 1e-12,
+                "mean {mean} for {x} (se {se})"
+            );
+        }
+    }
+}
