@@ -2,8 +2,10 @@
 //! Purgathofer 1993).
 //!
 //! The solver runs in waves. In wave `k` every patch `i` holding unshot power `U_i = dB_i A_i`
-//! (W, per RGB channel) is given `n_i = round_stochastic(|U_i| / phi_k)` rays, where `|.|` sums
-//! the channels and `phi_k` is the wave's energy per ray. Each ray leaves a uniform point of the
+//! (W, per RGB channel) is given `n_i` rays with `E[n_i] = |U_i| / phi_k`, `floor` or `ceil` of
+//! it, where `|.|` sums the channels and `phi_k` is the wave's energy per ray; the counts are
+//! drawn by systematic sampling of the cumulative power (one uniform offset per wave), so the
+//! wave's total is fixed and the small holders share their rays evenly. Each ray leaves a uniform point of the
 //! patch in a cosine-distributed direction carrying `U_i / n_i`, so the power a patch sends is
 //! exactly its unshot power whatever `n_i` is, and the expected power reaching patch `j` is
 //! `U_i F_ij`: the estimate is unbiased for any `n_i >= 1`. The front face of the first patch hit
@@ -460,17 +462,25 @@ fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3], out: 
     }
 }
 
-/// Ray counts of one wave: `n_i = round_stochastic(|U_i| / phi)`, at most `budget` in all, and
-/// at least one ray somewhere while power is left. Each patch's draw comes from its own stream.
+/// Ray counts of one wave: systematic sampling of the cumulative power, `n_i = floor(C_i + u) -
+/// floor(C_{i-1} + u)` with `C_i = sum_{k <= i} |U_k| / phi` and one uniform `u` for the wave,
+/// so `E[n_i] = |U_i| / phi` (each `n_i` is `floor` or `ceil` of it, as stochastic rounding
+/// gives) while the wave's total is `C_n` rounded, not a sum of independent roundings. At most
+/// `budget` in all, and at least one ray somewhere while power is left.
 fn allocate(unshot: &[DVec3], mut phi: f64, budget: u64, seed: u64, wave: u64) -> Vec<u64> {
-    let draws: Vec<f64> = (0..unshot.len())
-        .map(|i| Stream::new(seed, wave, i as u64, ALLOCATE).uniform_f64())
-        .collect();
+    let offset = Stream::new(seed, wave, u64::MAX, ALLOCATE).uniform_f64();
     loop {
+        let mut cumulative = offset;
+        let mut floor_before = offset.floor();
         let counts: Vec<u64> = unshot
             .iter()
-            .zip(&draws)
-            .map(|(u, &d)| stochastic_round(total(*u) / phi, d))
+            .map(|u| {
+                cumulative += total(*u) / phi;
+                let f = cumulative.floor();
+                let n = (f - floor_before) as u64;
+                floor_before = f;
+                n
+            })
             .collect();
         let sum: u64 = counts.iter().sum();
         if sum > budget {
@@ -609,4 +619,51 @@ pub(crate) fn unreached_variance(
         Some(variance),
         estimate.rays(),
     )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Systematic allocation: every count is `floor` or `ceil` of `|U_i| / phi`, the wave's total
+    /// is `floor` or `ceil` of their sum, and over many waves each patch's mean count is
+    /// `|U_i| / phi` (unbiased). The mean is checked to k = 5 standard errors of a count whose
+    /// fractional part is Bernoulli, `sqrt(f (1 - f) / waves)`: a false failure has probability
+    /// about 6e-7 per patch, 6e-6 for the test.
+    #[test]
+    fn systematic_counts_are_unbiased_with_a_fixed_total() {
+        let unshot: Vec<DVec3> = [0.3, 2.7, 0.05, 1.0, 0.0, 4.45, 0.2, 0.9, 0.61, 0.33]
+            .iter()
+            .map(|&u| DVec3::splat(u / 3.0))
+            .collect();
+        let phi = 0.5;
+        let x: Vec<f64> = unshot.iter().map(|u| total(*u) / phi).collect();
+        let c: f64 = x.iter().sum();
+        let waves = 20_000u64;
+        let mut sums = vec![0u64; x.len()];
+        for wave in 0..waves {
+            let counts = allocate(&unshot, phi, u64::MAX, 7, wave);
+            for ((n, x), s) in counts.iter().zip(&x).zip(&mut sums) {
+                assert!(
+                    *n == x.floor() as u64 || *n == x.ceil() as u64,
+                    "{n} from {x}"
+                );
+                *s += n;
+            }
+            let total: u64 = counts.iter().sum();
+            assert!(
+                total == c.floor() as u64 || total == c.ceil() as u64,
+                "{total} of {c}"
+            );
+        }
+        for (s, x) in sums.iter().zip(&x) {
+            let f = x - x.floor();
+            let se = (f * (1.0 - f) / waves as f64).sqrt();
+            let mean = *s as f64 / waves as f64;
+            assert!(
+                (mean - x).abs() <= 5.0 * se + 1e-12,
+                "mean {mean} for {x} (se {se})"
+            );
+        }
+    }
 }
