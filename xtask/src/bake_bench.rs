@@ -22,6 +22,17 @@ fn next(state: &mut u64) -> f64 {
     ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// A 64 × 64 PNG of 8 × 8-texel squares of the sRGB colours `a` and `b` (a test texture).
+pub fn checker_png(a: [u8; 3], b: [u8; 3]) -> Result<Vec<u8>> {
+    let image = image::RgbImage::from_fn(64, 64, |x, y| {
+        image::Rgb(if (x / 8 + y / 8) % 2 == 1 { a } else { b })
+    });
+    let mut png = Vec::new();
+    image::DynamicImage::ImageRgb8(image)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    Ok(png)
+}
+
 /// The city scene as GLB bytes: 12 × 8,400 + 4 triangles.
 pub fn city() -> Result<Vec<u8>> {
     let mut bin: Vec<u8> = Vec::new();
@@ -75,18 +86,7 @@ pub fn city() -> Result<Vec<u8>> {
         {"bufferView": push(&f32s(&light), None), "componentType": 5126, "count": 4, "type": "VEC3",
          "min": [20, 8, 20], "max": [40, 8, 40]}
     ]);
-    // a 64 × 64 checker of warm and blue squares
-    let n = 64u32;
-    let image = image::RgbImage::from_fn(n, n, |x, y| {
-        if (x / 8 + y / 8) % 2 == 1 {
-            image::Rgb([255, 200, 150])
-        } else {
-            image::Rgb([60, 60, 200])
-        }
-    });
-    let mut png = Vec::new();
-    image::DynamicImage::ImageRgb8(image)
-        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    let png = checker_png([255, 200, 150], [60, 60, 200])?;
     let png_view = push(&png, None);
     let mut state = 7u64;
     let mut nodes = vec![

@@ -91,16 +91,7 @@ pub fn textured_cornell() -> Result<Vec<u8>> {
                                "indices": a - 1, "material": material}),
         );
     }
-    let image = image::RgbImage::from_fn(64, 64, |i, j| {
-        if (i / 8 + j / 8) % 2 == 1 {
-            image::Rgb([240, 150, 60])
-        } else {
-            image::Rgb([60, 90, 220])
-        }
-    });
-    let mut png = Vec::new();
-    image::DynamicImage::ImageRgb8(image)
-        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    let png = crate::bake_bench::checker_png([240, 150, 60], [60, 90, 220])?;
     let png_view = push(&png, &mut views);
     let solid =
         |r: f32, g: f32, b: f32| json!({"baseColorFactor": [r, g, b, 1.0], "metallicFactor": 0.0});
