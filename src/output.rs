@@ -122,13 +122,15 @@ pub fn bake(
         .with_context(|| format!("bake {}", args.scene.display()))?;
     std::fs::write(&target.out, &baked.glb)
         .with_context(|| format!("could not write {}", target.out.display()))?;
-    let exr = match &baked.lightmap {
+    // the linear lightmap moves into the EXR writer (a 4096² atlas is 200 MB)
+    let atlas = baked.lightmap.as_ref().map(|l| (l.size, l.covered));
+    let exr = match baked.lightmap {
         Some(lightmap) => {
             let path = target.out.with_extension("lightmap.exr");
             let image = mcrad_render::Image {
                 width: lightmap.size,
                 height: lightmap.size,
-                pixels: lightmap.irradiance.clone(),
+                pixels: lightmap.irradiance,
             };
             write_exr(&image, &path)?;
             Some(path.display().to_string())
@@ -141,16 +143,15 @@ pub fn bake(
             "max": finite(e.max)
         })
     });
-    let lightmap = baked.lightmap.as_ref();
     Ok(serde_json::json!({
         "out": target.out.display().to_string(),
         "lightmap": exr,
-        "vertex_colors": lightmap.is_none(),
+        "vertex_colors": atlas.is_none(),
         "primitives": baked.primitives,
         "charts": baked.charts,
-        "atlas": lightmap.map(|l| l.size),
-        "texel": lightmap.map(|_| baked.texel),
-        "texels_covered": lightmap.map(|l| l.covered),
+        "atlas": atlas.map(|(size, _)| size),
+        "texel": atlas.map(|_| baked.texel),
+        "texels_covered": atlas.map(|(_, covered)| covered),
         "intensity": baked.intensity,
         "texel_relative_error": error,
     }))

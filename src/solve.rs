@@ -67,6 +67,10 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     for warning in &loaded.warnings {
         eprintln!("warning: {}: {warning}", args.scene.display());
     }
+    if args.bake.is_none() {
+        // the document and its buffers are for writing a bake back; a solve lets them go
+        loaded.gltf = None;
+    }
     // `mcrad bake` of an OBJ scene: bake into a glTF document made from it (its polygons fanned
     // into triangles), solved as that document reads back.
     let _converted = match (&args.bake, &loaded.gltf) {

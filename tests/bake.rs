@@ -90,6 +90,27 @@ fn write_box(dir: &Path) {
     std::fs::write(dir.join("box.gltf"), doc.to_string()).unwrap();
 }
 
+/// The furnace box's exact incident irradiance `H = E / (1 - rho) = 0.6 pi` (W/m²).
+const EXACT_H: f32 = 0.6 * std::f32::consts::PI;
+
+/// Asserts that every used texel of the lightmap EXR `file` (in `dir`) holds [`EXACT_H`] within
+/// 1e-3 relative (unused texels are 0) and that at least `at_least` are used.
+fn assert_exact_lightmap(dir: &Path, file: &str, at_least: usize) {
+    let exr = mcrad_render::read_exr(&dir.join(file)).unwrap();
+    let used: Vec<_> = exr
+        .pixels
+        .iter()
+        .filter(|h| h.max_element() > 0.0)
+        .collect();
+    assert!(used.len() >= at_least, "{} texels used", used.len());
+    for h in used {
+        assert!(
+            (*h - glam::Vec3::splat(EXACT_H)).abs().max_element() < 1e-3 * EXACT_H,
+            "{h}"
+        );
+    }
+}
+
 /// The JSON chunk and binary chunk of a GLB.
 fn glb_parts(bytes: &[u8]) -> (Value, Vec<u8>) {
     assert_eq!(&bytes[0..4], b"glTF");
@@ -185,7 +206,7 @@ fn bake_keeps_the_document_and_its_lightmap_holds_the_exact_furnace_irradiance()
     let intensity = lightmap["intensity"].as_f64().unwrap();
     let exr = mcrad_render::read_exr(&dir.path().join("out.lightmap.exr")).unwrap();
     assert_eq!(exr.width, exr.height);
-    let exact = 0.6 * std::f32::consts::PI;
+    let exact = EXACT_H;
     for m in [ma, mb] {
         let primitive = &doc["meshes"][m.as_u64().unwrap() as usize]["primitives"][0];
         let uv = floats(&doc, &bin, &primitive["attributes"]["TEXCOORD_1"]);
@@ -205,19 +226,9 @@ fn bake_keeps_the_document_and_its_lightmap_holds_the_exact_furnace_irradiance()
             );
         }
     }
-    // every texel is the exact value or unused (0): no chart reads another's light
-    let mut used_texels = 0;
-    for h in &exr.pixels {
-        if h.max_element() > 0.0 {
-            used_texels += 1;
-            assert!(
-                (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
-                "{h}"
-            );
-        }
-    }
-    // 12 faces of 1 m² at 0.02 m per texel: at least 12 * 2500 texels
-    assert!(used_texels >= 12 * 2500, "{used_texels}");
+    // every texel is the exact value or unused (0): no chart reads another's light; 12 faces
+    // of 1 m² at 0.02 m per texel: at least 12 * 2500 texels
+    assert_exact_lightmap(dir.path(), "out.lightmap.exr", 12 * 2500);
     assert!(
         (intensity as f32 - exact).abs() < 1e-3 * exact,
         "{intensity}"
@@ -408,7 +419,7 @@ fn vertex_colours_hold_the_exact_furnace_irradiance() {
     let intensity = doc["asset"]["extras"]["mcradVertexIntensity"]
         .as_f64()
         .unwrap() as f32;
-    let exact = 0.6 * std::f32::consts::PI;
+    let exact = EXACT_H;
     for node in 0..2 {
         let m = doc["nodes"][node]["mesh"].as_u64().unwrap() as usize;
         let attributes = &doc["meshes"][m]["primitives"][0]["attributes"];
@@ -480,22 +491,9 @@ fn many_instances_of_a_textured_mesh_each_get_their_own_light() {
                 && p["attributes"].get("TEXCOORD_0").is_some()
         );
     }
-    // every box is a closed furnace: every used texel holds the exact irradiance
-    let exr = mcrad_render::read_exr(&dir.path().join("out.lightmap.exr")).unwrap();
-    let exact = 0.6 * std::f32::consts::PI;
-    let used: Vec<_> = exr
-        .pixels
-        .iter()
-        .filter(|h| h.max_element() > 0.0)
-        .collect();
-    // 6 faces of 1 m² per box at 0.05 per texel: at least 400 texels each
-    assert!(used.len() >= 60 * 6 * 400, "{}", used.len());
-    for h in used {
-        assert!(
-            (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
-            "{h}"
-        );
-    }
+    // every box is a closed furnace: every used texel holds the exact irradiance; 6 faces of
+    // 1 m² per box at 0.05 per texel: at least 400 texels each
+    assert_exact_lightmap(dir.path(), "out.lightmap.exr", 60 * 6 * 400);
 }
 
 #[test]
@@ -515,18 +513,5 @@ fn a_scene_far_from_the_origin_bakes_as_at_the_origin() {
         ],
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let exr = mcrad_render::read_exr(&dir.path().join("far.lightmap.exr")).unwrap();
-    let exact = 0.6 * std::f32::consts::PI;
-    let used: Vec<_> = exr
-        .pixels
-        .iter()
-        .filter(|h| h.max_element() > 0.0)
-        .collect();
-    assert!(used.len() >= 2 * 6 * 2500, "{}", used.len());
-    for h in used {
-        assert!(
-            (*h - glam::Vec3::splat(exact)).abs().max_element() < 1e-3 * exact,
-            "{h}"
-        );
-    }
+    assert_exact_lightmap(dir.path(), "far.lightmap.exr", 2 * 6 * 2500);
 }

@@ -158,14 +158,7 @@ fn read_srgb_png(path: &Path, stops: f32) -> Result<Image> {
     let img = image::open(path)
         .with_context(|| format!("could not read {}", path.display()))?
         .to_rgb8();
-    let decode = |c: u8| {
-        let c = f32::from(c) / 255.0;
-        if c <= 0.04045 {
-            c / 12.92
-        } else {
-            ((c + 0.055) / 1.055).powf(2.4)
-        }
-    };
+    let decode = |c: u8| mcrad_scene_io::srgb_to_linear(f32::from(c) / 255.0);
     let scale = 2f32.powf(-stops);
     Ok(Image {
         width: img.width(),

@@ -208,12 +208,14 @@ fn closest_on_triangle(p: DVec2, t: [DVec2; 3]) -> DVec2 {
 /// values, never an empty texel. Texels still empty afterwards become zero.
 pub(crate) fn dilate(image: &mut [Option<Vec3>], size: u32, passes: u32) -> Vec<Vec3> {
     let s = size as i64;
+    // A pass reads the image as the previous pass left it: its fills are gathered first and
+    // written after (only the texels at the front, not a copy of the whole image).
+    let mut fills: Vec<(usize, Vec3)> = Vec::new();
     for _ in 0..passes {
-        let before = image.to_vec();
-        let mut changed = false;
+        fills.clear();
         for y in 0..s {
             for x in 0..s {
-                if before[(y * s + x) as usize].is_some() {
+                if image[(y * s + x) as usize].is_some() {
                     continue;
                 }
                 let (mut sum, mut n) = (Vec3::ZERO, 0.0f32);
@@ -230,20 +232,22 @@ pub(crate) fn dilate(image: &mut [Option<Vec3>], size: u32, passes: u32) -> Vec<
                     let (nx, ny) = (x + dx, y + dy);
                     if (0..s).contains(&nx)
                         && (0..s).contains(&ny)
-                        && let Some(v) = before[(ny * s + nx) as usize]
+                        && let Some(v) = image[(ny * s + nx) as usize]
                     {
                         sum += v;
                         n += 1.0;
                     }
                 }
                 if n > 0.0 {
-                    image[(y * s + x) as usize] = Some(sum / n);
-                    changed = true;
+                    fills.push(((y * s + x) as usize, sum / n));
                 }
             }
         }
-        if !changed {
+        if fills.is_empty() {
             break;
+        }
+        for &(i, v) in &fills {
+            image[i] = Some(v);
         }
     }
     image.iter().map(|v| v.unwrap_or(Vec3::ZERO)).collect()
