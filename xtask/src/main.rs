@@ -21,7 +21,8 @@ tasks:
           release test suite
   bench   the shooting and ray-casting benchmarks (criterion), then tables of their medians;
           `bench shooting` or `bench raycast` runs one of them; `bench bake` times mcrad bake
-          on a generated 100k-triangle textured glTF of 8,400 instances
+          on a generated 100k-triangle textured glTF of 8,400 instances; `bench first-solution`
+          the fixed cost: each stage from the scene file to a 5% solution of a 310-patch box
   regress golden-image regression of the bundled scenes (scenes/golden/);
           `regress --bless` re-renders the goldens and re-measures their noise thresholds
   experiment figure2
@@ -70,6 +71,9 @@ fn run() -> Result<()> {
         Some("bench") if std::env::args().nth(2).as_deref() == Some("bake") => {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             bake_bench::run(&root(), &target_dir().join("release/mcrad"))
+        }
+        Some("bench") if std::env::args().nth(2).as_deref() == Some("first-solution") => {
+            bench_first_solution()
         }
         Some("bench") => {
             let which = std::env::args().nth(2);
@@ -252,17 +256,68 @@ fn bench_raycast() -> Result<()> {
 
 /// Median throughput of one criterion benchmark in million elements per second.
 fn throughput(bench: &Path) -> Result<f64> {
-    let read = |name: &str| -> Result<serde_json::Value> {
-        let p = bench.join("new").join(name);
-        let text = std::fs::read_to_string(&p)
-            .with_context(|| format!("could not read {}", p.display()))?;
-        Ok(serde_json::from_str(&text)?)
-    };
-    let median_ns = read("estimates.json")?["median"]["point_estimate"]
-        .as_f64()
-        .context("estimates.json has no median")?;
-    let elements = read("benchmark.json")?["throughput"]["Elements"]
+    let median_ns = median_ns(bench)?;
+    let elements = criterion_json(bench, "benchmark.json")?["throughput"]["Elements"]
         .as_f64()
         .context("benchmark.json has no element throughput")?;
     Ok(elements / median_ns * 1e3)
+}
+
+/// One of the JSON files criterion wrote for the newest run of `bench`.
+fn criterion_json(bench: &Path, name: &str) -> Result<serde_json::Value> {
+    let p = bench.join("new").join(name);
+    let text =
+        std::fs::read_to_string(&p).with_context(|| format!("could not read {}", p.display()))?;
+    Ok(serde_json::from_str(&text)?)
+}
+
+/// The median time of the newest run of the criterion benchmark `bench`, in nanoseconds.
+fn median_ns(bench: &Path) -> Result<f64> {
+    criterion_json(bench, "estimates.json")?["median"]["point_estimate"]
+        .as_f64()
+        .context("estimates.json has no median")
+}
+
+/// Runs the fixed-cost benchmark (`crates/mc-radiosity/benches/first_solution.rs`) and prints
+/// the median time of each stage from the scene file to the first solution of 5% error.
+fn bench_first_solution() -> Result<()> {
+    cargo(&[
+        "bench",
+        "-p",
+        "mcrad-mc-radiosity",
+        "--bench",
+        "first_solution",
+    ])?;
+    let dir = target_dir().join("criterion");
+    let mut groups: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("no criterion results in {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("solve_1000_rays").is_dir())
+        .collect();
+    groups.sort();
+    let stages = [
+        "load",
+        "mesh",
+        "bvh",
+        "solve",
+        "file_to_solution",
+        "solve_1000_rays",
+    ];
+    println!(
+        "| scene | {} |",
+        stages.map(|s| format!("{s} (ms)")).join(" | ")
+    );
+    println!("|---|{}", "---:|".repeat(stages.len()));
+    for g in groups {
+        let times = stages
+            .iter()
+            .map(|s| Ok(format!("{:.3}", median_ns(&g.join(s))? * 1e-6)))
+            .collect::<Result<Vec<_>>>()?;
+        println!(
+            "| {} | {} |",
+            g.file_name().unwrap_or_default().to_string_lossy(),
+            times.join(" | ")
+        );
+    }
+    Ok(())
 }
