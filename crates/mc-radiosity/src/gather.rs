@@ -70,8 +70,9 @@
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
 
 use crate::context::Context;
+use crate::direct::CosineLight;
 use crate::error::Error;
-use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, run};
+use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
 use crate::method::StopReason;
 use crate::sampling::{Frame, cosine_hemisphere_rejection};
 use glam::{DVec3, Vec3};
@@ -217,6 +218,30 @@ fn round<C: RayCaster>(
     Ok(round_parts(ctx, input, input_variance, emission, rays_per_patch, key)?.0)
 }
 
+/// [`gather_round_parts`] whose rays also carry the cosine half of the direct light's multiple
+/// importance sampling: a ray of patch `i` whose first hit is the front of an emitter adds
+/// `light`'s share of its emission ([`CosineLight::share`]) to the input it sees there, so the
+/// round's mean is `rho_i sum_j F_ij input_j` plus the cosine strategy's part of `D_i`, with one
+/// sample variance over both (they come from the same rays). Gathers with
+/// [`Emission::Exclude`]: the light emitted is the direct light's business.
+pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &Estimate,
+    light: &CosineLight,
+    rays_per_patch: u32,
+    key: StreamKey,
+) -> Result<(GatherRound, Vec<DVec3>), Error> {
+    round_parts_with(
+        ctx,
+        input.radiosity(),
+        input.variance(),
+        Emission::Exclude,
+        rays_per_patch,
+        key,
+        Some(light),
+    )
+}
+
 /// [`round`] and the inherited part of its variance ([`gather_round_parts`]).
 fn round_parts<C: RayCaster>(
     ctx: &Context<C>,
@@ -225,6 +250,27 @@ fn round_parts<C: RayCaster>(
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
+) -> Result<(GatherRound, Vec<DVec3>), Error> {
+    round_parts_with(
+        ctx,
+        input,
+        input_variance,
+        emission,
+        rays_per_patch,
+        key,
+        None,
+    )
+}
+
+/// [`round_parts`], its rays also scoring `light` where given.
+fn round_parts_with<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &[DVec3],
+    input_variance: Option<&[DVec3]>,
+    emission: Emission,
+    rays_per_patch: u32,
+    key: StreamKey,
+    light: Option<&CosineLight>,
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
@@ -244,9 +290,13 @@ fn round_parts<C: RayCaster>(
             .item(job.item as u64)
             .substream(PATCH_GATHER + job.chunk as u64)
             .stream();
-        look(job.rays, caster, input, input_variance, || {
-            sampler.ray(job.item as usize, &mut rng)
-        })
+        let ray = || sampler.ray(job.item as usize, &mut rng);
+        match light {
+            None => look(job.rays, caster, input, input_variance, ray),
+            Some(light) => look_with(job.rays, caster, input, input_variance, ray, |r, h| {
+                light.share(job.item as usize, r, h)
+            }),
+        }
     });
     ctx.check_cancelled()?;
     let inherited = patches

@@ -3,7 +3,7 @@
 //! order, so a seed gives the same answer on any number of threads.
 
 use glam::DVec3;
-use mcrad_raycast::{Ray, RayCaster};
+use mcrad_raycast::{Hit, Ray, RayCaster};
 use rayon::prelude::*;
 
 /// Rays (or samples) per job: the unit of parallel work and of random streams.
@@ -129,14 +129,30 @@ pub(crate) fn look<C: RayCaster>(
     caster: &C,
     input: &[DVec3],
     variance: Option<&[DVec3]>,
+    ray: impl FnMut() -> Ray,
+) -> Seen {
+    look_with(n, caster, input, variance, ray, |_, _| DVec3::ZERO)
+}
+
+/// [`look`], each front-face hit recording `input` of the patch hit plus `extra(ray, hit)` (the
+/// cosine half of the direct light's multiple importance sampling, which rides on gathering
+/// rays: `direct::CosineLight`).
+#[inline]
+pub(crate) fn look_with<C: RayCaster>(
+    n: u32,
+    caster: &C,
+    input: &[DVec3],
+    variance: Option<&[DVec3]>,
     mut ray: impl FnMut() -> Ray,
+    extra: impl Fn(&Ray, &Hit) -> DVec3,
 ) -> Seen {
     let mut seen = Seen::default();
     let mut previous = None;
     for k in 0..n {
-        let hit = caster.closest_hit(&ray());
+        let r = ray();
+        let hit = caster.closest_hit(&r);
         let x = match hit {
-            Some(hit) if hit.front => input[hit.id as usize],
+            Some(hit) if hit.front => input[hit.id as usize] + extra(&r, &hit),
             Some(_) => {
                 seen.back_faces += 1;
                 DVec3::ZERO

@@ -110,7 +110,7 @@ fn with_context<C: RayCaster>(
 ) -> Result<Solution, Error> {
     let mesh = ctx.mesh();
     let patches = mesh.patches();
-    // A pass must pay for 2 direct samples (4 rays) and 2 gathering rays per patch, and a
+    // A pass must pay for 2 direct samples and 2 gathering rays per patch (at most 4 rays), and a
     // shooting share.
     let min_pass = 8 * patches.len() as u64;
     if config.rays < min_pass {
