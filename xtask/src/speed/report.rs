@@ -30,6 +30,17 @@ impl Crossing {
         }
     }
 
+    /// A table cell of a crossing in rays, in millions.
+    pub fn rays_cell(self) -> String {
+        let m = |r: f64| format!("{:.2}M", r / 1e6);
+        match self {
+            Crossing::At(r) => m(r),
+            Crossing::AtMost(r) => format!("≤ {}", m(r)),
+            Crossing::Extrapolated(r) => format!("~{}*", m(r)),
+            Crossing::Never(r) => format!("> {}", m(r)),
+        }
+    }
+
     /// A table cell.
     pub fn cell(self) -> String {
         match self {
@@ -60,15 +71,26 @@ fn seconds(t: f64) -> String {
 /// that never reaches the level is extrapolated from its last point by `rms_rel ∝ 1/sqrt(t)` if
 /// its last two points fall at least like `t^-0.3` (a curve that has levelled off is not).
 pub fn crossing(points: &[Point], level: f64) -> Option<Crossing> {
+    crossing_by(points, level, |p| p.seconds)
+}
+
+/// [`crossing`] in rays instead of seconds: how many rays the curve needed to reach `level`
+/// (the same interpolation and extrapolation, with rays for seconds).
+pub fn rays_crossing(points: &[Point], level: f64) -> Option<Crossing> {
+    crossing_by(points, level, |p| p.rays as f64)
+}
+
+/// [`crossing`] along the axis `at` (seconds or rays) of the points.
+fn crossing_by(points: &[Point], level: f64, at: impl Fn(&Point) -> f64) -> Option<Crossing> {
     let first = points.first()?;
     if first.rms_rel <= level {
-        return Some(Crossing::AtMost(first.seconds));
+        return Some(Crossing::AtMost(at(first)));
     }
     for w in points.windows(2) {
         let (a, b) = (w[0], w[1]);
         if b.rms_rel <= level {
             let (la, lb) = (a.rms_rel.ln(), b.rms_rel.ln());
-            let (ta, tb) = (a.seconds.ln(), b.seconds.ln());
+            let (ta, tb) = (at(&a).ln(), at(&b).ln());
             let f = if la > lb {
                 (la - level.ln()) / (la - lb)
             } else {
@@ -80,19 +102,33 @@ pub fn crossing(points: &[Point], level: f64) -> Option<Crossing> {
     let last = *points.last()?;
     let falling = points.len() >= 2 && {
         let a = points[points.len() - 2];
-        let slope = (last.rms_rel / a.rms_rel).ln() / (last.seconds / a.seconds).ln();
+        let slope = (last.rms_rel / a.rms_rel).ln() / (at(&last) / at(&a)).ln();
         slope <= -0.3
     };
     Some(if falling {
-        Crossing::Extrapolated(last.seconds * (last.rms_rel / level).powi(2))
+        Crossing::Extrapolated(at(&last) * (last.rms_rel / level).powi(2))
     } else {
-        Crossing::Never(last.seconds)
+        Crossing::Never(at(&last))
     })
 }
 
 /// The median (middle, by time; the upper middle of an even count) of the seeds' crossings.
 pub fn median_crossing(curves: &[Vec<Point>], level: f64) -> Option<Crossing> {
-    let mut c: Vec<Crossing> = curves.iter().filter_map(|p| crossing(p, level)).collect();
+    median_of(curves.iter().filter_map(|p| crossing(p, level)).collect())
+}
+
+/// [`median_crossing`] in rays ([`rays_crossing`]).
+pub fn median_rays_crossing(curves: &[Vec<Point>], level: f64) -> Option<Crossing> {
+    median_of(
+        curves
+            .iter()
+            .filter_map(|p| rays_crossing(p, level))
+            .collect(),
+    )
+}
+
+/// The median crossing (the upper middle of an even count).
+fn median_of(mut c: Vec<Crossing>) -> Option<Crossing> {
     c.sort_by(|a, b| a.key().total_cmp(&b.key()));
     c.get(c.len() / 2).copied()
 }
@@ -200,6 +236,25 @@ mod tests {
         let flat = [p(1.0, 0.05), p(2.0, 0.049)];
         assert_eq!(crossing(&flat, 0.01), Some(Crossing::Never(2.0)));
         assert_eq!(crossing(&[], 0.01), None);
+    }
+
+    #[test]
+    fn rays_crossings_follow_the_rays_not_the_seconds() {
+        // The same errors at 1000 rays per unit of time, then a slow-down: 1% at 1e5 rays.
+        let mut c = [p(1.0, 0.1), p(16.0, 0.025), p(256.0, 0.1 / 16.0)];
+        for (k, q) in c.iter_mut().enumerate() {
+            q.rays = [1_000, 16_000, 256_000][k];
+            q.seconds *= 3.0;
+        }
+        match rays_crossing(&c, 0.01) {
+            Some(Crossing::At(r)) => assert!((r - 1e5).abs() < 1e-6, "{r}"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(
+            median_rays_crossing(&[c.to_vec()], 0.2),
+            Some(Crossing::AtMost(1000.0))
+        );
+        assert_eq!(Crossing::At(2.5e6).rays_cell(), "2.50M");
     }
 
     #[test]

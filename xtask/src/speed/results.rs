@@ -1,7 +1,7 @@
 //! `results.md`: the experiment's report, generated.
 
 use super::measure::{UNSHOT_THRESHOLD, progressive};
-use super::report::{LEVELS, median, median_crossing, rays_per_second};
+use super::report::{LEVELS, median, median_crossing, median_rays_crossing, rays_per_second};
 use super::{Options, SceneResult};
 use std::fmt::Write as _;
 
@@ -82,15 +82,16 @@ pub fn markdown(options: &Options, results: &[SceneResult], minutes: f64) -> Str
          it, median over the seeds. `≤ t`: the first point was already below the level. \
          `~t*`: **not measured**: extrapolated from the curve's last point by \
          `rms_rel ∝ 1/sqrt(t)`. `> t`: not reached, and the curve had stopped falling like \
-         that. Rays/s: of each seed's last point.\n",
+         that. Rays to 2% and 1%: the same in rays cast (millions), which the machine's load \
+         does not disturb. Rays/s: of each seed's last point.\n",
     );
     for r in results {
         let _ = write!(
             md,
             "\n### {} ({} patches)\n\n{}.\n\n\
              ![{name}: rms_rel against seconds](speed-vs-error-{name}.png)\n\n\
-             | method | 5% | 2% | 1% | Mrays/s | last rms_rel |\n\
-             |---|---:|---:|---:|---:|---:|\n",
+             | method | 5% | 2% | 1% | rays to 2% | rays to 1% | Mrays/s | last rms_rel |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|\n",
             r.scene.name,
             r.patches,
             capitalise(r.scene.what),
@@ -101,6 +102,10 @@ pub fn markdown(options: &Options, results: &[SceneResult], minutes: f64) -> Str
                 .iter()
                 .map(|&l| median_crossing(curves, l).map_or("—".into(), |c| c.cell()))
                 .collect();
+            let rays: Vec<String> = [0.02, 0.01]
+                .iter()
+                .map(|&l| median_rays_crossing(curves, l).map_or("—".into(), |c| c.rays_cell()))
+                .collect();
             let mut last: Vec<f64> = curves
                 .iter()
                 .filter_map(|c| c.last())
@@ -108,9 +113,10 @@ pub fn markdown(options: &Options, results: &[SceneResult], minutes: f64) -> Str
                 .collect();
             let _ = writeln!(
                 md,
-                "| `{}` | {} | {:.2} | {:.2}% |",
+                "| `{}` | {} | {} | {:.2} | {:.2}% |",
                 method.name(),
                 cells.join(" | "),
+                rays.join(" | "),
                 rays_per_second(curves) / 1e6,
                 100.0 * median(&mut last)
             );
