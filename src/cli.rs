@@ -153,7 +153,7 @@ pub struct Solve {
     /// Pinhole camera: eye=X,Y,Z,look=X,Y,Z with optional ,up=X,Y,Z and ,fov=DEGREES (vertical
     /// fov, default 40).
     /// Default: the scene file's camera, else one framed automatically.
-    #[arg(long, value_name = "SPEC", value_parser = crate::camera_arg::parse_camera, allow_hyphen_values = true)]
+    #[arg(long, value_name = "SPEC", value_parser = mcrad_render::parse_camera, allow_hyphen_values = true)]
     pub camera: Option<mcrad_render::Camera>,
     /// Image size in pixels.
     #[arg(long, value_name = "WxH", default_value = "512x512", value_parser = parse_size)]

@@ -1,6 +1,5 @@
 //! `mcrad`: stochastic radiosity from the command line. See `mcrad --help` and README.md.
 
-mod camera_arg;
 mod cli;
 mod interrupt;
 mod merge;

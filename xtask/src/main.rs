@@ -5,6 +5,7 @@ mod bake_check;
 mod calibrate;
 mod experiment;
 mod gen_scenes;
+mod path_trace;
 mod regress;
 mod speed;
 mod viewer;
@@ -46,9 +47,13 @@ tasks:
           bakes scenes/cornell-box.gltf (mcrad bake), renders the GLB with three.js in headless
           Chromium (Debian's chromium; npm installs three in xtask/viewer) and compares it with
           mcrad's render of the same solution; --docs updates docs/bake-cornell.png
-  image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]
+  image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png] [--reference-error ERROR.exr]
           img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor
-          have a neighbour that does), and the same over the darkest third of them
+          have a neighbour that does), and the same over the darkest third of them; with the
+          reference's standard error per pixel, its noise is subtracted (sum se^2)
+  path-trace SCENE --camera SPEC --size WxH --spp N [--seed S] --out R.exr [--error E.exr]
+          an independent diffuse path tracer (mcrad_lab::pathtrace): the ground truth of a
+          picture, and its standard error per pixel (R.error.exr)
   gen-references [scene ...]
           reference solutions of the experiment scenes (default: all but cornell-2k)
           into scenes/reference/
@@ -109,30 +114,10 @@ fn run() -> Result<()> {
             viewer::run(&root(), &target_dir().join("release/mcrad"), docs)
         }
         Some("image-error") => {
-            let args: Vec<String> = std::env::args().skip(2).collect();
-            let (image, reference, diff) = match args.as_slice() {
-                [i, r] => (i, r, None),
-                [i, r, d] => (i, r, Some(d)),
-                _ => anyhow::bail!(
-                    "usage: cargo xtask image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png]"
-                ),
-            };
-            let read = |p: &str| mcrad_render::read_exr(std::path::Path::new(p));
-            let (image, reference) = (read(image)?, read(reference)?);
-            let e = mcrad_lab::compare::image_error(&image, &reference, 0.5)?;
-            if let Some(d) = diff {
-                let d_img = mcrad_lab::compare::difference_image(&image, &reference)?;
-                mcrad_render::write_png(
-                    &d_img,
-                    std::path::Path::new(d),
-                    mcrad_render::Exposure::Stops(0.0),
-                )?;
-            }
-            println!(
-                "img_rel {:.4} dark_third {:.4} pixels {}",
-                e.relative, e.dark_third, e.pixels
-            );
-            Ok(())
+            path_trace::run_image_error(&std::env::args().skip(2).collect::<Vec<_>>())
+        }
+        Some("path-trace") => {
+            path_trace::run_path_trace(&std::env::args().skip(2).collect::<Vec<_>>())
         }
         Some("gen-references") => {
             let names: Vec<String> = std::env::args().skip(2).collect();

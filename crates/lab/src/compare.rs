@@ -188,6 +188,32 @@ pub fn image_error(
     reference: &Image,
     emitter_fraction: f32,
 ) -> Result<ImageError, CompareError> {
+    image_error_against_noisy(actual, reference, None, emitter_fraction)
+}
+
+/// [`image_error`] against a reference that is itself an estimate with standard error
+/// `reference_error` per pixel and channel (a path-traced picture,
+/// [`pathtrace`](crate::pathtrace)): the reference's own noise adds `sum σ²` to
+/// `sum (I - R)²` on average, so it is subtracted,
+///
+/// `img_rel = sqrt( max(0, sum (I - R)² - sum σ²) / sum R² )`,
+///
+/// an estimate of the error against the noiseless picture (`sum R²` keeps its own tiny bias
+/// `sum σ²`, which is subtracted too). Without `reference_error` this is [`image_error`].
+pub fn image_error_against_noisy(
+    actual: &Image,
+    reference: &Image,
+    reference_error: Option<&Image>,
+    emitter_fraction: f32,
+) -> Result<ImageError, CompareError> {
+    if let Some(e) = reference_error
+        && (e.width, e.height) != (reference.width, reference.height)
+    {
+        return Err(CompareError::SizeMismatch {
+            a: (e.width, e.height),
+            b: (reference.width, reference.height),
+        });
+    }
     if (actual.width, actual.height) != (reference.width, reference.height) {
         return Err(CompareError::SizeMismatch {
             a: (actual.width, actual.height),
@@ -216,10 +242,15 @@ pub fn image_error(
         let (mut num, mut den) = (0.0f64, 0.0f64);
         for &i in pixels {
             let (a, r) = (actual.pixels[i].as_dvec3(), reference.pixels[i].as_dvec3());
-            num += (a - r).length_squared();
-            den += r.length_squared();
+            let noise = reference_error.map_or(0.0, |e| e.pixels[i].as_dvec3().length_squared());
+            num += (a - r).length_squared() - noise;
+            den += r.length_squared() - noise;
         }
-        if den > 0.0 { (num / den).sqrt() } else { 0.0 }
+        if den > 0.0 {
+            (num.max(0.0) / den).sqrt()
+        } else {
+            0.0
+        }
     };
     let relative = error(&kept);
     let mut by_luminance = kept.clone();
@@ -269,5 +300,45 @@ mod image_error_tests {
             image_error(&reference, &reference, 0.5).unwrap().relative,
             0.0
         );
+    }
+
+    #[test]
+    fn the_noise_of_a_path_traced_reference_is_subtracted() {
+        // A flat truth T = 1; the reference is T plus noise of standard deviation 0.05 per
+        // pixel and channel (alternating signs, exactly ±0.05), the render is
+        // T * 1.02. Against the noisy reference the plain error is sqrt(0.02² + 0.05²) = 5.4%;
+        // told the reference's standard error, 2%.
+        let (w, h) = (40, 40);
+        let truth = Vec3::ONE;
+        let sign = |i: usize, c: usize| if (i + c).is_multiple_of(2) { 1.0 } else { -1.0 };
+        let reference = Image {
+            width: w,
+            height: h,
+            pixels: (0..(w * h) as usize)
+                .map(|i| truth + 0.05 * Vec3::new(sign(i, 0), sign(i, 1), sign(i, 2)))
+                .collect(),
+        };
+        let noise = Image {
+            width: w,
+            height: h,
+            pixels: vec![Vec3::splat(0.05); (w * h) as usize],
+        };
+        let render = Image {
+            width: w,
+            height: h,
+            pixels: vec![truth * 1.02; (w * h) as usize],
+        };
+        let plain = image_error(&render, &reference, 2.0).unwrap().relative;
+        let fair = image_error_against_noisy(&render, &reference, Some(&noise), 2.0)
+            .unwrap()
+            .relative;
+        assert!((plain - 0.054).abs() < 0.003, "{plain}");
+        assert!((fair - 0.02).abs() < 0.002, "{fair}");
+        let small = Image {
+            width: 2,
+            height: 2,
+            pixels: vec![Vec3::ONE; 4],
+        };
+        assert!(image_error_against_noisy(&render, &reference, Some(&small), 2.0).is_err());
     }
 }

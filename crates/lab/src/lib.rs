@@ -6,6 +6,8 @@
 //!   of a run;
 //! - [`compare`]: golden-image comparison of two renders tile by tile, and the image error of
 //!   a render against a converged picture ([`compare::image_error`]);
+//! - [`pathtrace`]: an independent diffuse path tracer, the ground truth of pictures, with a
+//!   standard error per pixel;
 //! - [`recipe`]: the golden-image recipes `scenes/golden/<name>.json`;
 //! - `plot` (cargo feature `plot`): line plots as PNG with an embedded font.
 //!
@@ -13,6 +15,7 @@
 //! without the `plot` feature, so it does not link plotters.
 
 pub mod compare;
+pub mod pathtrace;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod recipe;

@@ -36,6 +36,7 @@
 //! ```
 
 mod camera;
+mod camera_spec;
 mod frame;
 mod image;
 mod jitter;
@@ -53,6 +54,7 @@ use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 
 pub use self::camera::{Camera, CameraError};
+pub use self::camera_spec::{CameraSpecError, parse_camera};
 pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
 pub use self::image::{Image, ImageError, ImageReadError, read_exr, write_exr, write_png};
 pub use self::shade::{Shading, interpolate};

@@ -1,11 +1,21 @@
-//! `--camera eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES]`, parsed into the renderer's camera.
+//! A camera written as text, `eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES]` (the command
+//! line's `--camera`, the xtask path tracer's).
 
+use crate::Camera;
 use glam::Vec3;
-use mcrad_render::Camera;
 
-/// Parses the `--camera` value into a [`Camera`] (scene units). `up` defaults to +y and `fov`
-/// (vertical, degrees) to 40.
-pub fn parse_camera(s: &str) -> Result<Camera, String> {
+/// Why a camera specification does not parse: the message says which key and why.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct CameraSpecError(String);
+
+/// Parses `eye=X,Y,Z,look=X,Y,Z[,up=X,Y,Z][,fov=DEGREES]` into a [`Camera`] (scene units). `up`
+/// defaults to +y and `fov` (vertical, degrees) to 40; keys in any order, case-insensitive.
+pub fn parse_camera(s: &str) -> Result<Camera, CameraSpecError> {
+    parse(s).map_err(CameraSpecError)
+}
+
+fn parse(s: &str) -> Result<Camera, String> {
     let mut fields: Vec<(String, Vec<f32>)> = Vec::new();
     for token in s.split(',').map(str::trim) {
         let value = match token.split_once('=') {

@@ -1,0 +1,440 @@
+//! A ground truth for pictures (issue 15, item 4): an independent diffuse path tracer.
+//!
+//! It shares nothing with the radiosity solver but the scene's data (the mesh's patches, their
+//! reflectance `rho` and emission `E`, W/m²) and the ray caster: no form factor, no radiosity
+//! estimate, no mesh resolution. Every surface is one-sided and Lambertian: its front emits
+//! radiance `E / π` (W/(m² sr)) and reflects with the BRDF `rho / π`; a back face absorbs.
+//!
+//! Pixel `(x, y)` of a `width × height` image is the mean over its box (uniform points of the
+//! pixel's square) of the radiance `L` arriving at the eye, estimated by paths: at each vertex
+//! the emitted radiance seen (from the camera: all of it; after a bounce: weighted by the
+//! balance heuristic against light sampling), plus one light sample (an emitter triangle drawn
+//! in proportion to its power `|E| A`, a uniform point `y` on it, a shadow ray), then a
+//! cosine-distributed bounce with throughput `rho` and, from the fourth vertex on, Russian
+//! roulette with survival probability `max_c rho_c` (throughput divided by it: unbiased). With
+//! `p_L = (|E_y| / sum_k |E_k| A_k) r² / cos θ_y` and `p_C = cos θ_x / π` the densities of a
+//! direction per steradian, the light sample scores `T rho (E_y / π) cos θ_x / (π (p_L + p_C))`
+//! and an emitter hit after a bounce `T (E / π) p_C / (p_C + p_L)`.
+//!
+//! The standard error of a pixel is the sample standard deviation of its paths over
+//! `sqrt(samples)`: what the image error subtracts to judge a render against this picture
+//! ([`compare::image_error_against_noisy`](crate::compare::image_error_against_noisy)).
+//!
+//! Randomness: pixel `p` draws from `Stream::new(seed, 0, p, PATH_TAG)`, so the picture depends
+//! on the seed only, not on the thread count.
+
+use glam::{DVec3, Vec2, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_random::Stream;
+use mcrad_raycast::{Ray, RayCaster, SurfacePoint};
+use mcrad_render::{Camera, Image};
+use rayon::prelude::*;
+use std::f64::consts::FRAC_1_PI;
+
+/// The sub-stream tag of the path tracer's streams.
+const PATH_TAG: u64 = 0x7061_7468;
+
+/// Vertices a path always keeps before Russian roulette may end it.
+const ROULETTE_AFTER: u32 = 3;
+
+/// Settings of [`path_trace`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PathTraceOptions {
+    /// Image width, pixels (`> 0`).
+    pub width: u32,
+    /// Image height, pixels (`> 0`).
+    pub height: u32,
+    /// Paths per pixel (`>= 2`, so that each pixel has a standard error).
+    pub samples_per_pixel: u32,
+    /// The seed of every random stream.
+    pub seed: u64,
+}
+
+/// What [`path_trace`] returns.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathTraced {
+    /// Mean radiance per pixel, W/(m² sr), linear RGB.
+    pub radiance: Image,
+    /// Standard error of each pixel's mean, W/(m² sr) per channel.
+    pub standard_error: Image,
+    /// Rays cast (camera, bounce and shadow rays).
+    pub rays: u64,
+}
+
+/// Why [`path_trace`] cannot run.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PathTraceError {
+    /// The image has no pixels.
+    #[error("the image must have at least one pixel, got {width} x {height}")]
+    EmptyImage {
+        /// Width asked.
+        width: u32,
+        /// Height asked.
+        height: u32,
+    },
+    /// Fewer than two paths per pixel leave no standard error.
+    #[error("at least 2 paths per pixel are needed for a standard error, got {0}")]
+    TooFewSamples(u32),
+}
+
+/// The scene as the path tracer sees it.
+struct Scene<'a> {
+    mesh: &'a Mesh,
+    /// Emitter triangles: (triangle, cumulative power share up to and including it).
+    emitters: Vec<(usize, f64)>,
+    triangles: Vec<[Vec3; 3]>,
+    /// `sum_k |E_k| A_k` over the emitters, W/m² · units² (channel sums).
+    power: f64,
+}
+
+impl<'a> Scene<'a> {
+    fn new(mesh: &'a Mesh) -> Scene<'a> {
+        let triangles = mesh.triangle_positions();
+        let patches = mesh.patches();
+        let mut emitters = Vec::new();
+        let mut power = 0.0;
+        for (t, (tri, &p)) in triangles.iter().zip(mesh.triangle_patch()).enumerate() {
+            let e = channel_sum(patches[p as usize].emission.as_dvec3());
+            let area = triangle_area(tri);
+            if e > 0.0 && area > 0.0 {
+                power += e * area;
+                emitters.push((t, power));
+            }
+        }
+        for e in &mut emitters {
+            e.1 /= power;
+        }
+        Scene {
+            mesh,
+            emitters,
+            triangles,
+            power,
+        }
+    }
+
+    /// Light sampling's density per unit area at a point of patch `p`: `|E_p| / sum |E| A`.
+    fn area_density(&self, p: usize) -> f64 {
+        if self.power > 0.0 {
+            channel_sum(self.mesh.patches()[p].emission.as_dvec3()) / self.power
+        } else {
+            0.0
+        }
+    }
+
+    /// A point of an emitter triangle drawn in proportion to power, and its patch; `None`
+    /// without emitters.
+    fn sample_light(&self, rng: &mut Stream) -> Option<(Vec3, usize)> {
+        let u = rng.uniform_f64();
+        let k = self
+            .emitters
+            .partition_point(|&(_, c)| c < u)
+            .min(self.emitters.len().checked_sub(1)?);
+        let t = self.emitters[k].0;
+        let [a, b, c] = self.triangles[t];
+        let (s, r) = (rng.uniform().sqrt(), rng.uniform());
+        let point = a * (1.0 - s) + b * (s * (1.0 - r)) + c * (s * r);
+        Some((point, self.mesh.triangle_patch()[t] as usize))
+    }
+}
+
+fn channel_sum(v: DVec3) -> f64 {
+    v.x + v.y + v.z
+}
+
+fn triangle_area(t: &[Vec3; 3]) -> f64 {
+    0.5 * (t[1] - t[0])
+        .as_dvec3()
+        .cross((t[2] - t[0]).as_dvec3())
+        .length()
+}
+
+/// A cosine-distributed unit direction about `n` (Malley: a uniform disc point lifted).
+fn cosine_direction(n: Vec3, rng: &mut Stream) -> Vec3 {
+    let (u, v) = (rng.uniform_f64(), rng.uniform_f64());
+    let r = u.sqrt();
+    let phi = 2.0 * std::f64::consts::PI * v;
+    let local = DVec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u).max(0.0).sqrt());
+    let n = n.as_dvec3();
+    let a = if n.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
+    let t = n.cross(a).normalize();
+    let b = n.cross(t);
+    (t * local.x + b * local.y + n * local.z)
+        .normalize()
+        .as_vec3()
+}
+
+/// Renders `mesh` as seen by `camera` (in the mesh's local frame: translate a world camera by
+/// [`Mesh::origin`] with [`Camera::translated`]) by diffuse path tracing (see the
+/// [module documentation](self)), each pixel the mean of `samples_per_pixel` paths through
+/// uniform points of its square.
+///
+/// Errors: an empty image, or fewer than 2 paths per pixel.
+pub fn path_trace<C: RayCaster + Sync>(
+    mesh: &Mesh,
+    caster: &C,
+    camera: &Camera,
+    options: &PathTraceOptions,
+) -> Result<PathTraced, PathTraceError> {
+    let (w, h) = (options.width, options.height);
+    if w == 0 || h == 0 {
+        return Err(PathTraceError::EmptyImage {
+            width: w,
+            height: h,
+        });
+    }
+    if options.samples_per_pixel < 2 {
+        return Err(PathTraceError::TooFewSamples(options.samples_per_pixel));
+    }
+    let scene = Scene::new(mesh);
+    let n = options.samples_per_pixel as f64;
+    let pixels: Vec<(Vec3, Vec3, u64)> = (0..u64::from(w) * u64::from(h))
+        .into_par_iter()
+        .map(|p| {
+            let mut rng = Stream::new(options.seed, 0, p, PATH_TAG);
+            let (x, y) = ((p % u64::from(w)) as f32, (p / u64::from(w)) as f32);
+            let (mut sum, mut sum2, mut rays) = (DVec3::ZERO, DVec3::ZERO, 0);
+            for _ in 0..options.samples_per_pixel {
+                let pixel = Vec2::new(x + rng.uniform(), y + rng.uniform());
+                let l = radiance(&scene, caster, camera.ray(pixel, w, h), &mut rng, &mut rays);
+                sum += l;
+                sum2 += l * l;
+            }
+            let mean = sum / n;
+            let variance = ((sum2 - sum * mean) / (n - 1.0)).max(DVec3::ZERO);
+            (mean.as_vec3(), (variance / n).sqrt().as_vec3(), rays)
+        })
+        .collect();
+    let image = |f: fn(&(Vec3, Vec3, u64)) -> Vec3| Image {
+        width: w,
+        height: h,
+        pixels: pixels.iter().map(f).collect(),
+    };
+    Ok(PathTraced {
+        radiance: image(|p| p.0),
+        standard_error: image(|p| p.1),
+        rays: pixels.iter().map(|p| p.2).sum(),
+    })
+}
+
+/// One path's estimate of the radiance arriving along `ray` (W/(m² sr) per channel).
+fn radiance<C: RayCaster>(
+    scene: &Scene,
+    caster: &C,
+    mut ray: Ray,
+    rng: &mut Stream,
+    rays: &mut u64,
+) -> DVec3 {
+    let patches = scene.mesh.patches();
+    let mut throughput = DVec3::ONE;
+    let mut radiance = DVec3::ZERO;
+    // The cosine density (per steradian) of the bounce that made `ray`; `None` for the camera.
+    let mut bounce_pdf: Option<f64> = None;
+    for vertex in 0.. {
+        *rays += 1;
+        let Some(hit) = caster.closest_hit(&ray) else {
+            break;
+        };
+        if !hit.front {
+            break;
+        }
+        let i = hit.id as usize;
+        let patch = &patches[i];
+        let (x, nx) = (hit.point, patch.normal);
+        let e = patch.emission.as_dvec3();
+        if channel_sum(e) > 0.0 {
+            let weight = match bounce_pdf {
+                None => 1.0,
+                Some(p_c) => {
+                    let d = (x - ray.origin).as_dvec3();
+                    let cos_y = -ray.dir.as_dvec3().dot(nx.as_dvec3());
+                    let p_l = scene.area_density(i) * d.length_squared() / cos_y.max(1e-12);
+                    p_c / (p_c + p_l)
+                }
+            };
+            radiance += throughput * e * FRAC_1_PI * weight;
+        }
+        let rho = patch.reflectance.as_dvec3();
+        if rho.max_element() <= 0.0 {
+            break;
+        }
+        // Light sampling.
+        if let Some((y, j)) = scene.sample_light(rng).filter(|&(_, j)| j != i) {
+            let d = (y - x).as_dvec3();
+            let r2 = d.length_squared();
+            let ny = patches[j].normal.as_dvec3();
+            let (cos_x, cos_y) = if r2 > 0.0 {
+                let r = r2.sqrt();
+                (nx.as_dvec3().dot(d) / r, -ny.dot(d) / r)
+            } else {
+                (0.0, 0.0)
+            };
+            if cos_x > 0.0 && cos_y > 0.0 {
+                *rays += 1;
+                let blocked = caster.occluded(
+                    &SurfacePoint::new(x, nx, i as u32),
+                    &SurfacePoint::new(y, patches[j].normal, j as u32),
+                );
+                if !blocked {
+                    let p_l = scene.area_density(j) * r2 / cos_y;
+                    let p_c = cos_x * FRAC_1_PI;
+                    let e_y = patches[j].emission.as_dvec3();
+                    radiance +=
+                        throughput * rho * e_y * (FRAC_1_PI * FRAC_1_PI * cos_x / (p_l + p_c));
+                }
+            }
+        }
+        // The bounce: BRDF rho/π times cos over the cosine density cos/π is rho.
+        let mut survive = 1.0;
+        if vertex >= ROULETTE_AFTER {
+            survive = rho.max_element().min(1.0);
+            if rng.uniform_f64() >= survive {
+                break;
+            }
+        }
+        throughput *= rho / survive;
+        let dir = cosine_direction(nx, rng);
+        bounce_pdf = Some(dir.as_dvec3().dot(nx.as_dvec3()).max(0.0) * FRAC_1_PI);
+        ray = Ray::from_surface(x, nx, dir, i as u32);
+    }
+    radiance
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+    use mcrad_meshing::Subdivision;
+    use mcrad_raycast::Bvh;
+    use mcrad_scene_io::{Face, Material, Scene as Input};
+
+    /// A closed box of side 2 centred at the origin, inward faces, every face emitting `e` with
+    /// reflectance `rho`; `light_only` makes only the ceiling emit (and reflect nothing).
+    fn furnace(rho: f32, e: f32) -> Mesh {
+        let positions: Vec<Vec3> = (0..8)
+            .map(|k| {
+                Vec3::new(
+                    if k & 1 == 0 { -1.0 } else { 1.0 },
+                    if k & 2 == 0 { -1.0 } else { 1.0 },
+                    if k & 4 == 0 { -1.0 } else { 1.0 },
+                )
+            })
+            .collect();
+        // Counter-clockwise seen from inside the box.
+        let quads = [
+            [0, 1, 3, 2],
+            [4, 6, 7, 5],
+            [0, 4, 5, 1],
+            [2, 3, 7, 6],
+            [0, 2, 6, 4],
+            [1, 5, 7, 3],
+        ];
+        let faces = quads
+            .iter()
+            .enumerate()
+            .map(|(k, q)| Face {
+                vertices: q.to_vec(),
+                material: 0,
+                source: k as u32,
+            })
+            .collect();
+        let material = Material {
+            name: "m".into(),
+            reflectance: Vec3::splat(rho),
+            emission: Vec3::splat(e),
+        };
+        let scene = Input::new(positions, faces, vec![material]).unwrap().0;
+        Mesh::build(&scene, Subdivision::None).unwrap()
+    }
+
+    fn render(mesh: &Mesh, spp: u32, seed: u64) -> PathTraced {
+        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+        let camera = Camera::look_at(
+            Vec3::new(0.1, 0.2, 0.5),
+            Vec3::new(0.3, -0.2, -1.0),
+            Vec3::Y,
+            70.0,
+        )
+        .unwrap();
+        let options = PathTraceOptions {
+            width: 16,
+            height: 12,
+            samples_per_pixel: spp,
+            seed,
+        };
+        path_trace(mesh, &bvh, &camera, &options).unwrap()
+    }
+
+    #[test]
+    fn the_furnace_shows_its_exact_radiance_within_its_standard_errors() {
+        // Every face emits E = 1 and reflects rho = 0.5 (and 0.9): L = E / (π (1 - rho))
+        // everywhere. Per pixel and channel z = (L - exact) / SE: the mean of z² over 576
+        // values within [0.7, 1.4] (about 6 standard deviations of it when calibrated), and the
+        // image mean within 4.5 standard errors (false failures below 1e-4).
+        for rho in [0.5f32, 0.9] {
+            let mesh = furnace(rho, 1.0);
+            let exact = FRAC_1_PI / (1.0 - rho as f64);
+            let picture = render(&mesh, 64, 1);
+            let (mut z2, mut sum, mut var) = (0.0, 0.0, 0.0);
+            let values = picture.radiance.pixels.len() * 3;
+            for (l, se) in picture
+                .radiance
+                .pixels
+                .iter()
+                .zip(&picture.standard_error.pixels)
+            {
+                for c in 0..3 {
+                    let (l, se) = (l[c] as f64, se[c] as f64);
+                    assert!(se > 0.0, "a pixel without spread");
+                    z2 += ((l - exact) / se).powi(2);
+                    sum += l;
+                    var += se * se;
+                }
+            }
+            let mean_z2 = z2 / values as f64;
+            assert!(
+                (0.7..=1.4).contains(&mean_z2),
+                "rho {rho}: mean z² {mean_z2:.3}"
+            );
+            let mean = sum / values as f64;
+            let se = var.sqrt() / values as f64;
+            assert!(
+                (mean - exact).abs() <= 4.5 * se,
+                "rho {rho}: mean {mean:.5} against {exact:.5} ({:.1} SE)",
+                (mean - exact).abs() / se
+            );
+        }
+    }
+
+    #[test]
+    fn same_seed_same_picture_and_two_seeds_differ_within_their_errors() {
+        let mesh = furnace(0.5, 1.0);
+        let a = render(&mesh, 8, 3);
+        assert_eq!(a, render(&mesh, 8, 3));
+        let b = render(&mesh, 8, 4);
+        assert_ne!(a.radiance, b.radiance);
+    }
+
+    #[test]
+    fn bad_options_are_errors() {
+        let mesh = furnace(0.5, 1.0);
+        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+        let camera = Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 60.0).unwrap();
+        let options = |width, height, samples_per_pixel| PathTraceOptions {
+            width,
+            height,
+            samples_per_pixel,
+            seed: 0,
+        };
+        assert_eq!(
+            path_trace(&mesh, &bvh, &camera, &options(0, 4, 4)),
+            Err(PathTraceError::EmptyImage {
+                width: 0,
+                height: 4
+            })
+        );
+        assert_eq!(
+            path_trace(&mesh, &bvh, &camera, &options(4, 4, 1)),
+            Err(PathTraceError::TooFewSamples(1))
+        );
+    }
+}
