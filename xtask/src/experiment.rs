@@ -53,8 +53,10 @@ const SEEDS: u64 = 5;
 pub fn run(root: &Path, name: Option<&str>) -> Result<()> {
     match name {
         Some("figure2") => figure2(root),
-        Some(other) => bail!("unknown experiment '{other}' (known: figure2, speed-vs-error)"),
-        None => bail!("name an experiment (known: figure2, speed-vs-error)"),
+        Some(other) => {
+            bail!("unknown experiment '{other}' (known: figure2, speed-vs-error, meshing)")
+        }
+        None => bail!("name an experiment (known: figure2, speed-vs-error, meshing)"),
     }
 }
 

@@ -5,6 +5,7 @@ mod bake_check;
 mod calibrate;
 mod experiment;
 mod gen_scenes;
+mod meshing_exp;
 mod path_trace;
 mod regress;
 mod speed;
@@ -34,6 +35,11 @@ tasks:
           every method on every experiment scene, error against time; writes
           docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
           (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)
+  experiment meshing [--quick] [--scenes cornell,table-room,boxes-room] [--times 2.5,5,10]
+                     [--spp N] [--out DIR]
+          uniform meshes of several sizes against adaptive, image error against a path-traced
+          ground truth and per-face rms_rel, against --time; writes
+          docs/meshing-experiment.md, .csv and a plot per scene (caches in target/meshing/)
   calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
           every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z²,
           spread/reported variance, power bias, budget use; writes docs/calibration.md
@@ -98,6 +104,11 @@ fn run() -> Result<()> {
         Some("experiment") if std::env::args().nth(2).as_deref() == Some("speed-vs-error") => {
             let args: Vec<String> = std::env::args().skip(3).collect();
             speed::run(&root(), &args)
+        }
+        Some("experiment") if std::env::args().nth(2).as_deref() == Some("meshing") => {
+            cargo(&["build", "--release", "--bin", "mcrad"])?;
+            let args: Vec<String> = std::env::args().skip(3).collect();
+            meshing_exp::run(&root(), &target_dir().join("release/mcrad"), &args)
         }
         Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
         Some("calibrate") => calibrate::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>()),

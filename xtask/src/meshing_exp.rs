@@ -1,0 +1,418 @@
+//! `cargo xtask experiment meshing` (issue 15, item 5): image error and per-face `rms_rel`
+//! against time, uniform meshes of several sizes against adaptive meshing, judged against an
+//! independent ground truth.
+//!
+//! Per scene: the ground-truth picture by the path tracer (`mcrad_lab::pathtrace`, cached in
+//! `target/meshing/`), the per-face reference (the area-weighted face means of a long run on a
+//! fine uniform mesh, cached too), then `mcrad solve` with `--time T` for every mesh setting
+//! and time; each run's picture is scored by `image_error_against_noisy` (the ground truth's
+//! own noise subtracted) and its `--per-face` CSV by `rms_rel` against the per-face reference.
+//! Writes `docs/meshing-experiment.md`, a CSV of the points and one plot per scene.
+
+use anyhow::{Context, Result, bail};
+use mcrad_lab::plot::{PlotSpec, Series, line_plot};
+use mcrad_meshing::{Mesh, Subdivision};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// One scene of the experiment.
+struct ExpScene {
+    name: &'static str,
+    file: &'static str,
+    what: &'static str,
+    camera: &'static str,
+    size: (u32, u32),
+    /// Uniform `--max-edge` values compared (besides the default).
+    uniform: &'static [f32],
+    /// The fine uniform mesh and rays of the per-face reference.
+    reference: (f32, &'static str),
+}
+
+const SCENES: [ExpScene; 3] = [
+    ExpScene {
+        name: "cornell",
+        file: "scenes/cornell-box.obj",
+        what: "the Cornell box with its two blocks",
+        camera: "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
+        size: (256, 256),
+        uniform: &[0.02, 0.01],
+        reference: (0.01, "1e8"),
+    },
+    ExpScene {
+        name: "table-room",
+        file: "scenes/table-room.obj",
+        what: "a 5 x 2.6 x 4 m room of one quad per wall, a table, a cabinet and a 0.4 m light",
+        camera: "eye=4.8,1.8,3.9,look=1.6,0.4,0.8,fov=65",
+        size: (320, 240),
+        uniform: &[0.15, 0.07],
+        reference: (0.05, "1e8"),
+    },
+    ExpScene {
+        name: "boxes-room",
+        file: "scenes/boxes-room.obj",
+        what: "a 5 x 2.6 x 4 m room of boxes (cargo xtask gen-scenes)",
+        camera: "eye=4.8,2.2,3.9,look=1.5,0.3,0.8,fov=65",
+        size: (320, 240),
+        uniform: &[0.15, 0.07],
+        reference: (0.05, "1e8"),
+    },
+];
+
+/// The experiment's settings.
+struct Options {
+    scenes: Vec<&'static ExpScene>,
+    times: Vec<f64>,
+    spp: u32,
+    out: PathBuf,
+}
+
+impl Options {
+    fn parse(root: &Path, args: &[String]) -> Result<Options> {
+        let quick = args.iter().any(|a| a == "--quick");
+        let mut o = Options {
+            scenes: SCENES.iter().collect(),
+            times: if quick {
+                vec![1.0]
+            } else {
+                vec![2.5, 5.0, 10.0]
+            },
+            spp: if quick { 16 } else { 1024 },
+            out: root.join("docs"),
+        };
+        let mut it = args.iter();
+        while let Some(a) = it.next() {
+            let mut value = || it.next().context("an option needs a value");
+            match a.as_str() {
+                "--quick" => {}
+                "--scenes" => {
+                    let names = value()?;
+                    o.scenes = names
+                        .split(',')
+                        .map(|n| {
+                            SCENES
+                                .iter()
+                                .find(|s| s.name == n)
+                                .with_context(|| format!("unknown scene '{n}'"))
+                        })
+                        .collect::<Result<_>>()?;
+                }
+                "--times" => {
+                    o.times = value()?
+                        .split(',')
+                        .map(|t| {
+                            t.parse::<f64>()
+                                .context("--times takes seconds, e.g. 2.5,5,10")
+                        })
+                        .collect::<Result<_>>()?;
+                }
+                "--spp" => o.spp = value()?.parse()?,
+                "--out" => o.out = root.join(value()?),
+                other => bail!(
+                    "unknown option '{other}' (--quick, --scenes a,b, --times 2.5,5, --spp N, \
+                     --out DIR)"
+                ),
+            }
+        }
+        Ok(o)
+    }
+}
+
+/// One measured run.
+struct Point {
+    mesh: String,
+    seconds_asked: f64,
+    patches: u64,
+    rays: u64,
+    image: f64,
+    dark_third: f64,
+    per_face: f64,
+}
+
+/// Runs the experiment (see the module documentation).
+pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
+    let options = Options::parse(root, args)?;
+    let work = super::target_dir().join("meshing");
+    std::fs::create_dir_all(&work)?;
+    std::fs::create_dir_all(&options.out)?;
+    let mut md = String::new();
+    let mut csv = String::from("scene,mesh,seconds,patches,rays,img_rel,dark_third,face_rms_rel\n");
+    let _ = write!(
+        md,
+        "# Adaptive against uniform meshes, against an independent ground truth\n\n\
+         *Generated by `cargo xtask experiment meshing` (xtask/src/meshing_exp.rs); rerun it \
+         rather than editing this file.*\n\n\
+         Per scene: `mcrad solve SCENE --time T` (method `combined`, seed 0, all cores) with the \
+         default uniform mesh, finer uniform meshes (`--max-edge`) and `--mesh adaptive`; \
+         **image error**: the render (`--camera`, 16 samples per pixel) against a path-traced \
+         picture of {} paths per pixel (`cargo xtask path-trace`), its own noise subtracted \
+         (`image-error --reference-error`), over the pixels that see no emitter, and over the \
+         darkest third of them; **per-face rms_rel**: the `--per-face` means against those of a \
+         long run on a fine uniform mesh (issue 15's measure of the per-face average). Times \
+         are wall-clock on this machine, from the start of loading (`--time`).\n",
+        options.spp
+    );
+    for scene in &options.scenes {
+        eprintln!("meshing experiment: {}", scene.name);
+        let truth = ground_truth(root, &work, scene, options.spp)?;
+        let reference = face_reference(root, mcrad, &work, scene)?;
+        let mut meshes: Vec<(String, Vec<String>)> = vec![("uniform default".into(), vec![])];
+        for e in scene.uniform {
+            meshes.push((
+                format!("uniform {e}"),
+                vec!["--max-edge".into(), e.to_string()],
+            ));
+        }
+        meshes.push(("adaptive".into(), vec!["--mesh".into(), "adaptive".into()]));
+        let mut points = Vec::new();
+        for (label, extra) in &meshes {
+            for &t in &options.times {
+                let p = measure(
+                    root, mcrad, &work, scene, label, extra, t, &truth, &reference,
+                )?;
+                let _ = writeln!(
+                    csv,
+                    "{},{},{},{},{},{:.6},{:.6},{:.6}",
+                    scene.name, p.mesh, t, p.patches, p.rays, p.image, p.dark_third, p.per_face
+                );
+                points.push(p);
+            }
+        }
+        let _ = write!(
+            md,
+            "\n## {} ({})\n\nCamera `{}`, {} x {} pixels; per-face reference: `--max-edge {}`, \
+             {} rays.\n\n![{}: image error against seconds](meshing-experiment-{}.png)\n\n\
+             | mesh | `--time` (s) | patches | rays | image error | dark third | per-face rms_rel |\n\
+             |---|---:|---:|---:|---:|---:|---:|\n",
+            scene.name,
+            scene.what,
+            scene.camera,
+            scene.size.0,
+            scene.size.1,
+            scene.reference.0,
+            scene.reference.1,
+            scene.name,
+            scene.name
+        );
+        for p in &points {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.2e} | {:.2}% | {:.2}% | {:.2}% |",
+                p.mesh,
+                p.seconds_asked,
+                p.patches,
+                p.rays as f64,
+                100.0 * p.image,
+                100.0 * p.dark_third,
+                100.0 * p.per_face
+            );
+        }
+        let series = meshes
+            .iter()
+            .map(|(label, _)| Series {
+                name: label.clone(),
+                points: points
+                    .iter()
+                    .filter(|p| &p.mesh == label && p.image > 0.0)
+                    .map(|p| (p.seconds_asked, 100.0 * p.image))
+                    .collect(),
+                band: None,
+            })
+            .collect();
+        line_plot(
+            &options
+                .out
+                .join(format!("meshing-experiment-{}.png", scene.name)),
+            &PlotSpec {
+                title: format!("{}: image error against time", scene.name),
+                x_label: "--time (s)".into(),
+                y_label: "image error (%)".into(),
+                log_x: true,
+                log_y: true,
+                series,
+            },
+        )?;
+    }
+    std::fs::write(options.out.join("meshing-experiment.md"), md)?;
+    std::fs::write(options.out.join("meshing-experiment.csv"), csv)?;
+    eprintln!(
+        "wrote {}",
+        options.out.join("meshing-experiment.md").display()
+    );
+    Ok(())
+}
+
+/// The path-traced picture and its standard error, rendered once per `spp` and cached.
+fn ground_truth(
+    root: &Path,
+    work: &Path,
+    scene: &ExpScene,
+    spp: u32,
+) -> Result<(mcrad_render::Image, mcrad_render::Image)> {
+    let picture = work.join(format!("{}-truth-{spp}.exr", scene.name));
+    let error = work.join(format!("{}-truth-{spp}.error.exr", scene.name));
+    if !(picture.is_file() && error.is_file()) {
+        let size = format!("{}x{}", scene.size.0, scene.size.1);
+        super::path_trace::run_path_trace(&[
+            root.join(scene.file).display().to_string(),
+            "--camera".into(),
+            scene.camera.into(),
+            "--size".into(),
+            size,
+            "--spp".into(),
+            spp.to_string(),
+            "--out".into(),
+            picture.display().to_string(),
+            "--error".into(),
+            error.display().to_string(),
+        ])?;
+    }
+    Ok((
+        mcrad_render::read_exr(&picture)?,
+        mcrad_render::read_exr(&error)?,
+    ))
+}
+
+/// The per-face reference: face means (W/m²) of a long run on a fine uniform mesh, with each
+/// face's area and emission, in face order; cached.
+fn face_reference(root: &Path, mcrad: &Path, work: &Path, scene: &ExpScene) -> Result<FaceValues> {
+    let (edge, rays) = scene.reference;
+    let csv = work.join(format!("{}-faces-{edge}-{rays}.csv", scene.name));
+    if !csv.is_file() {
+        solve(
+            mcrad,
+            &root.join(scene.file),
+            &[
+                "--max-edge".into(),
+                edge.to_string(),
+                "--rays".into(),
+                rays.into(),
+                "--patches".into(),
+                csv.display().to_string(),
+                "--per-face".into(),
+            ],
+        )?;
+    }
+    face_values(root, scene, &csv)
+}
+
+/// Face means of a `--per-face` CSV with each face's area and emission.
+struct FaceValues {
+    area: Vec<f64>,
+    emission: Vec<glam::DVec3>,
+    values: Vec<glam::DVec3>,
+}
+
+fn face_values(root: &Path, scene: &ExpScene, csv: &Path) -> Result<FaceValues> {
+    let rows = mcrad_export::read_patch_csv(csv)?;
+    let loaded = mcrad_scene_io::load(&root.join(scene.file))?;
+    let faces = Mesh::build(&loaded.scene, Subdivision::None)?;
+    let mut emission = vec![glam::DVec3::ZERO; rows.len()];
+    for p in faces.patches() {
+        if let Some(e) = emission.get_mut(p.face as usize) {
+            *e = p.emission.as_dvec3();
+        }
+    }
+    if rows.iter().enumerate().any(|(k, r)| r.patch as usize != k) {
+        bail!("{}: the faces are not numbered in order", csv.display());
+    }
+    Ok(FaceValues {
+        area: rows.iter().map(|r| r.area).collect(),
+        emission,
+        values: rows.iter().map(|r| r.radiosity).collect(),
+    })
+}
+
+/// Runs `mcrad solve SCENE ARGS -q`.
+fn solve(mcrad: &Path, scene: &Path, args: &[String]) -> Result<()> {
+    let status = Command::new(mcrad)
+        .arg("solve")
+        .arg(scene)
+        .args(args)
+        .arg("-q")
+        .status()
+        .context("could not run mcrad")?;
+    if !status.success() {
+        bail!("mcrad solve {} {} failed", scene.display(), args.join(" "));
+    }
+    Ok(())
+}
+
+/// One run: `mcrad solve` with `extra` and `--time seconds`, scored.
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    root: &Path,
+    mcrad: &Path,
+    work: &Path,
+    scene: &ExpScene,
+    label: &str,
+    extra: &[String],
+    seconds: f64,
+    truth: &(mcrad_render::Image, mcrad_render::Image),
+    reference: &FaceValues,
+) -> Result<Point> {
+    let stem = work.join(format!(
+        "{}-{}-{seconds}",
+        scene.name,
+        label.replace(' ', "-")
+    ));
+    let (image, faces, stats) = (
+        stem.with_extension("exr"),
+        stem.with_extension("csv"),
+        stem.with_extension("json"),
+    );
+    let mut args = extra.to_vec();
+    for a in [
+        "--time".to_string(),
+        seconds.to_string(),
+        "--camera".into(),
+        scene.camera.into(),
+        "--size".into(),
+        format!("{}x{}", scene.size.0, scene.size.1),
+        "--image".into(),
+        image.display().to_string(),
+        "--patches".into(),
+        faces.display().to_string(),
+        "--per-face".into(),
+        "--stats".into(),
+        stats.display().to_string(),
+    ] {
+        args.push(a);
+    }
+    solve(mcrad, &root.join(scene.file), &args)?;
+    let picture = mcrad_render::read_exr(&image)?;
+    let e = mcrad_lab::compare::image_error_against_noisy(&picture, &truth.0, Some(&truth.1), 0.5)?;
+    let run = face_values(root, scene, &faces)?;
+    if run.values.len() != reference.values.len() {
+        bail!(
+            "{}: {} faces, the reference has {}",
+            faces.display(),
+            run.values.len(),
+            reference.values.len()
+        );
+    }
+    let per_face = mcrad_combine::rms_rel(
+        &reference.area,
+        &reference.emission,
+        &run.values,
+        &reference.values,
+    );
+    let stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats)?)?;
+    let number = |k: &str| stats[k].as_u64().unwrap_or(0);
+    let point = Point {
+        mesh: label.to_string(),
+        seconds_asked: seconds,
+        patches: number("patches"),
+        rays: number("rays"),
+        image: e.relative,
+        dark_third: e.dark_third,
+        per_face,
+    };
+    eprintln!(
+        "  {label}, --time {seconds}: {} patches, image error {:.2}%, per-face {:.2}%",
+        point.patches,
+        100.0 * point.image,
+        100.0 * point.per_face
+    );
+    Ok(point)
+}
