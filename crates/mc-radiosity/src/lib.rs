@@ -45,7 +45,7 @@ mod shoot;
 mod surface;
 
 pub use ambient::{ambient, mean_reflectance, with_ambient};
-pub use context::Context;
+pub use context::{Context, Sampler};
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
 pub use error::Error;
 pub use gather::{
