@@ -649,6 +649,34 @@ pub(crate) fn unreached_variance(
 mod tests {
     use super::*;
 
+    /// The quasi-Monte Carlo counter goes on across waves: over a run's waves, the jobs of a
+    /// patch cover the indices `0..(its rays in all waves)` of its sequence once each, in
+    /// order, whatever the chunking; so any aligned run of `2^m` of its rays is a net.
+    #[test]
+    fn sequence_indices_continue_across_waves() {
+        let waves: [&[u64]; 4] = [
+            &[3, 0, 9000],
+            &[0, 1, 4096],
+            &[5000, 2, 1],
+            &[1, 0, 2 * JOB_RAYS + 7],
+        ];
+        let mut cast = vec![0u64; 3];
+        let mut next = vec![0u64; 3];
+        for counts in waves {
+            let jobs = wave_jobs(counts, &cast);
+            for job in &jobs {
+                let i = job.patch as usize;
+                assert_eq!(job.first, next[i], "patch {i}");
+                next[i] += job.rays as u64;
+            }
+            for (c, n) in cast.iter_mut().zip(counts) {
+                *c += n;
+            }
+            assert_eq!(next, cast);
+        }
+        assert_eq!(cast, vec![5004, 3, 9000 + 4096 + 1 + 2 * JOB_RAYS + 7]);
+    }
+
     /// Systematic allocation: every count is `floor` or `ceil` of `|U_i| / phi`, the wave's total
     /// is `floor` or `ceil` of their sum, and over many waves each patch's mean count is
     /// `|U_i| / phi` (unbiased). The mean is checked to k = 5 standard errors of a count whose
