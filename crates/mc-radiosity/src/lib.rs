@@ -29,6 +29,9 @@
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`mcrad_random::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
+//! With [`Sampler::Qmc`] ([`Context::with_sampler`], [`ScheduleConfig::sampler`](schedule::ScheduleConfig::sampler))
+//! the rays of each patch are instead the points of its own Owen-scrambled Sobol sequence
+//! ([`mcrad_random::Sobol`]), keyed the same way: stratified, still unbiased and deterministic.
 //! This crate does no I/O.
 
 pub mod adaptive;

@@ -107,7 +107,7 @@ impl SurfaceSampler {
     }
 
     /// The ray of `patch` from a point `u` of the unit 4-cube: a cosine-distributed direction
-    /// from `u[0..2]` ([`cosine_hemisphere_concentric`]) leaving the uniform point
+    /// from `u[0..2]` (Shirley and Chiu's concentric map lifted to the hemisphere) leaving the uniform point
     /// [`point2`](Self::point2)`(patch, u[2..4])`. Uniform `u` gives a uniform point and a cosine
     /// direction; stratified `u` (a quasi-Monte Carlo sequence) gives stratified rays.
     #[inline]
