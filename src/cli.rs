@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_mc_radiosity::schedule::ScheduleConfig;
-use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method};
+use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
 use mcrad_render::Exposure;
@@ -86,6 +86,11 @@ pub struct Solve {
     /// Add the ambient term (paper, section 3.1) to shooting solutions.
     #[arg(long)]
     pub ambient: bool,
+    /// How rays are drawn: `random` (independent pseudo-random rays) or `qmc` (each patch's
+    /// rays from its own Owen-scrambled Sobol sequence, stratified in point and direction).
+    /// Either way the answer is unbiased and the same on any thread count.
+    #[arg(long, value_enum, default_value_t = Sampler::default())]
+    pub sampler: Sampler,
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
     /// 2e-3 is about twenty times quicker than the default.
@@ -211,7 +216,7 @@ impl Solve {
 
     /// The library's configuration of the run: `--rays` (default [`DEFAULT_RAYS`], no limit
     /// with `--time`), `--seed`, `--unshot-threshold`, `--ambient` and
-    /// `--visibility-tolerance`. With no flag it is [`ScheduleConfig::default`].
+    /// `--visibility-tolerance`, `--sampler`. With no flag it is [`ScheduleConfig::default`].
     pub fn schedule_config(&self) -> ScheduleConfig {
         ScheduleConfig {
             rays: self.rays.unwrap_or(if self.time.is_some() {
@@ -223,6 +228,7 @@ impl Solve {
             unshot_threshold: self.unshot_threshold,
             ambient: self.ambient,
             first_pass_rays: None,
+            sampler: self.sampler,
             reference: ReferenceConfig {
                 visibility_tolerance: self
                     .visibility_tolerance
@@ -258,6 +264,7 @@ impl Solve {
                 format!("--unshot-threshold {}", self.unshot_threshold),
             ),
             ("ambient term", ambient.to_string()),
+            ("sampler", format!("--sampler {}", self.sampler)),
             ("subdivision", subdivision),
         ]
         .into_iter()

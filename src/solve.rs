@@ -327,6 +327,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         unshot_fraction: (!abandoned).then_some(solution.unshot_fraction),
         stop: solution.stop,
         setup_seconds,
+        sampler: args.sampler,
     };
     finish(
         args,
@@ -548,7 +549,7 @@ fn finish(
     bar.finish_and_clear();
     if !args.quiet {
         println!(
-            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} steps, {}% unshot, {} escaped rays, {} threads)",
+            "{}: {} patches, {} rays, {:.3} s, {:.2} Mrays/s ({}: {} steps, {}% unshot, {} escaped rays, {} sampler, {} threads)",
             args.scene.display(),
             run.patches,
             run.rays,
@@ -560,6 +561,7 @@ fn finish(
                 .map_or_else(|| "?".to_string(), |u| format!("{:.2}", 100.0 * u)),
             run.escaped_rays
                 .map_or_else(|| "?".to_string(), |n| n.to_string()),
+            run.sampler,
             run.threads
         );
         if let Some(summary) = &baked {

@@ -1,5 +1,5 @@
 //! `cargo xtask calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
-//! [--out FILE]`: are the per-patch variances every Monte Carlo method reports true, and are
+//! [--sampler random|qmc] [--out FILE]`: are the per-patch variances every Monte Carlo method reports true, and are
 //! its answers unbiased? (issue 16, item 6.)
 //!
 //! Cases are built in code ([`CASES`]): closed furnaces (a closed box, every face emitting `E`
@@ -358,6 +358,8 @@ pub struct Options {
     pub limit: f64,
     /// The Markdown report's path.
     pub out: PathBuf,
+    /// How the runs draw their rays (`--sampler random|qmc`).
+    pub sampler: mcrad_mc_radiosity::Sampler,
 }
 
 impl Options {
@@ -370,6 +372,7 @@ impl Options {
             methods: Method::monte_carlo().collect(),
             limit: DEFAULT_LIMIT,
             out: root.join("docs/calibration.md"),
+            sampler: mcrad_mc_radiosity::Sampler::default(),
         };
         let mut it = args.iter();
         while let Some(a) = it.next() {
@@ -383,6 +386,13 @@ impl Options {
                 "--rays" => o.rays = value()?.parse::<f64>().context("--rays")? as u64,
                 "--limit" => o.limit = value()?.parse().context("--limit")?,
                 "--out" => o.out = root.join(value()?),
+                "--sampler" => {
+                    o.sampler = match value()?.as_str() {
+                        "random" => mcrad_mc_radiosity::Sampler::Random,
+                        "qmc" => mcrad_mc_radiosity::Sampler::Qmc,
+                        other => bail!("--sampler: 'random' or 'qmc', not '{other}'"),
+                    }
+                }
                 "--cases" => {
                     o.cases = value()?
                         .split(',')
@@ -697,6 +707,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                 let config = ScheduleConfig {
                     rays: o.rays * case.rays_factor,
                     seed,
+                    sampler: o.sampler,
                     ..Default::default()
                 };
                 let (outcome, secs) = run_once(method, &mesh, &bvh, &config, o.limit);

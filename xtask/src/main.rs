@@ -31,7 +31,7 @@ tasks:
           the paper's Figure 2: gathering from refining shooting, with and without the
           ambient term; writes docs/figure2.csv and docs/figure2.png
   experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-                            [--time S] [--out DIR]
+                            [--time S] [--target E] [--sampler random|qmc] [--out DIR]
           every method on every experiment scene, error against time; writes
           docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
           (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)
@@ -41,6 +41,7 @@ tasks:
           ground truth and per-face rms_rel, against --time; writes
           docs/meshing-experiment.md, .csv and a plot per scene (caches in target/meshing/)
   calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
+            [--sampler random|qmc]
           every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z²,
           spread/reported variance, power bias, budget use; writes docs/calibration.md
   gen-scenes

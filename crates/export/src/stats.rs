@@ -1,7 +1,7 @@
 //! Run statistics as JSON.
 
 use crate::ExportError;
-use mcrad_mc_radiosity::{Method, StopReason};
+use mcrad_mc_radiosity::{Method, Sampler, StopReason};
 use serde::Serialize;
 use std::io::Write;
 
@@ -38,6 +38,8 @@ pub struct RunStats {
     pub stop: StopReason,
     /// Seconds spent loading the scene, meshing and building the BVH.
     pub setup_seconds: f64,
+    /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
+    pub sampler: Sampler,
 }
 
 impl RunStats {
@@ -75,6 +77,7 @@ mod tests {
             unshot_fraction: Some(0.01),
             stop: StopReason::BudgetSpent,
             setup_seconds: 0.1,
+            sampler: Sampler::Qmc,
         };
         let mut buf = Vec::new();
         s.write_json(&mut buf).unwrap();
@@ -93,6 +96,7 @@ mod tests {
         }
         assert_eq!(v["method"], "two-pass-split");
         assert_eq!(v["stop"], "budget");
+        assert_eq!(v["sampler"], "qmc");
         assert_eq!(v["rays"], 1000);
     }
 }

@@ -17,6 +17,7 @@ pub struct Context<'a, C: RayCaster> {
     mesh: &'a Mesh,
     caster: &'a C,
     sampler: SurfaceSampler,
+    choice: Sampler,
     emitters: Option<Discrete>,
     cancel: Option<&'a AtomicBool>,
 }
@@ -34,6 +35,7 @@ impl<'a, C: RayCaster> Context<'a, C> {
             mesh,
             caster,
             sampler: SurfaceSampler::new(mesh),
+            choice: Sampler::Random,
             emitters: Discrete::new(&power),
             cancel: None,
         }
@@ -45,6 +47,18 @@ impl<'a, C: RayCaster> Context<'a, C> {
     pub fn with_cancel(mut self, cancel: Option<&'a AtomicBool>) -> Context<'a, C> {
         self.cancel = cancel;
         self
+    }
+
+    /// This context with its estimators drawing their rays by `sampler` ([`Sampler::Random`]
+    /// unless set).
+    pub fn with_sampler(mut self, sampler: Sampler) -> Context<'a, C> {
+        self.choice = sampler;
+        self
+    }
+
+    /// How the estimators draw their rays.
+    pub fn sampling(&self) -> Sampler {
+        self.choice
     }
 
     /// True once the run is cancelled: a job that sees it casts nothing.
@@ -80,6 +94,47 @@ impl<'a, C: RayCaster> Context<'a, C> {
     /// Emitters by power; `None` when nothing emits.
     pub(crate) fn emitters(&self) -> Option<&Discrete> {
         self.emitters.as_ref()
+    }
+}
+
+/// How the estimators draw the points and directions of their rays (the command line's
+/// `--sampler`). Either way every ray is distributed as its estimator needs (a uniform point
+/// of the patch, a cosine-distributed direction), so every estimate is unbiased; what changes
+/// is how the rays of one patch relate to each other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Sampler {
+    /// Independent pseudo-random rays ([`mcrad_random::Stream`]).
+    #[default]
+    Random,
+    /// Randomised quasi-Monte Carlo: the rays of a patch are the points of its own
+    /// Owen-scrambled Sobol sequence ([`mcrad_random::Sobol`]), indexed by the patch's ray
+    /// counter (in shooting, continued across waves), so they are stratified in point and
+    /// direction; each patch and pass has an independent scramble.
+    Qmc,
+}
+
+impl Sampler {
+    /// The name on the command line and in run statistics: `random` or `qmc`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Sampler::Random => "random",
+            Sampler::Qmc => "qmc",
+        }
+    }
+}
+
+#[cfg(feature = "serde")]
+impl serde::Serialize for Sampler {
+    /// As its [name](Sampler::name).
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
+}
+
+impl std::fmt::Display for Sampler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 

@@ -66,17 +66,18 @@
 //! `s²` the sample variance of `f`.
 
 use crate::context::Context;
+use crate::context::Sampler;
 use crate::error::Error;
 use crate::gather::{
     Emission, check_input, gather_round_from, gather_round_parts, gather_round_parts_with_light,
 };
-use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
-use crate::sampling::{Discrete, Frame, cosine_hemisphere_rejection};
+use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, JOB_RAYS, Moments, jobs};
+use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::Patch;
-use mcrad_random::{Stream, StreamKey};
+use mcrad_random::{Sobol, Stream, StreamKey};
 use mcrad_raycast::{Hit, NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};
@@ -171,13 +172,20 @@ fn direct_with<C: RayCaster>(
             }
             let i = job.item as usize;
             let frame = Frame::from_normal(patches[i].normal);
-            let mut rng = key
-                .item(i as u64)
-                .substream(DIRECT_LIGHT + job.chunk as u64)
-                .stream();
+            let item = key.item(i as u64);
+            let mut draws = match ctx.sampling() {
+                Sampler::Random => {
+                    Draws::Random(item.substream(DIRECT_LIGHT + job.chunk as u64).stream())
+                }
+                Sampler::Qmc => Draws::Qmc {
+                    sequence: item.substream(DIRECT_LIGHT).sobol(),
+                    next: job.chunk as u64 * JOB_RAYS as u64,
+                },
+            };
             let mut tally = Tally::default();
             for _ in 0..job.rays {
-                let f = light.sample(i, &frame, sampler, caster, &mut rng, &mut tally);
+                let draw = draws.next(&light, i, &frame, sampler);
+                let f = light.sample(i, &frame, caster, draw, &mut tally);
                 tally.moments.push(f);
             }
             tally
@@ -206,6 +214,60 @@ fn direct_with<C: RayCaster>(
         samples,
         occluded,
     })
+}
+
+/// One sample's random choices: the point `x` of the receiver, the emitter `j`, its point `y`
+/// and (multiple importance sampling only) the cosine direction.
+struct Draw {
+    x: Vec3,
+    j: usize,
+    y: Vec3,
+    dir: Option<Vec3>,
+}
+
+/// Where the samples of one job come from (see [`Sampler`]).
+enum Draws {
+    /// Independent uniforms: `x` from three, the emitter from one `f64`, `y` from three, then
+    /// the direction by rejection.
+    Random(Stream),
+    /// Consecutive points of the patch's sequence: `x` from dimensions 2-3, the emitter and `y`
+    /// from dimensions 0-1 (the emitter's share of dimension 0 rescaled to `[0, 1)` picks the
+    /// point), the direction from dimensions 4-5.
+    Qmc { sequence: Sobol, next: u64 },
+}
+
+impl Draws {
+    /// The next sample's choices for receiver `i`.
+    #[inline]
+    fn next(&mut self, light: &Light, i: usize, frame: &Frame, sampler: &SurfaceSampler) -> Draw {
+        match self {
+            Draws::Random(rng) => {
+                let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                let j = light.emitters.sample(rng.uniform_f64());
+                let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                let dir = light
+                    .mis
+                    .eq(&Mis::Paired)
+                    .then(|| frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())));
+                Draw { x, j, y, dir }
+            }
+            Draws::Qmc { sequence, next } => {
+                let u = sequence.point(*next);
+                let x = sampler.point2(i, [u[2], u[3]]);
+                let j = light.emitters.sample(f64::from(u[0]));
+                let share = light.emitters.inverse(j);
+                let v = ((f64::from(u[0]) - share.start) / (share.end - share.start))
+                    .clamp(0.0, 1.0 - f64::EPSILON) as f32;
+                let y = sampler.point2(j, [v.min(1.0 - f32::EPSILON / 2.0), u[1]]);
+                let dir = (light.mis == Mis::Paired).then(|| {
+                    let w = sequence.point_next(*next);
+                    frame.to_world(cosine_hemisphere_concentric(glam::Vec2::new(w[0], w[1])))
+                });
+                *next += 1;
+                Draw { x, j, y, dir }
+            }
+        }
+    }
 }
 
 /// Per-job sums of [`direct`].
@@ -299,15 +361,12 @@ impl Light<'_> {
         &self,
         i: usize,
         frame: &Frame,
-        sampler: &SurfaceSampler,
         caster: &C,
-        rng: &mut Stream,
+        draw: Draw,
         tally: &mut Tally,
     ) -> DVec3 {
         let nx = frame.normal;
-        let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
-        let j = self.emitters.sample(rng.uniform_f64());
-        let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let Draw { x, j, y, dir } = draw;
         let mut f = DVec3::ZERO;
         // Emitter sampling.
         if let Some((cos_x, cos_y, r2)) = self.geometry(x, nx, y, j).filter(|_| j != i) {
@@ -337,8 +396,7 @@ impl Light<'_> {
             }
         }
         // Cosine sampling.
-        if self.mis == Mis::Paired {
-            let dir = frame.to_world(cosine_hemisphere_rejection(|| rng.uniform()));
+        if let Some(dir) = dir {
             tally.rays += 1;
             if let Some(hit) = caster.closest_hit(&Ray::from_surface(x, nx, dir, i as u32))
                 && hit.front

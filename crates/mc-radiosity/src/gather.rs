@@ -68,13 +68,22 @@
 //! moments are merged per item in chunk order, so a seed gives bit-identical results on any
 //! number of threads. A schedule must give every round it wants independent of the others its
 //! own `pass` (or its own seed, e.g. from [`derive_seed`](mcrad_random::derive_seed)).
+//!
+//! With [`Sampler::Qmc`](crate::Sampler) (the context's [`Context::with_sampler`]) the rays of
+//! patch `i` in round `pass` are instead points `0, 1, ...` of the sequence
+//! [`Sobol`](mcrad_random::Sobol)`(seed, pass, i, PATCH_GATHER)` (chunk `c` starts at point
+//! `4096 c`), vertex groups' of `(seed, pass, g, VERTEX_GATHER)` and the direct light's of
+//! `(seed, pass, i, DIRECT_LIGHT)`: stratified within a round, independent between rounds,
+//! patches and estimators.
 
 use crate::context::Context;
+use crate::context::Sampler;
 use crate::direct::CosineLight;
 use crate::error::Error;
-use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
+use crate::jobs::{JOB_RAYS, PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
 use crate::method::StopReason;
-use crate::sampling::{Frame, cosine_hemisphere_rejection};
+use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
+use crate::surface::Rays;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::{CornerGroups, Mesh};
@@ -286,11 +295,17 @@ fn round_parts_with<C: RayCaster>(
         if ctx.cancelled() {
             return Seen::default();
         }
-        let mut rng = key
-            .item(job.item as u64)
-            .substream(PATCH_GATHER + job.chunk as u64)
-            .stream();
-        let ray = || sampler.ray(job.item as usize, &mut rng);
+        let item = key.item(job.item as u64);
+        let mut rays = match ctx.sampling() {
+            Sampler::Random => {
+                Rays::Random(item.substream(PATCH_GATHER + job.chunk as u64).stream())
+            }
+            Sampler::Qmc => Rays::Qmc {
+                sequence: item.substream(PATCH_GATHER).sobol(),
+                next: job.chunk as u64 * JOB_RAYS as u64,
+            },
+        };
+        let ray = || rays.ray(sampler, job.item as usize);
         match light {
             None => look(job.rays, caster, input, input_variance, ray),
             Some(light) => look_with(job.rays, caster, input, input_variance, ray, |r, h| {
@@ -673,16 +688,31 @@ pub fn gather_corners<C: RayCaster>(
             return Seen::default();
         }
         let g = job.item as usize;
-        let mut rng = key
-            .item(g as u64)
-            .substream(VERTEX_GATHER + job.chunk as u64)
-            .stream();
+        let item = key.item(g as u64);
+        let mut rays = match ctx.sampling() {
+            Sampler::Random => {
+                Rays::Random(item.substream(VERTEX_GATHER + job.chunk as u64).stream())
+            }
+            Sampler::Qmc => Rays::Qmc {
+                sequence: item.substream(VERTEX_GATHER).sobol(),
+                next: job.chunk as u64 * JOB_RAYS as u64,
+            },
+        };
         let (origin, frame) = (groups.point(g), &frames[g]);
-        look(job.rays, caster, input, None, || Ray {
-            origin,
-            dir: frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())),
-            origin_normal: frame.normal,
-            exclude: NO_ID,
+        look(job.rays, caster, input, None, || {
+            let local = match &mut rays {
+                Rays::Random(rng) => cosine_hemisphere_rejection(|| rng.uniform()),
+                qmc => {
+                    let u = qmc.next_point();
+                    cosine_hemisphere_concentric(glam::Vec2::new(u[0], u[1]))
+                }
+            };
+            Ray {
+                origin,
+                dir: frame.to_world(local),
+                origin_normal: frame.normal,
+                exclude: NO_ID,
+            }
         })
     });
     ctx.check_cancelled()?;
@@ -712,7 +742,7 @@ pub fn gather_corners<C: RayCaster>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::{JOB_RAYS, Moments};
+    use crate::jobs::Moments;
 
     #[test]
     fn moments_merge_like_one_pass() {

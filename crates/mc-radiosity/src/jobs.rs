@@ -17,6 +17,9 @@ pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;
 /// Sub-stream tag of the pilot that sizes direct-light sampling to a ray budget
 /// ([`split_with_budget`](crate::direct::split_with_budget)).
 pub(crate) const DIRECT_PILOT: u64 = 4 << 40;
+/// Sub-stream tag of a patch's quasi-Monte Carlo sequence in shooting
+/// ([`shoot`](crate::shoot())); its index is the patch's ray counter over the run's waves.
+pub(crate) const SHOOT_QMC: u64 = 5 << 40;
 
 /// Running mean and sum of squared deviations of per-ray samples, per RGB channel (Welford's
 /// update, Chan et al.'s merge), in f64. A constant sample has exactly zero deviation.

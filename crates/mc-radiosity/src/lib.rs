@@ -29,6 +29,9 @@
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`mcrad_random::Stream`]) and every
 //! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
+//! With [`Sampler::Qmc`] ([`Context::with_sampler`], [`ScheduleConfig::sampler`](schedule::ScheduleConfig::sampler))
+//! the rays of each patch are instead the points of its own Owen-scrambled Sobol sequence
+//! ([`mcrad_random::Sobol`]), keyed the same way: stratified, still unbiased and deterministic.
 //! This crate does no I/O.
 
 pub mod adaptive;
@@ -45,7 +48,7 @@ mod shoot;
 mod surface;
 
 pub use ambient::{ambient, mean_reflectance, with_ambient};
-pub use context::Context;
+pub use context::{Context, Sampler};
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
 pub use error::Error;
 pub use gather::{

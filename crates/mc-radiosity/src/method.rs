@@ -157,7 +157,9 @@ macro_rules! methods {
                 cancel: Option<&std::sync::atomic::AtomicBool>,
                 observer: &mut Observer,
             ) -> Result<Solution, Error> {
-                let ctx = Context::new(mesh, caster).with_cancel(cancel);
+                let ctx = Context::new(mesh, caster)
+                    .with_cancel(cancel)
+                    .with_sampler(config.sampler);
                 match self {
                     $(Method::$variant => $runner(&ctx, config, observer),)*
                 }

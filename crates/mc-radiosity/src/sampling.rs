@@ -77,6 +77,28 @@ pub fn cosine_hemisphere_rejection(mut uniform: impl FnMut() -> f32) -> Vec3 {
     }
 }
 
+/// A cosine-distributed direction about local `+z` from a point of the unit square by Shirley
+/// and Chiu's concentric map to the disk, lifted to the hemisphere (Malley's method). Same
+/// density as [`cosine_hemisphere`], [`cosine_hemisphere_pdf`]. The map keeps areas and
+/// aspect ratios nearly (it sends the square's concentric squares to the disk's concentric
+/// rings), so stratified square points give stratified directions: the quasi-Monte Carlo
+/// sampler's map.
+#[inline]
+pub fn cosine_hemisphere_concentric(u: Vec2) -> Vec3 {
+    use std::f32::consts::FRAC_PI_4;
+    let (a, b) = (2.0 * u.x - 1.0, 2.0 * u.y - 1.0);
+    let (r, phi) = if a == 0.0 && b == 0.0 {
+        return Vec3::Z;
+    } else if a.abs() > b.abs() {
+        (a, FRAC_PI_4 * (b / a))
+    } else {
+        (b, 2.0 * FRAC_PI_4 - FRAC_PI_4 * (a / b))
+    };
+    let (sin, cos) = phi.sin_cos();
+    let (x, y) = (r * cos, r * sin);
+    Vec3::new(x, y, (1.0 - x * x - y * y).max(0.0).sqrt())
+}
+
 /// Density of [`cosine_hemisphere`] per steradian: `cos(theta) / pi` above the surface, 0 below.
 #[cfg(test)]
 #[inline]
@@ -162,7 +184,6 @@ impl Discrete {
     }
 
     /// The sub-interval of `[0, 1)` that maps to index `i` (the inverse of [`Discrete::sample`]).
-    #[cfg(test)]
     pub fn inverse(&self, i: usize) -> std::ops::Range<f64> {
         (if i == 0 { 0.0 } else { self.cdf[i - 1] })..self.cdf[i]
     }
@@ -252,6 +273,11 @@ mod tests {
     #[test]
     fn cosine_hemisphere_matches_its_density() {
         cosine_sampler_matches_its_density(|s| cosine_hemisphere(u2(s)));
+    }
+
+    #[test]
+    fn cosine_hemisphere_concentric_matches_its_density() {
+        cosine_sampler_matches_its_density(|s| cosine_hemisphere_concentric(u2(s)));
     }
 
     #[test]

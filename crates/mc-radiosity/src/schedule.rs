@@ -62,11 +62,14 @@ pub struct ScheduleConfig {
     /// The reference solver's settings ([`Method::Reference`] only: accuracy targets and the
     /// patch limit).
     pub reference: ReferenceConfig,
+    /// How the estimators draw their rays ([`Sampler`](crate::Sampler)).
+    pub sampler: crate::Sampler,
 }
 
 impl Default for ScheduleConfig {
     /// The command line's defaults: [`DEFAULT_RAYS`], seed 0, [`DEFAULT_UNSHOT_THRESHOLD`], no
-    /// ambient term, first pass from the budget, the reference solver's defaults.
+    /// ambient term, first pass from the budget, the reference solver's defaults, the default
+    /// [`Sampler`](crate::Sampler).
     fn default() -> Self {
         ScheduleConfig {
             rays: DEFAULT_RAYS,
@@ -75,6 +78,7 @@ impl Default for ScheduleConfig {
             ambient: false,
             first_pass_rays: None,
             reference: ReferenceConfig::default(),
+            sampler: crate::Sampler::default(),
         }
     }
 }

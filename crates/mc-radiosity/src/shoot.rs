@@ -56,14 +56,16 @@
 //! size.
 
 use crate::context::Context;
+use crate::context::Sampler;
 use crate::error::Error;
+use crate::jobs::SHOOT_QMC;
 use crate::method::StopReason;
 use crate::sampling::stochastic_round;
-use crate::surface::SurfaceSampler;
+use crate::surface::{Rays, SurfaceSampler};
 use glam::DVec3;
 use mcrad_combine::Estimate;
 
-use mcrad_random::Stream;
+use mcrad_random::{Stream, StreamKey};
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 use std::cell::Cell;
@@ -211,12 +213,14 @@ const BACK: u32 = 1 << 31;
 /// Sub-stream of a patch's ray-count draw (job streams use `1 + chunk`).
 const ALLOCATE: u64 = 0;
 
-/// One job: `rays` rays from `patch`, chunk `chunk` of its rays in the wave.
+/// One job: `rays` rays from `patch`, chunk `chunk` of its rays in the wave, the first of them
+/// ray `first` of the patch in the run (its index in the patch's quasi-Monte Carlo sequence).
 #[derive(Debug, Clone, Copy)]
 struct Job {
     patch: u32,
     chunk: u32,
     rays: u32,
+    first: u64,
 }
 
 #[inline]
@@ -265,6 +269,8 @@ pub fn shoot<C: RayCaster>(
         / total_area)
         .min(0.999);
     let sampler = ctx.sampler();
+    // Rays each patch has cast in the waves so far: where its sequence goes on.
+    let mut cast = vec![0u64; patches.len()];
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
@@ -311,7 +317,10 @@ pub fn shoot<C: RayCaster>(
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
         };
-        let jobs = wave_jobs(&counts);
+        let jobs = wave_jobs(&counts, &cast);
+        for (c, n) in cast.iter_mut().zip(&counts) {
+            *c += n;
+        }
         for (i, &n) in counts.iter().enumerate() {
             if n > 0 {
                 per_ray[i] = unshot[i] / n as f64;
@@ -325,7 +334,7 @@ pub fn shoot<C: RayCaster>(
                     if ctx.cancelled() {
                         return Vec::new();
                     }
-                    trace(job, sampler, caster, config.seed, wave)
+                    trace(job, sampler, ctx.sampling(), caster, config.seed, wave)
                 })
                 .collect();
             ctx.check_cancelled()?;
@@ -439,16 +448,18 @@ fn horizon(budget: u64, rays: u64) -> u64 {
     }
 }
 
-/// The jobs of one wave: each patch's `counts[i]` rays in chunks of at most [`JOB_RAYS`].
-fn wave_jobs(counts: &[u64]) -> Vec<Job> {
+/// The jobs of one wave: each patch's `counts[i]` rays in chunks of at most [`JOB_RAYS`], its
+/// first ray numbered `cast[i]` (the rays it cast in earlier waves).
+fn wave_jobs(counts: &[u64], cast: &[u64]) -> Vec<Job> {
     let mut jobs = Vec::new();
-    for (i, &n) in counts.iter().enumerate() {
+    for (i, (&n, &before)) in counts.iter().zip(cast).enumerate() {
         for chunk in 0..n.div_ceil(JOB_RAYS) {
             let rays = (n - chunk * JOB_RAYS).min(JOB_RAYS) as u32;
             jobs.push(Job {
                 patch: i as u32,
                 chunk: chunk as u32,
                 rays,
+                first: before + chunk * JOB_RAYS,
             });
         }
     }
@@ -558,18 +569,31 @@ fn batches(jobs: &[Job]) -> impl Iterator<Item = &[Job]> {
     })
 }
 
-/// Traces one job's rays, returning one hit record per ray.
+/// Traces one job's rays, returning one hit record per ray: random rays from the stream
+/// `(seed, wave, patch, 1 + chunk)`, or quasi-Monte Carlo rays `first, first + 1, ...` of the
+/// patch's sequence `(seed, 0, patch, SHOOT_QMC)`, one sequence over all the run's waves.
 fn trace<C: RayCaster>(
     job: &Job,
     sampler: &SurfaceSampler,
+    choice: Sampler,
     caster: &C,
     seed: u64,
     wave: u64,
 ) -> Vec<u32> {
-    let mut rng = Stream::new(seed, wave, job.patch as u64, 1 + job.chunk as u64);
+    let patch = job.patch as u64;
+    let mut rays = match choice {
+        Sampler::Random => Rays::Random(Stream::new(seed, wave, patch, 1 + job.chunk as u64)),
+        Sampler::Qmc => Rays::Qmc {
+            sequence: StreamKey::new(seed)
+                .item(patch)
+                .substream(SHOOT_QMC)
+                .sobol(),
+            next: job.first,
+        },
+    };
     (0..job.rays)
         .map(|_| {
-            let ray = sampler.ray(job.patch as usize, &mut rng);
+            let ray = rays.ray(sampler, job.patch as usize);
             match caster.closest_hit(&ray) {
                 None => MISS,
                 Some(hit) if hit.front => hit.id,
@@ -624,6 +648,34 @@ pub(crate) fn unreached_variance(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The quasi-Monte Carlo counter goes on across waves: over a run's waves, the jobs of a
+    /// patch cover the indices `0..(its rays in all waves)` of its sequence once each, in
+    /// order, whatever the chunking; so any aligned run of `2^m` of its rays is a net.
+    #[test]
+    fn sequence_indices_continue_across_waves() {
+        let waves: [&[u64]; 4] = [
+            &[3, 0, 9000],
+            &[0, 1, 4096],
+            &[5000, 2, 1],
+            &[1, 0, 2 * JOB_RAYS + 7],
+        ];
+        let mut cast = vec![0u64; 3];
+        let mut next = vec![0u64; 3];
+        for counts in waves {
+            let jobs = wave_jobs(counts, &cast);
+            for job in &jobs {
+                let i = job.patch as usize;
+                assert_eq!(job.first, next[i], "patch {i}");
+                next[i] += job.rays as u64;
+            }
+            for (c, n) in cast.iter_mut().zip(counts) {
+                *c += n;
+            }
+            assert_eq!(next, cast);
+        }
+        assert_eq!(cast, vec![5004, 3, 9000 + 4096 + 1 + 2 * JOB_RAYS + 7]);
+    }
 
     /// Systematic allocation: every count is `floor` or `ceil` of `|U_i| / phi`, the wave's total
     /// is `floor` or `ceil` of their sum, and over many waves each patch's mean count is

@@ -17,6 +17,7 @@
 //! predicted to end after the time limit (a ladder rung takes about twice the previous one).
 
 use mcrad_lab::trace::Reference;
+use mcrad_mc_radiosity::Sampler;
 use mcrad_mc_radiosity::schedule::{DEFAULT_UNSHOT_THRESHOLD, Kind, Method, ScheduleConfig, run};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
@@ -58,6 +59,8 @@ pub struct Problem<'a> {
     pub bvh: &'a Bvh,
     /// The reference solution the error is measured against.
     pub reference: Reference,
+    /// How the runs draw their rays.
+    pub sampler: Sampler,
 }
 
 impl<'a> Problem<'a> {
@@ -67,6 +70,7 @@ impl<'a> Problem<'a> {
             mesh,
             bvh,
             reference,
+            sampler: Sampler::default(),
         }
     }
 
@@ -85,8 +89,9 @@ pub fn progressive(method: Method) -> bool {
     method.kind() == Kind::Progressive
 }
 
-fn config(rays: u64, seed: u64, first: Option<u64>) -> ScheduleConfig {
+fn config(rays: u64, seed: u64, first: Option<u64>, sampler: Sampler) -> ScheduleConfig {
     ScheduleConfig {
+        sampler,
         rays,
         seed,
         unshot_threshold: UNSHOT_THRESHOLD,
@@ -120,7 +125,7 @@ fn progressive_curve(
     let mut points = Vec::new();
     let mut measuring = Duration::ZERO;
     let start = Instant::now();
-    let config = config(u64::MAX, seed, Some(problem.first_rays()));
+    let config = config(u64::MAX, seed, Some(problem.first_rays()), problem.sampler);
     let result = run(method, problem.mesh, problem.bvh, &config, &mut |step| {
         let seconds = (start.elapsed() - measuring).as_secs_f64();
         let t = Instant::now();
@@ -159,7 +164,7 @@ fn ladder_curve(
             method,
             problem.mesh,
             problem.bvh,
-            &config(budget, seed, None),
+            &config(budget, seed, None, problem.sampler),
             &mut |_| ControlFlow::Continue(()),
         );
         let seconds = start.elapsed().as_secs_f64();

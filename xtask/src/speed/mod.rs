@@ -1,5 +1,5 @@
 //! `cargo xtask experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-//! [--time S] [--out DIR]`: every Monte Carlo method of the registry (`Method::monte_carlo`) on every experiment scene
+//! [--time S] [--target E] [--sampler random|qmc] [--out DIR]`: every Monte Carlo method of the registry (`Method::monte_carlo`) on every experiment scene
 //! ([`scenes::SCENES`]), several seeds, error (`rms_rel` against the scene's reference solution)
 //! against wall-clock time.
 //!
@@ -23,6 +23,7 @@ mod results;
 pub mod scenes;
 
 use anyhow::{Context, Result, bail};
+use mcrad_mc_radiosity::Sampler;
 use mcrad_mc_radiosity::schedule::Method;
 use measure::{Limits, Point, Problem, curve};
 use std::fmt::Write as _;
@@ -41,6 +42,8 @@ pub struct Options {
     pub methods: Vec<Method>,
     /// Output directory.
     pub out: PathBuf,
+    /// How the runs draw their rays (`--sampler`, default the library's).
+    pub sampler: Sampler,
 }
 
 impl Options {
@@ -61,6 +64,7 @@ impl Options {
             } else {
                 "docs"
             }),
+            sampler: Sampler::default(),
         };
         let mut it = args.iter();
         while let Some(a) = it.next() {
@@ -70,6 +74,16 @@ impl Options {
                 "--seeds" => o.seeds = value()?.parse().context("--seeds: a count")?,
                 "--time" => o.limits.seconds = value()?.parse().context("--time: seconds")?,
                 "--out" => o.out = PathBuf::from(value()?),
+                "--target" => {
+                    o.limits.target = value()?.parse().context("--target: a relative error")?
+                }
+                "--sampler" => {
+                    o.sampler = match value()?.as_str() {
+                        "random" => Sampler::Random,
+                        "qmc" => Sampler::Qmc,
+                        other => bail!("--sampler: 'random' or 'qmc', not '{other}'"),
+                    }
+                }
                 "--scenes" => {
                     o.scenes = value()?
                         .split(',')
@@ -138,7 +152,8 @@ pub fn measure_scene(
 ) -> Result<SceneResult> {
     let loaded = scene.load(root)?;
     let reference = scene.reference(root, &loaded.mesh)?;
-    let problem = Problem::new(&loaded.mesh, &loaded.bvh, reference);
+    let mut problem = Problem::new(&loaded.mesh, &loaded.bvh, reference);
+    problem.sampler = options.sampler;
     eprintln!(
         "{}: {} patches, built in {:.2} s",
         scene.name,
@@ -248,6 +263,7 @@ mod tests {
             scenes: vec![&TINY],
             methods: Method::monte_carlo().collect(),
             out: dir.path().to_path_buf(),
+            sampler: Sampler::Qmc,
         };
         let result = measure_scene(&crate::root(), &TINY, &options).unwrap();
         for (method, seeds) in &result.curves {

@@ -98,7 +98,12 @@ pub fn run_with<C: RayCaster>(
     weighting: &dyn Weighting,
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
-    with_context(&Context::new(mesh, caster), config, weighting, observer)
+    with_context(
+        &Context::new(mesh, caster).with_sampler(config.sampler),
+        config,
+        weighting,
+        observer,
+    )
 }
 
 /// [`run_with`] on a context built by the caller.
