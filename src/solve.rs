@@ -298,6 +298,16 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         Some(_) => state.estimate()?,
         None => solution.estimate.clone(),
     };
+    let solved_rays = estimate.rays();
+    // An adaptive mesh's answer pools what the refinement learnt of each element with the
+    // method's solution (a continued run's pieces are the method's alone).
+    let estimate = match (&refinement, &resumed) {
+        (Some(r), None) => {
+            let all = vec![true; mesh.patches().len()];
+            mcrad_mc_radiosity::adaptive::pool(&mesh, &estimate, &r.pooled, &all)?
+        }
+        _ => estimate,
+    };
     if let Some(path) = save {
         // A stopped run of a method whose steps are not answers (a shooting wave, a Jacobi
         // round) lacks part of its light: it is no state to continue.
@@ -316,7 +326,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let run = RunStats {
         method,
         patches: mesh.patches().len(),
-        rays: estimate.rays() + refinement_rays,
+        rays: solved_rays + refinement_rays,
         seconds,
         rays_per_second: piece_rays as f64 / seconds.max(1e-9),
         iterations: state.steps,
@@ -357,7 +367,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 ""
             },
             state.steps,
-            estimate.rays(),
+            solved_rays,
             if save.is_some() && (complete_steps || solution.stop != StopReason::Stopped) {
                 "; --resume continues it"
             } else {
