@@ -270,7 +270,11 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         for &p in &r.parent {
             children[p as usize] += 1;
         }
-        let kept: Vec<bool> = r.parent.iter().map(|&p| children[p as usize] == 1).collect();
+        let kept: Vec<bool> = r
+            .parent
+            .iter()
+            .map(|&p| children[p as usize] == 1)
+            .collect();
         let carried = Estimate::new(
             inherit(pooled.radiosity()),
             pooled.variance().map(inherit),
