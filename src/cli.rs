@@ -114,7 +114,8 @@ pub struct Solve {
     /// How faces become patches: `uniform` (the default: every face cut to --max-edge, or the
     /// default size) or `adaptive` (a mesh of half the uniform default's edge refined where the
     /// solution needs it, within --min-edge and --max-patches; a quarter of the ray budget or of
-    /// --time goes to the refinement, then the method solves the refined mesh).
+    /// --time goes to the refinement, then the method solves the refined mesh and the answer
+    /// pools its solution with the refinement's estimates).
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
