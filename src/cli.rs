@@ -117,9 +117,11 @@ pub struct Solve {
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
     /// How faces become patches: `uniform` (the default: every face cut to --max-edge, or the
-    /// default size) or `adaptive` (a mesh of half the uniform default's edge refined where the
-    /// solution needs it, within --min-edge and --max-patches; a quarter of the ray budget or of
-    /// --time goes to the refinement, then the method solves the refined mesh).
+    /// default size) or `adaptive` (a mesh of a quarter of the uniform default's edge refined
+    /// where the solution needs it, within --min-edge and --max-patches; a quarter of the ray
+    /// budget or of --time goes to the refinement, then the method solves the refined mesh and
+    /// the answer
+    /// pools its solution with the refinement's estimates).
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
@@ -338,8 +340,8 @@ fn max_edge_help() -> String {
 pub enum MeshArg {
     /// Every face cut uniformly (`--max-edge`, or the scene's diagonal / 20).
     Uniform,
-    /// A uniform mesh of half the default's edge refined where the solution varies beyond its
-    /// noise or the light's visibility changes.
+    /// A uniform mesh of a quarter of the default's edge refined where the solution varies
+    /// beyond its noise or the light's visibility changes.
     Adaptive,
 }
 

@@ -298,6 +298,16 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         Some(_) => state.estimate()?,
         None => solution.estimate.clone(),
     };
+    let solved_rays = estimate.rays();
+    // An adaptive mesh's answer pools what the refinement learnt of each element with the
+    // method's solution (a continued run's pieces are the method's alone).
+    let estimate = match (&refinement, &resumed) {
+        (Some(r), None) => {
+            let all = vec![true; mesh.patches().len()];
+            mcrad_mc_radiosity::adaptive::pool(&mesh, &estimate, &r.pooled, &all)?
+        }
+        _ => estimate,
+    };
     if let Some(path) = save {
         // A stopped run of a method whose steps are not answers (a shooting wave, a Jacobi
         // round) lacks part of its light: it is no state to continue.
@@ -316,7 +326,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let run = RunStats {
         method,
         patches: mesh.patches().len(),
-        rays: estimate.rays() + refinement_rays,
+        rays: solved_rays + refinement_rays,
         seconds,
         rays_per_second: piece_rays as f64 / seconds.max(1e-9),
         iterations: state.steps,
@@ -358,7 +368,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 ""
             },
             state.steps,
-            estimate.rays(),
+            solved_rays,
             if save.is_some() && (complete_steps || solution.stop != StopReason::Stopped) {
                 "; --resume continues it"
             } else {
@@ -432,8 +442,8 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
     }
 }
 
-/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 40 (half the uniform
-/// default's edge), refined with a quarter of the ray budget and of the time (`--time`).
+/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 80 (a quarter of the
+/// uniform default's edge), refined with a quarter of the ray budget and of the time (`--time`).
 fn adaptive_mesh(
     args: &Solve,
     scene: &mcrad_scene_io::Scene,
@@ -444,18 +454,28 @@ fn adaptive_mesh(
     if let Some(min_edge) = args.min_edge {
         bounds.min_edge = min_edge;
     }
-    // The starting mesh: the diagonal / 40, else (beyond --max-patches) the uniform default's
-    // diagonal / 20, else one element per face.
+    // The starting mesh: the diagonal / 80, else (beyond --max-patches, or more elements than
+    // the ray budget pays START_RAYS_PER_ELEMENT for) twice, four times that edge (the uniform
+    // default's), else one element per face.
+    let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
+    let too_many = |mesh: &AdaptiveMesh| mesh.len() > bounds.max_patches.min(affordable);
     let diagonal = scene.bounds().diagonal() as f32;
     let mut mesh = AdaptiveMesh::new(
         scene,
         Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
         bounds,
     )?;
-    if mesh.len() > bounds.max_patches {
+    if too_many(&mesh) {
+        mesh = AdaptiveMesh::new(
+            scene,
+            Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION * 2.0),
+            bounds,
+        )?;
+    }
+    if too_many(&mesh) {
         mesh = AdaptiveMesh::new(scene, Subdivision::default_for(scene), bounds)?;
     }
-    if mesh.len() > bounds.max_patches {
+    if too_many(&mesh) {
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)?;
     }
     let config = AdaptiveConfig {
@@ -478,6 +498,11 @@ fn adaptive_mesh(
     }
     Ok((mesh.into_mesh(), refined))
 }
+
+/// The fewest rays of the budget per element of an adaptive run's starting mesh: a finer start
+/// would leave the refinement's rounds and the method too few rays per element (a budget of
+/// 3e4 rays could not pay for one round on the Cornell box's 17,000 starting elements).
+const START_RAYS_PER_ELEMENT: u64 = 16;
 
 /// The share of the time left a `--time` run plans to fill: the rest absorbs the per-step
 /// work that does not scale with rays and the writing of the outputs.

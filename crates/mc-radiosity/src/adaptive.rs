@@ -37,7 +37,7 @@ use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::error::Error;
 use crate::shoot::{ShootConfig, shoot};
 use glam::{DVec3, Vec3};
-use mcrad_combine::Estimate;
+use mcrad_combine::{Estimate, EstimateError, Operand, Weighting, merge};
 use mcrad_meshing::{AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh};
 use mcrad_random::{Stream, StreamKey, derive_seed};
 use mcrad_raycast::{BuildError, Bvh, RayCaster, SurfacePoint};
@@ -135,6 +135,11 @@ pub struct Refined {
     /// The last estimate, one per leaf of the refined mesh (W/m² and its variance): the
     /// children of the last split inherit their parent's value and were gathered once from it.
     pub estimate: Estimate,
+    /// Every estimate the refinement made of each leaf's own value, pooled ([`pool`]): a leaf
+    /// not split since the pilot pools the pilot and every round's gathering; a leaf made by a
+    /// split starts from the gathering that followed it (its parent's estimates are of the
+    /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance.
+    pub pooled: Estimate,
     /// Rays cast by the refinement (pilot, shadow rays, gathering rounds).
     pub rays: u64,
     /// Each round's counts.
@@ -183,6 +188,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         rays += s.stats.rays;
         s.estimate
     };
+    let mut pooled = estimate.clone();
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
@@ -258,14 +264,119 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         let gathered = two_pass_split(&ctx, &inherited, &split, key)?;
         stats.rays += gathered.rays();
         rays += gathered.rays();
+        // A leaf kept as it was pools this round's estimate with its earlier ones; a child
+        // starts from this round's.
+        let mut children = vec![0u32; r.parent.last().map_or(0, |&p| p as usize + 1)];
+        for &p in &r.parent {
+            children[p as usize] += 1;
+        }
+        let kept: Vec<bool> = r
+            .parent
+            .iter()
+            .map(|&p| children[p as usize] == 1)
+            .collect();
+        let carried = Estimate::new(
+            inherit(pooled.radiosity()),
+            pooled.variance().map(inherit),
+            pooled.rays(),
+        )
+        .map_err(Error::from)?;
+        pooled = pool(mesh.mesh(), &gathered, &carried, &kept).map_err(Error::from)?;
         estimate = gathered;
         rounds.push(stats);
     }
     Ok(Refined {
         estimate,
+        pooled,
         rays,
         rounds,
     })
+}
+
+/// Pools two independent estimates of the same leaves' values, `fresh` (trusted: its variance
+/// is taken as reported) and `earlier` (its variance checked against `fresh`), by weights
+/// constant over each input face (`Patch::face`) and channel:
+///
+/// - `V_f`, `V_e`: the mean reported variances of the two over the face's leaves where
+///   `earlier_valid` is true, `D` the mean squared difference `(X_f - X_e)²` there;
+/// - the earlier estimate's variance is taken as `max(V_e, D - V_f)` (`D` estimates
+///   `V_f + V_e` plus any bias or correlated error between the two that the reported
+///   variances miss, e.g. a refinement gathered from an inherited solution);
+/// - `w_f = V_e' / (V_f + V_e')`, and `1` where both are 0 or `earlier_valid` is false.
+///
+/// The weights read the values only through means over a whole face, so the pooled value of a
+/// leaf is, to that extent, the weighted mean of two unbiased estimates with weights that do
+/// not depend on it: unbiased (per-leaf inverse variances would bias it low where the variance
+/// grows with the value: see `mcrad_combine::expected`). Its variance is `w² V_f + (1 - w)²
+/// V_e` from the reported variances, its rays the sum. Without a variance on either side,
+/// `fresh` is returned. Errors: lengths differ from the mesh's patch count.
+pub fn pool(
+    mesh: &Mesh,
+    fresh: &Estimate,
+    earlier: &Estimate,
+    earlier_valid: &[bool],
+) -> Result<Estimate, EstimateError> {
+    let n = mesh.patches().len();
+    for len in [fresh.len(), earlier.len(), earlier_valid.len()] {
+        if len != n {
+            return Err(EstimateError::PatchCountMismatch { a: n, b: len });
+        }
+    }
+    let (Some(vf), Some(ve)) = (fresh.variance(), earlier.variance()) else {
+        return Ok(fresh.clone());
+    };
+    let faces = mesh
+        .patches()
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap_or(0);
+    // Per face: leaves counted, sums of V_f, V_e and (X_f - X_e)².
+    let mut sums = vec![(0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); faces];
+    for (i, p) in mesh.patches().iter().enumerate() {
+        if earlier_valid[i] {
+            let d = fresh.radiosity()[i] - earlier.radiosity()[i];
+            let s = &mut sums[p.face as usize];
+            s.0 += 1.0;
+            s.1 += vf[i].max(DVec3::ZERO);
+            s.2 += ve[i].max(DVec3::ZERO);
+            s.3 += d * d;
+        }
+    }
+    let face_weight: Vec<DVec3> = sums
+        .iter()
+        .map(|&(count, vf, ve, d)| {
+            if count == 0.0 {
+                return DVec3::ONE;
+            }
+            let (vf, ve, d) = (vf / count, ve / count, d / count);
+            let ve = ve.max(d - vf);
+            let total = vf + ve;
+            DVec3::select(total.cmpgt(DVec3::ZERO), ve / total, DVec3::ONE)
+        })
+        .collect();
+    let weights: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .zip(earlier_valid)
+        .map(|(p, &valid)| {
+            if valid {
+                face_weight[p.face as usize]
+            } else {
+                DVec3::ONE
+            }
+        })
+        .collect();
+    merge(fresh, earlier, &Given(weights))
+}
+
+/// Weights given per patch and channel (the weight of the first operand).
+struct Given(Vec<DVec3>);
+
+impl Weighting for Given {
+    fn weight(&self, _: &Operand, _: &Operand, patch: usize, channel: usize) -> f64 {
+        self.0[patch][channel].clamp(0.0, 1.0)
+    }
 }
 
 /// The rays that fit in what is left of `seconds` since `start`, at the speed of the `rays`

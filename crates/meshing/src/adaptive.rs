@@ -82,19 +82,21 @@ pub struct AdaptiveBounds {
 }
 
 /// The default starting mesh as a fraction of the scene's bounding-box diagonal: no element
-/// edge longer than the diagonal / 40, half the uniform default's, so an adaptive mesh is nowhere
-/// coarser than the uniform one. The vertex values a render interpolates from large elements
-/// miss the curvature of evenly lit walls by more than the refinement's tests can tell from
-/// noise: with `--time 10` (image error table room / Cornell box) the diagonal / 20 measured
-/// 2.4-2.6% / 3.7-3.9%, / 40 1.4-1.5% / 2.2-2.3%, / 80 1.2% / 2.1% with twice the elements.
-pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 40.0;
+/// edge longer than the diagonal / 80, a quarter of the uniform default's, so an adaptive mesh
+/// is nowhere coarser than a fine uniform one. The vertex values a render interpolates from
+/// large elements miss the curvature of evenly lit walls by more than the refinement's tests
+/// can tell from noise: at 2.8e7 rays (image error table room / Cornell box, seed 0) the
+/// diagonal / 40 measured 1.4% / 2.0% with 7,500 / 11,000 elements, / 80 0.84% / 1.45% with
+/// 16,500 / 20,600 (docs/meshing.md).
+pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 80.0;
 
-/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (three
+/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (two
 /// halvings of the starting mesh).
 pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 320.0;
 
-/// The default maximum number of leaf elements of an adaptive mesh.
-pub const DEFAULT_MAX_PATCHES: usize = 20_000;
+/// The default maximum number of leaf elements of an adaptive mesh (the starting mesh of the
+/// diagonal / 80 has about 17,000 on the Cornell box).
+pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {
     /// The defaults for `scene`: minimum edge [`DEFAULT_MIN_EDGE_FRACTION`] of the bounding-box
