@@ -432,6 +432,8 @@ pub struct RunResult {
     pub variance: Option<Vec<DVec3>>,
     /// Rays the run cast.
     pub rays: u64,
+    /// It stopped because it converged, before spending its budget.
+    pub converged: bool,
 }
 
 /// How one run ended.
@@ -472,6 +474,7 @@ fn run_once(
                 radiosity: s.estimate.radiosity().to_vec(),
                 variance: s.estimate.variance().map(<[DVec3]>::to_vec),
                 rays: s.estimate.rays(),
+                converged: s.stop == StopReason::Converged,
             },
             s.stop,
         ),
@@ -498,6 +501,12 @@ pub struct Stats {
     pub zero_var: usize,
     /// (run, patch, channel) entries of runs that reported no variance.
     pub no_var: usize,
+    /// (run, patch, channel) entries with a reported variance of exactly 0 on an exact `B`
+    /// (`|B - exact| <= 1e-9 exact`): a true claim, left out of `z2` and of the misses.
+    pub exact: usize,
+    /// Runs that converged before spending their budget with every entry exact (variance 0 on
+    /// an exact `B`): their budget use is shown apart and is no miss.
+    pub exact_early: usize,
     /// Pooled spread / reported: the sum over patches and channels of the between-seed sample
     /// variance of `B` divided by the sum of the mean reported variance. 1 when calibrated.
     pub spread_pooled: Option<f64>,
@@ -511,8 +520,11 @@ pub struct Stats {
     /// The standard error of `power_bias`: the spread of the runs' powers / sqrt(K), relative
     /// to `P_exact`.
     pub power_se: Option<f64>,
-    /// Rays used / rays asked: the smallest and the largest over the runs.
+    /// Rays used / rays asked: the smallest and the largest over the runs, the
+    /// `exact_early` ones left out (`None` if every run is one).
     pub budget: Option<(f64, f64)>,
+    /// The same over the `exact_early` runs.
+    pub budget_exact_early: Option<(f64, f64)>,
 }
 
 /// The statistics of `runs` (each one complete run) against `exact` (per patch, W/m²) when
@@ -525,27 +537,36 @@ pub fn statistics(runs: &[RunResult], exact: Option<&[DVec3]>, areas: &[f64], as
     let k = runs.len() as f64;
     let n = areas.len();
     // z²
+    let mut exact_run = vec![false; runs.len()];
     if let Some(exact) = exact {
         let (mut sum, mut count) = (0.0, 0usize);
-        for r in runs {
+        for (r, exact_run) in runs.iter().zip(&mut exact_run) {
             let Some(v) = &r.variance else {
                 s.no_var += 3 * n;
                 continue;
             };
+            let mut all_exact = true;
             for i in 0..n {
                 for c in 0..3 {
                     let error = r.radiosity[i][c] - exact[i][c];
                     if v[i][c] > 0.0 {
                         sum += error.powi(2) / v[i][c];
                         count += 1;
+                        all_exact = false;
                     } else if error.abs() > 1e-9 * exact[i][c].abs() {
                         // a variance of 0 on an exact answer (an emitter that reflects
-                        // nothing) is true; on any other it claims an exactness it lacks
+                        // nothing, a furnace where every ray sees the same value) is true;
+                        // on any other it claims an exactness it lacks
                         s.zero_var += 1;
+                        all_exact = false;
+                    } else {
+                        s.exact += 1;
                     }
                 }
             }
+            *exact_run = all_exact && r.converged;
         }
+        s.exact_early = exact_run.iter().filter(|&&e| e).count();
         s.z2 = (count > 0).then(|| sum / count as f64);
     } else {
         s.no_var = runs.iter().filter(|r| r.variance.is_none()).count() * 3 * n;
@@ -610,11 +631,22 @@ pub fn statistics(runs: &[RunResult], exact: Option<&[DVec3]>, areas: &[f64], as
             s.power_se = Some((var / k).sqrt() / exact_power.abs());
         }
     }
-    let used: Vec<f64> = runs.iter().map(|r| r.rays as f64 / asked as f64).collect();
-    s.budget = Some((
-        used.iter().copied().fold(f64::INFINITY, f64::min),
-        used.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-    ));
+    let used = |early: bool| -> Option<(f64, f64)> {
+        let used: Vec<f64> = runs
+            .iter()
+            .zip(&exact_run)
+            .filter(|(_, e)| **e == early)
+            .map(|(r, _)| r.rays as f64 / asked as f64)
+            .collect();
+        (!used.is_empty()).then(|| {
+            (
+                used.iter().copied().fold(f64::INFINITY, f64::min),
+                used.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            )
+        })
+    };
+    s.budget = used(false);
+    s.budget_exact_early = used(true);
     s
 }
 
@@ -813,19 +845,36 @@ fn table(rows: &[Row]) -> String {
             (Some(b), Some(se)) => Some(b / se.max(target::POWER_TOLERANCE / target::POWER_SE)),
             _ => None,
         };
-        let budget = match s.budget {
-            None => "–".to_string(),
-            Some((lo, hi)) => {
-                let text = if (hi - lo) < 0.005 {
-                    format!("{:.1}%", 100.0 * lo)
-                } else {
-                    format!("{:.1}-{:.1}%", 100.0 * lo, 100.0 * hi)
-                };
-                if within(target::BUDGET)(lo) && within(target::BUDGET)(hi) {
-                    text
-                } else {
-                    format!("{text} ✗")
-                }
+        let range = |(lo, hi): (f64, f64)| {
+            if (hi - lo) < 0.005 {
+                format!("{:.1}%", 100.0 * lo)
+            } else {
+                format!("{:.1}-{:.1}%", 100.0 * lo, 100.0 * hi)
+            }
+        };
+        let mut budget = match s.budget {
+            None => String::new(),
+            Some((lo, hi)) if within(target::BUDGET)(lo) && within(target::BUDGET)(hi) => {
+                range((lo, hi))
+            }
+            Some(b) => format!("{} ✗", range(b)),
+        };
+        if let Some(b) = s.budget_exact_early {
+            if !budget.is_empty() {
+                budget.push_str("; ");
+            }
+            let _ = write!(budget, "{} exact early", range(b));
+        }
+        if budget.is_empty() {
+            budget.push('–');
+        }
+        // Every entry exact with variance 0: nothing to calibrate, and nothing wrong.
+        let all_exact = s.z2.is_none() && s.exact > 0 && s.zero_var + s.no_var == 0;
+        let calibrated = |value: Option<f64>| {
+            if all_exact && value.is_none() {
+                "exact".to_string()
+            } else {
+                cell(value, |v| format!("{v:.3}"), within(target::SPREAD))
             }
         };
         let zero = if s.zero_var + s.no_var == 0 {
@@ -845,17 +894,13 @@ fn table(rows: &[Row]) -> String {
             } else {
                 ""
             },
-            cell(s.z2, |v| format!("{v:.3}"), within(target::Z2)),
-            cell(
-                s.spread_pooled,
-                |v| format!("{v:.3}"),
-                within(target::SPREAD)
-            ),
-            cell(
-                s.spread_median,
-                |v| format!("{v:.3}"),
-                within(target::SPREAD)
-            ),
+            if all_exact {
+                "exact".to_string()
+            } else {
+                cell(s.z2, |v| format!("{v:.3}"), within(target::Z2))
+            },
+            calibrated(s.spread_pooled),
+            calibrated(s.spread_median),
             cell(
                 s.power_bias,
                 |v| format!("{:+.4}%", 100.0 * v),
@@ -895,14 +940,21 @@ fn far_table(rows: &[Row]) -> String {
         let se = (sa * sa + sb * sb).sqrt();
         let z = if pb == pa { 0.0 } else { (pb - pa) / se };
         let z2 = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.3}"));
+        let z2 = |s: &Stats| {
+            if s.z2.is_none() && s.exact > 0 {
+                "exact".to_string()
+            } else {
+                z2(s.z2)
+            }
+        };
         let _ = writeln!(
             t,
             "| {} | {:+.4}% | {} | {} / {} | {:.2} / {:.2} |",
             far.method,
             100.0 * (pb - pa),
             cell(Some(z), ratio, |v| v.abs() <= target::POWER_SE),
-            z2(a.z2),
-            z2(b.z2),
+            z2(a),
+            z2(b),
             origin.seconds,
             far.seconds
         );
@@ -951,7 +1003,9 @@ fn document(o: &Options, table: &str) -> String {
          while `B` is not exact / entries of runs that reported no variance. They are left out \
          of mean z² and count as misses: a variance of 0 claims an exact answer. (The light of \
          the room reflects nothing: its `B = E` is exact and its variance 0 is true, so it is \
-         not counted.)\n\
+         not counted.) A (case, method) whose every entry is exact with variance 0 (`|B - \
+         exact| <= 1e-9 exact`: gathering in a furnace, where every ray sees the same value) \
+         shows *exact* in mean z² and both spread columns: there is nothing to calibrate.\n\
          - **notes**: errors, panics and stops at the time limit (per seed, repeated messages \
          counted), and how many runs converged before spending their budget (shooting: unshot \
          power below 1e-4 of the emitted; gathering: a round changed little).\n\
@@ -967,7 +1021,9 @@ fn document(o: &Options, table: &str) -> String {
          relative to `P_exact`. **bias / SE**: their ratio, with the SE taken as at least \
          1e-4 / 3 (a bias below 1e-4 of the power, the solvers' own tolerance, passes: shooting \
          stops with 1e-4 of the emitted power unshot, and its power has no other noise).\n\
-         - **budget used**: rays cast / rays asked, smallest and largest over the runs.\n\
+         - **budget used**: rays cast / rays asked, smallest and largest over the runs. A run \
+         that converged before spending its budget with every entry exact (variance 0) is shown \
+         apart as *exact early* and is no miss: more rays could not improve it.\n\
          - **s/run**: mean wall-clock seconds of a run on this machine (all cores).\n\n\
          ## Targets (issue 16)\n\n\
          A cell marked ✗ misses its target: spread/reported (both columns) in [0.67, 1.5]; \
@@ -1001,11 +1057,13 @@ mod tests {
                 radiosity: vec![grey(1.5), grey(2.0)],
                 variance: Some(vec![grey(0.25), grey(1.0)]),
                 rays: 90,
+                converged: false,
             },
             RunResult {
                 radiosity: vec![grey(0.5), grey(3.0)],
                 variance: Some(vec![grey(0.25), grey(0.0)]),
                 rays: 110,
+                converged: false,
             },
         ];
         let s = statistics(&runs, Some(&exact), &areas, 100);
@@ -1038,6 +1096,30 @@ mod tests {
         assert_eq!((ratio(2.345), ratio(-3e7)), ("+2.3".into(), "-3e7".into()));
     }
 
+    /// Runs that converged early to the exact answer with variance 0 (gathering in a
+    /// furnace): counted as exact, not as misses or in z², and their budget shown apart.
+    #[test]
+    fn exact_runs_are_exact_not_misses() {
+        let exact = [grey(2.0), grey(2.0)];
+        let run = RunResult {
+            radiosity: exact.to_vec(),
+            variance: Some(vec![DVec3::ZERO; 2]),
+            rays: 85,
+            converged: true,
+        };
+        let s = statistics(&[run.clone(), run.clone()], Some(&exact), &[1.0, 1.0], 100);
+        assert_eq!((s.z2, s.zero_var, s.exact, s.exact_early), (None, 0, 12, 2));
+        assert_eq!((s.budget, s.budget_exact_early), (None, Some((0.85, 0.85))));
+        // the same answer 1e-6 off is not exact: its variance 0 is a miss
+        let off = RunResult {
+            radiosity: vec![grey(2.0 + 2e-6); 2],
+            ..run.clone()
+        };
+        let s = statistics(&[off.clone(), off], Some(&exact), &[1.0, 1.0], 100);
+        assert_eq!((s.zero_var, s.exact, s.exact_early), (12, 0, 0));
+        assert_eq!(s.budget, Some((0.85, 0.85)));
+    }
+
     /// A standard normal number (Box-Muller).
     fn normal(rng: &mut mcrad_random::Stream) -> f64 {
         let (u, v) = (1.0 - rng.uniform_f64(), rng.uniform_f64());
@@ -1067,6 +1149,7 @@ mod tests {
                         .collect(),
                     variance: Some((0..n).map(|i| grey(sigma[i].powi(2) / scale)).collect()),
                     rays: 100,
+                    converged: false,
                 })
                 .collect()
         };

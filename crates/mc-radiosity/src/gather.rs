@@ -471,6 +471,10 @@ pub struct GatherStats {
     pub change: f64,
     /// Why the run ended.
     pub stop: StopReason,
+    /// Every round's variance was exactly 0 on every patch and no ray escaped or hit a back
+    /// face: every ray of a patch saw the same value in every round (a furnace), so the rounds
+    /// are the Jacobi iterates themselves, without noise.
+    pub noise_free: bool,
 }
 
 /// The result of [`gather`].
@@ -531,6 +535,7 @@ pub fn gather<C: RayCaster>(
         back_face_hits: 0,
         change: f64::INFINITY,
         stop: StopReason::BudgetSpent,
+        noise_free: true,
     };
     let mut last = Estimate::new(b.clone(), Some(vec![DVec3::ZERO; b.len()]), 0)?;
     // The change a round leaves to the rounds after it: about `rho / (1 - rho)` times its own.
@@ -570,6 +575,11 @@ pub fn gather<C: RayCaster>(
         stats.rounds += 1;
         stats.escaped_rays += r.escaped_rays;
         stats.back_face_hits += r.back_face_hits;
+        stats.noise_free &= r.escaped_rays == 0
+            && r.back_face_hits == 0
+            && r.estimate
+                .variance()
+                .is_some_and(|v| v.iter().all(|v| *v == DVec3::ZERO));
         b.copy_from_slice(next);
         last = r.estimate;
         let progress = GatherProgress {

@@ -23,12 +23,14 @@
 //! within 1.5) and 0.3% from the power.
 
 use glam::DVec3;
+use mcrad_mc_radiosity::StopReason;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_scene_io::Scene;
 use std::ops::ControlFlow;
 
 mod common;
-use common::{bvh, furnace};
+use common::{box_faces, bvh, furnace, material};
 
 const SEEDS: u64 = 16;
 const RAYS: u64 = 20_000;
@@ -153,11 +155,12 @@ fn gather_adds_the_series_remainder_it_could_not_afford() {
     // sees the same value). A budget of 100 rounds at rho 0.999 sums 9.6% of the series; the
     // geometric remainder of the last increments restores the rest. In a furnace every round
     // is a uniform multiple of the last, so the answer is exact up to the rays that slip past the box's edges:
-    // within 1e-4 of `1 / (1 - rho)` (1.3e-5 measured), with a variance above 0 (the remainder's uncertainty)
-    // that covers the error.
-    let rho = 0.999;
-    let mesh = Mesh::build(&furnace(rho as f32), Subdivision::None).unwrap();
-    let exact = 1.0 / (1.0 - rho);
+    // within 1e-4 of `1 / (1 - rho)`, with a variance above 0 (the remainder's uncertainty)
+    // that covers the error, or exact with a variance of 0 when no round had noise.
+    let rho = 0.999f32;
+    let mesh = Mesh::build(&furnace(rho), Subdivision::None).unwrap();
+    // the mesh's reflectance is the `f32` nearest 0.999, 1.3e-8 above it: B = 1000.0129
+    let exact = 1.0 / (1.0 - f64::from(rho));
     let config = ScheduleConfig {
         rays: 1200,
         seed: 1,
@@ -176,9 +179,15 @@ fn gather_adds_the_series_remainder_it_could_not_afford() {
                 "B = {} against {exact}",
                 b[c]
             );
-            assert!(v[c] > 0.0, "variance 0 for a truncated series");
+            // a variance of 0 only for an exact answer: no round had noise, so the
+            // geometric remainder is exact (see the next test)
             assert!(
-                (b[c] - exact).powi(2) <= 16.0 * v[c],
+                v[c] > 0.0 || (b[c] - exact).abs() <= 1e-9 * exact,
+                "variance 0 for B = {} against {exact}",
+                b[c]
+            );
+            assert!(
+                (b[c] - exact).powi(2) <= 16.0 * v[c] || (b[c] - exact).abs() <= 1e-9 * exact,
                 "B = {}, var {}",
                 b[c],
                 v[c]
@@ -221,5 +230,126 @@ fn bidirectional_reports_the_variance_of_fixed_ray_counts_and_inherits_its_input
     assert!(
         (0.6..=1.6).contains(&ratio),
         "spread between seeds / reported variance {ratio:.3}"
+    );
+}
+
+#[test]
+fn gather_in_a_noise_free_furnace_is_exact_with_variance_zero() {
+    // Issue 16: gather on the calibration furnaces (864 patches, no ray slips past an edge)
+    // is exact, yet the series remainder reported a variance of (1e-3 of the remainder)², so
+    // mean z² was 0.000. When no round had noise (every ray of a patch saw the same value, none
+    // escaped) the rounds are the Jacobi iterates and the geometric remainder is exact: the
+    // answer must be exact to 1e-9 with variance 0. Deterministic given the seed; checked on
+    // two seeds, and only where the run was noise-free (else the variance must cover the
+    // error as in the test above).
+    for (rho, rays) in [(0.9f32, 200_000), (0.999, 200_000)] {
+        let mesh = Mesh::build(&furnace(rho), Subdivision::MaxEdge(0.25)).unwrap();
+        let exact = 1.0 / (1.0 - f64::from(rho));
+        let mut noise_free = 0;
+        for seed in 0..2 {
+            let config = ScheduleConfig {
+                rays,
+                seed,
+                ..Default::default()
+            };
+            let s = run(Method::Gather, &mesh, &bvh(&mesh), &config, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap();
+            let v = s.estimate.variance().unwrap();
+            let all_zero = v.iter().all(|v| *v == DVec3::ZERO);
+            noise_free += usize::from(all_zero);
+            for (b, v) in s.estimate.radiosity().iter().zip(v) {
+                for c in 0..3 {
+                    let error = (b[c] - exact).abs();
+                    if all_zero {
+                        assert!(error <= 1e-9 * exact, "rho {rho}: B = {} with var 0", b[c]);
+                    } else {
+                        assert!(
+                            error.powi(2) <= 25.0 * v[c],
+                            "rho {rho}: B = {}, var {}",
+                            b[c],
+                            v[c]
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            noise_free > 0,
+            "rho {rho}: no noise-free run (rays slip past the edges?)"
+        );
+    }
+}
+
+#[test]
+fn gather_on_a_non_uniform_closed_box_spends_its_budget() {
+    // Issue 16: gather stops when a round changes little. In a furnace that is right (the
+    // rounds are noise-free), on a box lit by one face at rho 0.9 / 0.99 a stop would cut an
+    // unconverged series: the noise of every round keeps the change above the threshold, so
+    // the run must spend its budget (StopReason::BudgetSpent, >= 95% of the rays). A
+    // deterministic check per seed, two seeds per reflectance.
+    for rho in [0.9f32, 0.99] {
+        let (mut p, mut f) = (Vec::new(), Vec::new());
+        box_faces(1.0, &mut p, &mut f, [1, 0, 0, 0, 0, 0]);
+        let materials = vec![material("wall", rho, 0.0), material("light", rho, 1.0)];
+        let scene = Scene::new(p, f, materials).unwrap().0;
+        let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.25)).unwrap();
+        let bvh = bvh(&mesh);
+        for seed in 0..2 {
+            let config = ScheduleConfig {
+                rays: 100_000,
+                seed,
+                ..Default::default()
+            };
+            let s = run(Method::Gather, &mesh, &bvh, &config, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap();
+            let used = s.estimate.rays() as f64 / config.rays as f64;
+            assert_eq!(s.stop, StopReason::BudgetSpent, "rho {rho} seed {seed}");
+            assert!(used >= 0.95, "rho {rho} seed {seed}: {:.1}%", 100.0 * used);
+        }
+    }
+}
+
+#[test]
+fn prr_keeps_its_budget_at_rho_0_999() {
+    // Issue 16: PRR at rho 0.999 used up to 105.1% of its rays (`cargo xtask calibrate`, 864
+    // patches, 2e5 rays): each pass overruns by its finishing roulette's tail (0-30% of it,
+    // random) and the last pass's overrun was charged to nobody, so every run overran. The
+    // last pass is now sized to what is left over the share cast per ray asked so far, and
+    // what it leaves goes to further passes. The same furnace's patches here (12 x 12 a face),
+    // seeds 0..6; budget use is a deterministic function of the seed. Every seed within
+    // 95-105%, and the mean use within 0.85% of the budget: before, 100.9% (every seed
+    // 100.1-101.5%); after, 100.05% with a spread of 0.95% between seeds (standard error of
+    // a 6-seed mean 0.39%, so the bound is 2.2 standard errors: a false-failure rate of about
+    // 3% for another set of seeds).
+    let mesh = Mesh::build(&furnace(0.999), Subdivision::MaxEdge(1.0 / 12.0 + 1e-4)).unwrap();
+    assert_eq!(mesh.patches().len(), 864);
+    let bvh = bvh(&mesh);
+    let mut mean = 0.0;
+    for seed in 0..6 {
+        let config = ScheduleConfig {
+            rays: 200_000,
+            seed,
+            ..Default::default()
+        };
+        let s = run(Method::Prr, &mesh, &bvh, &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        let used = s.estimate.rays() as f64 / config.rays as f64;
+        assert!(
+            (0.95..=1.05).contains(&used),
+            "seed {seed}: {:.1}% of the budget",
+            100.0 * used
+        );
+        mean += used / 6.0;
+    }
+    assert!(
+        (mean - 1.0).abs() <= 0.0085,
+        "mean use {:.2}% of the budget",
+        100.0 * mean
     );
 }

@@ -56,7 +56,7 @@ pub(crate) fn run<C: RayCaster>(
         }
         flow
     })?;
-    let estimate = with_remainder(mesh, g.estimate, &history, g.rounds)?;
+    let estimate = with_remainder(mesh, g.estimate, &history, g.rounds, g.stats.noise_free)?;
     Ok(Solution {
         estimate,
         steps: g.rounds,
@@ -109,7 +109,9 @@ const HISTORY: usize = 4;
 /// added to the last round's, is `(B_m,i - E_i)² r² delta²` with `delta` the relative
 /// uncertainty of `q / (1 - q)`: the change of the ratio between the last two pairs of rounds
 /// over `1 - q`, plus the relative noise of `sum A d_m` (its rounds' variances), at least
-/// `1e-3`. A series that cannot be sized (fewer than 3 rounds, an increment within two
+/// `1e-3` unless every round of the run was noise-free (`noise_free`: [`GatherStats::noise_free`](crate::GatherStats::noise_free))
+/// and the drift is below 1e-9 (rounds in a geometric ratio to rounding): the remainder is
+/// then exact, and so is its variance 0. A series that cannot be sized (fewer than 3 rounds, an increment within two
 /// standard deviations of its noise, or not shrinking) adds nothing to `B`, and to the
 /// variance the bound `rho_max / (1 - rho_max)` times the last increment (or its noise) in
 /// power, spread as the reflected light, and never more than `rho_max^m / (1 - rho_max^m)` of
@@ -119,6 +121,7 @@ fn with_remainder(
     last: Estimate,
     history: &[Vec<DVec3>],
     rounds: u32,
+    noise_free: bool,
 ) -> Result<Estimate, Error> {
     let patches = mesh.patches();
     let Some(variance) = last.variance() else {
@@ -167,7 +170,14 @@ fn with_remainder(
                     1.0
                 };
                 r[c] = q / (1.0 - q) * d1[c] / reflected[c];
-                delta[c] = (drift + sd / d1[c]).max(1e-3);
+                // Rounds without noise that shrink by the same ratio to rounding (a furnace:
+                // every ray sees the same value) make the remainder exact; otherwise the
+                // geometric model is trusted to no better than 1e-3.
+                delta[c] = if noise_free && drift <= 1e-9 {
+                    0.0
+                } else {
+                    (drift + sd / d1[c]).max(1e-3)
+                };
             }
             // Converged to the noise, or not geometric yet: what is missing is at most the
             // last increment (or its noise) times `rho_max / (1 - rho_max)`.

@@ -14,8 +14,31 @@ pub(crate) fn run<C: RayCaster>(
     let mesh = ctx.mesh();
     let mut passes = Doubling::new(config);
     let mut run = Progressive::default();
-    while let Some(budget) = passes.next() {
+    // Rays asked of and cast by the passes so far. A pass overruns its budget by its finishing
+    // roulette's tail, a random share of it that grows near rho = 1 (0-30% per pass at rho
+    // 0.999, one roulette path there being ~1000 rays), and charging it to the later passes
+    // leaves the last one's uncovered (PRR used up to 105% of its budget). So the last pass is
+    // sized to what is left over the share the passes so far cast per ray asked, which the
+    // small early passes (the largest shares) make conservative, and what its tail leaves
+    // unspent goes to further passes sized alike, down to 1% of the budget.
+    let (mut asked, mut cast) = (0u64, 0u64);
+    loop {
+        let left = passes.remaining();
+        // Rays kept back from the last pass, given back after it.
+        let mut held = 0;
+        if asked > 0 && cast > asked && passes.peek() == left {
+            let size = (left as f64 * asked as f64 / cast as f64) as u64;
+            if size < config.rays / 100 {
+                break;
+            }
+            passes.cap(size);
+            held = left - size;
+        }
+        let Some(budget) = passes.next() else { break };
         let s = run.shoot(ctx, config, budget, run.steps as u64)?;
+        asked += budget;
+        cast += s.stats.rays;
+        passes.refund(held);
         passes.charge(s.stats.rays.saturating_sub(budget));
         if !run.step(with_ambient(mesh, config, s)?, &mut passes, observer)? {
             break;
