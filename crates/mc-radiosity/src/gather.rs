@@ -332,20 +332,21 @@ fn round_parts_with<C: RayCaster>(
     Ok((round, inherited))
 }
 
-/// A patch's sampling variance as the mean of its own and its input face's,
-/// `rho_i² (s_i² + s_f²) / (2 n_i)`, with `s_f²` the sample variance of the values seen by the
-/// rays of all patches of face `f`, pooled within patches (`sum m2 / sum (n - 1)`). Both are
-/// unbiased for the variance where the face's patches see nearly the same scene, so their
-/// mean is too.
+/// A patch's sampling variance from the other patches of its input face:
+/// `rho_i² s_f²/n_i`, with `s_f²` the sample variance of the values seen by the rays of the
+/// other patches of face `f`, pooled within patches (`sum m2 / sum (n - 1)` over the face's
+/// patches but `i`). Unbiased for the variance where the face's patches see nearly the same
+/// scene, and independent of patch `i`'s own rays. (The collision part, the noise inherited
+/// from the input, stays the patch's own.) A face of one patch keeps the patch's own.
 ///
 /// A rare bright value (a small light seen by one ray in a thousand) leaves most patches'
 /// rays without it: their own sample variance is small and their value low, while the few
 /// that saw it are high with a large variance; right on average, but the unlucky majority
-/// claimed a precision they did not have (the tiny-light room of `cargo xtask calibrate`:
-/// mean `z²` 700-3000 for `gather`, `two-pass` and the progressive gathers). With the face's
-/// share: 0.36-0.42 (24 for `gather`, whose later rounds inherit the earlier ones' rare
-/// hits), spread between seeds / reported still 0.95-1.01 pooled. What stays is the nature
-/// of a rare event: most patches' spread over 8 seeds is far below their true variance.
+/// claim a precision they do not have, and an estimate that includes the patch's own rays
+/// follows its luck (the tiny-light room of `cargo xtask calibrate`: mean `z²` 700-3000 for
+/// `two-pass` and the progressive gathers with the own variance, 0.35-0.42 with half own and
+/// half the face's, 1.06-1.10 with the others' only). What stays is the nature of a rare event:
+/// most patches' spread over 8 seeds is far below their true variance (the median column).
 fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Estimate, Error> {
     let patches = mesh.patches();
     let faces = patches
@@ -367,12 +368,14 @@ fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Es
         .zip(variance)
         .map(|((p, s), v)| {
             let f = p.face as usize;
-            if dof[f] == 0 || s.moments.n == 0 {
+            let own_dof = s.moments.n.saturating_sub(1);
+            if dof[f] <= own_dof || s.moments.n == 0 {
                 return *v;
             }
             let rho = p.reflectance.as_dvec3();
-            let pooled = (m2[f] / dof[f] as f64).max(DVec3::ZERO) / s.moments.n as f64;
-            (*v + rho * rho * 0.5 * (pooled - s.moments.variance_of_mean())).max(DVec3::ZERO)
+            let others = ((m2[f] - s.moments.m2) / (dof[f] - own_dof) as f64).max(DVec3::ZERO);
+            let pooled = others / s.moments.n as f64;
+            (*v + rho * rho * (pooled - s.moments.variance_of_mean())).max(DVec3::ZERO)
         })
         .collect();
     Ok(Estimate::new(
