@@ -351,15 +351,12 @@ fn measure(
     truth: &(mcrad_render::Image, mcrad_render::Image),
     reference: &FaceValues,
 ) -> Result<Point> {
-    let stem = work.join(format!(
-        "{}-{}-{seconds}",
-        scene.name,
-        label.replace(' ', "-")
-    ));
+    // Not `with_extension`: the stem has dots of its own (`uniform-0.07-2.5`).
+    let stem = format!("{}-{}-{seconds}", scene.name, label.replace(' ', "-"));
     let (image, faces, stats) = (
-        stem.with_extension("exr"),
-        stem.with_extension("csv"),
-        stem.with_extension("json"),
+        work.join(format!("{stem}.exr")),
+        work.join(format!("{stem}.csv")),
+        work.join(format!("{stem}.json")),
     );
     let mut args = extra.to_vec();
     for a in [
