@@ -108,7 +108,7 @@ fn bench(c: &mut Criterion) {
     );
     let mut group = c.benchmark_group(format!("cornell_{}patches", patches.patches().len()));
     group.bench_function("load", |b| b.iter(load));
-    group.bench_function("mesh", |b| b.iter(|| mesh_of(&scene)));
+    group.bench_function("mesh", |b| b.iter(|| mesh(black_box(&scene))));
     group.bench_function("bvh", |b| b.iter(|| bvh(&patches)));
     group.bench_function("solve", |b| {
         b.iter(|| {
@@ -127,7 +127,7 @@ fn bench(c: &mut Criterion) {
     group.bench_function("file_to_solution", |b| {
         b.iter(|| {
             let scene = load();
-            let mesh = mesh_of(&scene);
+            let mesh = mesh(black_box(&scene));
             let bvh = bvh(&mesh);
             solve(Method::Combined, &mesh, &bvh, rays, 0)
                 .estimate
@@ -135,11 +135,6 @@ fn bench(c: &mut Criterion) {
         })
     });
     group.finish();
-}
-
-/// [`mesh`] behind `black_box`, so the build is not elided.
-fn mesh_of(scene: &mcrad_scene_io::Scene) -> Mesh {
-    mesh(black_box(scene))
 }
 
 criterion_group!(benches, bench);

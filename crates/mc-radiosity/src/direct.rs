@@ -66,18 +66,15 @@
 //! `s²` the sample variance of `f`.
 
 use crate::context::Context;
-use crate::context::Sampler;
 use crate::error::Error;
-use crate::gather::{
-    Emission, check_input, gather_round_from, gather_round_parts, gather_round_parts_with_light,
-};
-use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, JOB_RAYS, Moments, jobs};
+use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts_with_light};
+use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
-use crate::surface::SurfaceSampler;
+use crate::surface::{Rays, SurfaceSampler};
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::Patch;
-use mcrad_random::{Sobol, Stream, StreamKey};
+use mcrad_random::StreamKey;
 use mcrad_raycast::{Hit, NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};
@@ -172,19 +169,11 @@ fn direct_with<C: RayCaster>(
             }
             let i = job.item as usize;
             let frame = Frame::from_normal(patches[i].normal);
-            let item = key.item(i as u64);
-            let mut draws = match ctx.sampling() {
-                Sampler::Random => {
-                    Draws::Random(item.substream(DIRECT_LIGHT + job.chunk as u64).stream())
-                }
-                Sampler::Qmc => Draws::Qmc {
-                    sequence: item.substream(DIRECT_LIGHT).sobol(),
-                    next: job.chunk as u64 * JOB_RAYS as u64,
-                },
-            };
+            let mut rays =
+                Rays::for_chunk(ctx.sampling(), key.item(i as u64), DIRECT_LIGHT, job.chunk);
             let mut tally = Tally::default();
             for _ in 0..job.rays {
-                let draw = draws.next(&light, i, &frame, sampler);
+                let draw = draw(&mut rays, &light, i, &frame, sampler);
                 let f = light.sample(i, &frame, caster, draw, &mut tally);
                 tally.moments.push(f);
             }
@@ -225,47 +214,38 @@ struct Draw {
     dir: Option<Vec3>,
 }
 
-/// Where the samples of one job come from (see [`Sampler`]).
-enum Draws {
-    /// Independent uniforms: `x` from three, the emitter from one `f64`, `y` from three, then
-    /// the direction by rejection.
-    Random(Stream),
-    /// Consecutive points of the patch's sequence: `x` from dimensions 2-3, the emitter and `y`
-    /// from dimensions 0-1 (the emitter's share of dimension 0 rescaled to `[0, 1)` picks the
-    /// point), the direction from dimensions 4-5.
-    Qmc { sequence: Sobol, next: u64 },
-}
-
-impl Draws {
-    /// The next sample's choices for receiver `i`.
-    #[inline]
-    fn next(&mut self, light: &Light, i: usize, frame: &Frame, sampler: &SurfaceSampler) -> Draw {
-        match self {
-            Draws::Random(rng) => {
-                let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
-                let j = light.emitters.sample(rng.uniform_f64());
-                let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
-                let dir = light
-                    .mis
-                    .eq(&Mis::Paired)
-                    .then(|| frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())));
-                Draw { x, j, y, dir }
-            }
-            Draws::Qmc { sequence, next } => {
-                let u = sequence.point(*next);
-                let x = sampler.point2(i, [u[2], u[3]]);
-                let j = light.emitters.sample(f64::from(u[0]));
-                let share = light.emitters.inverse(j);
-                let v = ((f64::from(u[0]) - share.start) / (share.end - share.start))
-                    .clamp(0.0, 1.0 - f64::EPSILON) as f32;
-                let y = sampler.point2(j, [v.min(1.0 - f32::EPSILON / 2.0), u[1]]);
-                let dir = (light.mis == Mis::Paired).then(|| {
-                    let w = sequence.point_next(*next);
-                    frame.to_world(cosine_hemisphere_concentric(glam::Vec2::new(w[0], w[1])))
-                });
-                *next += 1;
-                Draw { x, j, y, dir }
-            }
+/// The next sample's choices for receiver `i`, from `rays` (see [`Sampler`](crate::Sampler)): independent
+/// uniforms (`x` from three, the emitter from one `f64`, `y` from three, then the direction by
+/// rejection), or the next point of the patch's sequence (`x` from dimensions 2-3, the emitter
+/// and `y` from dimensions 0-1: the emitter's share of dimension 0 rescaled to `[0, 1)` picks
+/// the point; the direction from dimensions 4-5).
+#[inline]
+fn draw(rays: &mut Rays, light: &Light, i: usize, frame: &Frame, sampler: &SurfaceSampler) -> Draw {
+    match rays {
+        Rays::Random(rng) => {
+            let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+            let j = light.emitters.sample(rng.uniform_f64());
+            let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
+            let dir = light
+                .mis
+                .eq(&Mis::Paired)
+                .then(|| frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())));
+            Draw { x, j, y, dir }
+        }
+        Rays::Qmc { sequence, next } => {
+            let u = sequence.point(*next);
+            let x = sampler.point2(i, [u[2], u[3]]);
+            let j = light.emitters.sample(f64::from(u[0]));
+            let share = light.emitters.inverse(j);
+            let v = ((f64::from(u[0]) - share.start) / (share.end - share.start))
+                .clamp(0.0, 1.0 - f64::EPSILON) as f32;
+            let y = sampler.point2(j, [v.min(1.0 - f32::EPSILON / 2.0), u[1]]);
+            let dir = (light.mis == Mis::Paired).then(|| {
+                let w = sequence.point_next(*next);
+                frame.to_world(cosine_hemisphere_concentric(glam::Vec2::new(w[0], w[1])))
+            });
+            *next += 1;
+            Draw { x, j, y, dir }
         }
     }
 }
@@ -577,23 +557,16 @@ pub(crate) fn split_with_budget<C: RayCaster>(
     let samples = samples.clamp(2.0, u32::MAX as f64) as u32;
     let shadow_rays = (n as f64 * samples as f64 * q).round() as u64;
     let rays_per_patch = (rays.saturating_sub(shadow_rays) / n).clamp(2, u32::MAX as u64) as u32;
-    let Some(emitters) = ctx.emitters() else {
-        let direct = direct(ctx, samples, DirectSampling::Emitters, key)?.estimate;
-        let indirect_input = reflected_part(patches, shooting)?;
-        let (indirect, inherited) =
-            gather_round_parts(ctx, &indirect_input, Emission::Exclude, rays_per_patch, key)?;
-        return Ok((join_split(patches, &indirect.estimate, &direct)?, inherited));
-    };
     let cosine_per_sample = rays_per_patch as f64 / samples as f64;
     let direct = direct_with(ctx, samples, Mis::Shared { cosine_per_sample }, key)?.estimate;
-    let light = CosineLight {
+    let light = ctx.emitters().map(|emitters| CosineLight {
         patches,
         emitters,
         samples_per_ray: 1.0 / cosine_per_sample,
-    };
+    });
     let indirect_input = reflected_part(patches, shooting)?;
     let (indirect, inherited) =
-        gather_round_parts_with_light(ctx, &indirect_input, &light, rays_per_patch, key)?;
+        gather_round_parts_with_light(ctx, &indirect_input, light.as_ref(), rays_per_patch, key)?;
     Ok((join_split(patches, &indirect.estimate, &direct)?, inherited))
 }
 

@@ -77,10 +77,9 @@
 //! patches and estimators.
 
 use crate::context::Context;
-use crate::context::Sampler;
 use crate::direct::CosineLight;
 use crate::error::Error;
-use crate::jobs::{JOB_RAYS, PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
+use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
 use crate::method::StopReason;
 use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::Rays;
@@ -212,6 +211,7 @@ pub(crate) fn gather_round_parts<C: RayCaster>(
         emission,
         rays_per_patch,
         key,
+        None,
     )
 }
 
@@ -224,43 +224,7 @@ fn round<C: RayCaster>(
     rays_per_patch: u32,
     key: StreamKey,
 ) -> Result<GatherRound, Error> {
-    Ok(round_parts(ctx, input, input_variance, emission, rays_per_patch, key)?.0)
-}
-
-/// [`gather_round_parts`] whose rays also carry the cosine half of the direct light's multiple
-/// importance sampling: a ray of patch `i` whose first hit is the front of an emitter adds
-/// `light`'s share of its emission ([`CosineLight::share`]) to the input it sees there, so the
-/// round's mean is `rho_i sum_j F_ij input_j` plus the cosine strategy's part of `D_i`, with one
-/// sample variance over both (they come from the same rays). Gathers with
-/// [`Emission::Exclude`]: the light emitted is the direct light's business.
-pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
-    ctx: &Context<C>,
-    input: &Estimate,
-    light: &CosineLight,
-    rays_per_patch: u32,
-    key: StreamKey,
-) -> Result<(GatherRound, Vec<DVec3>), Error> {
-    round_parts_with(
-        ctx,
-        input.radiosity(),
-        input.variance(),
-        Emission::Exclude,
-        rays_per_patch,
-        key,
-        Some(light),
-    )
-}
-
-/// [`round`] and the inherited part of its variance ([`gather_round_parts`]).
-fn round_parts<C: RayCaster>(
-    ctx: &Context<C>,
-    input: &[DVec3],
-    input_variance: Option<&[DVec3]>,
-    emission: Emission,
-    rays_per_patch: u32,
-    key: StreamKey,
-) -> Result<(GatherRound, Vec<DVec3>), Error> {
-    round_parts_with(
+    Ok(round_parts(
         ctx,
         input,
         input_variance,
@@ -268,11 +232,38 @@ fn round_parts<C: RayCaster>(
         rays_per_patch,
         key,
         None,
+    )?
+    .0)
+}
+
+/// [`gather_round_parts`] whose rays also carry the cosine half of the direct light's multiple
+/// importance sampling: a ray of patch `i` whose first hit is the front of an emitter adds
+/// `light`'s share of its emission ([`CosineLight::share`]) to the input it sees there, so the
+/// round's mean is `rho_i sum_j F_ij input_j` plus the cosine strategy's part of `D_i`, with one
+/// sample variance over both (they come from the same rays). Gathers with
+/// [`Emission::Exclude`]: the light emitted is the direct light's business. Without `light`
+/// (a scene without emitters) this is [`gather_round_parts`] with [`Emission::Exclude`].
+pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &Estimate,
+    light: Option<&CosineLight>,
+    rays_per_patch: u32,
+    key: StreamKey,
+) -> Result<(GatherRound, Vec<DVec3>), Error> {
+    round_parts(
+        ctx,
+        input.radiosity(),
+        input.variance(),
+        Emission::Exclude,
+        rays_per_patch,
+        key,
+        light,
     )
 }
 
-/// [`round_parts`], its rays also scoring `light` where given.
-fn round_parts_with<C: RayCaster>(
+/// [`round`] and the inherited part of its variance ([`gather_round_parts`]), its rays also
+/// scoring `light` where given ([`gather_round_parts_with_light`]).
+fn round_parts<C: RayCaster>(
     ctx: &Context<C>,
     input: &[DVec3],
     input_variance: Option<&[DVec3]>,
@@ -295,16 +286,12 @@ fn round_parts_with<C: RayCaster>(
         if ctx.cancelled() {
             return Seen::default();
         }
-        let item = key.item(job.item as u64);
-        let mut rays = match ctx.sampling() {
-            Sampler::Random => {
-                Rays::Random(item.substream(PATCH_GATHER + job.chunk as u64).stream())
-            }
-            Sampler::Qmc => Rays::Qmc {
-                sequence: item.substream(PATCH_GATHER).sobol(),
-                next: job.chunk as u64 * JOB_RAYS as u64,
-            },
-        };
+        let mut rays = Rays::for_chunk(
+            ctx.sampling(),
+            key.item(job.item as u64),
+            PATCH_GATHER,
+            job.chunk,
+        );
         let ray = || rays.ray(sampler, job.item as usize);
         match light {
             None => look(job.rays, caster, input, input_variance, ray),
@@ -701,16 +688,8 @@ pub fn gather_corners<C: RayCaster>(
             return Seen::default();
         }
         let g = job.item as usize;
-        let item = key.item(g as u64);
-        let mut rays = match ctx.sampling() {
-            Sampler::Random => {
-                Rays::Random(item.substream(VERTEX_GATHER + job.chunk as u64).stream())
-            }
-            Sampler::Qmc => Rays::Qmc {
-                sequence: item.substream(VERTEX_GATHER).sobol(),
-                next: job.chunk as u64 * JOB_RAYS as u64,
-            },
-        };
+        let mut rays =
+            Rays::for_chunk(ctx.sampling(), key.item(g as u64), VERTEX_GATHER, job.chunk);
         let (origin, frame) = (groups.point(g), &frames[g]);
         look(job.rays, caster, input, None, || {
             let local = match &mut rays {
@@ -755,7 +734,7 @@ pub fn gather_corners<C: RayCaster>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::Moments;
+    use crate::jobs::{JOB_RAYS, Moments};
 
     #[test]
     fn moments_merge_like_one_pass() {

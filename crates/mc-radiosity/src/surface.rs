@@ -1,11 +1,13 @@
 //! Uniform points and cosine-distributed rays on patches.
 
+use crate::context::Sampler;
+use crate::jobs::JOB_RAYS;
 use crate::sampling::{
     Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection, uniform_triangle,
 };
 use glam::{Vec2, Vec3};
 use mcrad_meshing::Mesh;
-use mcrad_random::{Sobol, Stream};
+use mcrad_random::{Sobol, Stream, StreamKey};
 use mcrad_raycast::Ray;
 
 /// Per-patch tables for drawing uniform points (density `1/A_i` per unit area) and rays leaving
@@ -146,6 +148,20 @@ pub(crate) enum Rays {
 }
 
 impl Rays {
+    /// The rays of chunk `chunk` (of [`JOB_RAYS`](crate::jobs::JOB_RAYS) rays) of an item whose
+    /// streams are keyed by `item`, for the estimator tagged `tag`: the stream
+    /// `item.substream(tag + chunk)`, or the points from `chunk * JOB_RAYS` on of the sequence
+    /// `item.substream(tag)`, as `sampling` says.
+    pub fn for_chunk(sampling: Sampler, item: StreamKey, tag: u64, chunk: u32) -> Rays {
+        match sampling {
+            Sampler::Random => Rays::Random(item.substream(tag + chunk as u64).stream()),
+            Sampler::Qmc => Rays::Qmc {
+                sequence: item.substream(tag).sobol(),
+                next: chunk as u64 * JOB_RAYS as u64,
+            },
+        }
+    }
+
     /// The next point of the unit 4-cube: four uniforms, or the sequence's next point.
     #[inline]
     pub fn next_point(&mut self) -> [f32; 4] {

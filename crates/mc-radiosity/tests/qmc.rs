@@ -7,12 +7,11 @@
 
 mod common;
 
-use common::{bvh, furnace, material, quad};
-use glam::{DVec3, Vec3};
+use common::{bvh, furnace, parallel_squares};
+use glam::DVec3;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_mc_radiosity::{Context, Sampler, ShootConfig, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_scene_io::Scene;
 use std::ops::ControlFlow;
 
 const RUNS: u64 = 16;
@@ -25,34 +24,10 @@ fn mean_se(xs: &[f64]) -> (f64, f64) {
     (mean, (var / n).sqrt())
 }
 
-/// An emitter (E = 1, rho = 0) facing a receiver (rho = 0.5) one unit away, parallel unit
-/// squares: the receiver's radiosity is `rho F E` with `F = 0.199825`.
-fn parallel_squares() -> Mesh {
-    let positions = vec![
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(1.0, 0.0, 0.0),
-        Vec3::new(1.0, 1.0, 0.0),
-        Vec3::new(0.0, 1.0, 0.0),
-        Vec3::new(0.0, 0.0, 1.0),
-        Vec3::new(1.0, 0.0, 1.0),
-        Vec3::new(1.0, 1.0, 1.0),
-        Vec3::new(0.0, 1.0, 1.0),
-    ];
-    let faces = vec![quad([0, 1, 2, 3], 0, 0), quad([4, 7, 6, 5], 1, 1)];
-    let scene = Scene::new(
-        positions,
-        faces,
-        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
-    )
-    .unwrap()
-    .0;
-    Mesh::build(&scene, Subdivision::None).unwrap()
-}
-
 /// The receiver's radiosity of `RUNS` shooting runs of 65 536 rays (one block of the emitter's
 /// sequence) with `sampler`.
 fn receiver_runs(sampler: Sampler) -> Vec<f64> {
-    let mesh = parallel_squares();
+    let mesh = Mesh::build(&parallel_squares(), Subdivision::None).unwrap();
     let bvh = bvh(&mesh);
     let ctx = Context::new(&mesh, &bvh).with_sampler(sampler);
     (0..RUNS)

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bvh, furnace, material, quad};
+use common::{bvh, furnace, material, parallel_squares, quad};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::SurfaceSampler;
 use mcrad_meshing::{Mesh, Subdivision};
@@ -37,28 +37,6 @@ fn factors(mesh: &Mesh, tolerance: f64) -> FormFactors {
         tolerance,
         ReferenceConfig::default().visibility_tolerance,
     )
-}
-
-/// Two unit squares: `z = 0` facing +z (patch 0) and `z = 1` facing -z (patch 1).
-fn parallel_squares() -> Scene {
-    let positions = vec![
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(1.0, 0.0, 0.0),
-        Vec3::new(1.0, 1.0, 0.0),
-        Vec3::new(0.0, 1.0, 0.0),
-        Vec3::new(0.0, 0.0, 1.0),
-        Vec3::new(1.0, 0.0, 1.0),
-        Vec3::new(1.0, 1.0, 1.0),
-        Vec3::new(0.0, 1.0, 1.0),
-    ];
-    let faces = vec![quad([0, 1, 2, 3], 0, 0), quad([4, 7, 6, 5], 1, 1)];
-    Scene::new(
-        positions,
-        faces,
-        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
-    )
-    .unwrap()
-    .0
 }
 
 /// Two unit squares sharing the edge `y = z = 0`: `z = 0` facing +z, `y = 0` facing +y.

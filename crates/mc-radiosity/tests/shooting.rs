@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{box_faces, furnace, material};
+use common::{box_faces, furnace, material, parallel_squares};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::{Context, ShootConfig, StopReason, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
@@ -91,36 +91,7 @@ fn closed_furnace_gives_e_over_one_minus_rho() {
 fn parallel_unit_squares_exchange_the_analytic_form_factor() {
     // An emitter (E = 1, rho = 0) facing a receiver (rho = 0.5) one unit away: the receiver's
     // radiosity is rho * F * E with F = 0.199825 for parallel unit squares at unit distance.
-    let positions = vec![
-        Vec3::new(0.0, 0.0, 0.0),
-        Vec3::new(1.0, 0.0, 0.0),
-        Vec3::new(1.0, 1.0, 0.0),
-        Vec3::new(0.0, 1.0, 0.0),
-        Vec3::new(0.0, 0.0, 1.0),
-        Vec3::new(1.0, 0.0, 1.0),
-        Vec3::new(1.0, 1.0, 1.0),
-        Vec3::new(0.0, 1.0, 1.0),
-    ];
-    let faces = vec![
-        Face {
-            vertices: vec![0, 1, 2, 3],
-            material: 0,
-            source: 0,
-        }, // faces +z
-        Face {
-            vertices: vec![4, 7, 6, 5],
-            material: 1,
-            source: 1,
-        }, // faces -z
-    ];
-    let scene = Scene::new(
-        positions,
-        faces,
-        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
-    )
-    .unwrap()
-    .0;
-    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    let mesh = Mesh::build(&parallel_squares(), Subdivision::None).unwrap();
     let samples = runs(
         &mesh,
         ShootConfig {

@@ -59,3 +59,27 @@ pub fn furnace(rho: f32) -> Scene {
 pub fn bvh(mesh: &Mesh) -> Bvh {
     Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap()
 }
+
+/// Two parallel unit squares one unit apart: a lamp at `z = 0` facing +z (patch 0: E = 1,
+/// rho = 0) and a grey receiver at `z = 1` facing -z (patch 1: rho = 0.5), whose form factor to
+/// the lamp is 0.199825.
+pub fn parallel_squares() -> Scene {
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(1.0, 0.0, 1.0),
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(0.0, 1.0, 1.0),
+    ];
+    let faces = vec![quad([0, 1, 2, 3], 0, 0), quad([4, 7, 6, 5], 1, 1)];
+    Scene::new(
+        positions,
+        faces,
+        vec![material("lamp", 0.0, 1.0), material("grey", 0.5, 0.0)],
+    )
+    .unwrap()
+    .0
+}
