@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_mc_radiosity::schedule::ScheduleConfig;
-use mcrad_mc_radiosity::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
+use mcrad_mc_radiosity::{ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
 use mcrad_render::Exposure;
@@ -91,6 +91,12 @@ pub struct Solve {
     /// Either way the answer is unbiased and the same on any thread count.
     #[arg(long, value_enum, default_value_t = Sampler::default())]
     pub sampler: Sampler,
+    /// Patch gathering with a control variate: `constant` subtracts from what each ray sees
+    /// the mean its patch's hits saw in the round before, and adds it back times the share of
+    /// the patch's hemisphere that sees the scene, measured by the rounds before that; unbiased
+    /// in open scenes too. `off`: plain gathering.
+    #[arg(long, value_enum, default_value_t = ControlVariate::default())]
+    pub control_variate: ControlVariate,
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
     /// 2e-3 is about twenty times quicker than the default.
@@ -231,6 +237,7 @@ impl Solve {
             ambient: self.ambient,
             first_pass_rays: None,
             sampler: self.sampler,
+            control_variate: self.control_variate,
             reference: ReferenceConfig {
                 visibility_tolerance: self
                     .visibility_tolerance

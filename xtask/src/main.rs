@@ -31,7 +31,8 @@ tasks:
           the paper's Figure 2: gathering from refining shooting, with and without the
           ambient term; writes docs/figure2.csv and docs/figure2.png
   experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-                            [--time S] [--target E] [--sampler random|qmc] [--out DIR]
+                            [--time S] [--target E] [--sampler random|qmc]
+                            [--control-variate off|constant] [--out DIR]
           every method on every experiment scene, error against time; writes
           docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
           (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)

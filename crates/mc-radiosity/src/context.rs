@@ -1,6 +1,7 @@
 //! What every estimator of a run shares, built once: the mesh, the ray caster, the surface
 //! sampler and the emitter sampler.
 
+use crate::control::{ControlVariate, Coverage};
 use crate::error::Error;
 use crate::sampling::Discrete;
 use crate::surface::SurfaceSampler;
@@ -20,6 +21,7 @@ pub struct Context<'a, C: RayCaster> {
     choice: Sampler,
     emitters: Option<Discrete>,
     cancel: Option<&'a AtomicBool>,
+    coverage: Option<Coverage>,
 }
 
 impl<'a, C: RayCaster> Context<'a, C> {
@@ -38,6 +40,7 @@ impl<'a, C: RayCaster> Context<'a, C> {
             choice: Sampler::Random,
             emitters: Discrete::new(&power),
             cancel: None,
+            coverage: None,
         }
     }
 
@@ -59,6 +62,32 @@ impl<'a, C: RayCaster> Context<'a, C> {
     /// How the estimators draw their rays.
     pub fn sampling(&self) -> Sampler {
         self.choice
+    }
+
+    /// This context with patch gathering using `control` ([`ControlVariate::Off`] unless set).
+    /// With [`ControlVariate::Constant`] the context learns each patch's hemisphere over the
+    /// rounds of patch gathering run on it, in the order they run (see `crate::control`): a
+    /// context serves one run.
+    pub fn with_control_variate(mut self, control: ControlVariate) -> Context<'a, C> {
+        self.coverage = match control {
+            ControlVariate::Off => None,
+            ControlVariate::Constant => Some(Coverage::default()),
+        };
+        self
+    }
+
+    /// The control variate of patch gathering.
+    pub fn control_variate(&self) -> ControlVariate {
+        match self.coverage {
+            None => ControlVariate::Off,
+            Some(_) => ControlVariate::Constant,
+        }
+    }
+
+    /// What the rounds of patch gathering have learned for the control variate; `None` when
+    /// it is off.
+    pub(crate) fn coverage(&self) -> Option<&Coverage> {
+        self.coverage.as_ref()
     }
 
     /// True once the run is cancelled: a job that sees it casts nothing.

@@ -77,6 +77,7 @@
 //! patches and estimators.
 
 use crate::context::Context;
+use crate::control::Control;
 use crate::direct::CosineLight;
 use crate::error::Error;
 use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
@@ -281,6 +282,10 @@ fn round_parts<C: RayCaster>(
         return Err(Error::TooFewRays(rays_per_patch));
     }
     let patches = mesh.patches();
+    let controls = match ctx.coverage() {
+        Some(coverage) => coverage.controls(patches.len(), rays_per_patch),
+        None => vec![Control::default(); patches.len()],
+    };
     let jobs = jobs(patches.len(), rays_per_patch);
     let seen = run(patches.len(), &jobs, |job| {
         if ctx.cancelled() {
@@ -293,25 +298,48 @@ fn round_parts<C: RayCaster>(
             job.chunk,
         );
         let ray = || rays.ray(sampler, job.item as usize);
+        let beta = controls[job.item as usize].beta;
         match light {
-            None => look(job.rays, caster, input, input_variance, ray),
-            Some(light) => look_with(job.rays, caster, input, input_variance, ray, |r, h| {
-                light.share(job.item as usize, r, h)
-            }),
+            None => look(job.rays, caster, input, input_variance, beta, ray),
+            Some(light) => look_with(
+                job.rays,
+                caster,
+                input,
+                input_variance,
+                beta,
+                ray,
+                |r, h| light.share(job.item as usize, r, h),
+            ),
         }
     });
     ctx.check_cancelled()?;
+    if let Some(coverage) = ctx.coverage() {
+        coverage.learn(seen.iter().zip(&controls).map(|(s, c)| {
+            let n = s.moments.n;
+            let hits = n - s.escaped - s.back_faces;
+            // The mean of `x` over the hits: the rays' mean of `h (x - beta)` times `n / hits`,
+            // plus `beta`.
+            let hit_mean = if hits > 0 {
+                c.beta + s.moments.mean * (n as f64 / hits as f64)
+            } else {
+                DVec3::ZERO
+            };
+            (n, hits, hit_mean)
+        }));
+    }
     let inherited = patches
         .iter()
         .zip(&seen)
-        .map(|(p, s)| {
+        .zip(&controls)
+        .map(|((p, s), c)| {
             let rho = p.reflectance.as_dvec3();
-            rho * rho * s.collision_mean()
+            rho * rho * (s.collision_mean() + c.offset_variance)
         })
         .collect();
     let mut round = finish(
         patches.iter().map(|p| (p.reflectance, p.emission)),
         &seen,
+        &controls,
         emission,
         patches.len() as u64 * rays_per_patch as u64,
     )?;
@@ -372,23 +400,29 @@ fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Es
     )?)
 }
 
-/// Turns each item's moments into `[E] + rho mean` and `rho² s²/n`.
+/// Turns each item's moments into `[E] + rho (mean + offset)` and
+/// `rho² (s²/n + collisions + offset variance)`, with the item's control (`crate::control`;
+/// none where `controls` is shorter).
 fn finish(
     materials: impl Iterator<Item = (Vec3, Vec3)>,
     seen: &[Seen],
+    controls: &[Control],
     emission: Emission,
     rays: u64,
 ) -> Result<GatherRound, Error> {
     let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
     let (mut escaped_rays, mut back_face_hits) = (0, 0);
-    for ((rho, e), s) in materials.zip(seen) {
+    for (i, ((rho, e), s)) in materials.zip(seen).enumerate() {
         let rho = rho.as_dvec3();
         let own = match emission {
             Emission::Include => e.as_dvec3(),
             Emission::Exclude => DVec3::ZERO,
         };
-        radiosity.push(own + rho * s.moments.mean);
-        variance.push(rho * rho * (s.moments.variance_of_mean() + s.collision_mean()));
+        let c = controls.get(i).copied().unwrap_or_default();
+        radiosity.push(own + rho * (s.moments.mean + c.offset));
+        variance.push(
+            rho * rho * (s.moments.variance_of_mean() + s.collision_mean() + c.offset_variance),
+        );
         escaped_rays += s.escaped;
         back_face_hits += s.back_faces;
     }
@@ -691,7 +725,7 @@ pub fn gather_corners<C: RayCaster>(
         let mut rays =
             Rays::for_chunk(ctx.sampling(), key.item(g as u64), VERTEX_GATHER, job.chunk);
         let (origin, frame) = (groups.point(g), &frames[g]);
-        look(job.rays, caster, input, None, || {
+        look(job.rays, caster, input, None, DVec3::ZERO, || {
             let local = match &mut rays {
                 Rays::Random(rng) => cosine_hemisphere_rejection(|| rng.uniform()),
                 qmc => {
@@ -714,6 +748,7 @@ pub fn gather_corners<C: RayCaster>(
             (p.reflectance, p.emission)
         }),
         &seen,
+        &[],
         emission,
         groups.len() as u64 * rays_per_vertex as u64,
     )?;

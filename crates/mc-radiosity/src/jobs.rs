@@ -124,28 +124,31 @@ impl Seen {
     }
 }
 
-/// Casts `n` rays from `ray` and records `input` at each first front-face hit (0 otherwise);
-/// with `variance` (the input's, per patch), also the collisions of consecutive rays.
+/// Casts `n` rays from `ray` and records `input` at each first front-face hit, less `beta`
+/// (the control variate of `crate::control`; 0 for none), and 0 otherwise; with `variance`
+/// (the input's, per patch), also the collisions of consecutive rays.
 #[inline]
 pub(crate) fn look<C: RayCaster>(
     n: u32,
     caster: &C,
     input: &[DVec3],
     variance: Option<&[DVec3]>,
+    beta: DVec3,
     ray: impl FnMut() -> Ray,
 ) -> Seen {
-    look_with(n, caster, input, variance, ray, |_, _| DVec3::ZERO)
+    look_with(n, caster, input, variance, beta, ray, |_, _| DVec3::ZERO)
 }
 
 /// [`look`], each front-face hit recording `input` of the patch hit plus `extra(ray, hit)` (the
 /// cosine half of the direct light's multiple importance sampling, which rides on gathering
-/// rays: `direct::CosineLight`).
+/// rays: `direct::CosineLight`), less `beta`.
 #[inline]
 pub(crate) fn look_with<C: RayCaster>(
     n: u32,
     caster: &C,
     input: &[DVec3],
     variance: Option<&[DVec3]>,
+    beta: DVec3,
     mut ray: impl FnMut() -> Ray,
     extra: impl Fn(&Ray, &Hit) -> DVec3,
 ) -> Seen {
@@ -155,7 +158,7 @@ pub(crate) fn look_with<C: RayCaster>(
         let r = ray();
         let hit = caster.closest_hit(&r);
         let x = match hit {
-            Some(hit) if hit.front => input[hit.id as usize] + extra(&r, &hit),
+            Some(hit) if hit.front => input[hit.id as usize] + extra(&r, &hit) - beta,
             Some(_) => {
                 seen.back_faces += 1;
                 DVec3::ZERO

@@ -37,6 +37,7 @@
 pub mod adaptive;
 pub mod ambient;
 mod context;
+mod control;
 pub mod direct;
 mod error;
 pub mod gather;
@@ -49,6 +50,7 @@ mod surface;
 
 pub use ambient::{ambient, mean_reflectance, with_ambient};
 pub use context::{Context, Sampler};
+pub use control::ControlVariate;
 pub use direct::{DirectLight, DirectSampling, SplitConfig, direct, two_pass_split};
 pub use error::Error;
 pub use gather::{

@@ -159,7 +159,8 @@ macro_rules! methods {
             ) -> Result<Solution, Error> {
                 let ctx = Context::new(mesh, caster)
                     .with_cancel(cancel)
-                    .with_sampler(config.sampler);
+                    .with_sampler(config.sampler)
+                    .with_control_variate(config.control_variate);
                 match self {
                     $(Method::$variant => $runner(&ctx, config, observer),)*
                 }

@@ -64,12 +64,14 @@ pub struct ScheduleConfig {
     pub reference: ReferenceConfig,
     /// How the estimators draw their rays ([`Sampler`](crate::Sampler)).
     pub sampler: crate::Sampler,
+    /// The control variate of patch gathering ([`ControlVariate`](crate::ControlVariate)).
+    pub control_variate: crate::ControlVariate,
 }
 
 impl Default for ScheduleConfig {
     /// The command line's defaults: [`DEFAULT_RAYS`], seed 0, [`DEFAULT_UNSHOT_THRESHOLD`], no
     /// ambient term, first pass from the budget, the reference solver's defaults, the default
-    /// [`Sampler`](crate::Sampler).
+    /// [`Sampler`](crate::Sampler), the default [`ControlVariate`](crate::ControlVariate).
     fn default() -> Self {
         ScheduleConfig {
             rays: DEFAULT_RAYS,
@@ -79,6 +81,7 @@ impl Default for ScheduleConfig {
             first_pass_rays: None,
             reference: ReferenceConfig::default(),
             sampler: crate::Sampler::default(),
+            control_variate: crate::ControlVariate::default(),
         }
     }
 }

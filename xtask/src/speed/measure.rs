@@ -17,8 +17,8 @@
 //! predicted to end after the time limit (a ladder rung takes about twice the previous one).
 
 use mcrad_lab::trace::Reference;
-use mcrad_mc_radiosity::Sampler;
 use mcrad_mc_radiosity::schedule::{DEFAULT_UNSHOT_THRESHOLD, Kind, Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::{ControlVariate, Sampler};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
@@ -61,6 +61,8 @@ pub struct Problem<'a> {
     pub reference: Reference,
     /// How the runs draw their rays.
     pub sampler: Sampler,
+    /// The control variate of patch gathering.
+    pub control_variate: ControlVariate,
 }
 
 impl<'a> Problem<'a> {
@@ -71,6 +73,7 @@ impl<'a> Problem<'a> {
             bvh,
             reference,
             sampler: Sampler::default(),
+            control_variate: ControlVariate::default(),
         }
     }
 
@@ -89,9 +92,10 @@ pub fn progressive(method: Method) -> bool {
     method.kind() == Kind::Progressive
 }
 
-fn config(rays: u64, seed: u64, first: Option<u64>, sampler: Sampler) -> ScheduleConfig {
+fn config(rays: u64, seed: u64, first: Option<u64>, problem: &Problem) -> ScheduleConfig {
     ScheduleConfig {
-        sampler,
+        sampler: problem.sampler,
+        control_variate: problem.control_variate,
         rays,
         seed,
         unshot_threshold: UNSHOT_THRESHOLD,
@@ -125,7 +129,7 @@ fn progressive_curve(
     let mut points = Vec::new();
     let mut measuring = Duration::ZERO;
     let start = Instant::now();
-    let config = config(u64::MAX, seed, Some(problem.first_rays()), problem.sampler);
+    let config = config(u64::MAX, seed, Some(problem.first_rays()), problem);
     let result = run(method, problem.mesh, problem.bvh, &config, &mut |step| {
         let seconds = (start.elapsed() - measuring).as_secs_f64();
         let t = Instant::now();
@@ -164,7 +168,7 @@ fn ladder_curve(
             method,
             problem.mesh,
             problem.bvh,
-            &config(budget, seed, None, problem.sampler),
+            &config(budget, seed, None, problem),
             &mut |_| ControlFlow::Continue(()),
         );
         let seconds = start.elapsed().as_secs_f64();

@@ -1,5 +1,5 @@
 //! `cargo xtask experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-//! [--time S] [--target E] [--sampler random|qmc] [--out DIR]`: every Monte Carlo method of the registry (`Method::monte_carlo`) on every experiment scene
+//! [--time S] [--target E] [--sampler random|qmc] [--control-variate off|constant] [--out DIR]`: every Monte Carlo method of the registry (`Method::monte_carlo`) on every experiment scene
 //! ([`scenes::SCENES`]), several seeds, error (`rms_rel` against the scene's reference solution)
 //! against wall-clock time.
 //!
@@ -23,8 +23,8 @@ mod results;
 pub mod scenes;
 
 use anyhow::{Context, Result, bail};
-use mcrad_mc_radiosity::Sampler;
 use mcrad_mc_radiosity::schedule::Method;
+use mcrad_mc_radiosity::{ControlVariate, Sampler};
 use measure::{Limits, Point, Problem, curve};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -44,6 +44,8 @@ pub struct Options {
     pub out: PathBuf,
     /// How the runs draw their rays (`--sampler`, default the library's).
     pub sampler: Sampler,
+    /// The control variate of patch gathering (`--control-variate`, default the library's).
+    pub control_variate: ControlVariate,
 }
 
 impl Options {
@@ -65,6 +67,7 @@ impl Options {
                 "docs"
             }),
             sampler: Sampler::default(),
+            control_variate: ControlVariate::default(),
         };
         let mut it = args.iter();
         while let Some(a) = it.next() {
@@ -82,6 +85,13 @@ impl Options {
                         "random" => Sampler::Random,
                         "qmc" => Sampler::Qmc,
                         other => bail!("--sampler: 'random' or 'qmc', not '{other}'"),
+                    }
+                }
+                "--control-variate" => {
+                    o.control_variate = match value()?.as_str() {
+                        "off" => ControlVariate::Off,
+                        "constant" => ControlVariate::Constant,
+                        other => bail!("--control-variate: 'off' or 'constant', not '{other}'"),
                     }
                 }
                 "--scenes" => {
@@ -154,6 +164,7 @@ pub fn measure_scene(
     let reference = scene.reference(root, &loaded.mesh)?;
     let mut problem = Problem::new(&loaded.mesh, &loaded.bvh, reference);
     problem.sampler = options.sampler;
+    problem.control_variate = options.control_variate;
     eprintln!(
         "{}: {} patches, built in {:.2} s",
         scene.name,
@@ -264,6 +275,7 @@ mod tests {
             methods: Method::monte_carlo().collect(),
             out: dir.path().to_path_buf(),
             sampler: Sampler::Qmc,
+            control_variate: ControlVariate::Constant,
         };
         let result = measure_scene(&crate::root(), &TINY, &options).unwrap();
         for (method, seeds) in &result.curves {

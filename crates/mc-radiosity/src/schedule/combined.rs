@@ -99,7 +99,9 @@ pub fn run_with<C: RayCaster>(
     observer: &mut Observer,
 ) -> Result<Solution, Error> {
     with_context(
-        &Context::new(mesh, caster).with_sampler(config.sampler),
+        &Context::new(mesh, caster)
+            .with_sampler(config.sampler)
+            .with_control_variate(config.control_variate),
         config,
         weighting,
         observer,
