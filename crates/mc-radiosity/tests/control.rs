@@ -15,18 +15,15 @@ use mcrad_random::StreamKey;
 use std::ops::ControlFlow;
 
 mod common;
-use common::{bvh, furnace, parallel_squares};
+use common::{bvh, furnace, mean_se, on_threads, parallel_squares};
 
 const RUNS: u64 = 16;
 const K: f64 = 4.0;
 
+/// Mean and sample variance of `xs`.
 fn mean_var(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    let mean = xs.iter().sum::<f64>() / n;
-    (
-        mean,
-        xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0),
-    )
+    let (mean, se) = mean_se(xs);
+    (mean, se * se * xs.len() as f64)
 }
 
 /// `rounds` gathering rounds of `n` rays per patch from `input` on a fresh context with
@@ -183,23 +180,19 @@ fn same_seed_same_answer_on_any_thread_count() {
     let mesh = Mesh::build(&parallel_squares(), Subdivision::MaxEdge(0.25)).unwrap();
     let bvh = bvh(&mesh);
     let solve = |threads| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| {
-                let config = ScheduleConfig {
-                    rays: 400_000,
-                    seed: 5,
-                    control_variate: ControlVariate::Constant,
-                    ..Default::default()
-                };
-                run(Method::Combined, &mesh, &bvh, &config, &mut |_| {
-                    ControlFlow::Continue(())
-                })
-                .unwrap()
-                .estimate
+        on_threads(threads, || {
+            let config = ScheduleConfig {
+                rays: 400_000,
+                seed: 5,
+                control_variate: ControlVariate::Constant,
+                ..Default::default()
+            };
+            run(Method::Combined, &mesh, &bvh, &config, &mut |_| {
+                ControlFlow::Continue(())
             })
+            .unwrap()
+            .estimate
+        })
     };
     assert_eq!(solve(1), solve(2));
 }

@@ -25,7 +25,7 @@ use mcrad_scene_io::{Face, Material, Scene};
 use std::ops::ControlFlow;
 
 mod common;
-use common::{box_faces, bvh, furnace, material};
+use common::{box_faces, bvh, furnace, material, mean_se};
 
 const RUNS: u64 = 16;
 const K: f64 = 4.5;
@@ -117,14 +117,6 @@ fn two_squares(parallel: bool) -> Mesh {
     .unwrap()
     .0;
     Mesh::build(&scene, Subdivision::None).unwrap()
-}
-
-/// Mean and standard error of the mean of `xs`.
-fn mean_se(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    let mean = xs.iter().sum::<f64>() / n;
-    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 /// Checks the mean over runs of `samples[run][k]` against `exact[k]` within K standard errors.

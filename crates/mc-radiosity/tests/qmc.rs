@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{bvh, furnace, parallel_squares};
+use common::{bvh, furnace, mean_se, parallel_squares};
 use glam::DVec3;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_mc_radiosity::{Context, Sampler, ShootConfig, shoot};
@@ -15,14 +15,6 @@ use mcrad_meshing::{Mesh, Subdivision};
 use std::ops::ControlFlow;
 
 const RUNS: u64 = 16;
-
-/// Mean and standard error of the mean of `xs`.
-fn mean_se(xs: &[f64]) -> (f64, f64) {
-    let n = xs.len() as f64;
-    let mean = xs.iter().sum::<f64>() / n;
-    let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
-}
 
 /// The receiver's radiosity of `RUNS` shooting runs of 65 536 rays (one block of the emitter's
 /// sequence) with `sampler`.
