@@ -122,12 +122,13 @@ pub struct Solve {
     /// One patch per input face, faces in file order.
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
-    /// How faces become patches: `uniform` (the default: every face cut to --max-edge, or the
-    /// default size) or `adaptive` (a mesh of a quarter of the uniform default's edge refined
-    /// where the solution needs it, within --min-edge and --max-patches; a quarter of the ray
-    /// budget or of --time goes to the refinement, then the method solves the refined mesh and
-    /// the answer
-    /// pools its solution with the refinement's estimates).
+    /// How faces become patches: `adaptive` (the default: a mesh of a quarter of the uniform
+    /// default's edge refined where the solution needs it, within --min-edge and --max-patches;
+    /// a quarter of the ray budget or of --time goes to the refinement, then the method solves
+    /// the refined mesh and the answer pools its solution with the refinement's estimates) or
+    /// `uniform` (every face cut to --max-edge, or the default size). The options that need a
+    /// fixed mesh, --max-edge, --no-subdivide, --reference, --save, --resume and --method
+    /// reference, imply uniform.
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
@@ -345,17 +346,33 @@ fn max_edge_help() -> String {
 /// How faces become patches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MeshArg {
+    /// A uniform mesh of a quarter of the uniform default's edge refined where the solution
+    /// varies beyond its noise or the light's visibility changes (the default).
+    Adaptive,
     /// Every face cut uniformly (`--max-edge`, or the scene's diagonal / 20).
     Uniform,
-    /// A uniform mesh of a quarter of the default's edge refined where the solution varies
-    /// beyond its noise or the light's visibility changes.
-    Adaptive,
 }
 
 impl Solve {
-    /// Whether the mesh is adaptive (`--mesh adaptive`; uniform is the default).
+    /// Whether the mesh is adaptive: `--mesh adaptive`, or no `--mesh` and none of the options
+    /// that need a fixed mesh (a uniform size, one patch per face, a reference compared patch
+    /// by patch, a saved state continued on the same mesh, the deterministic reference solver).
     pub fn adaptive(&self) -> bool {
-        self.mesh == Some(MeshArg::Adaptive)
+        match self.mesh {
+            Some(MeshArg::Adaptive) => true,
+            Some(MeshArg::Uniform) => false,
+            None => !self.needs_fixed_mesh(),
+        }
+    }
+
+    /// Whether an option asks for a fixed (uniform) mesh.
+    fn needs_fixed_mesh(&self) -> bool {
+        self.max_edge.is_some()
+            || self.no_subdivide
+            || self.reference.is_some()
+            || self.save.is_some()
+            || self.resume.is_some()
+            || self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic
     }
 
     /// Refuses option combinations that contradict each other.
@@ -369,6 +386,14 @@ impl Solve {
             }
             if self.reference.is_some() {
                 return Err("--reference compares patch by patch with a fixed mesh; use it with --mesh uniform".into());
+            }
+            if self.save.is_some() || self.resume.is_some() {
+                return Err("--save and --resume continue a run on the same mesh, which an adaptive mesh refined anew by every piece is not; use them with --mesh uniform".into());
+            }
+            if self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic {
+                return Err(
+                    "--method reference solves a fixed mesh; use it with --mesh uniform".into(),
+                );
             }
             if self.max_patches == 0 {
                 return Err("--max-patches must be at least 1".into());

@@ -85,6 +85,12 @@ fn read_run(path: &Path) -> Result<Vec<PatchRow>> {
     }
 }
 
+/// What to do about runs of different meshes: the default adaptive mesh is refined anew by
+/// every run.
+const SAME_MESH: &str = "runs of different meshes cannot be merged (an adaptive mesh, the \
+                         default, is refined anew by every run: solve with --mesh uniform, or \
+                         merge their --per-face CSVs)";
+
 /// Refuses runs of different patch sets: counts, patch numbers in order, areas.
 fn check_same_patches(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
     let (first, a) = (paths[0].display(), &runs[0]);
@@ -93,15 +99,14 @@ fn check_same_patches(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
         let second = path.display();
         ensure!(
             a.len() == b.len(),
-            "{second} has {} patches, {first} has {}: runs of different meshes cannot be merged",
+            "{second} has {} patches, {first} has {}: {SAME_MESH}",
             b.len(),
             a.len()
         );
         for (row, (x, y)) in a.iter().zip(b).enumerate() {
             ensure!(
                 x.patch == y.patch,
-                "row {} of {second} is patch {}, of {first} patch {}: runs of different meshes \
-                 cannot be merged",
+                "row {} of {second} is patch {}, of {first} patch {}: {SAME_MESH}",
                 row + 1,
                 y.patch,
                 x.patch
@@ -109,8 +114,7 @@ fn check_same_patches(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
             let scale = x.area.abs().max(y.area.abs());
             ensure!(
                 (x.area - y.area).abs() <= AREA_TOLERANCE * scale,
-                "patch {} has area {} in {second} and {} in {first}: runs of different meshes \
-                 cannot be merged",
+                "patch {} has area {} in {second} and {} in {first}: {SAME_MESH}",
                 x.patch,
                 y.area,
                 x.area

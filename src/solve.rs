@@ -242,7 +242,13 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 return ControlFlow::Break(());
             }
             if let (Some(target), Some(variance)) = (target_error, step.variance)
-                && irradiance_error_p95(&mesh, step.radiosity, variance) <= target
+                && answer_error_p95(
+                    &mesh,
+                    refinement.as_ref(),
+                    step.radiosity,
+                    variance,
+                    step.rays,
+                ) <= target
             {
                 target_reached = true;
                 return ControlFlow::Break(());
@@ -383,6 +389,29 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
 /// The 95th percentile, by area, of the patches' relative standard error of incident
 /// irradiance ([`mcrad_bake::relative_error`]): what `--target-error` holds the bake to (texels
 /// take their patches' errors, and cover the surfaces in proportion to area).
+/// [`irradiance_error_p95`] of the answer a step would give: on an adaptive mesh, the step
+/// pooled with what the refinement learnt (as the answer is), else the step itself.
+fn answer_error_p95(
+    mesh: &Mesh,
+    refinement: Option<&Refined>,
+    radiosity: &[glam::DVec3],
+    variance: &[glam::DVec3],
+    rays: u64,
+) -> f64 {
+    let pooled = refinement.and_then(|r| {
+        let step = Estimate::new(radiosity.to_vec(), Some(variance.to_vec()), rays).ok()?;
+        let all = vec![true; mesh.patches().len()];
+        mcrad_mc_radiosity::adaptive::pool(mesh, &step, &r.pooled, &all).ok()
+    });
+    match pooled
+        .as_ref()
+        .and_then(|p| Some((p.radiosity(), p.variance()?)))
+    {
+        Some((b, v)) => irradiance_error_p95(mesh, b, v),
+        None => irradiance_error_p95(mesh, radiosity, variance),
+    }
+}
+
 fn irradiance_error_p95(mesh: &Mesh, radiosity: &[glam::DVec3], variance: &[glam::DVec3]) -> f64 {
     let patches = mesh.patches();
     let errors: Vec<f64> = patches

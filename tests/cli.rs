@@ -528,6 +528,11 @@ fn adaptive_meshes_refuse_uniform_options() {
             &["--min-edge", "0"][..],
             "'0' is not a positive finite length",
         ),
+        (&["--save", "s.state"][..], "use them with --mesh uniform"),
+        (
+            &["--method", "reference"][..],
+            "--method reference solves a fixed mesh",
+        ),
     ] {
         let mut args = vec!["--mesh", "adaptive", "--rays", "1e4"];
         args.extend_from_slice(extra);
@@ -547,6 +552,39 @@ fn adaptive_meshes_refuse_uniform_options() {
             stderr(&o)
         );
     }
+}
+
+/// Without `--mesh` the mesh is adaptive, unless an option needs a fixed mesh (here `--save`,
+/// which continues a run on the same mesh, and `--max-edge`): then it is uniform.
+#[test]
+fn the_default_mesh_is_adaptive_unless_an_option_needs_a_fixed_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let patches = |extra: &[&str]| -> (usize, String) {
+        let csv = path(dir.path(), "p.csv");
+        let mut args = vec![
+            "solve",
+            "scenes/cornell-box.obj",
+            "--rays",
+            "3e5",
+            "--threads",
+            "2",
+            "--patches",
+            &csv,
+        ];
+        args.extend_from_slice(extra);
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        (read_csv(&csv).len(), stdout(&o) + &stderr(&o))
+    };
+    let state = path(dir.path(), "s.state");
+    let (uniform, _) = patches(&["--mesh", "uniform"]);
+    let (default, said) = patches(&[]);
+    let (saved, _) = patches(&["--save", &state]);
+    let (sized, _) = patches(&["--max-edge", "0.2"]);
+    assert!(said.contains("adaptive mesh:"), "{said}");
+    assert_ne!(default, uniform);
+    assert_eq!(saved, uniform);
+    assert!(sized < uniform);
 }
 
 /// Every Monte Carlo method runs on an adaptive mesh (the method solves the refined mesh).

@@ -275,7 +275,18 @@ fn three_pieces_against_one_run(method: &str) {
     let [first, plain, pieces, one] =
         ["first", "plain", "pieces", "one"].map(|n| path(dir.path(), &format!("{n}.csv")));
     let (pieces_json, one_json) = (path(dir.path(), "p.json"), path(dir.path(), "o.json"));
-    let base = ["solve", SCENE, "--threads", "2", "-q", "--method", method];
+    // One run and the pieces on the same mesh: --save implies uniform, so the plain runs say it.
+    let base = [
+        "solve",
+        SCENE,
+        "--threads",
+        "2",
+        "-q",
+        "--mesh",
+        "uniform",
+        "--method",
+        method,
+    ];
     let run = |extra: &[&str]| {
         let mut args = base.to_vec();
         args.extend_from_slice(extra);
@@ -412,6 +423,8 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
         mcrad(&[
             "solve",
             SCENE,
+            "--mesh",
+            "uniform",
             "--threads",
             "2",
             "-q",
@@ -428,6 +441,8 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
     mcrad(&[
         "solve",
         SCENE,
+        "--mesh",
+        "uniform",
         "--threads",
         "2",
         "-q",
