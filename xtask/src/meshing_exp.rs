@@ -156,7 +156,10 @@ pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
         eprintln!("meshing experiment: {}", scene.name);
         let truth = ground_truth(root, &work, scene, options.spp)?;
         let reference = face_reference(root, mcrad, &work, scene)?;
-        let mut meshes: Vec<(String, Vec<String>)> = vec![("uniform default".into(), vec![])];
+        let mut meshes: Vec<(String, Vec<String>)> = vec![(
+            "uniform default".into(),
+            vec!["--mesh".into(), "uniform".into()],
+        )];
         for e in scene.uniform {
             meshes.push((
                 format!("uniform {e}"),
