@@ -3,6 +3,7 @@
 //! order, so a seed gives the same answer on any number of threads.
 
 use glam::DVec3;
+use mcrad_meshing::Patch;
 use mcrad_raycast::{Hit, Ray, RayCaster};
 use rayon::prelude::*;
 
@@ -96,10 +97,11 @@ pub(crate) struct Seen {
     pub moments: Moments,
     pub escaped: u64,
     pub back_faces: u64,
-    /// Sum of the input variance over consecutive ray pairs that hit the same patch.
-    pub collisions: DVec3,
-    /// Consecutive ray pairs looked at.
-    pub pairs: u64,
+    /// Sum over the rays of `F̂_ij V_j` at each front-face hit `j` ([`disc_form_factor`] times
+    /// the input's variance there; 0 for the other rays).
+    pub inherited: DVec3,
+    /// Rays that summed into `inherited`.
+    pub inherit_rays: u64,
 }
 
 impl Seen {
@@ -108,35 +110,37 @@ impl Seen {
             moments: self.moments.merge(other.moments),
             escaped: self.escaped + other.escaped,
             back_faces: self.back_faces + other.back_faces,
-            collisions: self.collisions + other.collisions,
-            pairs: self.pairs + other.pairs,
+            inherited: self.inherited + other.inherited,
+            inherit_rays: self.inherit_rays + other.inherit_rays,
         }
     }
 
-    /// The estimate of `sum_j F_ij² V_j` from the collisions: two independent rays of a patch
-    /// hit the same `j` with probability `F_ij²` (0 without pairs).
-    pub(crate) fn collision_mean(&self) -> DVec3 {
-        if self.pairs == 0 {
+    /// The estimate of `sum_j F_ij² V_j`: the mean over the rays of `F̂_ij V_j` (a ray of patch
+    /// `i` hits `j` with probability `F_ij`, and `F̂_ij` estimates `F_ij` from the hit's
+    /// geometry); 0 without rays.
+    pub(crate) fn inherited_mean(&self) -> DVec3 {
+        if self.inherit_rays == 0 {
             DVec3::ZERO
         } else {
-            self.collisions / self.pairs as f64
+            self.inherited / self.inherit_rays as f64
         }
     }
 }
 
 /// Casts `n` rays from `ray` and records `input` at each first front-face hit, less `beta`
-/// (the control variate of `crate::control`; 0 for none), and 0 otherwise; with `variance`
-/// (the input's, per patch), also the collisions of consecutive rays.
+/// (the control variate of `crate::control`; 0 for none), and 0 otherwise; with `inherit`
+/// (the input's variance per patch, and the patches), also the noise it carries into the rays' mean
+/// ([`Seen::inherited_mean`]).
 #[inline]
 pub(crate) fn look<C: RayCaster>(
     n: u32,
     caster: &C,
     input: &[DVec3],
-    variance: Option<&[DVec3]>,
+    inherit: Option<(&[DVec3], &[Patch])>,
     beta: DVec3,
     ray: impl FnMut() -> Ray,
 ) -> Seen {
-    look_with(n, caster, input, variance, beta, ray, |_, _| DVec3::ZERO)
+    look_with(n, caster, input, inherit, beta, ray, |_, _| DVec3::ZERO)
 }
 
 /// [`look`], each front-face hit recording `input` of the patch hit plus `extra(ray, hit)` (the
@@ -147,14 +151,13 @@ pub(crate) fn look_with<C: RayCaster>(
     n: u32,
     caster: &C,
     input: &[DVec3],
-    variance: Option<&[DVec3]>,
+    inherit: Option<(&[DVec3], &[Patch])>,
     beta: DVec3,
     mut ray: impl FnMut() -> Ray,
     extra: impl Fn(&Ray, &Hit) -> DVec3,
 ) -> Seen {
     let mut seen = Seen::default();
-    let mut previous = None;
-    for k in 0..n {
+    for _ in 0..n {
         let r = ray();
         let hit = caster.closest_hit(&r);
         let x = match hit {
@@ -169,18 +172,25 @@ pub(crate) fn look_with<C: RayCaster>(
             }
         };
         seen.moments.push(x);
-        if let Some(v) = variance {
-            let id = hit.filter(|h| h.front).map(|h| h.id);
-            if k > 0 {
-                seen.pairs += 1;
-                if let Some(j) = id.filter(|&j| previous == Some(j)) {
-                    seen.collisions += v[j as usize];
-                }
+        if let Some((v, patches)) = inherit {
+            seen.inherit_rays += 1;
+            if let Some(h) = hit.filter(|h| h.front) {
+                let j = h.id as usize;
+                seen.inherited += v[j] * disc_form_factor(&r, &h, &patches[j]);
             }
-            previous = id;
         }
     }
     seen
+}
+
+/// The form factor from the ray's origin to the patch `hit` hit, as from a point to a disc of
+/// the patch's area facing it at the hit's distance (Wallace et al. 1989):
+/// `A_j cos_i cos_j / (pi r² + A_j)`, bounded by 1 however near the patch.
+fn disc_form_factor(ray: &Ray, hit: &Hit, patch: &Patch) -> f64 {
+    let cos_i = f64::from(ray.dir.dot(ray.origin_normal).max(0.0));
+    let cos_j = f64::from((-ray.dir.dot(patch.normal)).max(0.0));
+    let r2 = f64::from(hit.distance).powi(2);
+    patch.area * cos_i * cos_j / (std::f64::consts::PI * r2 + patch.area)
 }
 
 /// Runs `jobs` in parallel and merges each item's chunks in chunk order.

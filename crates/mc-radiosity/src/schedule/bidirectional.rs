@@ -168,7 +168,7 @@ fn step<C: RayCaster>(
     let mut cast = 0u64;
     let mut sets = SampleSets::default();
     // `sum_i F_ji² V_i` of patch `j` from its own rays: two independent cosine rays of `j` hit
-    // the same `i` with probability `F_ji²` (collisions of consecutive rays, as gathers do).
+    // the same `i` with probability `F_ji²` (collisions of consecutive rays, as gathers did before their disc estimate).
     let (mut collisions, mut pairs) = (vec![DVec3::ZERO; patches.len()], vec![0u64; patches.len()]);
     let input_variance = solution.variance();
     for (&(i, _, _), hits) in jobs.iter().zip(&hits) {

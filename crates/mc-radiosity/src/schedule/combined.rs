@@ -19,7 +19,7 @@
 //!    standard errors) at rho 0.5, +3.1% (4.7) at 0.9, +0.32% (4.2) in the tiny-light room;
 //!    gathering from `S`, 1.07 / 1.53 / 2.2, and no bias beyond 1.7 standard errors. `S`'s
 //!    errors are nearly independent between patches, so a gather inherits from it what the
-//!    collision estimate measures, `rho_i² sum_j F_ij² V_j`; the gathers of the passes inherit
+//!    inherited-noise estimate measures, `rho_i² sum_j F_ij² V_j`; the gathers of the passes inherit
 //!    from nested merges of the same shooting passes, so those parts are summed as correlated
 //!    (`Gathers`).
 //! 3. **Combine**: `C_i = w_i S_i + (1 - w_i) G_i` per patch and channel with a
@@ -169,7 +169,7 @@ fn with_context<C: RayCaster>(
         let shots_now = shots.as_ref().expect("just set");
 
         // Gather from the shooting estimate, whose errors are (nearly) independent between
-        // patches, so what a gather inherits from it is the collision term; not from the
+        // patches, so what a gather inherits from it is the inherited-noise term; not from the
         // combination, whose errors the gathers themselves correlate (module documentation).
         let gather_budget = budget.saturating_sub(pass_rays);
         let (g, inherited) = split_with_budget(
