@@ -33,11 +33,12 @@
 //! computed from the samples they weight; see [`mcrad_combine::expected`], measured there at
 //! 0.5-3.8% low per face of the 2k-patch Cornell box). The weights use *expected* variances at
 //! the reflected radiosity `R_i` of the previous combination (of `S` in the first pass):
-//! shooting's shot noise `m_i R_i / A_i`, `m_i` the mean deposit (W), and gathering's relative
-//! variance pooled over the patch's input face times `R_i²`. A patch no shooting ray reached
-//! gets `m_i = rho_i ×` the mean ray power (what one hit would have deposited), and a patch
-//! whose few gathering rays all saw the same value gets its face's relative variance: zero
-//! samples mean "unknown", never a zero variance that would take all the weight.
+//! shooting's shot noise `m_i R_i / A_i`, `m_i = rho_i ×` the mean ray power (what a hit
+//! deposits, whether or not one landed; estimated from the deposits it biased the merge at
+//! high reflectance), and gathering's relative variance pooled over the patch's input face
+//! times `R_i²`, so a patch whose few gathering rays all saw the same value gets its face's
+//! relative variance: zero samples mean "unknown", never a zero variance that would take all
+//! the weight.
 //!
 //! **The budget.** A budget under 8 rays per patch (too few to gather everywhere) is spent on
 //! shooting alone. Otherwise the first pass shoots with half its rays. Later passes choose the share
@@ -137,7 +138,7 @@ fn with_context<C: RayCaster>(
                 let r = reflected(mesh, c);
                 best_share(
                     mesh,
-                    &shooting_variance(mesh, s, &r)?,
+                    &shooting_variance(mesh, s, &r),
                     shot_rays,
                     &gathering_variance(mesh, g, &r)?,
                     gather_rays,
@@ -206,25 +207,15 @@ fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
 }
 
 /// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
-/// ((W/m²)², [`shot_noise`]), with `m_i` the mean deposit, or `rho_i` times the mean ray power
-/// where no ray landed.
-fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
-    let s = &shots.merged;
-    let v = s.variance().ok_or(EstimateError::MissingVariance)?;
-    Ok(mesh
-        .patches()
+/// ((W/m²)², [`shot_noise`]), with `m_i = rho_i` times the mean power a ray carried (what a hit
+/// deposits, known whatever landed: see [`mcrad_combine::expected`] for why not the deposits'
+/// own mean).
+fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Vec<DVec3> {
+    mesh.patches()
         .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            shot_noise(
-                v[i],
-                s.radiosity()[i] - p.emission.as_dvec3(),
-                p.area,
-                p.reflectance.as_dvec3() * shots.ray_power,
-                r[i],
-            )
-        })
-        .collect())
+        .zip(r)
+        .map(|(p, r)| shot_noise(p.reflectance.as_dvec3() * shots.ray_power, p.area, *r))
+        .collect()
 }
 
 /// The expected variance of the gathering estimate per patch and channel, `k_f R_i²`
@@ -256,7 +247,7 @@ fn combine(
 ) -> Result<Estimate, Error> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
     let (vs, vg) = (
-        shooting_variance(mesh, shots, &r)?,
+        shooting_variance(mesh, shots, &r),
         gathering_variance(mesh, gathered, &r)?,
     );
     Ok(merge(
