@@ -218,7 +218,7 @@ pub(crate) fn gather_round_parts<C: RayCaster>(
         emission,
         rays_per_patch,
         key,
-        None,
+        Side::default(),
     )
 }
 
@@ -238,7 +238,7 @@ fn round<C: RayCaster>(
         emission,
         rays_per_patch,
         key,
-        None,
+        Side::default(),
     )?
     .0)
 }
@@ -264,8 +264,54 @@ pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
         Emission::Exclude,
         rays_per_patch,
         key,
-        light,
+        Side { light, pool: None },
     )
+}
+
+/// What a round does besides gathering its input ([`round_parts`]).
+#[derive(Default)]
+struct Side<'a> {
+    /// The cosine half of the direct light's multiple importance sampling, carried by the
+    /// rays ([`gather_round_parts_with_light`]).
+    light: Option<&'a CosineLight<'a>>,
+    /// The emission seen by the earlier rounds of a Jacobi run ([`gather`]), which this
+    /// round's joins and which takes the place of this round's own in the variances.
+    pool: Option<&'a mut EmittedPool>,
+}
+
+/// The emission `E_j` the rays of a Jacobi run's rounds saw, per input face: the sums over
+/// the face's patches and the rounds so far of the within-patch sums of squared deviations
+/// (W/m²)², and their degrees of freedom. Every round of [`gather`] sees the emitters through
+/// the same geometry, so this is one sample of the same distribution growing round by round,
+/// while a single round's may have missed a small light altogether.
+#[derive(Debug, Default)]
+struct EmittedPool {
+    m2: Vec<DVec3>,
+    dof: Vec<u64>,
+}
+
+/// [`gather_round_from`] of round `k` of a Jacobi run ([`gather`]), whose input includes the
+/// emission (`B_k`), with the emission's variance pooled over the run's rounds in `pool`.
+fn gather_round_pooled<C: RayCaster>(
+    ctx: &Context<C>,
+    input: &Estimate,
+    rays_per_patch: u32,
+    key: StreamKey,
+    pool: &mut EmittedPool,
+) -> Result<GatherRound, Error> {
+    Ok(round_parts(
+        ctx,
+        input.radiosity(),
+        input.variance(),
+        Emission::Include,
+        rays_per_patch,
+        key,
+        Side {
+            light: None,
+            pool: Some(pool),
+        },
+    )?
+    .0)
 }
 
 /// [`round`] and the inherited part of its variance ([`gather_round_parts`]), its rays also
@@ -277,8 +323,9 @@ fn round_parts<C: RayCaster>(
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
-    light: Option<&CosineLight>,
+    side: Side<'_>,
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
+    let Side { light, pool } = side;
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
@@ -344,17 +391,17 @@ fn round_parts<C: RayCaster>(
         emission,
         patches.len() as u64 * rays_per_patch as u64,
     )?;
-    round.estimate = with_face_pooled(mesh, &seen, round.estimate)?;
+    round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool)?;
     Ok((round, inherited))
 }
 
-/// A patch's sampling variance from the other patches of its input face:
+/// A patch's sampling variance from all the patches of its input face:
 /// `rho_i² s_f²/n_i`, with `s_f²` the sample variance of the values seen by the rays of the
-/// other patches of face `f`, pooled within patches (`sum m2 / sum (n - 1)` over the face's
-/// patches but `i`). Unbiased for the variance where the face's patches see nearly the same
-/// scene, and independent of patch `i`'s own rays. (The inherited part, the noise of the
-/// input, stays the patch's own: it depends on where the patch sits, e.g. near a corner.) A
-/// face of one patch keeps the patch's own.
+/// face's patches, pooled within patches (`sum m2 / sum (n - 1)` over the face's patches).
+/// Unbiased for the variance where the face's patches see nearly the same scene, and nearly
+/// independent of patch `i`'s own rays on a face of many patches. (The inherited part, the
+/// noise of the input, stays the patch's own: it depends on where the patch sits, e.g. near a
+/// corner.) A face of one patch keeps the patch's own.
 ///
 /// A rare bright value (a small light seen by one ray in a thousand) leaves most patches'
 /// rays without it: their own sample variance is small and their value low, while the few
@@ -362,9 +409,21 @@ fn round_parts<C: RayCaster>(
 /// claim a precision they do not have, and an estimate that includes the patch's own rays
 /// follows its luck (the tiny-light room of `cargo xtask calibrate`: mean `z²` 700-3000 for
 /// `two-pass` and the progressive gathers with the own variance, 0.35-0.42 with half own and
-/// half the face's, 1.06-1.10 with the others' only). What stays is the nature of a rare event:
-/// most patches' spread over 8 seeds is far below their true variance (the median column).
-fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Estimate, Error> {
+/// half the face's). The face's rays include the lucky patch's own: with the other patches'
+/// only, a patch whose ray alone on its face saw the light in a round claimed the face's small
+/// variance (`gather` 51.7, `two-pass` 1.08, the progressive gathers 1.05-1.09; with them
+/// 6.9, 0.98, 0.99). With `pool` (a Jacobi run), the part of `s_f²` due to the emission seen,
+/// which is the same in every round, is the run's so far rather than this round's (a round
+/// whose face missed the light claimed no direct-light noise).
+///
+/// What stays is the nature of a rare event: most patches' spread over 16 seeds is far
+/// below their true variance (the median column of `cargo xtask calibrate`).
+fn with_face_pooled(
+    mesh: &Mesh,
+    seen: &[Seen],
+    estimate: Estimate,
+    pool: Option<&mut EmittedPool>,
+) -> Result<Estimate, Error> {
     let patches = mesh.patches();
     let faces = patches
         .iter()
@@ -372,9 +431,34 @@ fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Es
         .max()
         .unwrap_or(0);
     let (mut m2, mut dof) = (vec![DVec3::ZERO; faces], vec![0u64; faces]);
+    let mut emitted = vec![DVec3::ZERO; faces];
     for (p, s) in patches.iter().zip(seen) {
-        m2[p.face as usize] += s.moments.m2;
-        dof[p.face as usize] += s.moments.n.saturating_sub(1);
+        let f = p.face as usize;
+        m2[f] += s.moments.m2;
+        dof[f] += s.moments.n.saturating_sub(1);
+        emitted[f] += s.emitted.m2;
+    }
+    // Per face, the sample variance of the values seen, its emission part the run's so far.
+    let mut face_variance: Vec<DVec3> = (0..faces)
+        .map(|f| {
+            if dof[f] == 0 {
+                DVec3::ZERO
+            } else {
+                m2[f] / dof[f] as f64
+            }
+        })
+        .collect();
+    let tracked = seen.iter().all(|s| s.emitted.n == s.moments.n);
+    if let Some(pool) = pool.filter(|_| tracked) {
+        pool.m2.resize(faces, DVec3::ZERO);
+        pool.dof.resize(faces, 0);
+        for f in 0..faces {
+            pool.m2[f] += emitted[f];
+            pool.dof[f] += dof[f];
+            if dof[f] > 0 {
+                face_variance[f] += (pool.m2[f] / pool.dof[f] as f64) - emitted[f] / dof[f] as f64;
+            }
+        }
     }
     let Some(variance) = estimate.variance() else {
         return Ok(estimate);
@@ -390,8 +474,7 @@ fn with_face_pooled(mesh: &Mesh, seen: &[Seen], estimate: Estimate) -> Result<Es
                 return *v;
             }
             let rho = p.reflectance.as_dvec3();
-            let others = ((m2[f] - s.moments.m2) / (dof[f] - own_dof) as f64).max(DVec3::ZERO);
-            let pooled = others / s.moments.n as f64;
+            let pooled = face_variance[f].max(DVec3::ZERO) / s.moments.n as f64;
             (*v + rho * rho * (pooled - s.moments.variance_of_mean())).max(DVec3::ZERO)
         })
         .collect();
@@ -572,13 +655,14 @@ pub fn gather<C: RayCaster>(
         .fold(0.0, f64::max)
         .min(1.0 - 1e-12);
     let tail = rho_max / (1.0 - rho_max);
+    let mut pool = EmittedPool::default();
     while stats.rays + round <= config.rays {
-        let r = gather_round_from(
+        let r = gather_round_pooled(
             ctx,
             &last,
-            Emission::Include,
             config.rays_per_patch,
             StreamKey::new(config.seed).pass(stats.rounds as u64),
+            &mut pool,
         )?;
         let next = r.estimate.radiosity();
         let largest = next.iter().zip(mesh.patches()).fold(0.0f64, |m, (x, p)| {

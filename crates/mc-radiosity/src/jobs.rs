@@ -102,6 +102,10 @@ pub(crate) struct Seen {
     pub inherited: DVec3,
     /// Rays that summed into `inherited`.
     pub inherit_rays: u64,
+    /// The moments over the rays of the emission `E_j` of the patch `j` hit (0 for a miss or
+    /// a back face; recorded where the patches are known, with `inherit`): the part of the
+    /// value seen that is the same in every round of a Jacobi run.
+    pub emitted: Moments,
 }
 
 impl Seen {
@@ -112,6 +116,7 @@ impl Seen {
             back_faces: self.back_faces + other.back_faces,
             inherited: self.inherited + other.inherited,
             inherit_rays: self.inherit_rays + other.inherit_rays,
+            emitted: self.emitted.merge(other.emitted),
         }
     }
 
@@ -130,7 +135,7 @@ impl Seen {
 /// Casts `n` rays from `ray` and records `input` at each first front-face hit, less `beta`
 /// (the control variate of `crate::control`; 0 for none), and 0 otherwise; with `inherit`
 /// (the input's variance per patch, and the patches), also the noise it carries into the rays' mean
-/// ([`Seen::inherited_mean`]).
+/// ([`Seen::inherited_mean`]) and the emission seen ([`Seen::emitted`]).
 #[inline]
 pub(crate) fn look<C: RayCaster>(
     n: u32,
@@ -174,9 +179,13 @@ pub(crate) fn look_with<C: RayCaster>(
         seen.moments.push(x);
         if let Some((v, patches)) = inherit {
             seen.inherit_rays += 1;
-            if let Some(h) = hit.filter(|h| h.front) {
-                let j = h.id as usize;
-                seen.inherited += v[j] * disc_form_factor(&r, &h, &patches[j]);
+            match hit.filter(|h| h.front) {
+                Some(h) => {
+                    let j = h.id as usize;
+                    seen.inherited += v[j] * disc_form_factor(&r, &h, &patches[j]);
+                    seen.emitted.push(patches[j].emission.as_dvec3());
+                }
+                None => seen.emitted.push(DVec3::ZERO),
             }
         }
     }

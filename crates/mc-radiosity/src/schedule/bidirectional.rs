@@ -65,9 +65,12 @@ pub(crate) fn run<C: RayCaster>(
         let k = run.steps as u64;
         match &run.merged {
             None => {
-                let shot = run.shoot(ctx, config, budget, k)?.estimate;
+                let shot = run.shoot(ctx, config, budget, k)?;
+                // The roulette tail's rays beyond the pass's budget (long near rho = 1) come
+                // out of the later passes.
+                passes.charge(shot.stats.rays.saturating_sub(budget));
                 let none = vec![DVec3::ZERO; mesh.patches().len()];
-                steps.add(shot, &none)?;
+                steps.add(shot.estimate, &none)?;
             }
             Some(solution) => {
                 let (e, inherited) = step(
