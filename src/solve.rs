@@ -257,10 +257,9 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 // Setup counts against the budget: the time left is measured from the start of
                 // loading. At the speed of the run so far, size the rest to what fits.
                 let left = budget - setup.elapsed().as_secs_f64();
+                // Time up is a budget spent, not an interruption: the run finishes as at the
+                // end of a ray budget (a shooting extrapolates what it could not shoot).
                 let fits = rays_that_fit(left, seconds, step.rays);
-                if fits == 0 {
-                    return ControlFlow::Break(());
-                }
                 if step.next_rays > fits {
                     step.limit_rays_left(fits);
                 }

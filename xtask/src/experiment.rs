@@ -202,6 +202,7 @@ fn figure2(root: &Path) -> Result<()> {
             rays: REFINING_BUDGET,
             unshot_threshold: 0.0,
             seed,
+            ..Default::default()
         };
         for k in 1..=REFINING_WAVES {
             let shooting = setup.shoot(&config, Some(k))?;
@@ -212,6 +213,7 @@ fn figure2(root: &Path) -> Result<()> {
                 rays: budget,
                 unshot_threshold: UNSHOT_THRESHOLD,
                 seed,
+                ..Default::default()
             };
             let shooting = setup.shoot(&config, None)?;
             rows.extend(setup.measure(Sweep::Budgets, budget, seed, &shooting)?);

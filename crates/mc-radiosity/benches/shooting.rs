@@ -129,6 +129,7 @@ fn bench(c: &mut Criterion) {
             rays: RAYS,
             unshot_threshold: 0.0,
             seed: 1,
+            ..Default::default()
         };
         let recorder = Recorder {
             bvh: &bvh,

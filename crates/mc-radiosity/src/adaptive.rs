@@ -173,6 +173,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
                 rays: pilot_rays,
                 unshot_threshold: config.unshot_threshold,
                 seed: derive_seed(config.seed, PILOT_TAG),
+                ..Default::default()
             },
             &mut |p| {
                 if let Some(seconds) = pilot_seconds {

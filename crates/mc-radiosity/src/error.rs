@@ -16,6 +16,9 @@ pub enum Error {
     /// The unshot threshold of shooting is not a fraction in `[0, 1]`.
     #[error("the unshot threshold must be in [0, 1], got {0}")]
     BadUnshotThreshold(f64),
+    /// The share of the budget a shooting's finishing tail may overrun is negative or NaN.
+    #[error("the finishing tail's overrun must be >= 0, got {0}")]
+    BadMaxOverrun(f64),
     /// The convergence threshold of Jacobi gathering is negative or not finite.
     #[error("the gathering threshold must be finite and >= 0, got {0}")]
     BadGatherThreshold(f64),

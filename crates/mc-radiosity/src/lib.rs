@@ -60,7 +60,7 @@ pub use gather::{
 pub use mcrad_random::StreamKey;
 pub use method::{Kind, Method, StopReason, UnknownMethod};
 pub use schedule::{DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD};
-pub use shoot::{ShootConfig, ShootProgress, ShootStats, Shooting, shoot};
+pub use shoot::{DEFAULT_MAX_OVERRUN, ShootConfig, ShootProgress, ShootStats, Shooting, shoot};
 /// Uniform points and cosine-distributed rays on patches, for tests that check the estimators'
 /// sampling against the reference (only with the `testing` feature).
 #[cfg(feature = "testing")]

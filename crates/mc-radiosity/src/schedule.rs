@@ -184,6 +184,7 @@ fn shoot_config(config: &ScheduleConfig, rays: u64, seed: u64) -> ShootConfig {
         rays,
         unshot_threshold: config.unshot_threshold,
         seed,
+        ..Default::default()
     }
 }
 
@@ -418,16 +419,28 @@ impl Progressive {
     /// at a reflectance near 1) grow with the power its paths carried, so weights from them
     /// would favour the passes that came out high (PRR at rho 0.999, 20k rays: +37% at 2.5
     /// standard errors). Weights fixed before the pass keep the merge unbiased.
+    ///
+    /// `spare`: rays of the passes after this one, which take what its finishing tail casts
+    /// beyond `rays` ([`Doubling::charge`]): the tail may cost them as well as
+    /// [`DEFAULT_MAX_OVERRUN`](crate::shoot::DEFAULT_MAX_OVERRUN) of `rays` before the rest
+    /// of the light is extrapolated ([`ShootConfig::max_overrun`]).
     fn shoot<C: RayCaster>(
         &mut self,
         ctx: &Context<C>,
         config: &ScheduleConfig,
         rays: u64,
+        spare: u64,
         tag: u64,
     ) -> Result<Shooting, Error> {
+        // Without a ray budget (a run against the clock) the passes after this one are
+        // sized later, to the time left: the tail may not count on them.
+        let spare = if config.rays == u64::MAX { 0 } else { spare };
         let mut s = shoot(
             ctx,
-            &shoot_config(config, rays, derive_seed(config.seed, tag)),
+            &ShootConfig {
+                max_overrun: crate::shoot::DEFAULT_MAX_OVERRUN + spare as f64 / rays.max(1) as f64,
+                ..shoot_config(config, rays, derive_seed(config.seed, tag))
+            },
             &mut |_| ControlFlow::Continue(()),
         )?;
         self.rays += s.stats.rays;

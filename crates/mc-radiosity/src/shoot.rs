@@ -35,9 +35,19 @@
 //! expected power shot is `U_i` either way, so the result stays unbiased, no power waits for a
 //! later wave, and the tail costs about `unshot / ((1 - rho_avg) phi_0)` rays more than the
 //! budget (a fraction of a percent of it in a normal run). Near `rho = 1` that cost grows like
-//! `1 / (1 - rho)` (at `rho = 0.99999`, 26x the budget): keeping the budget there by stopping
-//! the tail early was tried and measured (issue 16): it biases every progressive method low
-//! (PRR -5%, combined -56% at `rho = 0.999`), so the tail stays unbiased and may overrun.
+//! `1 / (1 - rho)` (at `rho = 0.99999`, 26x the budget). Stopping the tail early and dropping
+//! the power left was tried and measured (issue 16): it biases every progressive method low
+//! (PRR -5%, combined -56% at `rho = 0.999`). So the tail runs, unbiased, wherever it fits in
+//! [`ShootConfig::max_overrun`] of the budget (5% by default; a progressive schedule adds the
+//! rays of its later passes, which are charged for it), three standard deviations of its
+//! random cost included (`m = |U| / phi_0` walks of geometric length `L = 1 / (1 - r)`: `m L`
+//! give or take `sqrt(m) L`). Where it does not fit, the run stops at its budget and
+//! extrapolates the light the unshot power has yet to give: shot, `U` returns `r` of itself,
+//! then `r` of that, so `|U| r / (1 - r)` of reflected light is still to come (per channel,
+//! `r` the measured returning share); it is spread as the reflected light so far (after many
+//! bounces, the dominant shape), scaling each patch's reflected light, and its noise, by
+//! `1 + x`. Exact in a closed scene of uniform reflectance; the uncertainty of `r / (1 - r)`
+//! is added to the variance ([`ShootStats::extrapolated`] holds the power treated so).
 //!
 //! Power is conserved exactly in every realisation (to floating-point rounding):
 //! `emitted + roulette = absorbed + escaped + unshot`, where `roulette` (zero until the finish)
@@ -83,16 +93,27 @@ pub struct ShootConfig {
     pub unshot_threshold: f64,
     /// Seed of every random stream of the run.
     pub seed: u64,
+    /// The most rays the finishing roulette may be expected to cast beyond `rays`, as a share
+    /// of `rays` (`>= 0`). Where the tail would cost more (a reflectance so near 1 that the
+    /// light still unshot bounces far longer than the budget allows), the run stops at its
+    /// budget and extrapolates the light that power has yet to give instead (see the
+    /// documentation of [`shoot`](crate::shoot())).
+    pub max_overrun: f64,
 }
+
+/// [`ShootConfig::max_overrun`]'s default: a finishing tail may cost 5% more rays.
+pub const DEFAULT_MAX_OVERRUN: f64 = 0.05;
 
 impl Default for ShootConfig {
     /// One million rays, stop at [`DEFAULT_UNSHOT_THRESHOLD`](crate::DEFAULT_UNSHOT_THRESHOLD)
-    /// unshot (the schedules' default), seed 0.
+    /// unshot (the schedules' default), seed 0, a tail of at most
+    /// [`DEFAULT_MAX_OVERRUN`] of the budget.
     fn default() -> Self {
         ShootConfig {
             rays: 1_000_000,
             unshot_threshold: crate::DEFAULT_UNSHOT_THRESHOLD,
             seed: 0,
+            max_overrun: DEFAULT_MAX_OVERRUN,
         }
     }
 }
@@ -155,6 +176,10 @@ pub struct ShootStats {
     pub roulette: DVec3,
     /// Rays cast by the finishing roulette, included in `rays`.
     pub finishing_rays: u64,
+    /// The unshot power whose light was extrapolated instead of shot (zero unless the
+    /// finishing tail would have cost more than [`ShootConfig::max_overrun`]); `unshot` is
+    /// then zero: `emitted + roulette = absorbed + escaped + unshot + extrapolated`.
+    pub extrapolated: DVec3,
     /// Why the run ended.
     pub stop: StopReason,
 }
@@ -243,6 +268,9 @@ pub fn shoot<C: RayCaster>(
     if !(0.0..=1.0).contains(&config.unshot_threshold) {
         return Err(Error::BadUnshotThreshold(config.unshot_threshold));
     }
+    if config.max_overrun.is_nan() || config.max_overrun < 0.0 {
+        return Err(Error::BadMaxOverrun(config.max_overrun));
+    }
     let patches = mesh.patches();
     if patches.len() >= BACK as usize {
         return Err(Error::TooManyPatches {
@@ -286,6 +314,7 @@ pub fn shoot<C: RayCaster>(
         unshot: emitted,
         roulette: DVec3::ZERO,
         finishing_rays: 0,
+        extrapolated: DVec3::ZERO,
         stop: StopReason::BudgetSpent,
     };
     let mut per_ray = vec![DVec3::ZERO; patches.len()];
@@ -298,6 +327,9 @@ pub fn shoot<C: RayCaster>(
     // The power shot and the part of it kept as unshot power by front-face hits (channel
     // sums, W): the measured share of power that returns.
     let (mut sent, mut returned) = (0.0f64, 0.0f64);
+    // The same per channel, and the sums that give the ratio's variance ([`Returning`]).
+    let mut returning = Returning::default();
+    let mut extrapolate = false;
     loop {
         let left = total(unshot.iter().sum::<DVec3>());
         if left <= config.unshot_threshold * total(emitted) {
@@ -313,6 +345,22 @@ pub fn shoot<C: RayCaster>(
             allocate(&unshot, phi, budget_left, config.seed, wave)
         } else {
             let phi = *phi_0.get_or_insert(left / (1.0 - rho_avg));
+            // The tail's cost: `m = |U| / phi` walks of `1 / (1 - r)` rays on average, each
+            // about as long as its standard deviation (geometric), so the cost is `m L` give
+            // or take `sqrt(m) L`; it must fit, three standard deviations included.
+            let r = if sent > 0.0 {
+                (returned / sent).min(1.0 - 1e-12)
+            } else {
+                rho_avg
+            };
+            let (walks, length) = (left / phi, 1.0 / (1.0 - r));
+            let tail = (walks + 3.0 * walks.sqrt()) * length;
+            if stats.finishing_rays == 0
+                && stats.rays as f64 + tail > budget as f64 * (1.0 + config.max_overrun)
+            {
+                extrapolate = true;
+                break;
+            }
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
@@ -343,6 +391,7 @@ pub fn shoot<C: RayCaster>(
                 let p = per_ray[job.patch as usize];
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
+                let mut kept_squares = DVec3::ZERO;
                 for &h in hits {
                     if h == MISS {
                         escaped += 1;
@@ -356,11 +405,13 @@ pub fn shoot<C: RayCaster>(
                         unshot[j] += kept;
                         squares[j] += kept * kept;
                         kept_sum += kept;
+                        kept_squares += kept * kept;
                         absorbed += p - kept;
                     }
                 }
                 sent += total(p) * hits.len() as f64;
                 returned += total(kept_sum);
+                returning.add(p, hits.len() as f64, kept_sum, kept_squares);
                 stats.absorbed += absorbed;
                 stats.escaped += p * escaped as f64;
                 stats.shot += p * hits.len() as f64;
@@ -386,6 +437,16 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    if extrapolate {
+        let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
+        for (i, (r, q)) in reflected.iter_mut().zip(&mut squares).enumerate() {
+            *r *= scale;
+            *q = *q * scale * scale + remainder_variance[i];
+        }
+        stats.extrapolated = stats.unshot;
+        stats.unshot = DVec3::ZERO;
+        unshot.iter_mut().for_each(|u| *u = DVec3::ZERO);
+    }
     // The roulette's net power, a random surplus or deficit that the later bounces spread over
     // every patch: take it out of the reflected light (see the module documentation).
     let scale = roulette_correction(&stats);
@@ -405,6 +466,102 @@ pub fn shoot<C: RayCaster>(
         unshot,
         stats,
     })
+}
+
+/// The share of shot power that returns as unshot power, per channel: `r = sum kept / sum p`
+/// over the rays (`p` a ray's power, `kept` what the patch it hit keeps, `rho_j p`, or 0),
+/// with the sums that give the ratio's variance,
+/// `var r = sum (kept - r p)² / (sum p)²`.
+#[derive(Debug, Default, Clone, Copy)]
+struct Returning {
+    sent: DVec3,
+    kept: DVec3,
+    kept_squares: DVec3,
+    kept_sent: DVec3,
+    sent_squares: DVec3,
+}
+
+impl Returning {
+    /// Adds `n` rays of power `p` that kept `kept` in all, `kept_squares` the sum of squares.
+    fn add(&mut self, p: DVec3, n: f64, kept: DVec3, kept_squares: DVec3) {
+        self.sent += p * n;
+        self.kept += kept;
+        self.kept_squares += kept_squares;
+        self.kept_sent += kept * p;
+        self.sent_squares += p * p * n;
+    }
+
+    /// `r` per channel, below 1, and its variance.
+    fn share(&self) -> (DVec3, DVec3) {
+        let f = |sent: f64, kept: f64, kk: f64, ks: f64, ss: f64| {
+            if sent <= 0.0 {
+                return (0.0, 0.0);
+            }
+            let r = (kept / sent).clamp(0.0, 1.0 - 1e-12);
+            let v = ((kk - 2.0 * r * ks + r * r * ss) / (sent * sent)).max(0.0);
+            (r, v)
+        };
+        let (x, y, z) = (
+            f(
+                self.sent.x,
+                self.kept.x,
+                self.kept_squares.x,
+                self.kept_sent.x,
+                self.sent_squares.x,
+            ),
+            f(
+                self.sent.y,
+                self.kept.y,
+                self.kept_squares.y,
+                self.kept_sent.y,
+                self.sent_squares.y,
+            ),
+            f(
+                self.sent.z,
+                self.kept.z,
+                self.kept_squares.z,
+                self.kept_sent.z,
+                self.sent_squares.z,
+            ),
+        );
+        (DVec3::new(x.0, y.0, z.0), DVec3::new(x.1, y.1, z.1))
+    }
+}
+
+/// The light the unshot power `U` has yet to give, extrapolated when the finishing tail cannot
+/// be afforded: per channel, shooting `U` returns `r` of it, which returns `r` of that, and so
+/// on, so the reflected light still to come is `|U| r / (1 - r)`, with `r` the measured
+/// returning share ([`Returning`]). It is spread as the reflected light so far, whose shape
+/// the many bounces at a reflectance near 1 have already made the dominant one, as a factor
+/// `1 + x` on each patch's reflected power, `x = |U| r / ((1 - r) sum_i reflected_i)`. Exact
+/// in a closed scene of uniform reflectance, up to the noise of the reflected light so far.
+///
+/// Returns the factor and the variance to add per patch, `(reflected_i x delta)²` (W², the
+/// units of the patches' sums of squared deposits, which the caller divides by `A_i²`), with
+/// `delta` the relative uncertainty of `r / (1 - r)`, `sd(r) / (r (1 - r))`, at least 1e-3 (the
+/// shape is a model) unless `r` is measured without noise (every hit keeps the same share).
+fn remainder(reflected: &[DVec3], unshot: &[DVec3], returning: &Returning) -> (DVec3, Vec<DVec3>) {
+    let (r, var_r) = returning.share();
+    let u: DVec3 = unshot.iter().sum();
+    let so_far: DVec3 = reflected.iter().sum();
+    let mut x = DVec3::ZERO;
+    let mut delta = DVec3::ZERO;
+    for c in 0..3 {
+        if so_far[c] <= 0.0 || r[c] <= 0.0 {
+            continue;
+        }
+        x[c] = u[c] * r[c] / ((1.0 - r[c]) * so_far[c]);
+        let rel = var_r[c].sqrt() / (r[c] * (1.0 - r[c]));
+        delta[c] = if var_r[c] == 0.0 { 0.0 } else { rel.max(1e-3) };
+    }
+    let variance = reflected
+        .iter()
+        .map(|q| {
+            let add = *q * x * delta;
+            add * add
+        })
+        .collect();
+    (DVec3::ONE + x, variance)
 }
 
 /// The factor per channel that takes the finishing roulette's net power out of the reflected

@@ -260,6 +260,7 @@ fn pooling_the_refinement_with_a_solve_is_unbiased_and_less_noisy() {
                 rays: 50_000,
                 unshot_threshold: 1e-6,
                 seed: 300 + seed,
+                ..Default::default()
             },
             &mut |_| ControlFlow::Continue(()),
         )

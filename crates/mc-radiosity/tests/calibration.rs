@@ -476,3 +476,72 @@ fn bidirectional_charges_its_first_shootings_tail_to_later_passes() {
         );
     }
 }
+
+#[test]
+fn shooting_at_rho_0_99999_keeps_its_budget_and_extrapolates_the_rest() {
+    // Issue 16: at rho 0.99999 light bounces 1e5 times, five times a budget of 2e4 rays. The
+    // shooting's finishing roulette shipped all the power left at the budget's end, and the
+    // default run cast 26-28 times its rays. Where the tail cannot fit (three standard
+    // deviations of its random cost included) in `max_overrun` of the budget (5%, plus the
+    // later passes' rays in a progressive schedule), the run stops and extrapolates the light
+    // still to come, `|U| r / (1 - r)` spread as the reflected light so far, exact in a
+    // uniform closed furnace. Every shooting method, 16 seeds of 2e4 rays: every run within
+    // 110% of its budget (the gathers' two rays per patch and pass round small budgets up),
+    // and the power of the mean within 4.5 standard errors and 1% of exact.
+    let rho = 0.99999f32;
+    let mesh = Mesh::build(&furnace(rho), Subdivision::MaxEdge(0.25)).unwrap();
+    let exact = 1.0 / (1.0 - rho as f64);
+    for method in [
+        Method::Shoot,
+        Method::Prr,
+        Method::Combined,
+        Method::TwoPass,
+        Method::ProgressiveTwoPass,
+        Method::Bidirectional,
+    ] {
+        let r = runs(method, &mesh, RAYS);
+        for (seed, run) in r.iter().enumerate() {
+            let used = run.2 as f64 / RAYS as f64;
+            assert!(used <= 1.10, "{method:?} seed {seed}: {:.1}%", 100.0 * used);
+        }
+        let (bias, se) = power_bias(&mesh, &r, exact);
+        let t = bias / se.max(1e-4 / 4.5);
+        assert!(
+            t.abs() <= 4.5 && bias.abs() < 0.01,
+            "{method:?}: power of the mean {bias:+.3e} relative, {t:.1} SE"
+        );
+    }
+}
+
+#[test]
+fn a_run_capped_by_its_observer_at_rho_0_9999999_ends_at_the_cap() {
+    // Issue 16: `--time 2` at rho 0.9999999 was still running after 40 s: the finishing
+    // roulette of a shooting pass, which no observer sees, shipped 1e7 bounces. A run without
+    // a ray budget whose observer caps the rays left (what `--time` does) now ends near the
+    // cap, the light it could not shoot extrapolated. Cap 5e4 rays; the first pass of a run
+    // without a budget is 1e5 rays, so a run may end at its first pass: at most 1.1e5 rays.
+    let mesh = Mesh::build(&furnace(0.9999999), Subdivision::MaxEdge(0.25)).unwrap();
+    let bvh = bvh(&mesh);
+    for method in [
+        Method::Shoot,
+        Method::Combined,
+        Method::Prr,
+        Method::TwoPass,
+    ] {
+        let config = ScheduleConfig {
+            rays: u64::MAX,
+            seed: 1,
+            ..Default::default()
+        };
+        let cap = 50_000u64;
+        let s = run(method, &mesh, &bvh, &config, &mut |step| {
+            step.limit_rays_left(cap.saturating_sub(step.rays));
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        let rays = s.estimate.rays();
+        assert!(rays <= 110_000, "{method:?}: {rays} rays");
+        let b = s.estimate.radiosity()[0].y;
+        assert!(b.is_finite() && b > 0.0, "{method:?}: B {b}");
+    }
+}

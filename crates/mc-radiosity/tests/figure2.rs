@@ -108,6 +108,7 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
             rays: 300,
             unshot_threshold: 0.0,
             seed,
+            ..Default::default()
         };
         let early = shoot(&Context::new(&mesh, &bvh), &early_config, &mut |_| {
             ControlFlow::Break(())
@@ -119,6 +120,7 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
             rays: 100_000,
             unshot_threshold: 0.01,
             seed,
+            ..Default::default()
         };
         let late = shoot(&Context::new(&mesh, &bvh), &late_config, &mut |_| {
             ControlFlow::Continue(())

@@ -251,6 +251,7 @@ fn jacobi_gathering_agrees_with_shooting_in_a_lit_box() {
             rays: 300_000,
             unshot_threshold: 1e-5,
             seed: 1000 + seed,
+            ..Default::default()
         };
         let s = shoot(&Context::new(&mesh, &bvh), &s, &mut |_| {
             ControlFlow::Continue(())
@@ -721,6 +722,7 @@ fn the_ambient_term_restores_the_furnace_mean() {
                     rays: 100_000,
                     unshot_threshold: 0.0,
                     seed,
+                    ..Default::default()
                 };
                 let s = shoot(&Context::new(&mesh, &bvh), &config, &mut |p| {
                     if p.waves == waves {

@@ -28,6 +28,7 @@ fn receiver_runs(sampler: Sampler) -> Vec<f64> {
                 rays: 1 << 16,
                 unshot_threshold: 0.0,
                 seed: 1000 + seed,
+                ..Default::default()
             };
             let r = shoot(&ctx, &config, &mut |_| ControlFlow::Continue(())).unwrap();
             r.estimate.radiosity()[1].x

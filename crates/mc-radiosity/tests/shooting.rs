@@ -70,6 +70,7 @@ fn closed_furnace_gives_e_over_one_minus_rho() {
             rays: 100_000,
             unshot_threshold: 1e-6,
             seed: 0,
+            ..Default::default()
         };
         let samples = runs(&mesh, config);
         let exact = vec![1.0 / (1.0 - rho as f64); mesh.patches().len()];
@@ -98,6 +99,7 @@ fn parallel_unit_squares_exchange_the_analytic_form_factor() {
             rays: 200_000,
             unshot_threshold: 0.0,
             seed: 0,
+            ..Default::default()
         },
     );
     let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
@@ -142,6 +144,7 @@ fn perpendicular_unit_squares_exchange_the_analytic_form_factor() {
             rays: 200_000,
             unshot_threshold: 0.0,
             seed: 0,
+            ..Default::default()
         },
     );
     let receiver: Vec<Vec<f64>> = samples.iter().map(|s| vec![s[1]]).collect();
@@ -187,6 +190,7 @@ fn power_is_conserved_exactly_and_escapes_are_counted() {
             rays: 300_000,
             unshot_threshold: 0.001,
             seed: 3,
+            ..Default::default()
         },
         &mut |_| ControlFlow::Continue(()),
     )
@@ -234,6 +238,7 @@ fn same_seed_same_answer_with_one_or_two_threads() {
         rays: 200_000,
         unshot_threshold: 0.01,
         seed: 42,
+        ..Default::default()
     };
     let solve = |threads| {
         rayon::ThreadPoolBuilder::new()
@@ -269,6 +274,7 @@ fn budget_and_observer_stop_the_run() {
             rays: 10_000,
             unshot_threshold: 0.0,
             seed: 1,
+            ..Default::default()
         },
         &mut |_| ControlFlow::Continue(()),
     )
@@ -293,6 +299,7 @@ fn budget_and_observer_stop_the_run() {
             rays: 100_000,
             unshot_threshold: 0.0,
             seed: 1,
+            ..Default::default()
         },
         &mut |p| {
             seen += 1;
@@ -349,6 +356,7 @@ fn without_a_budget_waves_stay_bounded_and_a_cap_is_kept() {
         rays: u64::MAX,
         unshot_threshold: 0.0,
         seed: 3,
+        ..Default::default()
     };
     let mut before = 0u64;
     let mut waves = Vec::new();
@@ -428,6 +436,7 @@ fn a_small_budget_over_many_open_patches_takes_few_waves() {
             rays,
             unshot_threshold: 1e-3,
             seed: 5,
+            ..Default::default()
         },
         &mut |_| ControlFlow::Continue(()),
     )

@@ -65,7 +65,7 @@ pub(crate) fn run<C: RayCaster>(
         let k = run.steps as u64;
         match &run.merged {
             None => {
-                let shot = run.shoot(ctx, config, budget, k)?;
+                let shot = run.shoot(ctx, config, budget, passes.remaining(), k)?;
                 // The roulette tail's rays beyond the pass's budget (long near rho = 1) come
                 // out of the later passes.
                 passes.charge(shot.stats.rays.saturating_sub(budget));

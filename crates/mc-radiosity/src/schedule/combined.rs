@@ -148,7 +148,7 @@ fn with_context<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = run.shoot(ctx, config, shoot_budget, k)?;
+        let s = run.shoot(ctx, config, shoot_budget, passes.remaining(), k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         // The passes merge by the rays asked of them (see `Progressive::shoot`).

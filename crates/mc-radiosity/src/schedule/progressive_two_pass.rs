@@ -27,7 +27,7 @@ pub(crate) fn run<C: RayCaster>(
     let mut gathers = Gathers::default();
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let s = run.shoot(ctx, config, budget / 2, k)?;
+        let s = run.shoot(ctx, config, budget / 2, passes.remaining(), k)?;
         passes.charge(s.stats.rays.saturating_sub(budget / 2));
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);

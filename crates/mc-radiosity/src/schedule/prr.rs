@@ -35,7 +35,7 @@ pub(crate) fn run<C: RayCaster>(
             held = left - size;
         }
         let Some(budget) = passes.next() else { break };
-        let s = run.shoot(ctx, config, budget, run.steps as u64)?;
+        let s = run.shoot(ctx, config, budget, passes.remaining(), run.steps as u64)?;
         asked += budget;
         cast += s.stats.rays;
         passes.refund(held);
