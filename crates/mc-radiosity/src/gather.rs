@@ -436,7 +436,7 @@ fn with_face_pooled(
         let f = p.face as usize;
         m2[f] += s.moments.m2;
         dof[f] += s.moments.n.saturating_sub(1);
-        emitted[f] += s.emitted.m2;
+        emitted[f] += s.emitted_m2();
     }
     // Per face, the sample variance of the values seen, its emission part the run's so far.
     let mut face_variance: Vec<DVec3> = (0..faces)
@@ -448,7 +448,8 @@ fn with_face_pooled(
             }
         })
         .collect();
-    let tracked = seen.iter().all(|s| s.emitted.n == s.moments.n);
+    // Every ray's emission is recorded where the input's variance is known (`inherit`).
+    let tracked = seen.iter().all(|s| s.inherit_rays == s.moments.n);
     if let Some(pool) = pool.filter(|_| tracked) {
         pool.m2.resize(faces, DVec3::ZERO);
         pool.dof.resize(faces, 0);

@@ -102,10 +102,12 @@ pub(crate) struct Seen {
     pub inherited: DVec3,
     /// Rays that summed into `inherited`.
     pub inherit_rays: u64,
-    /// The moments over the rays of the emission `E_j` of the patch `j` hit (0 for a miss or
-    /// a back face; recorded where the patches are known, with `inherit`): the part of the
-    /// value seen that is the same in every round of a Jacobi run.
-    pub emitted: Moments,
+    /// The sum over the `inherit_rays` rays of the emission `E_j` of the patch `j` hit (0 for
+    /// a miss, a back face or a patch that does not emit; recorded with `inherit`), W/m²: the
+    /// part of the value seen that is the same in every round of a Jacobi run.
+    pub emitted: DVec3,
+    /// The sum of the squares of the same, (W/m²)².
+    pub emitted_squares: DVec3,
 }
 
 impl Seen {
@@ -116,8 +118,19 @@ impl Seen {
             back_faces: self.back_faces + other.back_faces,
             inherited: self.inherited + other.inherited,
             inherit_rays: self.inherit_rays + other.inherit_rays,
-            emitted: self.emitted.merge(other.emitted),
+            emitted: self.emitted + other.emitted,
+            emitted_squares: self.emitted_squares + other.emitted_squares,
         }
+    }
+
+    /// The sum of squared deviations from their mean of the emission the `inherit_rays` rays
+    /// saw, `sum e² - (sum e)² / n` ((W/m²)²; 0 without rays).
+    pub(crate) fn emitted_m2(&self) -> DVec3 {
+        if self.inherit_rays == 0 {
+            return DVec3::ZERO;
+        }
+        (self.emitted_squares - self.emitted * self.emitted / self.inherit_rays as f64)
+            .max(DVec3::ZERO)
     }
 
     /// The estimate of `sum_j F_ij² V_j`: the mean over the rays of `F̂_ij V_j` (a ray of patch
@@ -179,13 +192,15 @@ pub(crate) fn look_with<C: RayCaster>(
         seen.moments.push(x);
         if let Some((v, patches)) = inherit {
             seen.inherit_rays += 1;
-            match hit.filter(|h| h.front) {
-                Some(h) => {
-                    let j = h.id as usize;
-                    seen.inherited += v[j] * disc_form_factor(&r, &h, &patches[j]);
-                    seen.emitted.push(patches[j].emission.as_dvec3());
+            if let Some(h) = hit.filter(|h| h.front) {
+                let j = h.id as usize;
+                seen.inherited += v[j] * disc_form_factor(&r, &h, &patches[j]);
+                // Most rays see no emitter: only those that do add to the sums.
+                if patches[j].emission != glam::Vec3::ZERO {
+                    let e = patches[j].emission.as_dvec3();
+                    seen.emitted += e;
+                    seen.emitted_squares += e * e;
                 }
-                None => seen.emitted.push(DVec3::ZERO),
             }
         }
     }

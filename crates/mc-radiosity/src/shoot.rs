@@ -324,10 +324,8 @@ pub fn shoot<C: RayCaster>(
     // The budget, lowered when the observer limits the rays left.
     let mut budget = config.rays;
     let limit = Cell::new(u64::MAX);
-    // The power shot and the part of it kept as unshot power by front-face hits (channel
-    // sums, W): the measured share of power that returns.
-    let (mut sent, mut returned) = (0.0f64, 0.0f64);
-    // The same per channel, and the sums that give the ratio's variance ([`Returning`]).
+    // The power shot and the part of it kept as unshot power by front-face hits, per channel
+    // (W): the measured share of power that returns ([`Returning`]).
     let mut returning = Returning::default();
     let mut extrapolate = false;
     loop {
@@ -339,7 +337,7 @@ pub fn shoot<C: RayCaster>(
         let budget_left = horizon(budget, stats.rays).saturating_sub(stats.rays);
         let wave = stats.waves as u64;
         let counts = if budget_left > 0 {
-            let r = returning_share(returned, sent, stats.rays, rho_avg);
+            let r = returning_share(&returning, stats.rays, rho_avg);
             let phi = left / ((1.0 - r) * budget_left as f64);
             phi_0.get_or_insert(phi);
             allocate(&unshot, phi, budget_left, config.seed, wave)
@@ -348,11 +346,7 @@ pub fn shoot<C: RayCaster>(
             // The tail's cost: `m = |U| / phi` walks of `1 / (1 - r)` rays on average, each
             // about as long as its standard deviation (geometric), so the cost is `m L` give
             // or take `sqrt(m) L`; it must fit, three standard deviations included.
-            let r = if sent > 0.0 {
-                (returned / sent).min(1.0 - 1e-12)
-            } else {
-                rho_avg
-            };
+            let r = returning.total_share().unwrap_or(rho_avg);
             let (walks, length) = (left / phi, 1.0 / (1.0 - r));
             let tail = (walks + 3.0 * walks.sqrt()) * length;
             if stats.finishing_rays == 0
@@ -409,8 +403,6 @@ pub fn shoot<C: RayCaster>(
                         absorbed += p - kept;
                     }
                 }
-                sent += total(p) * hits.len() as f64;
-                returned += total(kept_sum);
                 returning.add(p, hits.len() as f64, kept_sum, kept_squares);
                 stats.absorbed += absorbed;
                 stats.escaped += p * escaped as f64;
@@ -482,6 +474,12 @@ struct Returning {
 }
 
 impl Returning {
+    /// `r` over the channels summed, below 1 (`None` before anything was shot).
+    fn total_share(&self) -> Option<f64> {
+        let sent = total(self.sent);
+        (sent > 0.0).then(|| (total(self.kept) / sent).min(1.0 - 1e-12))
+    }
+
     /// Adds `n` rays of power `p` that kept `kept` in all, `kept_squares` the sum of squares.
     fn add(&mut self, p: DVec3, n: f64, kept: DVec3, kept_squares: DVec3) {
         self.sent += p * n;
@@ -586,11 +584,11 @@ fn roulette_correction(stats: &ShootStats) -> DVec3 {
     )
 }
 
-/// The share of shot power that returns as unshot power, `r` in `[0, 0.999]`: `returned /
-/// sent` measured over `rays` rays, drawn towards `prior` (the mean reflectance) with the weight
-/// of [`PRIOR_RAYS`] rays.
-fn returning_share(returned: f64, sent: f64, rays: u64, prior: f64) -> f64 {
-    let measured = if sent > 0.0 { returned / sent } else { prior };
+/// The share of shot power that returns as unshot power, `r` in `[0, 0.999]`: the channels'
+/// sum measured over `rays` rays ([`Returning::total_share`]), drawn towards `prior` (the mean
+/// reflectance) with the weight of [`PRIOR_RAYS`] rays.
+fn returning_share(returning: &Returning, rays: u64, prior: f64) -> f64 {
+    let measured = returning.total_share().unwrap_or(prior);
     let n = rays as f64;
     ((measured * n + prior * PRIOR_RAYS) / (n + PRIOR_RAYS)).clamp(0.0, 0.999)
 }

@@ -70,6 +70,20 @@ fn spread_over_reported(runs: &[(Vec<DVec3>, Vec<DVec3>, u64)]) -> f64 {
     spread / reported
 }
 
+/// Rays used / rays asked by one run of `method` with `rays` rays and `seed`.
+fn budget_used(method: Method, mesh: &Mesh, bvh: &mcrad_raycast::Bvh, rays: u64, seed: u64) -> f64 {
+    let config = ScheduleConfig {
+        rays,
+        seed,
+        ..Default::default()
+    };
+    let s = run(method, mesh, bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    s.estimate.rays() as f64 / rays as f64
+}
+
 /// The relative bias of the mean power and its standard error.
 fn power_bias(mesh: &Mesh, runs: &[(Vec<DVec3>, Vec<DVec3>, u64)], exact: f64) -> (f64, f64) {
     let powers: Vec<f64> = runs
@@ -129,16 +143,7 @@ fn combined_spends_its_budget() {
     let bvh = bvh(&mesh);
     for method in [Method::Combined, Method::TwoPassSplit] {
         for seed in 0..4 {
-            let config = ScheduleConfig {
-                rays: 50_000,
-                seed,
-                ..Default::default()
-            };
-            let s = run(method, &mesh, &bvh, &config, &mut |_| {
-                ControlFlow::Continue(())
-            })
-            .unwrap();
-            let used = s.estimate.rays() as f64 / config.rays as f64;
+            let used = budget_used(method, &mesh, &bvh, 50_000, seed);
             assert!(
                 (0.95..=1.05).contains(&used),
                 "{method:?} seed {seed}: {:.1}% of the budget",
@@ -330,16 +335,7 @@ fn prr_keeps_its_budget_at_rho_0_999() {
     let bvh = bvh(&mesh);
     let mut mean = 0.0;
     for seed in 0..6 {
-        let config = ScheduleConfig {
-            rays: 200_000,
-            seed,
-            ..Default::default()
-        };
-        let s = run(Method::Prr, &mesh, &bvh, &config, &mut |_| {
-            ControlFlow::Continue(())
-        })
-        .unwrap();
-        let used = s.estimate.rays() as f64 / config.rays as f64;
+        let used = budget_used(Method::Prr, &mesh, &bvh, 200_000, seed);
         assert!(
             (0.95..=1.05).contains(&used),
             "seed {seed}: {:.1}% of the budget",
@@ -459,16 +455,7 @@ fn bidirectional_charges_its_first_shootings_tail_to_later_passes() {
     let mesh = Mesh::build(&furnace(0.999), Subdivision::MaxEdge(1.0 / 12.0 + 1e-4)).unwrap();
     let bvh = bvh(&mesh);
     for seed in 0..8 {
-        let config = ScheduleConfig {
-            rays: 200_000,
-            seed,
-            ..Default::default()
-        };
-        let s = run(Method::Bidirectional, &mesh, &bvh, &config, &mut |_| {
-            ControlFlow::Continue(())
-        })
-        .unwrap();
-        let used = s.estimate.rays() as f64 / config.rays as f64;
+        let used = budget_used(Method::Bidirectional, &mesh, &bvh, 200_000, seed);
         assert!(
             (0.99..=1.01).contains(&used),
             "seed {seed}: {:.1}% of the budget",
