@@ -414,6 +414,10 @@ fn a_resume_of_another_run_is_refused_with_the_reason() {
     assert_eq!(o.status.code(), Some(1));
 }
 
+/// Under independent rays (`--sampler random`) four merged runs are as good as one run of four
+/// times the rays. (Under the default quasi-Monte Carlo rays one long run is better than the
+/// merge, 1.47x less variance measured: its rays stay stratified over all its rays; the merge
+/// stays unbiased and honest, the mean z² checked below holds for it too.)
 #[test]
 fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
     let dir = tempfile::tempdir().unwrap();
@@ -427,6 +431,8 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
             "uniform",
             "--threads",
             "2",
+            "--sampler",
+            "random",
             "-q",
             "--rays",
             "2e5",
@@ -445,6 +451,8 @@ fn four_seeds_merged_agree_with_one_run_of_four_times_the_rays() {
         "uniform",
         "--threads",
         "2",
+        "--sampler",
+        "random",
         "-q",
         "--rays",
         "8e5",

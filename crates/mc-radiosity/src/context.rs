@@ -129,17 +129,20 @@ impl<'a, C: RayCaster> Context<'a, C> {
 /// How the estimators draw the points and directions of their rays (the command line's
 /// `--sampler`). Either way every ray is distributed as its estimator needs (a uniform point
 /// of the patch, a cosine-distributed direction), so every estimate is unbiased; what changes
-/// is how the rays of one patch relate to each other.
+/// is how the rays of one patch relate to each other. The default is [`Sampler::Qmc`]: about
+/// 3x fewer rays to the same error for `combined` (docs/results.md), with honest variances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Sampler {
     /// Independent pseudo-random rays ([`mcrad_random::Stream`]).
-    #[default]
     Random,
     /// Randomised quasi-Monte Carlo: the rays of a patch are the points of its own
     /// Owen-scrambled Sobol sequence ([`mcrad_random::Sobol`]), indexed by the patch's ray
     /// counter (in shooting, continued across waves), so they are stratified in point and
-    /// direction; each patch and pass has an independent scramble.
+    /// direction; each patch and pass has an independent scramble. The sequence interleaves two
+    /// independent scrambles, whose difference scales the estimators' variances to the
+    /// stratified rays' true error (the module `replicates` of this crate has the maths).
+    #[default]
     Qmc,
 }
 

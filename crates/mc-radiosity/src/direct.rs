@@ -65,16 +65,17 @@
 //! Either way `D_i = rho_i mean(f)` over the patch's `n` samples, with variance `rho_i² s² / n`,
 //! `s²` the sample variance of `f`.
 
-use crate::context::Context;
+use crate::context::{Context, Sampler};
 use crate::error::Error;
 use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts_with_light};
 use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
+use crate::replicates::{self, Halves};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::{Rays, SurfaceSampler};
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::Patch;
-use mcrad_random::StreamKey;
+use mcrad_random::{StreamKey, replicate};
 use mcrad_raycast::{Hit, NO_ID, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::f64::consts::{FRAC_1_PI, PI};
@@ -172,10 +173,11 @@ fn direct_with<C: RayCaster>(
             let mut rays =
                 Rays::for_chunk(ctx.sampling(), key.item(i as u64), DIRECT_LIGHT, job.chunk);
             let mut tally = Tally::default();
-            for _ in 0..job.rays {
+            for t in 0..job.rays {
                 let draw = draw(&mut rays, &light, i, &frame, sampler);
                 let f = light.sample(i, &frame, caster, draw, &mut tally);
                 tally.moments.push(f);
+                tally.halves.push(replicate(u64::from(t)), f);
             }
             tally
         })
@@ -186,15 +188,30 @@ fn direct_with<C: RayCaster>(
     for (job, t) in jobs.iter().zip(seen) {
         let acc = &mut per_patch[job.item as usize];
         acc.moments = acc.moments.merge(t.moments);
+        acc.halves = acc.halves.merge(t.halves);
         acc.rays += t.rays;
         acc.occluded += t.occluded;
     }
+    let gains = if ctx.sampling() == Sampler::Qmc {
+        let measured: Vec<Option<f64>> = per_patch
+            .iter()
+            .map(|t| t.halves.variance_of_mean())
+            .collect();
+        let model: Vec<f64> = per_patch
+            .iter()
+            .map(|t| t.moments.variance_of_mean().element_sum())
+            .collect();
+        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
+        replicates::gains(&faces, &measured, &model)
+    } else {
+        vec![1.0; patches.len()]
+    };
     let (mut radiosity, mut variance) = (Vec::new(), Vec::new());
     let (mut rays, mut occluded) = (0, 0);
-    for (p, t) in patches.iter().zip(&per_patch) {
+    for ((p, t), g) in patches.iter().zip(&per_patch).zip(&gains) {
         let rho = p.reflectance.as_dvec3();
         radiosity.push(rho * t.moments.mean);
-        variance.push(rho * rho * t.moments.variance_of_mean());
+        variance.push(rho * rho * t.moments.variance_of_mean() * *g);
         rays += t.rays;
         occluded += t.occluded;
     }
@@ -254,6 +271,8 @@ fn draw(rays: &mut Rays, light: &Light, i: usize, frame: &Frame, sampler: &Surfa
 #[derive(Debug, Clone, Copy, Default)]
 struct Tally {
     moments: Moments,
+    /// The samples split by replicate ([`crate::replicates`]).
+    halves: Halves,
     rays: u64,
     occluded: u64,
 }

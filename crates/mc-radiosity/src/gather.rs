@@ -74,14 +74,16 @@
 //! [`Sobol`](mcrad_random::Sobol)`(seed, pass, i, PATCH_GATHER)` (chunk `c` starts at point
 //! `4096 c`), vertex groups' of `(seed, pass, g, VERTEX_GATHER)` and the direct light's of
 //! `(seed, pass, i, DIRECT_LIGHT)`: stratified within a round, independent between rounds,
-//! patches and estimators.
+//! patches and estimators. The sampling variances are then scaled by the gain the sequences'
+//! two interleaved scrambles measure, per input face (module `replicates`).
 
-use crate::context::Context;
+use crate::context::{Context, Sampler};
 use crate::control::Control;
 use crate::direct::CosineLight;
 use crate::error::Error;
 use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
 use crate::method::StopReason;
+use crate::replicates;
 use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::Rays;
 use glam::{DVec3, Vec3};
@@ -391,7 +393,8 @@ fn round_parts<C: RayCaster>(
         emission,
         patches.len() as u64 * rays_per_patch as u64,
     )?;
-    round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool)?;
+    let qmc = ctx.sampling() == Sampler::Qmc;
+    round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool, qmc)?;
     Ok((round, inherited))
 }
 
@@ -423,6 +426,7 @@ fn with_face_pooled(
     seen: &[Seen],
     estimate: Estimate,
     pool: Option<&mut EmittedPool>,
+    qmc: bool,
 ) -> Result<Estimate, Error> {
     let patches = mesh.patches();
     let faces = patches
@@ -464,19 +468,35 @@ fn with_face_pooled(
     let Some(variance) = estimate.variance() else {
         return Ok(estimate);
     };
+    // The sampling variance each patch reports (before `rho²`): the face's, or its own.
+    let model: Vec<DVec3> = patches
+        .iter()
+        .zip(seen)
+        .map(|(p, s)| {
+            let f = p.face as usize;
+            if dof[f] <= s.moments.n.saturating_sub(1) || s.moments.n == 0 {
+                s.moments.variance_of_mean()
+            } else {
+                face_variance[f].max(DVec3::ZERO) / s.moments.n as f64
+            }
+        })
+        .collect();
+    let gains = if qmc {
+        let measured: Vec<Option<f64>> = seen.iter().map(|s| s.halves.variance_of_mean()).collect();
+        let total: Vec<f64> = model.iter().map(|m| m.element_sum()).collect();
+        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
+        replicates::gains(&faces, &measured, &total)
+    } else {
+        vec![1.0; patches.len()]
+    };
     let variance = patches
         .iter()
         .zip(seen)
         .zip(variance)
-        .map(|((p, s), v)| {
-            let f = p.face as usize;
-            let own_dof = s.moments.n.saturating_sub(1);
-            if dof[f] <= own_dof || s.moments.n == 0 {
-                return *v;
-            }
+        .zip(model.iter().zip(&gains))
+        .map(|(((p, s), v), (m, g))| {
             let rho = p.reflectance.as_dvec3();
-            let pooled = face_variance[f].max(DVec3::ZERO) / s.moments.n as f64;
-            (*v + rho * rho * (pooled - s.moments.variance_of_mean())).max(DVec3::ZERO)
+            (*v + rho * rho * (*m * *g - s.moments.variance_of_mean())).max(DVec3::ZERO)
         })
         .collect();
     Ok(Estimate::new(
@@ -839,10 +859,30 @@ pub fn gather_corners<C: RayCaster>(
         emission,
         groups.len() as u64 * rays_per_vertex as u64,
     )?;
-    let (values, variances) = (
+    let (values, mut variances) = (
         round.estimate.radiosity(),
-        round.estimate.variance().expect("gathering has variances"),
+        round
+            .estimate
+            .variance()
+            .expect("gathering has variances")
+            .to_vec(),
     );
+    if ctx.sampling() == Sampler::Qmc {
+        // The variances are the rays' `rho² s² / n` alone (no input noise): scale them by the
+        // gain the replicates measure, per input face.
+        let measured: Vec<Option<f64>> = seen.iter().map(|s| s.halves.variance_of_mean()).collect();
+        let model: Vec<f64> = seen
+            .iter()
+            .map(|s| s.moments.variance_of_mean().element_sum())
+            .collect();
+        let faces: Vec<u32> = (0..groups.len())
+            .map(|g| patches[groups.patches(g)[0] as usize].face)
+            .collect();
+        replicates::scale(
+            &mut variances,
+            &replicates::gains(&faces, &measured, &model),
+        );
+    }
     let corners = groups.corner_groups();
     Ok(CornerGathering {
         radiosity: corners.iter().map(|&g| values[g as usize]).collect(),

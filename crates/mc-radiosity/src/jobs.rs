@@ -2,12 +2,15 @@
 //! (the unit of parallel work and of random streams), run in parallel and reduced in a fixed
 //! order, so a seed gives the same answer on any number of threads.
 
+use crate::replicates::Halves;
 use glam::DVec3;
 use mcrad_meshing::Patch;
+use mcrad_random::replicate;
 use mcrad_raycast::{Hit, Ray, RayCaster};
 use rayon::prelude::*;
 
-/// Rays (or samples) per job: the unit of parallel work and of random streams.
+/// Rays (or samples) per job: the unit of parallel work and of random streams. A multiple of
+/// [`mcrad_random::REPLICATES`], so that a job's ray `t` is of replicate `t mod REPLICATES`.
 pub(crate) const JOB_RAYS: u32 = 4096;
 /// Sub-stream tag of patch gathering ([`gather_round`](crate::gather_round)); the chunk number is added to it.
 pub(crate) const PATCH_GATHER: u64 = 1 << 40;
@@ -108,6 +111,9 @@ pub(crate) struct Seen {
     pub emitted: DVec3,
     /// The sum of the squares of the same, (W/m²)².
     pub emitted_squares: DVec3,
+    /// The values split by the replicate of the ray's point in its sequence (ray `t` of a job
+    /// is point `chunk * JOB_RAYS + t`, replicate `t mod 2`; [`crate::replicates`]).
+    pub halves: Halves,
 }
 
 impl Seen {
@@ -120,6 +126,7 @@ impl Seen {
             inherit_rays: self.inherit_rays + other.inherit_rays,
             emitted: self.emitted + other.emitted,
             emitted_squares: self.emitted_squares + other.emitted_squares,
+            halves: self.halves.merge(other.halves),
         }
     }
 
@@ -175,7 +182,7 @@ pub(crate) fn look_with<C: RayCaster>(
     extra: impl Fn(&Ray, &Hit) -> DVec3,
 ) -> Seen {
     let mut seen = Seen::default();
-    for _ in 0..n {
+    for t in 0..n {
         let r = ray();
         let hit = caster.closest_hit(&r);
         let x = match hit {
@@ -190,6 +197,7 @@ pub(crate) fn look_with<C: RayCaster>(
             }
         };
         seen.moments.push(x);
+        seen.halves.push(replicate(u64::from(t)), x);
         if let Some((v, patches)) = inherit {
             seen.inherit_rays += 1;
             if let Some(h) = hit.filter(|h| h.front) {

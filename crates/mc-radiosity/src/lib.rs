@@ -27,11 +27,15 @@
 //!   and the dispatch of [`schedule::run`]; clap's `ValueEnum` with feature `clap`, serde's
 //!   `Serialize` (of [`Method`] and [`StopReason`]) with feature `serde`.
 //!
-//! Randomness is a pure function of `(seed, pass, item, sub-stream)` ([`mcrad_random::Stream`]) and every
-//! reduction runs in a fixed order, so a seed gives the same answer whatever the thread count.
-//! With [`Sampler::Qmc`] ([`Context::with_sampler`], [`ScheduleConfig::sampler`](schedule::ScheduleConfig::sampler))
-//! the rays of each patch are instead the points of its own Owen-scrambled Sobol sequence
-//! ([`mcrad_random::Sobol`]), keyed the same way: stratified, still unbiased and deterministic.
+//! Randomness is a pure function of `(seed, pass, item, sub-stream)` and every reduction runs
+//! in a fixed order, so a seed gives the same answer whatever the thread count. With
+//! [`Sampler::Qmc`], the default ([`Context::with_sampler`],
+//! [`ScheduleConfig::sampler`](schedule::ScheduleConfig::sampler)), the rays of each patch are
+//! the points of its own Owen-scrambled Sobol sequence ([`mcrad_random::Sobol`]), keyed that
+//! way: stratified, still unbiased and deterministic; the variances the estimators report are
+//! scaled to the stratified rays' error by the spread between the two scrambles every sequence
+//! interleaves (module `replicates`). With [`Sampler::Random`] they are independent
+//! pseudo-random rays ([`mcrad_random::Stream`]).
 //! This crate does no I/O.
 
 pub mod adaptive;
@@ -43,6 +47,7 @@ mod error;
 pub mod gather;
 mod jobs;
 pub mod method;
+mod replicates;
 mod sampling;
 pub mod schedule;
 mod shoot;

@@ -70,12 +70,13 @@ use crate::context::Sampler;
 use crate::error::Error;
 use crate::jobs::SHOOT_QMC;
 use crate::method::StopReason;
+use crate::replicates::{self, Halves};
 use crate::sampling::stochastic_round;
 use crate::surface::{Rays, SurfaceSampler};
 use glam::DVec3;
 use mcrad_combine::Estimate;
 
-use mcrad_random::{Stream, StreamKey};
+use mcrad_random::{Stream, StreamKey, replicate};
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 use std::cell::Cell;
@@ -302,6 +303,10 @@ pub fn shoot<C: RayCaster>(
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
+    // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
+    // sequence (crate::replicates).
+    let mut halves =
+        (ctx.sampling() == Sampler::Qmc).then(|| vec![Halves::default(); patches.len()]);
     let mut stats = ShootStats {
         rays: 0,
         waves: 0,
@@ -386,7 +391,7 @@ pub fn shoot<C: RayCaster>(
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
-                for &h in hits {
+                for (t, &h) in hits.iter().enumerate() {
                     if h == MISS {
                         escaped += 1;
                     } else if h & BACK != 0 {
@@ -398,6 +403,9 @@ pub fn shoot<C: RayCaster>(
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
+                        if let Some(halves) = halves.as_mut() {
+                            halves[j].push(replicate(job.first + t as u64), kept);
+                        }
                         kept_sum += kept;
                         kept_squares += kept * kept;
                         absorbed += p - kept;
@@ -429,6 +437,18 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    if let Some(halves) = &halves {
+        // The sums of squares assume independent rays: scale them by the gain the replicates
+        // measure (crate::replicates).
+        let measured: Vec<Option<f64>> = halves
+            .iter()
+            .zip(&squares)
+            .map(|(h, s)| (*s != DVec3::ZERO).then(|| h.variance_of_sum()))
+            .collect();
+        let model: Vec<f64> = squares.iter().map(|s| s.element_sum()).collect();
+        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
+        replicates::scale(&mut squares, &replicates::gains(&faces, &measured, &model));
+    }
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
         for (i, (r, q)) in reflected.iter_mut().zip(&mut squares).enumerate() {

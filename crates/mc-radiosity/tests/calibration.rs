@@ -23,8 +23,8 @@
 //! within 1.5) and 0.3% from the power.
 
 use glam::DVec3;
-use mcrad_mc_radiosity::StopReason;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::{Sampler, StopReason};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_scene_io::Scene;
 use std::ops::ControlFlow;
@@ -37,12 +37,23 @@ const RAYS: u64 = 20_000;
 
 /// `(B, var B)` of `SEEDS` runs of `method` and the rays each cast.
 fn runs(method: Method, mesh: &Mesh, rays: u64) -> Vec<(Vec<DVec3>, Vec<DVec3>, u64)> {
+    runs_by(method, mesh, rays, Sampler::default())
+}
+
+/// [`runs`] with rays drawn by `sampler`.
+fn runs_by(
+    method: Method,
+    mesh: &Mesh,
+    rays: u64,
+    sampler: Sampler,
+) -> Vec<(Vec<DVec3>, Vec<DVec3>, u64)> {
     let bvh = bvh(mesh);
     (0..SEEDS)
         .map(|seed| {
             let config = ScheduleConfig {
                 rays,
                 seed: 7000 + seed,
+                sampler,
                 ..Default::default()
             };
             let s = run(method, mesh, &bvh, &config, &mut |_| {
@@ -214,7 +225,10 @@ fn repeated_gathers_from_one_shooting_add_its_noise_as_correlated() {
     // with the inherited parts merged as independent, progressive-gather 2.05.
     let mesh = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.25)).unwrap();
     for method in [Method::ProgressiveGather, Method::ProgressiveTwoPass] {
-        let ratio = spread_over_reported(&runs(method, &mesh, RAYS));
+        // Independent rays: the correlation between the gathers is the subject. (Under the
+        // default quasi-Monte Carlo rays progressive-two-pass reports 1.9x its spread on this
+        // 4 x 4-patch face furnace (0.54), conservative; calibrate's 12 x 12: 0.71.)
+        let ratio = spread_over_reported(&runs_by(method, &mesh, RAYS, Sampler::Random));
         assert!(
             (0.6..=1.6).contains(&ratio),
             "{method:?}: spread between seeds / reported variance {ratio:.3}"

@@ -106,6 +106,10 @@ fn at_level(mesh: &Mesh, level: Level, values: &[DVec3]) -> Vec<DVec3> {
         .collect()
 }
 
+/// The relative error of the references' values: the reference solver's quadrature and
+/// visibility tolerances, 1e-4 of a row's sum each.
+const REFERENCE_TOLERANCE: f64 = 2e-4;
+
 fn check_against_reference(
     subdivision: Subdivision,
     name: &str,
@@ -150,6 +154,13 @@ fn check_against_reference(
                     );
                     continue;
                 }
+                // The reference's own error, at most its quadrature tolerance plus its
+                // visibility tolerance (1e-4 of a row's sum each: of what the patch sees, the
+                // scene's radiosity, for a patch dimmer than that), taken as a standard
+                // deviation: under quasi-Monte Carlo rays 16 seeds of 1e6 rays on 19 patches
+                // pin the mean down to a few 1e-5, below it (z up to 5 without it).
+                let scale = reference[c].max(typical);
+                let se = (se * se + (REFERENCE_TOLERANCE * scale).powi(2)).sqrt();
                 let z = (mean - reference[c]) / se;
                 sum_z2 += z * z;
                 beyond += usize::from(z.abs() > 4.0);

@@ -139,3 +139,52 @@ fn qmc_is_the_same_on_one_or_two_threads() {
         assert_ne!(one.0, solve(2, Sampler::Random).0, "{method:?}");
     }
 }
+
+/// Honest variances under QMC (issue 17): the variances the estimators report assume
+/// independent rays, which overstates the stratified rays' error (two-pass-split reported 3.4x
+/// its spread between seeds, shooting 1.4x); scaled by the gain the sequences' two interleaved
+/// scrambles measure per face, they match it. A furnace of 8 x 8 patches a face, 16 seeds: the
+/// pooled spread between seeds / mean reported variance within [0.67, 1.5], the issue's
+/// target. Measured (seeds 7000-7015): shoot 1.01, two-pass-split 0.76, combined 0.70 (the
+/// gathering methods stay a little conservative in a furnace, as under independent rays:
+/// calibrate's furnace-0.5 gives combined 0.86 with random rays); the old code gave
+/// two-pass-split 0.29. Fixed seeds: reproducible.
+#[test]
+fn qmc_variances_match_the_spread_between_seeds() {
+    let mesh = Mesh::build(&furnace(0.5), Subdivision::MaxEdge(0.125)).unwrap();
+    assert_eq!(mesh.patches().len(), 384);
+    let bvh = bvh(&mesh);
+    for method in [Method::Shoot, Method::TwoPassSplit, Method::Combined] {
+        let runs: Vec<(Vec<DVec3>, Vec<DVec3>)> = (0..RUNS)
+            .map(|seed| {
+                let config = ScheduleConfig {
+                    rays: 100_000,
+                    seed: 7000 + seed,
+                    sampler: Sampler::Qmc,
+                    ..Default::default()
+                };
+                let e = run(method, &mesh, &bvh, &config, &mut |_| {
+                    ControlFlow::Continue(())
+                })
+                .unwrap()
+                .estimate;
+                (e.radiosity().to_vec(), e.variance().unwrap().to_vec())
+            })
+            .collect();
+        let n = RUNS as f64;
+        let (mut spread, mut reported) = (0.0, 0.0);
+        for i in 0..mesh.patches().len() {
+            for c in 0..3 {
+                let mean = runs.iter().map(|r| r.0[i][c]).sum::<f64>() / n;
+                spread += runs.iter().map(|r| (r.0[i][c] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+                reported += runs.iter().map(|r| r.1[i][c]).sum::<f64>() / n;
+            }
+        }
+        let ratio = spread / reported;
+        eprintln!("{method:?}: spread between seeds / reported variance {ratio:.3}");
+        assert!(
+            (0.67..=1.5).contains(&ratio),
+            "{method:?}: spread between seeds / reported variance {ratio:.3}"
+        );
+    }
+}
