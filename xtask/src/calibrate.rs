@@ -1002,9 +1002,14 @@ fn document(o: &Options, table: &str) -> String {
         "# Calibration: are the reported variances true and the answers unbiased?\n\n\
          Written by `cargo xtask calibrate` (xtask/src/calibrate.rs; issue 16, item 6). This run: \
          {} seeds (0..{}) per case and method, {} rays asked of every run, a run stopped at its \
-         first step after {} s. Rerun with `cargo xtask calibrate [--seeds K] [--rays N] \
-         [--cases a,b] [--methods m,n] [--limit S]`.\n\n",
-        o.seeds, o.seeds, o.rays, o.limit
+         first step after {} s, rays drawn by the `{}` sampler. Rerun with `cargo xtask \
+         calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S] \
+         [--sampler random|qmc]`.\n\n",
+        o.seeds,
+        o.seeds,
+        o.rays,
+        o.limit,
+        o.sampler.name()
     );
     d.push_str("## Cases\n\n| case | rays per run | what |\n|---|---:|---|\n");
     for c in &o.cases {
