@@ -69,7 +69,7 @@ use crate::context::{Context, Sampler};
 use crate::error::Error;
 use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts_with_light};
 use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
-use crate::replicates::{self, Halves};
+use crate::replicates::{self, Halves, Measure};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::{Rays, SurfaceSampler};
 use glam::{DVec3, Vec3};
@@ -193,16 +193,11 @@ fn direct_with<C: RayCaster>(
         acc.occluded += t.occluded;
     }
     let gains = if ctx.sampling() == Sampler::Qmc {
-        let measured: Vec<Option<f64>> = per_patch
-            .iter()
-            .map(|t| t.halves.variance_of_mean())
-            .collect();
-        let model: Vec<f64> = per_patch
-            .iter()
-            .map(|t| t.moments.variance_of_mean().element_sum())
-            .collect();
-        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
-        replicates::gains(&faces, &measured, &model)
+        replicates::gains(patches.iter().zip(&per_patch).map(|(p, t)| Measure {
+            face: p.face,
+            replicate: t.halves.variance_of_mean(t.moments.n),
+            model: t.moments.variance_of_mean().element_sum(),
+        }))
     } else {
         vec![1.0; patches.len()]
     };

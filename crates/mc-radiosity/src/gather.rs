@@ -83,7 +83,7 @@ use crate::direct::CosineLight;
 use crate::error::Error;
 use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
 use crate::method::StopReason;
-use crate::replicates;
+use crate::replicates::{self, Measure};
 use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::Rays;
 use glam::{DVec3, Vec3};
@@ -482,10 +482,17 @@ fn with_face_pooled(
         })
         .collect();
     let gains = if qmc {
-        let measured: Vec<Option<f64>> = seen.iter().map(|s| s.halves.variance_of_mean()).collect();
-        let total: Vec<f64> = model.iter().map(|m| m.element_sum()).collect();
-        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
-        replicates::gains(&faces, &measured, &total)
+        replicates::gains(
+            patches
+                .iter()
+                .zip(seen)
+                .zip(&model)
+                .map(|((p, s), m)| Measure {
+                    face: p.face,
+                    replicate: s.halves.variance_of_mean(s.moments.n),
+                    model: m.element_sum(),
+                }),
+        )
     } else {
         vec![1.0; patches.len()]
     };
@@ -870,18 +877,12 @@ pub fn gather_corners<C: RayCaster>(
     if ctx.sampling() == Sampler::Qmc {
         // The variances are the rays' `rho² s² / n` alone (no input noise): scale them by the
         // gain the replicates measure, per input face.
-        let measured: Vec<Option<f64>> = seen.iter().map(|s| s.halves.variance_of_mean()).collect();
-        let model: Vec<f64> = seen
-            .iter()
-            .map(|s| s.moments.variance_of_mean().element_sum())
-            .collect();
-        let faces: Vec<u32> = (0..groups.len())
-            .map(|g| patches[groups.patches(g)[0] as usize].face)
-            .collect();
-        replicates::scale(
-            &mut variances,
-            &replicates::gains(&faces, &measured, &model),
-        );
+        let gains = replicates::gains(seen.iter().enumerate().map(|(g, s)| Measure {
+            face: patches[groups.patches(g)[0] as usize].face,
+            replicate: s.halves.variance_of_mean(s.moments.n),
+            model: s.moments.variance_of_mean().element_sum(),
+        }));
+        replicates::scale(&mut variances, &gains);
     }
     let corners = groups.corner_groups();
     Ok(CornerGathering {

@@ -43,13 +43,13 @@ use glam::DVec3;
 /// ([module](self)).
 pub(crate) const PRIOR_PATCHES: f64 = 4.0;
 
-/// The sums of one patch's values split by replicate (even and odd rays of its sequence).
+/// The sums of one patch's values split by replicate (even and odd rays of its sequence). The
+/// rays alternate between the replicates, so of `n` rays `ceil(n / 2)` are even and
+/// `floor(n / 2)` odd: the counts are the caller's `n`, not stored.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub(crate) struct Halves {
     /// Sum of the values per replicate.
     pub sum: [DVec3; 2],
-    /// Samples per replicate.
-    pub n: [u64; 2],
 }
 
 impl Halves {
@@ -57,27 +57,24 @@ impl Halves {
     #[inline]
     pub fn push(&mut self, r: usize, x: DVec3) {
         self.sum[r] += x;
-        self.n[r] += 1;
     }
 
     /// Both sets of sums together.
     pub fn merge(self, other: Halves) -> Halves {
         Halves {
             sum: [self.sum[0] + other.sum[0], self.sum[1] + other.sum[1]],
-            n: [self.n[0] + other.n[0], self.n[1] + other.n[1]],
         }
     }
 
-    /// The replicates' estimate of the variance of the mean of all the samples,
-    /// `(m_0 - m_1)² n_0 n_1 / n²` summed over the channels; `None` if a replicate is empty.
-    pub fn variance_of_mean(&self) -> Option<f64> {
-        let [n0, n1] = self.n;
-        if n0 == 0 || n1 == 0 {
+    /// The replicates' estimate of the variance of the mean of all `n` samples,
+    /// `(m_0 - m_1)² n_0 n_1 / n²` summed over the channels; `None` below two samples.
+    pub fn variance_of_mean(&self, n: u64) -> Option<f64> {
+        let (n0, n1) = (n.div_ceil(2) as f64, (n / 2) as f64);
+        if n1 == 0.0 {
             return None;
         }
-        let d = self.sum[0] / n0 as f64 - self.sum[1] / n1 as f64;
-        let n = (n0 + n1) as f64;
-        Some(d.length_squared() * n0 as f64 * n1 as f64 / (n * n))
+        let d = self.sum[0] / n0 - self.sum[1] / n1;
+        Some(d.length_squared() * n0 * n1 / (n as f64 * n as f64))
     }
 
     /// The replicates' estimate of the variance of the sum of all the samples, `(S_0 - S_1)²`
@@ -87,17 +84,28 @@ impl Halves {
     }
 }
 
-/// Each patch's gain `g_f` ([module](self)): `faces[i]` the face of patch `i`, `replicate[i]` its
-/// replicate estimate of the variance (`None`: not measured; the patch then only takes the
-/// gain), `model[i]` the independent-ray formula's, both summed over the channels.
-pub(crate) fn gains(faces: &[u32], replicate: &[Option<f64>], model: &[f64]) -> Vec<f64> {
-    let n_faces = faces.iter().map(|&f| f as usize + 1).max().unwrap_or(0);
+/// What one patch (or vertex group) says about its gain.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Measure {
+    /// The input face it lies on.
+    pub face: u32,
+    /// The replicates' estimate of its variance, summed over the channels (`None`: not
+    /// measured; the patch then only takes its face's gain).
+    pub replicate: Option<f64>,
+    /// The independent-ray formula's variance, summed over the channels.
+    pub model: f64,
+}
+
+/// Each item's gain `g_f` ([module](self)), in the order of `items`.
+pub(crate) fn gains(items: impl IntoIterator<Item = Measure>) -> Vec<f64> {
+    let items: Vec<Measure> = items.into_iter().collect();
+    let n_faces = items.iter().map(|m| m.face as usize + 1).max().unwrap_or(0);
     let (mut q, mut v, mut count) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0u64; n_faces]);
-    for ((&f, r), &m) in faces.iter().zip(replicate).zip(model) {
-        if let Some(r) = r {
-            let f = f as usize;
+    for m in &items {
+        if let Some(r) = m.replicate {
+            let f = m.face as usize;
             q[f] += r;
-            v[f] += m;
+            v[f] += m.model;
             count[f] += 1;
         }
     }
@@ -110,7 +118,7 @@ pub(crate) fn gains(faces: &[u32], replicate: &[Option<f64>], model: &[f64]) -> 
             (q[f] + prior) / (v[f] + prior)
         })
         .collect();
-    faces.iter().map(|&f| face_gain[f as usize]).collect()
+    items.iter().map(|m| face_gain[m.face as usize]).collect()
 }
 
 /// `v * gain` per patch: the variances scaled by their gains.
@@ -131,10 +139,10 @@ mod tests {
             h.push(k % 2, DVec3::new(x, 0.0, 0.0));
         }
         // Means 1.5 and 4.5, two each: (3)² / 4.
-        assert_eq!(h.variance_of_mean(), Some(9.0 / 4.0));
+        assert_eq!(h.variance_of_mean(4), Some(9.0 / 4.0));
         // Sums 3 and 9.
         assert_eq!(h.variance_of_sum(), 36.0);
-        assert_eq!(Halves::default().variance_of_mean(), None);
+        assert_eq!(Halves::default().variance_of_mean(1), None);
         let (a, b) = (h, Halves::default());
         assert_eq!(a.merge(b), h);
     }
@@ -142,11 +150,12 @@ mod tests {
     #[test]
     fn a_face_gain_is_its_own_measure_drawn_towards_the_formula() {
         // Face 0 measures gain 0.25 over 100 patches, face 1 gain 0.25 over 1 patch.
-        let mut faces = vec![0u32; 100];
-        faces.push(1);
-        let replicate = vec![Some(0.25); 101];
-        let model = vec![1.0; 101];
-        let g = gains(&faces, &replicate, &model);
+        let measure = |face| Measure {
+            face,
+            replicate: Some(0.25),
+            model: 1.0,
+        };
+        let g = gains((0..101).map(|i| measure(u32::from(i == 100))));
         let face0 = (25.0 + 4.0) / 104.0;
         let face1 = (0.25 + 4.0) / 5.0;
         assert!(
@@ -154,6 +163,10 @@ mod tests {
             "{g:?}"
         );
         // Nothing measured: the formula stands.
-        assert_eq!(gains(&[0, 0], &[None, None], &[1.0, 1.0]), vec![1.0, 1.0]);
+        let unmeasured = Measure {
+            replicate: None,
+            ..measure(0)
+        };
+        assert_eq!(gains([unmeasured, unmeasured]), vec![1.0, 1.0]);
     }
 }

@@ -70,7 +70,7 @@ use crate::context::Sampler;
 use crate::error::Error;
 use crate::jobs::SHOOT_QMC;
 use crate::method::StopReason;
-use crate::replicates::{self, Halves};
+use crate::replicates::{self, Halves, Measure};
 use crate::sampling::stochastic_round;
 use crate::surface::{Rays, SurfaceSampler};
 use glam::DVec3;
@@ -440,14 +440,15 @@ pub fn shoot<C: RayCaster>(
     if let Some(halves) = &halves {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure (crate::replicates).
-        let measured: Vec<Option<f64>> = halves
-            .iter()
-            .zip(&squares)
-            .map(|(h, s)| (*s != DVec3::ZERO).then(|| h.variance_of_sum()))
-            .collect();
-        let model: Vec<f64> = squares.iter().map(|s| s.element_sum()).collect();
-        let faces: Vec<u32> = patches.iter().map(|p| p.face).collect();
-        replicates::scale(&mut squares, &replicates::gains(&faces, &measured, &model));
+        let gains =
+            replicates::gains(patches.iter().zip(halves).zip(&squares).map(|((p, h), s)| {
+                Measure {
+                    face: p.face,
+                    replicate: (*s != DVec3::ZERO).then(|| h.variance_of_sum()),
+                    model: s.element_sum(),
+                }
+            }));
+        replicates::scale(&mut squares, &gains);
     }
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);

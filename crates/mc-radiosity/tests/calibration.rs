@@ -67,18 +67,9 @@ fn runs_by(
         .collect()
 }
 
-/// Pooled spread between seeds / mean reported variance.
+/// Pooled spread between seeds / mean reported variance ([`common::spread_over_reported`]).
 fn spread_over_reported(runs: &[(Vec<DVec3>, Vec<DVec3>, u64)]) -> f64 {
-    let n = runs.len() as f64;
-    let (mut spread, mut reported) = (0.0, 0.0);
-    for i in 0..runs[0].0.len() {
-        for c in 0..3 {
-            let mean = runs.iter().map(|r| r.0[i][c]).sum::<f64>() / n;
-            spread += runs.iter().map(|r| (r.0[i][c] - mean).powi(2)).sum::<f64>() / (n - 1.0);
-            reported += runs.iter().map(|r| r.1[i][c]).sum::<f64>() / n;
-        }
-    }
-    spread / reported
+    common::spread_over_reported(runs.iter().map(|r| (&r.0[..], &r.1[..])))
 }
 
 /// Rays used / rays asked by one run of `method` with `rays` rays and `seed`.

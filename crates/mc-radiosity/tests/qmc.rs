@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{bvh, furnace, mean_se, parallel_squares};
+use common::{bvh, estimate, furnace, mean_se, on_threads, parallel_squares, spread_over_reported};
 use glam::DVec3;
 use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_mc_radiosity::{Context, Sampler, ShootConfig, shoot};
@@ -115,24 +115,13 @@ fn qmc_is_the_same_on_one_or_two_threads() {
     let bvh = bvh(&mesh);
     for method in [Method::Combined, Method::TwoPassSplit] {
         let solve = |threads: usize, sampler: Sampler| -> (Vec<DVec3>, Vec<DVec3>) {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| {
-                    let config = ScheduleConfig {
-                        rays: 300_000,
-                        seed: 5,
-                        sampler,
-                        ..Default::default()
-                    };
-                    let e = run(method, &mesh, &bvh, &config, &mut |_| {
-                        ControlFlow::Continue(())
-                    })
-                    .unwrap()
-                    .estimate;
-                    (e.radiosity().to_vec(), e.variance().unwrap().to_vec())
-                })
+            let config = ScheduleConfig {
+                rays: 300_000,
+                seed: 5,
+                sampler,
+                ..Default::default()
+            };
+            on_threads(threads, || estimate(method, &mesh, &bvh, &config))
         };
         let one = solve(1, Sampler::Qmc);
         assert_eq!(one, solve(2, Sampler::Qmc), "{method:?}");
@@ -163,24 +152,10 @@ fn qmc_variances_match_the_spread_between_seeds() {
                     sampler: Sampler::Qmc,
                     ..Default::default()
                 };
-                let e = run(method, &mesh, &bvh, &config, &mut |_| {
-                    ControlFlow::Continue(())
-                })
-                .unwrap()
-                .estimate;
-                (e.radiosity().to_vec(), e.variance().unwrap().to_vec())
+                estimate(method, &mesh, &bvh, &config)
             })
             .collect();
-        let n = RUNS as f64;
-        let (mut spread, mut reported) = (0.0, 0.0);
-        for i in 0..mesh.patches().len() {
-            for c in 0..3 {
-                let mean = runs.iter().map(|r| r.0[i][c]).sum::<f64>() / n;
-                spread += runs.iter().map(|r| (r.0[i][c] - mean).powi(2)).sum::<f64>() / (n - 1.0);
-                reported += runs.iter().map(|r| r.1[i][c]).sum::<f64>() / n;
-            }
-        }
-        let ratio = spread / reported;
+        let ratio = spread_over_reported(runs.iter().map(|r| (&r.0[..], &r.1[..])));
         eprintln!("{method:?}: spread between seeds / reported variance {ratio:.3}");
         assert!(
             (0.67..=1.5).contains(&ratio),

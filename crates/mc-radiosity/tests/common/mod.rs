@@ -1,10 +1,12 @@
 //! Scenes and helpers shared by the estimator tests (each test crate uses a part of them).
 #![allow(dead_code)]
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
+use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};
+use std::ops::ControlFlow;
 
 pub fn material(name: &str, rho: f32, e: f32) -> Material {
     Material {
@@ -99,4 +101,40 @@ pub fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
         .build()
         .unwrap()
         .install(f)
+}
+
+/// `(B, var B)` of one run of `method` with `config`, run to the end.
+pub fn estimate(
+    method: Method,
+    mesh: &Mesh,
+    bvh: &Bvh,
+    config: &ScheduleConfig,
+) -> (Vec<DVec3>, Vec<DVec3>) {
+    let e = run(
+        method,
+        mesh,
+        bvh,
+        config,
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap()
+    .estimate;
+    let v = e.variance().expect("a variance").to_vec();
+    (e.radiosity().to_vec(), v)
+}
+
+/// Pooled over patches and channels: the spread of `B` between runs (sample variance) over the
+/// mean variance the runs reported, for runs of `(B, var B)`; 1 when the variances are true.
+pub fn spread_over_reported<'a>(runs: impl IntoIterator<Item = (&'a [DVec3], &'a [DVec3])>) -> f64 {
+    let runs: Vec<(&[DVec3], &[DVec3])> = runs.into_iter().collect();
+    let n = runs.len() as f64;
+    let (mut spread, mut reported) = (0.0, 0.0);
+    for i in 0..runs[0].0.len() {
+        for c in 0..3 {
+            let mean = runs.iter().map(|r| r.0[i][c]).sum::<f64>() / n;
+            spread += runs.iter().map(|r| (r.0[i][c] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            reported += runs.iter().map(|r| r.1[i][c]).sum::<f64>() / n;
+        }
+    }
+    spread / reported
 }
