@@ -470,8 +470,12 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
     }
 }
 
-/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 80 (a quarter of the
-/// uniform default's edge), refined with a quarter of the ray budget and of the time (`--time`).
+/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 40 (half the
+/// uniform default's edge) when that takes at most a quarter of `--max-patches` (the rest is
+/// the refinement's), else to the uniform default when that fits `--max-patches`, else one
+/// element per face (every start within the elements the ray budget pays
+/// [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the time
+/// (`--time`).
 fn adaptive_mesh(
     args: &Solve,
     scene: &mcrad_scene_io::Scene,
@@ -482,28 +486,20 @@ fn adaptive_mesh(
     if let Some(min_edge) = args.min_edge {
         bounds.min_edge = min_edge;
     }
-    // The starting mesh: the diagonal / 80, else (beyond --max-patches, or more elements than
-    // the ray budget pays START_RAYS_PER_ELEMENT for) twice, four times that edge (the uniform
-    // default's), else one element per face.
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
-    let too_many = |mesh: &AdaptiveMesh| mesh.len() > bounds.max_patches.min(affordable);
+    let fits = |mesh: &AdaptiveMesh, share: usize| {
+        mesh.len() <= (bounds.max_patches / share).min(affordable)
+    };
     let diagonal = scene.bounds().diagonal() as f32;
     let mut mesh = AdaptiveMesh::new(
         scene,
         Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
         bounds,
     )?;
-    if too_many(&mesh) {
-        mesh = AdaptiveMesh::new(
-            scene,
-            Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION * 2.0),
-            bounds,
-        )?;
-    }
-    if too_many(&mesh) {
+    if !fits(&mesh, 4) {
         mesh = AdaptiveMesh::new(scene, Subdivision::default_for(scene), bounds)?;
     }
-    if too_many(&mesh) {
+    if !fits(&mesh, 1) {
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)?;
     }
     let config = AdaptiveConfig {

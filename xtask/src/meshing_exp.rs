@@ -27,7 +27,13 @@ struct ExpScene {
     uniform: &'static [f32],
     /// The fine uniform mesh and rays of the per-face reference.
     reference: (f32, &'static str),
+    /// Uniform `--max-edge` values of the patches-against-error curve, coarse to fine.
+    curve_edges: &'static [f32],
 }
+
+/// `--max-patches` values of the adaptive patches-against-error curve (the start takes at most
+/// a quarter of it).
+const CURVE_BUDGETS: [usize; 4] = [4_000, 8_000, 16_000, mcrad_meshing::DEFAULT_MAX_PATCHES];
 
 const SCENES: [ExpScene; 3] = [
     ExpScene {
@@ -38,6 +44,7 @@ const SCENES: [ExpScene; 3] = [
         size: (256, 256),
         uniform: &[0.02, 0.01],
         reference: (0.01, "1e8"),
+        curve_edges: &[0.04, 0.02, 0.014, 0.01, 0.007, 0.005],
     },
     ExpScene {
         name: "table-room",
@@ -47,6 +54,7 @@ const SCENES: [ExpScene; 3] = [
         size: (320, 240),
         uniform: &[0.15, 0.07],
         reference: (0.05, "1e8"),
+        curve_edges: &[0.345, 0.15, 0.1, 0.07, 0.05, 0.035],
     },
     ExpScene {
         name: "boxes-room",
@@ -56,6 +64,7 @@ const SCENES: [ExpScene; 3] = [
         size: (320, 240),
         uniform: &[0.15, 0.07],
         reference: (0.05, "1e8"),
+        curve_edges: &[0.15, 0.1, 0.07, 0.05, 0.035],
     },
 ];
 
@@ -64,6 +73,8 @@ struct Options {
     scenes: Vec<&'static ExpScene>,
     times: Vec<f64>,
     spp: u32,
+    /// Rays of every run of the patches-against-error curve (0: no curve).
+    curve_rays: u64,
     out: PathBuf,
 }
 
@@ -78,6 +89,7 @@ impl Options {
                 vec![2.5, 5.0, 10.0]
             },
             spp: if quick { 16 } else { 1024 },
+            curve_rays: if quick { 2_000_000 } else { 100_000_000 },
             out: root.join("docs"),
         };
         let mut it = args.iter();
@@ -107,10 +119,11 @@ impl Options {
                         .collect::<Result<_>>()?;
                 }
                 "--spp" => o.spp = value()?.parse()?,
+                "--curve-rays" => o.curve_rays = value()?.parse::<f64>()? as u64,
                 "--out" => o.out = root.join(value()?),
                 other => bail!(
                     "unknown option '{other}' (--quick, --scenes a,b, --times 2.5,5, --spp N, \
-                     --out DIR)"
+                     --curve-rays N (0: none), --out DIR)"
                 ),
             }
         }
@@ -171,7 +184,15 @@ pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
         for (label, extra) in &meshes {
             for &t in &options.times {
                 let p = measure(
-                    root, mcrad, &work, scene, label, extra, t, &truth, &reference,
+                    root,
+                    mcrad,
+                    &work,
+                    scene,
+                    label,
+                    extra,
+                    Budget::Seconds(t),
+                    &truth,
+                    &reference,
                 )?;
                 let _ = writeln!(
                     csv,
@@ -235,6 +256,20 @@ pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
                 series,
             },
         )?;
+        if options.curve_rays > 0 {
+            let curve = patches_curve(
+                root,
+                mcrad,
+                &work,
+                scene,
+                options.curve_rays,
+                &truth,
+                &reference,
+                &options.out,
+            )?;
+            md.push_str(&curve.markdown);
+            csv.push_str(&curve.csv);
+        }
     }
     std::fs::write(options.out.join("meshing-experiment.md"), md)?;
     std::fs::write(options.out.join("meshing-experiment.csv"), csv)?;
@@ -341,7 +376,16 @@ fn solve(mcrad: &Path, scene: &Path, args: &[String]) -> Result<()> {
     Ok(())
 }
 
-/// One run: `mcrad solve` with `extra` and `--time seconds`, scored.
+/// What a run may spend.
+#[derive(Clone, Copy)]
+enum Budget {
+    /// `--time` seconds.
+    Seconds(f64),
+    /// `--rays`.
+    Rays(u64),
+}
+
+/// One run: `mcrad solve` with `extra` and the budget, scored.
 #[allow(clippy::too_many_arguments)]
 fn measure(
     root: &Path,
@@ -350,12 +394,21 @@ fn measure(
     scene: &ExpScene,
     label: &str,
     extra: &[String],
-    seconds: f64,
+    budget: Budget,
     truth: &(mcrad_render::Image, mcrad_render::Image),
     reference: &FaceValues,
 ) -> Result<Point> {
+    let (option, amount, seconds) = match budget {
+        Budget::Seconds(t) => ("--time", t.to_string(), t),
+        Budget::Rays(r) => ("--rays", r.to_string(), 0.0),
+    };
     // Not `with_extension`: the stem has dots of its own (`uniform-0.07-2.5`).
-    let stem = format!("{}-{}-{seconds}", scene.name, label.replace(' ', "-"));
+    let stem = format!(
+        "{}-{}-{}{amount}",
+        scene.name,
+        label.replace(' ', "-"),
+        if seconds > 0.0 { "" } else { "r" }
+    );
     let (image, faces, stats) = (
         work.join(format!("{stem}.exr")),
         work.join(format!("{stem}.csv")),
@@ -363,8 +416,8 @@ fn measure(
     );
     let mut args = extra.to_vec();
     for a in [
-        "--time".to_string(),
-        seconds.to_string(),
+        option.to_string(),
+        amount,
         "--camera".into(),
         scene.camera.into(),
         "--size".into(),
@@ -409,10 +462,194 @@ fn measure(
         per_face,
     };
     eprintln!(
-        "  {label}, --time {seconds}: {} patches, image error {:.2}%, per-face {:.2}%",
+        "  {label}, {option} {}: {} patches, image error {:.2}%, per-face {:.2}%",
+        match budget {
+            Budget::Seconds(t) => t.to_string(),
+            Budget::Rays(r) => format!("{r:.1e}"),
+        },
         point.patches,
         100.0 * point.image,
         100.0 * point.per_face
     );
     Ok(point)
+}
+
+/// The patches-against-error section of one scene: its markdown and CSV rows.
+struct Curve {
+    markdown: String,
+    csv: String,
+}
+
+/// Uniform meshes of `scene.curve_edges` and adaptive meshes of [`CURVE_BUDGETS`], each
+/// solved with `rays`, scored; for each adaptive mesh the patches a uniform mesh needs for the
+/// same image error ([`uniform_patches_at`]); a table and a plot (`meshing-curve-NAME.png`).
+#[allow(clippy::too_many_arguments)]
+fn patches_curve(
+    root: &Path,
+    mcrad: &Path,
+    work: &Path,
+    scene: &ExpScene,
+    rays: u64,
+    truth: &(mcrad_render::Image, mcrad_render::Image),
+    reference: &FaceValues,
+    out: &Path,
+) -> Result<Curve> {
+    let run = |label: String, extra: Vec<String>| {
+        measure(
+            root,
+            mcrad,
+            work,
+            scene,
+            &label,
+            &extra,
+            Budget::Rays(rays),
+            truth,
+            reference,
+        )
+    };
+    let mut uniform = Vec::new();
+    for e in scene.curve_edges {
+        uniform.push(run(
+            format!("uniform {e}"),
+            vec!["--max-edge".into(), e.to_string()],
+        )?);
+    }
+    let mut adaptive = Vec::new();
+    for b in CURVE_BUDGETS {
+        adaptive.push(run(
+            format!("adaptive {b}"),
+            vec!["--max-patches".into(), b.to_string()],
+        )?);
+    }
+    let mut csv = String::new();
+    for p in uniform.iter().chain(&adaptive) {
+        let _ = writeln!(
+            csv,
+            "{},{},rays,{},{},{:.6},{:.6},{:.6}",
+            scene.name, p.mesh, p.patches, p.rays, p.image, p.dark_third, p.per_face
+        );
+    }
+    let curve: Vec<(f64, f64)> = uniform
+        .iter()
+        .map(|p| (p.patches as f64, p.image))
+        .collect();
+    let mut md = String::new();
+    let _ = write!(
+        md,
+        "\n### {}: patches against image error, {:.0e} rays each\n\n\
+         ![{}: image error against patches](meshing-curve-{}.png)\n\n\
+         | mesh | patches | image error | dark third | per-face rms_rel | uniform patches at \
+         this error | ratio |\n|---|---:|---:|---:|---:|---:|---:|\n",
+        scene.name, rays as f64, scene.name, scene.name
+    );
+    for p in &uniform {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.2}% | {:.2}% | {:.2}% | | |",
+            p.mesh,
+            p.patches,
+            100.0 * p.image,
+            100.0 * p.dark_third,
+            100.0 * p.per_face
+        );
+    }
+    for p in &adaptive {
+        let (equal, ratio) = match uniform_patches_at(&curve, p.image) {
+            Equal::At(n) => (format!("{n:.0}"), format!("{:.1}x", n / p.patches as f64)),
+            Equal::BeyondFinest(n) => (
+                format!("> {n:.0}"),
+                format!("> {:.1}x", n / p.patches as f64),
+            ),
+            Equal::BeyondCoarsest(n) => (
+                format!("< {n:.0}"),
+                format!("< {:.1}x", n / p.patches as f64),
+            ),
+        };
+        let _ = writeln!(
+            md,
+            "| **{}** | {} | {:.2}% | {:.2}% | {:.2}% | {equal} | **{ratio}** |",
+            p.mesh,
+            p.patches,
+            100.0 * p.image,
+            100.0 * p.dark_third,
+            100.0 * p.per_face
+        );
+    }
+    let series = [("uniform", &uniform), ("adaptive", &adaptive)]
+        .into_iter()
+        .map(|(name, points)| Series {
+            name: name.into(),
+            points: points
+                .iter()
+                .filter(|p| p.image > 0.0)
+                .map(|p| (p.patches as f64, 100.0 * p.image))
+                .collect(),
+            band: None,
+        })
+        .collect();
+    line_plot(
+        &out.join(format!("meshing-curve-{}.png", scene.name)),
+        &PlotSpec {
+            title: format!(
+                "{}: image error against patches, {rays:.0e} rays",
+                scene.name
+            ),
+            x_label: "patches".into(),
+            y_label: "image error (%)".into(),
+            log_x: true,
+            log_y: true,
+            series,
+        },
+    )?;
+    Ok(Curve { markdown: md, csv })
+}
+
+/// The patches a uniform mesh needs for an image error, from a measured curve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Equal {
+    /// Interpolated between two measured meshes.
+    At(f64),
+    /// Lower than every measured uniform mesh's error: more than the finest one's patches.
+    BeyondFinest(f64),
+    /// Higher than every measured one's: fewer than the coarsest one's patches.
+    BeyondCoarsest(f64),
+}
+
+/// The patches of a uniform mesh of image error `error`, interpolated linearly in
+/// `(log patches, log error)` between the first pair of consecutive points of `curve`
+/// (`(patches, error)`, coarse to fine) whose errors bracket it.
+fn uniform_patches_at(curve: &[(f64, f64)], error: f64) -> Equal {
+    for w in curve.windows(2) {
+        let ((n1, e1), (n2, e2)) = (w[0], w[1]);
+        if e1 >= error && error >= e2 && e1 > e2 {
+            let t = (e1 / error).ln() / (e1 / e2).ln();
+            return Equal::At(n1 * (n2 / n1).powf(t));
+        }
+    }
+    let finest = curve.iter().map(|c| c.0).fold(0.0, f64::max);
+    if curve.iter().all(|&(_, e)| error < e) {
+        Equal::BeyondFinest(finest)
+    } else {
+        Equal::BeyondCoarsest(curve.iter().map(|c| c.0).fold(f64::INFINITY, f64::min))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Equal, uniform_patches_at};
+
+    #[test]
+    fn equal_error_patches_interpolate_in_log_log() {
+        // error = 10 / sqrt(patches): 100 -> 1, 400 -> 0.5, 1600 -> 0.25.
+        let curve = [(100.0, 1.0), (400.0, 0.5), (1600.0, 0.25)];
+        let Equal::At(n) = uniform_patches_at(&curve, 10.0 / 800f64.sqrt()) else {
+            panic!("bracketed")
+        };
+        assert!((n - 800.0).abs() < 1e-9, "{n}");
+        assert_eq!(uniform_patches_at(&curve, 0.1), Equal::BeyondFinest(1600.0));
+        assert_eq!(
+            uniform_patches_at(&curve, 2.0),
+            Equal::BeyondCoarsest(100.0)
+        );
+    }
 }

@@ -106,7 +106,7 @@ pub fn run_image_error(args: &[String]) -> Result<()> {
     let noise = noise.as_deref().map(read).transpose()?;
     let e = mcrad_lab::compare::image_error_against_noisy(&image, &reference, noise.as_ref(), 0.5)?;
     if let Some(d) = diff {
-        let d_img = mcrad_lab::compare::difference_image(&image, &reference)?;
+        let d_img = mcrad_lab::compare::signed_difference_image(&image, &reference, 0.5, 0.1)?;
         mcrad_render::write_png(&d_img, Path::new(d), mcrad_render::Exposure::Stops(0.0))?;
     }
     println!(

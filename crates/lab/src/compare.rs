@@ -267,6 +267,68 @@ pub fn image_error_against_noisy(
     })
 }
 
+/// Where and which way `actual` departs from `reference`, for the eye: red where the render is
+/// brighter, blue where it is darker, with the intensity `|L_I - L_R| / (full_scale * mean L_R)`
+/// (luminances, the mean over the pixels [`image_error`] keeps, clamped to 1), so a pixel's
+/// brightness is its share of the squared error; the pixels `image_error` leaves out (emitters
+/// and their neighbours) are mid grey.
+pub fn signed_difference_image(
+    actual: &Image,
+    reference: &Image,
+    emitter_fraction: f32,
+    full_scale: f32,
+) -> Result<Image, CompareError> {
+    if (actual.width, actual.height) != (reference.width, reference.height) {
+        return Err(CompareError::SizeMismatch {
+            a: (actual.width, actual.height),
+            b: (reference.width, reference.height),
+        });
+    }
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let lum = |p: Vec3| mcrad_render::luminance(p);
+    let brightest = reference.pixels.iter().map(|&p| lum(p)).fold(0.0, f32::max);
+    let emitter: Vec<bool> = reference
+        .pixels
+        .iter()
+        .map(|&p| brightest > 0.0 && lum(p) >= emitter_fraction * brightest)
+        .collect();
+    let left_out = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        (y.saturating_sub(1)..(y + 2).min(h))
+            .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| emitter[yy * w + xx]))
+    };
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for (i, &p) in reference.pixels.iter().enumerate() {
+        if !left_out(i) {
+            sum += f64::from(lum(p));
+            count += 1;
+        }
+    }
+    let scale = if count > 0 && sum > 0.0 {
+        1.0 / (full_scale * (sum / count as f64) as f32)
+    } else {
+        1.0
+    };
+    let pixels = (0..w * h)
+        .map(|i| {
+            if left_out(i) {
+                return Vec3::splat(0.5);
+            }
+            let d = (lum(actual.pixels[i]) - lum(reference.pixels[i])) * scale;
+            if d >= 0.0 {
+                Vec3::new(d.min(1.0), 0.0, 0.0)
+            } else {
+                Vec3::new(0.0, 0.0, (-d).min(1.0))
+            }
+        })
+        .collect();
+    Ok(Image {
+        width: reference.width,
+        height: reference.height,
+        pixels,
+    })
+}
+
 #[cfg(test)]
 mod image_error_tests {
     use super::*;
@@ -340,5 +402,24 @@ mod image_error_tests {
             pixels: vec![Vec3::ONE; 4],
         };
         assert!(image_error_against_noisy(&render, &reference, Some(&small), 2.0).is_err());
+    }
+
+    #[test]
+    fn signed_difference_is_red_when_brighter_blue_when_darker_grey_at_emitters() {
+        let mut reference = Image {
+            width: 8,
+            height: 8,
+            pixels: vec![Vec3::splat(1.0); 64],
+        };
+        reference.pixels[0] = Vec3::splat(100.0); // an emitter
+        let mut actual = reference.clone();
+        actual.pixels[40] = Vec3::splat(1.05);
+        actual.pixels[50] = Vec3::splat(0.9);
+        let d = signed_difference_image(&actual, &reference, 0.5, 0.1).unwrap();
+        assert_eq!(d.pixels[0], Vec3::splat(0.5));
+        assert_eq!(d.pixels[9], Vec3::splat(0.5));
+        assert!(d.pixels[40].x > 0.4 && d.pixels[40].x < 0.6 && d.pixels[40].z == 0.0);
+        assert!(d.pixels[50].z == 1.0 && d.pixels[50].x == 0.0);
+        assert_eq!(d.pixels[30], Vec3::ZERO);
     }
 }

@@ -82,20 +82,19 @@ pub struct AdaptiveBounds {
 }
 
 /// The default starting mesh as a fraction of the scene's bounding-box diagonal: no element
-/// edge longer than the diagonal / 80, a quarter of the uniform default's, so an adaptive mesh
-/// is nowhere coarser than a fine uniform one. The vertex values a render interpolates from
-/// large elements miss the curvature of evenly lit walls by more than the refinement's tests
-/// can tell from noise: at 2.8e7 rays (image error table room / Cornell box, seed 0) the
-/// diagonal / 40 measured 1.4% / 2.0% with 7,500 / 11,000 elements, / 80 0.84% / 1.45% with
-/// 16,500 / 20,600 (docs/meshing.md).
-pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 80.0;
+/// edge longer than the diagonal / 40, half the uniform default's. With the display's linear
+/// reconstruction ([`Mesh::seamless_corner_radiosity`]) evenly lit walls need no finer start:
+/// at 1e8 rays (image error table room / Cornell box, seed 0) the diagonal / 40 measured 0.77% /
+/// 1.09% with 6,100 / 10,600 elements after refinement, / 80 0.74% / 1.04% with 16,100 / 20,700
+/// (docs/meshing.md).
+pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 40.0;
 
-/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (two
+/// The default minimum element edge as a fraction of the bounding-box diagonal: 1/320 (three
 /// halvings of the starting mesh).
 pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 320.0;
 
-/// The default maximum number of leaf elements of an adaptive mesh (the starting mesh of the
-/// diagonal / 80 has about 17,000 on the Cornell box).
+/// The default maximum number of leaf elements of an adaptive mesh (the CLI starts within a
+/// quarter of it and leaves the rest to the refinement).
 pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {

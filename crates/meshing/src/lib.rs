@@ -15,6 +15,7 @@
 
 mod adaptive;
 mod build;
+mod reconstruct;
 mod seams;
 mod smooth;
 mod subdivide;

@@ -9,6 +9,7 @@
 use crate::AdaptiveMesh;
 use crate::adaptive::midpoint;
 use crate::build::{Mesh, Patch};
+use crate::reconstruct::{extrapolate, limited_gradients};
 use glam::{DVec3, Vec3};
 use std::collections::HashMap;
 
@@ -22,9 +23,9 @@ const COSINE_SLACK: f64 = 1e-6;
 
 /// A vertex position as a hashable, ordered key: its coordinates' bits, with `-0` taken as `+0`
 /// so that points equal as f32 are one vertex.
-type PointKey = [u32; 3];
+pub(crate) type PointKey = [u32; 3];
 
-fn point_key(p: Vec3) -> PointKey {
+pub(crate) fn point_key(p: Vec3) -> PointKey {
     // `-0.0 + 0.0 == +0.0` in round-to-nearest; every other value is unchanged.
     p.to_array().map(|c| (c + 0.0).to_bits())
 }
@@ -61,7 +62,16 @@ impl Mesh {
         self.corner_values(patch_values, crease_angle_degrees, false)
     }
 
-    /// [`Mesh::corner_radiosity`] without seams at T-vertices, for display (renders, GLB).
+    /// Radiosity at every patch corner for display (renders, GLB, lightmaps): the linear
+    /// reconstruction (the area-weighted mean over the corner's
+    /// surface, as [`Mesh::corner_radiosity`], of each patch's limited linear extrapolation
+    /// `v_q + g_q . (x - c_q)` to the point, never below zero where the values are not), without
+    /// seams at T-vertices.
+    ///
+    /// A field linear over a face comes out exact at every corner, the face's border included
+    /// (the area-weighted mean is off there by half an element's slope); a constant solution
+    /// and a lone patch come out exactly; a step makes no value beyond the patches' range at a
+    /// point the surface closes around.
     ///
     /// Where a corner's point is the midpoint of an edge of a patch `q` of the same surface
     /// (the T-vertices an [`AdaptiveMesh`]'s refinement makes next to a coarser element), the
@@ -71,7 +81,6 @@ impl Mesh {
     /// between its two corner values along the edge, and the finer patches, piece by piece, do
     /// the same. Only midpoints are looked for: T-junctions at other fractions of an edge
     /// (uniform faces cut into different numbers of pieces) keep their area-weighted values.
-    /// On a mesh without T-vertices this is [`Mesh::corner_radiosity`].
     ///
     /// # Panics
     /// If `patch_values.len()` differs from [`Mesh::patches`]`().len()`.
@@ -83,7 +92,8 @@ impl Mesh {
         self.corner_values(patch_values, crease_angle_degrees, true)
     }
 
-    /// The corner values of [`Mesh::corner_radiosity`], T-vertices tied when `seamless`.
+    /// The corner values of [`Mesh::corner_radiosity`], or with `seamless` those of
+    /// [`Mesh::seamless_corner_radiosity`] (linear reconstruction, T-vertices tied).
     fn corner_values(
         &self,
         patch_values: &[DVec3],
@@ -99,23 +109,39 @@ impl Mesh {
         let min_cosine = min_cosine(crease_angle_degrees);
         let incidences = self.incidences();
 
+        // For display, each patch's limited linear extrapolation (module `reconstruct`).
+        let gradients =
+            seamless.then(|| limited_gradients(self, patch_values, &incidences, min_cosine));
         // The smoothed value of each incidence: its patch's surface around the point.
         let mut smoothed = Vec::with_capacity(incidences.len());
         for group in incidences.chunk_by(|a, b| a.0 == b.0) {
+            let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
+            let at = |q: u32| match &gradients {
+                Some(g) => extrapolate(
+                    patch_values[q as usize],
+                    &g[q as usize],
+                    point - patches[q as usize].centroid.as_dvec3(),
+                ),
+                None => patch_values[q as usize],
+            };
             for &(_, p) in group {
                 let own = &patches[p as usize];
                 // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written so
                 // that a lone patch or a constant solution comes out exactly.
-                let own_value = patch_values[p as usize];
+                let own_value = at(p);
                 let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
+                let mut lowest = patch_values[p as usize];
                 for &(_, q) in group {
                     let other = &patches[q as usize];
                     if q == p || same_surface(own, other, min_cosine) {
-                        weighted += other.area * (patch_values[q as usize] - own_value);
+                        weighted += other.area * (at(q) - own_value);
                         area += other.area;
+                        lowest = lowest.min(patch_values[q as usize]);
                     }
                 }
-                smoothed.push(own_value + weighted / area);
+                // An extrapolation at a border never goes below zero (nor below the lowest
+                // value there, for signed quantities).
+                smoothed.push((own_value + weighted / area).max(lowest.min(DVec3::ZERO)));
             }
         }
         if seamless {
@@ -343,7 +369,7 @@ fn min_cosine(crease_angle_degrees: f32) -> f64 {
 
 /// Whether `other` belongs to `own`'s surface at a shared point: the same material and a normal
 /// within the crease angle (`own` itself always does; callers test that by index).
-fn same_surface(own: &Patch, other: &Patch, min_cosine: f64) -> bool {
+pub(crate) fn same_surface(own: &Patch, other: &Patch, min_cosine: f64) -> bool {
     other.material == own.material
         && other.normal.as_dvec3().dot(own.normal.as_dvec3()) >= min_cosine
 }
