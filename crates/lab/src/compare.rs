@@ -220,24 +220,9 @@ pub fn image_error_against_noisy(
             b: (reference.width, reference.height),
         });
     }
-    let (w, h) = (reference.width as usize, reference.height as usize);
     let lum = |p: Vec3| mcrad_render::luminance(p);
-    let brightest = reference.pixels.iter().map(|&p| lum(p)).fold(0.0, f32::max);
-    let emitter: Vec<bool> = reference
-        .pixels
-        .iter()
-        .map(|&p| brightest > 0.0 && lum(p) >= emitter_fraction * brightest)
-        .collect();
-    let mut kept = Vec::new();
-    for y in 0..h {
-        for x in 0..w {
-            let near = (y.saturating_sub(1)..(y + 2).min(h))
-                .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| emitter[yy * w + xx]));
-            if !near {
-                kept.push(y * w + x);
-            }
-        }
-    }
+    let left_out = near_emitters(reference, emitter_fraction);
+    let kept: Vec<usize> = (0..left_out.len()).filter(|&i| !left_out[i]).collect();
     let error = |pixels: &[usize]| {
         let (mut num, mut den) = (0.0f64, 0.0f64);
         for &i in pixels {
@@ -267,6 +252,26 @@ pub fn image_error_against_noisy(
     })
 }
 
+/// Per pixel, whether it sees an emitter or neighbours one: the reference's luminance there or
+/// at one of its eight neighbours is at least `emitter_fraction` of its largest.
+fn near_emitters(reference: &Image, emitter_fraction: f32) -> Vec<bool> {
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let lum = |p: Vec3| mcrad_render::luminance(p);
+    let brightest = reference.pixels.iter().map(|&p| lum(p)).fold(0.0, f32::max);
+    let emitter: Vec<bool> = reference
+        .pixels
+        .iter()
+        .map(|&p| brightest > 0.0 && lum(p) >= emitter_fraction * brightest)
+        .collect();
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            (y.saturating_sub(1)..(y + 2).min(h))
+                .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| emitter[yy * w + xx]))
+        })
+        .collect()
+}
+
 /// Where and which way `actual` departs from `reference`, for the eye: red where the render is
 /// brighter, blue where it is darker, with the intensity `|L_I - L_R| / (full_scale * mean L_R)`
 /// (luminances, the mean over the pixels [`image_error`] keeps, clamped to 1), so a pixel's
@@ -284,19 +289,9 @@ pub fn signed_difference_image(
             b: (reference.width, reference.height),
         });
     }
-    let (w, h) = (reference.width as usize, reference.height as usize);
     let lum = |p: Vec3| mcrad_render::luminance(p);
-    let brightest = reference.pixels.iter().map(|&p| lum(p)).fold(0.0, f32::max);
-    let emitter: Vec<bool> = reference
-        .pixels
-        .iter()
-        .map(|&p| brightest > 0.0 && lum(p) >= emitter_fraction * brightest)
-        .collect();
-    let left_out = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        (y.saturating_sub(1)..(y + 2).min(h))
-            .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| emitter[yy * w + xx]))
-    };
+    let near = near_emitters(reference, emitter_fraction);
+    let left_out = |i: usize| near[i];
     let (mut sum, mut count) = (0.0f64, 0usize);
     for (i, &p) in reference.pixels.iter().enumerate() {
         if !left_out(i) {
@@ -309,7 +304,7 @@ pub fn signed_difference_image(
     } else {
         1.0
     };
-    let pixels = (0..w * h)
+    let pixels = (0..near.len())
         .map(|i| {
             if left_out(i) {
                 return Vec3::splat(0.5);
