@@ -49,12 +49,7 @@ pub fn tile_difference(
     tile: u32,
     floor: f32,
 ) -> Result<TileDifference, CompareError> {
-    if (actual.width, actual.height) != (golden.width, golden.height) {
-        return Err(CompareError::SizeMismatch {
-            a: (actual.width, actual.height),
-            b: (golden.width, golden.height),
-        });
-    }
+    same_size(actual, golden)?;
     if tile == 0 {
         return Err(CompareError::ZeroTile);
     }
@@ -93,12 +88,7 @@ pub fn tile_difference(
 /// An image of `|actual - golden|` per pixel and channel, scaled so the largest difference is 1
 /// (a picture of where two renders differ).
 pub fn difference_image(actual: &Image, golden: &Image) -> Result<Image, CompareError> {
-    if (actual.width, actual.height) != (golden.width, golden.height) {
-        return Err(CompareError::SizeMismatch {
-            a: (actual.width, actual.height),
-            b: (golden.width, golden.height),
-        });
-    }
+    same_size(actual, golden)?;
     let diff: Vec<Vec3> = actual
         .pixels
         .iter()
@@ -206,20 +196,10 @@ pub fn image_error_against_noisy(
     reference_error: Option<&Image>,
     emitter_fraction: f32,
 ) -> Result<ImageError, CompareError> {
-    if let Some(e) = reference_error
-        && (e.width, e.height) != (reference.width, reference.height)
-    {
-        return Err(CompareError::SizeMismatch {
-            a: (e.width, e.height),
-            b: (reference.width, reference.height),
-        });
+    if let Some(e) = reference_error {
+        same_size(e, reference)?;
     }
-    if (actual.width, actual.height) != (reference.width, reference.height) {
-        return Err(CompareError::SizeMismatch {
-            a: (actual.width, actual.height),
-            b: (reference.width, reference.height),
-        });
-    }
+    same_size(actual, reference)?;
     let lum = |p: Vec3| mcrad_render::luminance(p);
     let left_out = near_emitters(reference, emitter_fraction);
     let kept: Vec<usize> = (0..left_out.len()).filter(|&i| !left_out[i]).collect();
@@ -250,6 +230,18 @@ pub fn image_error_against_noisy(
         dark_third,
         pixels: kept.len(),
     })
+}
+
+/// `Ok` when `a` and `b` have the same size, else [`CompareError::SizeMismatch`].
+fn same_size(a: &Image, b: &Image) -> Result<(), CompareError> {
+    if (a.width, a.height) == (b.width, b.height) {
+        Ok(())
+    } else {
+        Err(CompareError::SizeMismatch {
+            a: (a.width, a.height),
+            b: (b.width, b.height),
+        })
+    }
 }
 
 /// Per pixel, whether it sees an emitter or neighbours one: the reference's luminance there or
@@ -283,18 +275,12 @@ pub fn signed_difference_image(
     emitter_fraction: f32,
     full_scale: f32,
 ) -> Result<Image, CompareError> {
-    if (actual.width, actual.height) != (reference.width, reference.height) {
-        return Err(CompareError::SizeMismatch {
-            a: (actual.width, actual.height),
-            b: (reference.width, reference.height),
-        });
-    }
+    same_size(actual, reference)?;
     let lum = |p: Vec3| mcrad_render::luminance(p);
-    let near = near_emitters(reference, emitter_fraction);
-    let left_out = |i: usize| near[i];
+    let left_out = near_emitters(reference, emitter_fraction);
     let (mut sum, mut count) = (0.0f64, 0usize);
     for (i, &p) in reference.pixels.iter().enumerate() {
-        if !left_out(i) {
+        if !left_out[i] {
             sum += f64::from(lum(p));
             count += 1;
         }
@@ -304,9 +290,9 @@ pub fn signed_difference_image(
     } else {
         1.0
     };
-    let pixels = (0..near.len())
+    let pixels = (0..left_out.len())
         .map(|i| {
-            if left_out(i) {
+            if left_out[i] {
                 return Vec3::splat(0.5);
             }
             let d = (lum(actual.pixels[i]) - lum(reference.pixels[i])) * scale;

@@ -5,7 +5,8 @@ use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Face, Material, Scene};
 use std::collections::BTreeMap;
 
-fn scene(positions: Vec<Vec3>, faces: Vec<Vec<u32>>) -> Scene {
+/// A scene of `faces` (vertex lists, one emitting grey material) over `positions`.
+pub(crate) fn scene(positions: Vec<Vec3>, faces: Vec<Vec<u32>>) -> Scene {
     let materials = vec![Material {
         name: "lamp".into(),
         reflectance: Vec3::splat(0.5),

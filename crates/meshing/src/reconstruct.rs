@@ -57,12 +57,16 @@ pub(crate) fn limited_gradients(
     let mut closed: Vec<bool> = Vec::with_capacity(incidences.len());
     for group in incidences.chunk_by(|a, b| a.0 == b.0) {
         let point = Vec3::from_array(group[0].0.map(f32::from_bits));
+        let angles: Vec<f64> = group
+            .iter()
+            .map(|&(_, q)| angle_at(mesh, q as usize, point))
+            .collect();
         for &(_, p) in group {
             let own = &patches[p as usize];
             let mut turn = 0.0;
-            for &(_, q) in group {
+            for (&(_, q), angle) in group.iter().zip(&angles) {
                 if q == p || same_surface(own, &patches[q as usize], min_cosine) {
-                    turn += angle_at(mesh, q as usize, point);
+                    turn += angle;
                     if q != p {
                         pairs.push((p, q));
                     }
@@ -166,29 +170,10 @@ pub(crate) fn extrapolate(value: DVec3, gradient: &[DVec3; 3], d: DVec3) -> DVec
 
 #[cfg(test)]
 mod tests {
+    use crate::adaptive_tests::scene;
     use crate::{AdaptiveBounds, AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
     use glam::{DVec3, Vec3};
-    use mcrad_scene_io::{Face, Material, Scene};
-
-    fn scene(positions: Vec<Vec3>, faces: Vec<Vec<u32>>) -> Scene {
-        let material = Material {
-            name: "white".into(),
-            reflectance: Vec3::splat(0.5),
-            emission: Vec3::ONE,
-        };
-        let faces = faces
-            .into_iter()
-            .enumerate()
-            .map(|(k, vertices)| Face {
-                vertices,
-                material: 0,
-                source: k as u32,
-            })
-            .collect();
-        Scene::new(positions, faces, vec![material])
-            .expect("valid scene")
-            .0
-    }
+    use mcrad_scene_io::Scene;
 
     /// A 4 x 4 square (one quad face) and a right triangle over half of it.
     fn square_and_triangle() -> [Scene; 2] {
