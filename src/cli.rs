@@ -122,8 +122,8 @@ pub struct Solve {
     /// One patch per input face, faces in file order.
     #[arg(long, conflicts_with = "max_edge")]
     pub no_subdivide: bool,
-    /// How faces become patches: `adaptive` (the default: a mesh of a quarter of the uniform
-    /// default's edge refined where the solution needs it, within --min-edge and --max-patches;
+    /// How faces become patches: `adaptive` (the default: a mesh of half the uniform default's
+    /// edge refined where the solution needs it, within --min-edge and --max-patches;
     /// a quarter of the ray budget or of --time goes to the refinement, then the method solves
     /// the refined mesh and the answer pools its solution with the refinement's estimates) or
     /// `uniform` (every face cut to --max-edge, or the default size). The options that need a
@@ -346,7 +346,7 @@ fn max_edge_help() -> String {
 /// How faces become patches.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MeshArg {
-    /// A uniform mesh of a quarter of the uniform default's edge refined where the solution
+    /// A uniform mesh of half the uniform default's edge refined where the solution
     /// varies beyond its noise or the light's visibility changes (the default).
     Adaptive,
     /// Every face cut uniformly (`--max-edge`, or the scene's diagonal / 20).

@@ -1,6 +1,7 @@
 //! Run statistics as JSON.
 
 use crate::ExportError;
+use mcrad_mc_radiosity::adaptive::RoundStats;
 use mcrad_mc_radiosity::{Method, Sampler, StopReason};
 use serde::Serialize;
 use std::io::Write;
@@ -40,6 +41,11 @@ pub struct RunStats {
     pub setup_seconds: f64,
     /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
     pub sampler: Sampler,
+    /// An adaptive mesh's refinement rounds, in order (elements before the round, elements
+    /// marked by a gradient and by a visibility change, split, held at the minimum edge or the
+    /// patch budget, unrefinable, rays cast); absent for a fixed mesh.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refinement: Option<Vec<RoundStats>>,
 }
 
 impl RunStats {
@@ -78,6 +84,7 @@ mod tests {
             stop: StopReason::BudgetSpent,
             setup_seconds: 0.1,
             sampler: Sampler::Qmc,
+            refinement: None,
         };
         let mut buf = Vec::new();
         s.write_json(&mut buf).unwrap();

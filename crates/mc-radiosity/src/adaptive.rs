@@ -112,6 +112,7 @@ pub enum AdaptiveError {
 
 /// What one round of [`refine`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RoundStats {
     /// Elements before the round.
     pub elements: usize,

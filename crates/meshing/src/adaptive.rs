@@ -93,8 +93,8 @@ pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 40.0;
 /// halvings of the starting mesh).
 pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 320.0;
 
-/// The default maximum number of leaf elements of an adaptive mesh (the CLI starts within a
-/// quarter of it and leaves the rest to the refinement).
+/// The default maximum number of leaf elements of an adaptive mesh (the CLI starts within
+/// half of it and leaves the rest to the refinement).
 pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {
