@@ -132,7 +132,7 @@ pub struct Solve {
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
-    /// bounding-box diagonal / 320.
+    /// bounding-box diagonal / 640.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub min_edge: Option<f32>,
     /// Adaptive meshes: at most N elements.

@@ -50,7 +50,7 @@ const SCENES: [ExpScene; 3] = [
         size: (256, 256),
         uniform: &[0.02, 0.01],
         reference: (0.01, "1e8"),
-        curve_edges: &[0.04, 0.02, 0.014, 0.01, 0.007, 0.005],
+        curve_edges: &[0.04, 0.02, 0.014, 0.01, 0.007, 0.005, 0.0035],
     },
     ExpScene {
         name: "table-room",
@@ -443,7 +443,12 @@ fn measure(
     }
     solve(mcrad, &root.join(scene.file), &args)?;
     let picture = mcrad_render::read_exr(&image)?;
-    let e = mcrad_lab::compare::image_error_against_noisy(&picture, &truth.0, Some(&truth.1), 0.5)?;
+    let e = mcrad_lab::compare::image_error_against_noisy(
+        &picture,
+        &truth.0,
+        Some(&truth.1),
+        super::path_trace::EMITTER_FRACTION,
+    )?;
     let run = face_values(root, scene, &faces)?;
     if run.values.len() != reference.values.len() {
         bail!(
@@ -547,6 +552,10 @@ fn patches_curve(
         md,
         "\n### {}: patches against image error, {:.0e} rays each\n\n\
          ![{}: image error against patches](meshing-curve-{}.png)\n\n\
+         *Uniform patches at this error*: interpolated in log-log between the two uniform meshes \
+         whose errors bracket the adaptive run's; *none (best: N)* when no uniform mesh reaches \
+         it at these rays, N the patches of the uniform mesh of the lowest error (its ratio is a \
+         lower bound).\n\n\
          | mesh | patches | image error | dark third | per-face rms_rel | uniform patches at \
          this error | ratio |\n|---|---:|---:|---:|---:|---:|---:|\n",
         scene.name, rays as f64, scene.name, scene.name
@@ -565,8 +574,8 @@ fn patches_curve(
     for p in &adaptive {
         let (equal, ratio) = match uniform_patches_at(&curve, p.image) {
             Equal::At(n) => (format!("{n:.0}"), format!("{:.1}x", n / p.patches as f64)),
-            Equal::BeyondFinest(n) => (
-                format!("> {n:.0}"),
+            Equal::BelowEvery(n) => (
+                format!("none (best: {n:.0})"),
                 format!("> {:.1}x", n / p.patches as f64),
             ),
             Equal::BeyondCoarsest(n) => (
@@ -618,8 +627,9 @@ fn patches_curve(
 enum Equal {
     /// Interpolated between two measured meshes.
     At(f64),
-    /// Lower than every measured uniform mesh's error: more than the finest one's patches.
-    BeyondFinest(f64),
+    /// Lower than every measured uniform mesh's error: the patches of the one of the lowest
+    /// error (at a fixed ray budget the finest is not it: its rays per patch are fewest).
+    BelowEvery(f64),
     /// Higher than every measured one's: fewer than the coarsest one's patches.
     BeyondCoarsest(f64),
 }
@@ -635,9 +645,12 @@ fn uniform_patches_at(curve: &[(f64, f64)], error: f64) -> Equal {
             return Equal::At(n1 * (n2 / n1).powf(t));
         }
     }
-    let finest = curve.iter().map(|c| c.0).fold(0.0, f64::max);
     if curve.iter().all(|&(_, e)| error < e) {
-        Equal::BeyondFinest(finest)
+        let best = curve
+            .iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0.0, |c| c.0);
+        Equal::BelowEvery(best)
     } else {
         Equal::BeyondCoarsest(curve.iter().map(|c| c.0).fold(f64::INFINITY, f64::min))
     }
@@ -655,7 +668,10 @@ mod tests {
             panic!("bracketed")
         };
         assert!((n - 800.0).abs() < 1e-9, "{n}");
-        assert_eq!(uniform_patches_at(&curve, 0.1), Equal::BeyondFinest(1600.0));
+        assert_eq!(uniform_patches_at(&curve, 0.1), Equal::BelowEvery(1600.0));
+        // A curve that turns up again (too few rays per patch on the finest mesh).
+        let turning = [(100.0, 1.0), (400.0, 0.5), (1600.0, 0.6)];
+        assert_eq!(uniform_patches_at(&turning, 0.4), Equal::BelowEvery(400.0));
         assert_eq!(
             uniform_patches_at(&curve, 2.0),
             Equal::BeyondCoarsest(100.0)

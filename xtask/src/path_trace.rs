@@ -8,6 +8,10 @@ use mcrad_raycast::Bvh;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The image error's emitter mask: pixels whose luminance, or a neighbour's, is at least this
+/// share of the reference's brightest are left out (`mcrad_lab::compare::image_error`).
+pub const EMITTER_FRACTION: f32 = 0.5;
+
 const PATH_TRACE_USAGE: &str = "usage: cargo xtask path-trace SCENE --camera SPEC --size WxH \
     --spp N [--seed S] --out PICTURE.exr [--error ERROR.exr]";
 
@@ -60,22 +64,17 @@ pub fn run_path_trace(args: &[String]) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     mcrad_render::write_exr(&picture.radiance, &out)?;
     mcrad_render::write_exr(&picture.standard_error, &error)?;
-    let (mut noise, mut signal) = (0.0f64, 0.0f64);
-    for (l, e) in picture
-        .radiance
-        .pixels
-        .iter()
-        .zip(&picture.standard_error.pixels)
-    {
-        noise += e.as_dvec3().length_squared();
-        signal += l.as_dvec3().length_squared();
-    }
+    let noise = mcrad_lab::compare::relative_noise(
+        &picture.radiance,
+        &picture.standard_error,
+        EMITTER_FRACTION,
+    )?;
     println!(
         "{}: {width}x{height}, {spp} paths per pixel, {:.3e} rays in {seconds:.1} s; its own noise \
-         sqrt(sum se² / sum L²) = {:.3}%; wrote {} and {}",
+         sqrt(sum se² / sum L²) = {:.3}% over the pixels the image error scores; wrote {} and {}",
         scene.display(),
         picture.rays as f64,
-        100.0 * (noise / signal).sqrt(),
+        100.0 * noise,
         out.display(),
         error.display()
     );
@@ -104,7 +103,12 @@ pub fn run_image_error(args: &[String]) -> Result<()> {
     let read = |p: &str| mcrad_render::read_exr(Path::new(p));
     let (image, reference) = (read(image)?, read(reference)?);
     let noise = noise.as_deref().map(read).transpose()?;
-    let e = mcrad_lab::compare::image_error_against_noisy(&image, &reference, noise.as_ref(), 0.5)?;
+    let e = mcrad_lab::compare::image_error_against_noisy(
+        &image,
+        &reference,
+        noise.as_ref(),
+        EMITTER_FRACTION,
+    )?;
     if let Some(d) = diff {
         let d_img = mcrad_lab::compare::signed_difference_image(&image, &reference, 0.5, 0.1)?;
         mcrad_render::write_png(&d_img, Path::new(d), mcrad_render::Exposure::Stops(0.0))?;
