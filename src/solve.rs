@@ -472,7 +472,7 @@ fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::E
 }
 
 /// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 40 (half the
-/// uniform default's edge) when that takes at most [`START_SHARE`] of `--max-patches` (the
+/// uniform default's edge) when that takes at most 1 / [`START_SHARE`] of `--max-patches` (the
 /// rest is the refinement's), else to the uniform default when that fits `--max-patches`, else one
 /// element per face (every start within the elements the ray budget pays
 /// [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the time

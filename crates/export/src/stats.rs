@@ -105,5 +105,27 @@ mod tests {
         assert_eq!(v["stop"], "budget");
         assert_eq!(v["sampler"], "qmc");
         assert_eq!(v["rays"], 1000);
+        assert!(
+            v.get("refinement").is_none(),
+            "a fixed mesh writes no rounds"
+        );
+        let round = RoundStats {
+            elements: 100,
+            gradient: 3,
+            visibility: 5,
+            split: 7,
+            held: 1,
+            unrefinable: 0,
+            rays: 4096,
+        };
+        let refined = RunStats {
+            refinement: Some(vec![round]),
+            ..s
+        };
+        let mut buf = Vec::new();
+        refined.write_json(&mut buf).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&buf).unwrap();
+        assert_eq!(v["refinement"][0]["split"], 7);
+        assert_eq!(v["refinement"][0]["rays"], 4096);
     }
 }

@@ -25,7 +25,8 @@
 //!   handing each complete intermediate solution to an observer that may stop the run.
 //! - [`method`]: the registry of those methods, one entry each ([`Method`]): names, metadata
 //!   and the dispatch of [`schedule::run`]; clap's `ValueEnum` with feature `clap`, serde's
-//!   `Serialize` (of [`Method`], [`StopReason`] and [`adaptive::RoundStats`]) with feature `serde`.
+//!   `Serialize` (of [`Method`], [`StopReason`] and [`adaptive::RoundStats`]) with feature
+//!   `serde`.
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` and every reduction runs
 //! in a fixed order, so a seed gives the same answer whatever the thread count. With

@@ -84,9 +84,9 @@ pub struct AdaptiveBounds {
 /// The default starting mesh as a fraction of the scene's bounding-box diagonal: no element
 /// edge longer than the diagonal / 40, half the uniform default's. With the display's linear
 /// reconstruction ([`Mesh::seamless_corner_radiosity`]) evenly lit walls need no finer start:
-/// at 1e8 rays (image error table room / Cornell box, seed 0) the diagonal / 40 measured 0.77% /
-/// 1.09% with 6,100 / 10,600 elements after refinement, / 80 0.74% / 1.04% with 16,100 / 20,700
-/// (docs/meshing.md).
+/// at 1e8 rays (image error table room / Cornell box, seed 0, minimum edge / 320, renders at 16
+/// samples per pixel) the diagonal / 40 measured 0.77% / 1.09% with 6,100 / 10,600 elements
+/// after refinement, / 80 0.74% / 1.04% with 16,100 / 20,700 (docs/meshing.md).
 pub const DEFAULT_COARSE_EDGE_FRACTION: f32 = 1.0 / 40.0;
 
 /// The default minimum element edge as a fraction of the bounding-box diagonal: 1/640 (four
