@@ -148,6 +148,18 @@ struct Point {
     per_face: f64,
 }
 
+impl Point {
+    /// Its errors as three Markdown table cells: image error, dark third, per-face rms_rel.
+    fn error_cells(&self) -> String {
+        format!(
+            "{:.2}% | {:.2}% | {:.2}%",
+            100.0 * self.image,
+            100.0 * self.dark_third,
+            100.0 * self.per_face
+        )
+    }
+}
+
 /// Runs the experiment (see the module documentation).
 pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
     let options = Options::parse(root, args)?;
@@ -228,14 +240,12 @@ pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
         for p in &points {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:.2e} | {:.2}% | {:.2}% | {:.2}% |",
+                "| {} | {} | {} | {:.2e} | {} |",
                 p.mesh,
                 p.seconds_asked,
                 p.patches,
                 p.rays as f64,
-                100.0 * p.image,
-                100.0 * p.dark_third,
-                100.0 * p.per_face
+                p.error_cells()
             );
         }
         let series = meshes
@@ -447,7 +457,7 @@ fn measure(
         &picture,
         &truth.0,
         Some(&truth.1),
-        super::path_trace::EMITTER_FRACTION,
+        mcrad_lab::compare::EMITTER_FRACTION,
     )?;
     let run = face_values(root, scene, &faces)?;
     if run.values.len() != reference.values.len() {
@@ -563,12 +573,10 @@ fn patches_curve(
     for p in &uniform {
         let _ = writeln!(
             md,
-            "| {} | {} | {:.2}% | {:.2}% | {:.2}% | | |",
+            "| {} | {} | {} | | |",
             p.mesh,
             p.patches,
-            100.0 * p.image,
-            100.0 * p.dark_third,
-            100.0 * p.per_face
+            p.error_cells()
         );
     }
     for p in &adaptive {
@@ -585,12 +593,10 @@ fn patches_curve(
         };
         let _ = writeln!(
             md,
-            "| **{}** | {} | {:.2}% | {:.2}% | {:.2}% | {equal} | **{ratio}** |",
+            "| **{}** | {} | {} | {equal} | **{ratio}** |",
             p.mesh,
             p.patches,
-            100.0 * p.image,
-            100.0 * p.dark_third,
-            100.0 * p.per_face
+            p.error_cells()
         );
     }
     let series = [("uniform", &uniform), ("adaptive", &adaptive)]

@@ -8,10 +8,6 @@ use mcrad_raycast::Bvh;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// The image error's emitter mask: pixels whose luminance, or a neighbour's, is at least this
-/// share of the reference's brightest are left out (`mcrad_lab::compare::image_error`).
-pub const EMITTER_FRACTION: f32 = 0.5;
-
 const PATH_TRACE_USAGE: &str = "usage: cargo xtask path-trace SCENE --camera SPEC --size WxH \
     --spp N [--seed S] --out PICTURE.exr [--error ERROR.exr]";
 
@@ -67,7 +63,7 @@ pub fn run_path_trace(args: &[String]) -> Result<()> {
     let noise = mcrad_lab::compare::relative_noise(
         &picture.radiance,
         &picture.standard_error,
-        EMITTER_FRACTION,
+        mcrad_lab::compare::EMITTER_FRACTION,
     )?;
     println!(
         "{}: {width}x{height}, {spp} paths per pixel, {:.3e} rays in {seconds:.1} s; its own noise \
@@ -107,10 +103,15 @@ pub fn run_image_error(args: &[String]) -> Result<()> {
         &image,
         &reference,
         noise.as_ref(),
-        EMITTER_FRACTION,
+        mcrad_lab::compare::EMITTER_FRACTION,
     )?;
     if let Some(d) = diff {
-        let d_img = mcrad_lab::compare::signed_difference_image(&image, &reference, 0.5, 0.1)?;
+        let d_img = mcrad_lab::compare::signed_difference_image(
+            &image,
+            &reference,
+            mcrad_lab::compare::EMITTER_FRACTION,
+            0.1,
+        )?;
         mcrad_render::write_png(&d_img, Path::new(d), mcrad_render::Exposure::Stops(0.0))?;
     }
     println!(

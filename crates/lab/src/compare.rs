@@ -201,8 +201,7 @@ pub fn image_error_against_noisy(
     }
     same_size(actual, reference)?;
     let lum = |p: Vec3| mcrad_render::luminance(p);
-    let left_out = near_emitters(reference, emitter_fraction);
-    let kept: Vec<usize> = (0..left_out.len()).filter(|&i| !left_out[i]).collect();
+    let kept = scored_pixels(reference, emitter_fraction);
     let error = |pixels: &[usize]| {
         let (mut num, mut den) = (0.0f64, 0.0f64);
         for &i in pixels {
@@ -244,9 +243,8 @@ pub fn relative_noise(
     emitter_fraction: f32,
 ) -> Result<f64, CompareError> {
     same_size(error, reference)?;
-    let left_out = near_emitters(reference, emitter_fraction);
     let (mut noise, mut signal) = (0.0f64, 0.0f64);
-    for (i, _) in left_out.iter().enumerate().filter(|(_, out)| !**out) {
+    for i in scored_pixels(reference, emitter_fraction) {
         noise += error.pixels[i].as_dvec3().length_squared();
         signal += reference.pixels[i].as_dvec3().length_squared();
     }
@@ -255,6 +253,17 @@ pub fn relative_noise(
     } else {
         0.0
     })
+}
+
+/// The emitter mask's usual fraction: a pixel whose luminance, or a neighbour's, is at least
+/// half the reference's brightest sees an emitter and is left out of the image error.
+pub const EMITTER_FRACTION: f32 = 0.5;
+
+/// The pixels the image error scores: those that see no emitter and neighbour none (see
+/// [`image_error`]), in pixel order.
+fn scored_pixels(reference: &Image, emitter_fraction: f32) -> Vec<usize> {
+    let left_out = near_emitters(reference, emitter_fraction);
+    (0..left_out.len()).filter(|&i| !left_out[i]).collect()
 }
 
 /// `Ok` when `a` and `b` have the same size, else [`CompareError::SizeMismatch`].

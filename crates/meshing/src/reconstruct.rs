@@ -78,6 +78,8 @@ pub(crate) fn limited_gradients(
     pairs.sort_unstable();
     pairs.dedup();
     let mut gradients = vec![[DVec3::ZERO; 3]; patches.len()];
+    // Per neighbour: its centroid in the patch's plane, its weight and its value's difference.
+    let mut around: Vec<(f64, f64, f64, DVec3)> = Vec::new();
     for run in pairs.chunk_by(|a, b| a.0 == b.0) {
         let p = run[0].0 as usize;
         let own = &patches[p];
@@ -87,14 +89,17 @@ pub(crate) fn limited_gradients(
             let d = x - centre;
             (d.dot(t1), d.dot(t2))
         };
+        around.clear();
+        around.extend(run.iter().map(|&(_, q)| {
+            let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
+            let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
+            (x, y, w, values[q as usize] - values[p])
+        }));
         // The weighted normal equations [sxx sxy; sxy syy] g = [rx; ry], per channel.
         let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
         let (mut rx, mut ry) = (DVec3::ZERO, DVec3::ZERO);
         let (mut lo, mut hi) = (values[p], values[p]);
-        for &(_, q) in run {
-            let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
-            let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
-            let dv = values[q as usize] - values[p];
+        for (&(x, y, w, dv), &(_, q)) in around.iter().zip(run) {
             sxx += w * x * x;
             sxy += w * x * y;
             syy += w * y * y;
@@ -112,10 +117,7 @@ pub(crate) fn limited_gradients(
         let (gx, gy) = ((rx * syy - ry * sxy) / det, (ry * sxx - rx * sxy) / det);
         // How much of the neighbours' differences the plane leaves unexplained, per channel.
         let (mut unexplained, mut total) = (DVec3::ZERO, DVec3::ZERO);
-        for &(_, q) in run {
-            let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
-            let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
-            let dv = values[q as usize] - values[p];
+        for &(x, y, w, dv) in &around {
             let miss = dv - (gx * x + gy * y);
             unexplained += w * miss * miss;
             total += w * dv * dv;
