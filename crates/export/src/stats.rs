@@ -42,8 +42,8 @@ pub struct RunStats {
     /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
     pub sampler: Sampler,
     /// An adaptive mesh's refinement rounds, in order (elements before the round, elements
-    /// marked by a gradient and by a visibility change, split, held at the minimum edge or the
-    /// patch budget, unrefinable, rays cast); absent for a fixed mesh.
+    /// marked by a gradient, by a visibility change and by light from close by, split, held at
+    /// the minimum edge or the patch budget, unrefinable, rays cast); absent for a fixed mesh.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refinement: Option<Vec<RoundStats>>,
 }
@@ -113,6 +113,7 @@ mod tests {
             elements: 100,
             gradient: 3,
             visibility: 5,
+            proximity: 2,
             split: 7,
             held: 1,
             unrefinable: 0,
@@ -126,6 +127,7 @@ mod tests {
         refined.write_json(&mut buf).unwrap();
         let v: serde_json::Value = serde_json::from_slice(&buf).unwrap();
         assert_eq!(v["refinement"][0]["split"], 7);
+        assert_eq!(v["refinement"][0]["proximity"], 2);
         assert_eq!(v["refinement"][0]["rays"], 4096);
     }
 }

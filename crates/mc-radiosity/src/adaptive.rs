@@ -20,13 +20,35 @@
 //!   to points on the emitters (drawn by power), some reach the emitter and some are blocked,
 //!   and the direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
 //!   irradiance estimate, `f` its visible share), is more than `tolerance` of the element's
-//!   luminance: shadow boundaries and the contact lines of objects resting on a surface.
+//!   luminance: shadow boundaries and the contact lines of objects resting on a surface; or
+//! - **light reflected from close by**: of `proximity_rays` cosine-distributed rays from
+//!   uniform points of the element, those that hit a surface nearer than the element's size
+//!   `h = sqrt(A)` (a share `q` of them) bring the reflected irradiance `H_near`, all of them
+//!   `H` (each hit counting its reflected radiosity `B - E`, W/m²); the element is marked when
+//!   `rho |H_near - q H|`, how far the near surfaces' light departs from what the same share
+//!   of the view brings on average, is more than `tolerance` of its luminance. Near a crease
+//!   or a contact with a surface lit otherwise than the rest of the view (the dark top of a
+//!   wall under a ceiling, a box's side on the floor) the light varies at the element's own
+//!   scale, non-linearly (a linear slope of one surface makes a `d ln d` in the other's
+//!   radiosity at the distance `d` from the crease), which the display's linear interpolation
+//!   cannot follow and the gradient test cannot see in the element means; an evenly lit
+//!   enclosure (a furnace) makes no contrast however close its walls. Measured at 1e8 rays
+//!   (render --spp 256, docs/meshing.md): Cornell box, 16,000-element budget, image error
+//!   0.73% -> PROXIMITY_CORNELL; `rho H_near` alone (not against the rest of the view) marked
+//!   every crease of the rooms and took the budget from their shadows (table room, 8,000
+//!   elements: 0.51% -> 0.66%). A hit counts its reflected radiosity alone, as one ray of 16
+//!   that hits a light would outweigh the rest (counting the emitted light too measured the
+//!   same on the three scenes).
 //!
 //! Marked elements are split largest contrast first (the contrast times the element's size),
-//! within the mesh's minimum edge and patch budget. This is RenderPark's hierarchical
-//! refinement turned around: RenderPark's power oracle splits an element whose received power
-//! is large, lit evenly or not; here an element splits only where the measured solution
-//! varies beyond its own noise or its visibility of the light changes.
+//! within the mesh's minimum edge and patch budget. A round adds at most half of the elements
+//! the budget has left (all of them in the last round the rays can pay for), so that later
+//! rounds, which see the refined solution, still have elements to place: without it the
+//! proximity marks of the first round took the boxes room's budget (image error at 1e8 rays
+//! 3.23%, 2.88% with it). This is RenderPark's hierarchical refinement turned around:
+//! RenderPark's power oracle splits an element whose received power is large, lit evenly or
+//! not; here an element splits only where the measured solution varies beyond its own noise,
+//! its visibility of the light changes or light from close by varies across it.
 //!
 //! Every random number comes from a stream keyed by (seed, round, element), and the marks are
 //! folded in element order, so the mesh is the same for a seed on any thread count (with a ray
@@ -35,12 +57,13 @@
 use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
 use crate::error::Error;
+use crate::sampling::{Frame, cosine_hemisphere_concentric};
 use crate::shoot::{ShootConfig, shoot};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use mcrad_combine::{Estimate, EstimateError, Operand, Weighting, merge};
 use mcrad_meshing::{AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh};
 use mcrad_random::{Stream, StreamKey, derive_seed};
-use mcrad_raycast::{BuildError, Bvh, RayCaster, SurfacePoint};
+use mcrad_raycast::{BuildError, Bvh, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 use std::time::Instant;
@@ -52,13 +75,15 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 const PILOT_TAG: u64 = 0xada0_0000;
 const GATHER_TAG: u64 = 0xada1_0000;
 const SHADOW_TAG: u64 = 0xada2_0000;
+const PROXIMITY_TAG: u64 = 0xada3_0000;
 
 /// Settings of [`refine`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct AdaptiveConfig {
-    /// Rays the refinement may cast in all (pilot, gathering rounds and shadow rays): a third
-    /// for the pilot shooting, the rest shared by the rounds; a round the rest cannot pay for
-    /// (its shadow rays and 16 rays per element) is not started, and the last one may exceed
+    /// Rays the refinement may cast in all (pilot, gathering rounds, shadow and proximity
+    /// rays): a third for the pilot shooting, the rest shared by the rounds; a round the rest
+    /// cannot pay for (its shadow and proximity rays and 16 rays per element) is not started,
+    /// and the last one may exceed
     /// the budget by the refinement's growth of the mesh. `u64::MAX`: no ray budget (then
     /// [`AdaptiveConfig::seconds`] bounds the refinement).
     pub rays: u64,
@@ -71,6 +96,8 @@ pub struct AdaptiveConfig {
     pub rounds: u32,
     /// Shadow rays per element and round for the visibility test (0: no visibility test).
     pub shadow_rays: u32,
+    /// Rays per element and round for the proximity test (0: no proximity test).
+    pub proximity_rays: u32,
     /// A difference counts as a gradient beyond this many of its standard deviations.
     pub noise_sigmas: f64,
     /// The smallest relative contrast worth an element (see the module documentation).
@@ -82,15 +109,16 @@ pub struct AdaptiveConfig {
 }
 
 impl Default for AdaptiveConfig {
-    /// 500 000 rays, 5 rounds, 16 shadow rays, 2 standard deviations, 2% contrast, seed 0,
-    /// unshot threshold 1e-3 (on the table room, 2 deviations and 2% gave 3.2% image error at
-    /// 2e6 rays against 3.7% with 3 and 5%).
+    /// 500 000 rays, 5 rounds, 16 shadow rays, 16 proximity rays, 2 standard deviations, 2%
+    /// contrast, seed 0, unshot threshold 1e-3 (on the table room, 2 deviations and 2% gave
+    /// 3.2% image error at 2e6 rays against 3.7% with 3 and 5%).
     fn default() -> Self {
         AdaptiveConfig {
             rays: 500_000,
             seconds: None,
             rounds: 5,
             shadow_rays: 16,
+            proximity_rays: 16,
             noise_sigmas: 2.0,
             tolerance: 0.02,
             seed: 0,
@@ -120,13 +148,16 @@ pub struct RoundStats {
     pub gradient: usize,
     /// Elements marked by a visibility change (some also by a gradient).
     pub visibility: usize,
+    /// Elements marked by light reflected from close by (some also by the other tests).
+    pub proximity: usize,
     /// Elements split.
     pub split: usize,
-    /// Marked elements not split: at the minimum edge, or beyond the patch budget.
+    /// Marked elements not split: at the minimum edge, beyond the patch budget, or beyond the
+    /// round's share of it (see the module documentation).
     pub held: usize,
     /// Marked elements that could not be split into valid elements (kept).
     pub unrefinable: usize,
-    /// Rays cast in the round (shadow rays and the gathering round).
+    /// Rays cast in the round (shadow and proximity rays and the gathering round).
     pub rays: u64,
 }
 
@@ -200,9 +231,10 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
                 .min(rays.saturating_add(rays_that_fit(seconds, start, rays))),
             None => config.rays,
         };
-        // A round costs its shadow rays and at least 8 gathering rays and 4 emitter samples
-        // (two rays each) per element: stop when the budget cannot pay for it.
-        let cheapest = (u64::from(config.shadow_rays) + 16) * mesh.len() as u64;
+        // A round costs its shadow and proximity rays and at least 8 gathering rays and 4
+        // emitter samples (two rays each) per element: stop when the budget cannot pay for it.
+        let tests = u64::from(config.shadow_rays) + u64::from(config.proximity_rays);
+        let cheapest = (tests + 16) * mesh.len() as u64;
         if rays.saturating_add(cheapest) > budget {
             break;
         }
@@ -227,18 +259,39 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             elements: mesh.len(),
             gradient: marks.iter().filter(|m| m.gradient).count(),
             visibility: marks.iter().filter(|m| m.visibility).count(),
+            proximity: marks.iter().filter(|m| m.proximity).count(),
             split: 0,
             held: 0,
             unrefinable: 0,
-            rays: u64::from(config.shadow_rays) * mesh.len() as u64,
+            rays: tests * mesh.len() as u64,
         };
         rays += stats.rays;
         drop(ctx);
         drop(bvh);
-        let order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
+        let mut order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
+        // The round's share of what the patch budget has left (a split adds about three): half
+        // of it, or all of it in the last round the rays can pay for (this one's gathering and
+        // the next one's tests on the grown mesh).
+        let left = mesh.bounds().max_patches.saturating_sub(mesh.len());
+        let next = (tests + 16) * (mesh.len() + left / 2) as u64;
+        let last = round + 1 == config.rounds
+            || rays.saturating_add(round_rays).saturating_add(next) > budget;
+        let share = if last { left } else { left / 2 };
+        let (mut added, mut keep) = (0, 0);
+        for &i in &order {
+            if added >= share {
+                break;
+            }
+            keep += 1;
+            if mesh.can_split(i as usize) {
+                added += 3;
+            }
+        }
+        stats.held += order.len() - keep;
+        order.truncate(keep);
         let r = mesh.refine(&order);
         stats.split = r.split;
-        stats.held = r.held;
+        stats.held += r.held;
         stats.unrefinable = r.unrefinable;
         if r.split == 0 {
             rounds.push(stats);
@@ -405,6 +458,7 @@ struct Mark {
     score: f64,
     gradient: bool,
     visibility: bool,
+    proximity: bool,
 }
 
 fn luminance(x: DVec3) -> f64 {
@@ -480,7 +534,79 @@ fn marks<C: RayCaster>(
             }
         }
     }
+    // Light reflected from close by: rays to the surfaces around.
+    if config.proximity_rays > 0 {
+        let reflected: Vec<f64> = patches
+            .iter()
+            .zip(b)
+            .map(|(p, &x)| luminance(x - p.emission.as_dvec3()).max(0.0))
+            .collect();
+        let key = key.derive(PROXIMITY_TAG);
+        let contrast: Vec<f64> = (0..patches.len())
+            .into_par_iter()
+            .map(|i| {
+                let mut stream = key.item(i as u64).stream();
+                let near = Near {
+                    reflected: &reflected,
+                    size: size[i],
+                    rays: config.proximity_rays,
+                };
+                near.contrast(ctx, i, &mut stream) / lum[i].max(f64::MIN_POSITIVE)
+            })
+            .collect();
+        for (i, c) in contrast.into_iter().enumerate() {
+            if c > config.tolerance {
+                let m = &mut marks[i];
+                m.proximity = true;
+                m.score = m.score.max(c * size[i]);
+            }
+        }
+    }
     marks
+}
+
+/// The proximity test of one element (see the module documentation).
+struct Near<'a> {
+    /// Per patch, the luminance of the radiosity it reflects, `B - E` (W/m²).
+    reflected: &'a [f64],
+    /// The element's size `h` (scene units): surfaces nearer than this are near.
+    size: f64,
+    /// Rays cast.
+    rays: u32,
+}
+
+impl Near<'_> {
+    /// `rho |H_near - q H|` (W/m², luminance) for element `i`: 0 when the surfaces nearer than
+    /// the element's size reflect what the rest of its view does.
+    fn contrast<C: RayCaster>(&self, ctx: &Context<C>, i: usize, stream: &mut Stream) -> f64 {
+        let mesh = ctx.mesh();
+        let patch = &mesh.patches()[i];
+        let rho = luminance(patch.reflectance.as_dvec3());
+        if rho <= 0.0 || self.rays == 0 {
+            return 0.0;
+        }
+        let frame = Frame::from_normal(patch.normal);
+        let (mut near, mut all, mut hits_near) = (0.0, 0.0, 0u32);
+        for _ in 0..self.rays {
+            let x = point_on(mesh, i, stream);
+            let u = Vec2::new(stream.uniform(), stream.uniform());
+            let dir = frame.to_world(cosine_hemisphere_concentric(u));
+            let ray = Ray::from_surface(x, patch.normal, dir, i as u32);
+            if let Some(hit) = ctx.caster().closest_hit(&ray)
+                && hit.front
+            {
+                let b = self.reflected[hit.id as usize];
+                all += b;
+                if f64::from(hit.distance) < self.size {
+                    near += b;
+                    hits_near += 1;
+                }
+            }
+        }
+        let n = f64::from(self.rays);
+        let share = f64::from(hits_near) / n;
+        rho * (near / n - share * all / n).abs()
+    }
 }
 
 /// The emitters, drawn in proportion to their luminous power.

@@ -103,6 +103,87 @@ fn elements_go_to_the_shadow_boundary_and_not_into_the_even_dark() {
     }
 }
 
+/// A 4 × 4 floor (z = 0, facing up, reflectance 0.5), a 1 × 1 light at height 3 over (2, 2)
+/// facing down, and a bright wall (reflectance 0.8) standing on the floor's edge x = 0, 1 high,
+/// facing the light (+x): it casts no shadow on the floor. Floor points next to the wall's foot see the lit wall close by: more
+/// light than the same share of their view brings elsewhere (the sky, the light's own face,
+/// which reflects nothing).
+fn wall_on_a_floor() -> Scene {
+    let p = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(4.0, 0.0, 0.0),
+        Vec3::new(4.0, 4.0, 0.0),
+        Vec3::new(0.0, 4.0, 0.0),
+        Vec3::new(1.5, 1.5, 3.0),
+        Vec3::new(1.5, 2.5, 3.0),
+        Vec3::new(2.5, 2.5, 3.0),
+        Vec3::new(2.5, 1.5, 3.0),
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(0.0, 4.0, 0.0),
+        Vec3::new(0.0, 4.0, 1.0),
+        Vec3::new(0.0, 0.0, 1.0),
+    ];
+    let faces = vec![
+        quad([0, 1, 2, 3], 0, 0),
+        quad([4, 5, 6, 7], 1, 1),
+        quad([8, 9, 10, 11], 2, 2),
+    ];
+    let materials = vec![
+        material("floor", 0.5, 0.0),
+        material("light", 0.0, 10.0),
+        material("wall", 0.8, 0.0),
+    ];
+    Scene::new(p, faces, materials).unwrap().0
+}
+
+#[test]
+fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
+    // Floor elements of the starting mesh (0.25 wide) along the wall's foot, away from its
+    // ends: split by every seed with the proximity test, by none without it (the light there
+    // is unblocked and bends gently: no other test marks them).
+    let along = |mesh: &AdaptiveMesh| -> (usize, usize) {
+        let floor = mesh.mesh().patches().iter().filter(|p| {
+            p.face == 0 && (0.0..0.25).contains(&p.centroid.x) && (1.0..3.0).contains(&p.centroid.y)
+        });
+        let (mut split, mut all) = (0, 0);
+        for p in floor {
+            all += 1;
+            split += usize::from(p.area < 0.25 * 0.25 * 0.999);
+        }
+        (split, all)
+    };
+    for seed in 1..=3 {
+        for proximity_rays in [16, 0] {
+            let bounds = AdaptiveBounds {
+                min_edge: 0.05,
+                max_patches: 100_000,
+            };
+            let mut mesh =
+                AdaptiveMesh::new(&wall_on_a_floor(), Subdivision::MaxEdge(0.25), bounds).unwrap();
+            let config = AdaptiveConfig {
+                proximity_rays,
+                ..config(seed)
+            };
+            let r = refine(&mut mesh, &config).unwrap();
+            let (split, all) = along(&mesh);
+            if proximity_rays > 0 {
+                assert!(
+                    split * 2 > all,
+                    "seed {seed}: {split} of {all} split along the wall: {:?}",
+                    r.rounds
+                );
+                assert!(r.rounds[0].proximity > 0);
+            } else {
+                assert_eq!(
+                    split, 0,
+                    "seed {seed}: split without the test: {:?}",
+                    r.rounds
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn an_evenly_lit_furnace_is_not_refined() {
     for seed in 1..=3 {
