@@ -34,7 +34,7 @@
 //!   cannot follow and the gradient test cannot see in the element means; an evenly lit
 //!   enclosure (a furnace) makes no contrast however close its walls. Measured at 1e8 rays
 //!   (render --spp 256, docs/meshing.md): Cornell box, 16,000-element budget, image error
-//!   0.73% -> PROXIMITY_CORNELL; `rho H_near` alone (not against the rest of the view) marked
+//!   0.73% -> 0.59%; `rho H_near / 2` alone (not against the rest of the view) marked
 //!   every crease of the rooms and took the budget from their shadows (table room, 8,000
 //!   elements: 0.51% -> 0.66%). A hit counts its reflected radiosity alone, as one ray of 16
 //!   that hits a light would outweigh the rest (counting the emitted light too measured the
