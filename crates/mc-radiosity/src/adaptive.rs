@@ -31,18 +31,21 @@
 //!   wall under a ceiling, a box's side on the floor) the light varies at the element's own
 //!   scale, non-linearly (a linear slope of one surface makes a `d ln d` in the other's
 //!   radiosity at the distance `d` from the crease), which the display's linear interpolation
-//!   cannot follow and the gradient test cannot see in the element means; an evenly lit
-//!   enclosure (a furnace) makes no contrast however close its walls. Measured at 1e8 rays
+//!   cannot follow and the gradient test cannot see in the element means; in an evenly lit
+//!   enclosure (a furnace) the contrast is only the noise of the estimates `B` however close
+//!   the walls (the furnace test marks nothing). Measured at 1e8 rays
 //!   (render --spp 256, docs/meshing.md): Cornell box, 16,000-element budget, image error
 //!   0.73% -> 0.59%; `rho H_near / 2` alone (not against the rest of the view) marked
 //!   every crease of the rooms and took the budget from their shadows (table room, 8,000
 //!   elements: 0.51% -> 0.66%). A hit counts its reflected radiosity alone, as one ray of 16
-//!   that hits a light would outweigh the rest (counting the emitted light too measured the
-//!   same on the three scenes).
+//!   that hits a light would outweigh the rest (counting the emitted light too measured no
+//!   better: 8,000-element budgets, Cornell box 0.76% either way, table room 0.60% against
+//!   0.59%, boxes room default 2.94% against 2.97%, with an even share of the budget per
+//!   round).
 //!
 //! Marked elements are split largest contrast first (the contrast times the element's size),
-//! within the mesh's minimum edge and patch budget. A round adds at most half of the elements
-//! the budget has left (all of them in the last round the rays can pay for), so that later
+//! within the mesh's minimum edge and patch budget. A round adds about half of the elements
+//! the budget has left at most (all of them in the last round the rays can pay for), so that later
 //! rounds, which see the refined solution, still have elements to place: without it the
 //! proximity marks of the first round took the boxes room's budget (image error at 1e8 rays
 //! 3.23%, 2.88% with it). This is RenderPark's hierarchical refinement turned around:
@@ -172,7 +175,7 @@ pub struct Refined {
     /// split starts from the gathering that followed it (its parent's estimates are of the
     /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance.
     pub pooled: Estimate,
-    /// Rays cast by the refinement (pilot, shadow rays, gathering rounds).
+    /// Rays cast by the refinement (pilot, shadow and proximity rays, gathering rounds).
     pub rays: u64,
     /// Each round's counts.
     pub rounds: Vec<RoundStats>,
@@ -269,14 +272,14 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         drop(ctx);
         drop(bvh);
         let mut order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
-        // The round's share of what the patch budget has left (a split adds about three): half
-        // of it, or all of it in the last round the rays can pay for (this one's gathering and
+        // The round's share of what the patch budget has left (a split adds up to three): about
+        // half of it, or all of it in the last round the rays can pay for (this one's gathering and
         // the next one's tests on the grown mesh).
         let left = mesh.bounds().max_patches.saturating_sub(mesh.len());
-        let next = (tests + 16) * (mesh.len() + left / 2) as u64;
+        let next = (tests + 16).saturating_mul((mesh.len() + left / 2) as u64);
         let last = round + 1 == config.rounds
             || rays.saturating_add(round_rays).saturating_add(next) > budget;
-        let share = if last { left } else { left / 2 };
+        let share = if last { left } else { left.div_ceil(2) };
         let (mut added, mut keep) = (0, 0);
         for &i in &order {
             if added >= share {
@@ -541,7 +544,7 @@ fn marks<C: RayCaster>(
             .zip(b)
             .map(|(p, &x)| luminance(x - p.emission.as_dvec3()).max(0.0))
             .collect();
-        let key = key.derive(PROXIMITY_TAG);
+        let key = key.substream(PROXIMITY_TAG);
         let contrast: Vec<f64> = (0..patches.len())
             .into_par_iter()
             .map(|i| {
@@ -551,7 +554,12 @@ fn marks<C: RayCaster>(
                     size: size[i],
                     rays: config.proximity_rays,
                 };
-                near.contrast(ctx, i, &mut stream) / lum[i].max(f64::MIN_POSITIVE)
+                let (contrast, reflected) = near.contrast(ctx, i, &mut stream);
+                if contrast > 0.0 {
+                    contrast / lum[i].max(reflected)
+                } else {
+                    0.0
+                }
             })
             .collect();
         for (i, c) in contrast.into_iter().enumerate() {
@@ -576,14 +584,21 @@ struct Near<'a> {
 }
 
 impl Near<'_> {
-    /// `rho |H_near - q H|` (W/m², luminance) for element `i`: 0 when the surfaces nearer than
-    /// the element's size reflect what the rest of its view does.
-    fn contrast<C: RayCaster>(&self, ctx: &Context<C>, i: usize, stream: &mut Stream) -> f64 {
+    /// `(rho |H_near - q H|, rho H)` (W/m², luminance) for element `i`: the contrast, 0 when the
+    /// surfaces nearer than the element's size reflect what the rest of its view does, and the
+    /// radiosity the element reflects by these rays (what the contrast is relative to where the
+    /// element's own estimate is still 0).
+    fn contrast<C: RayCaster>(
+        &self,
+        ctx: &Context<C>,
+        i: usize,
+        stream: &mut Stream,
+    ) -> (f64, f64) {
         let mesh = ctx.mesh();
         let patch = &mesh.patches()[i];
         let rho = luminance(patch.reflectance.as_dvec3());
         if rho <= 0.0 || self.rays == 0 {
-            return 0.0;
+            return (0.0, 0.0);
         }
         let frame = Frame::from_normal(patch.normal);
         let (mut near, mut all, mut hits_near) = (0.0, 0.0, 0u32);
@@ -605,7 +620,7 @@ impl Near<'_> {
         }
         let n = f64::from(self.rays);
         let share = f64::from(hits_near) / n;
-        rho * (near / n - share * all / n).abs()
+        (rho * (near / n - share * all / n).abs(), rho * all / n)
     }
 }
 

@@ -138,19 +138,23 @@ fn wall_on_a_floor() -> Scene {
 
 #[test]
 fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
-    // Floor elements of the starting mesh (0.25 wide) along the wall's foot, away from its
-    // ends: split by every seed with the proximity test, by none without it (the light there
-    // is unblocked and bends gently: no other test marks them).
+    // The eight floor elements of the starting mesh (0.25 wide) along the wall's foot, away
+    // from its ends: every one split by every seed with the proximity test, none without it
+    // (the light there is unblocked and bends gently: no other test marks them). Counted as
+    // (leaves still of the starting size, leaves).
     let along = |mesh: &AdaptiveMesh| -> (usize, usize) {
-        let floor = mesh.mesh().patches().iter().filter(|p| {
-            p.face == 0 && (0.0..0.25).contains(&p.centroid.x) && (1.0..3.0).contains(&p.centroid.y)
-        });
-        let (mut split, mut all) = (0, 0);
+        let near_the_wall = |c: Vec3| (0.0..0.25).contains(&c.x) && (1.0..3.0).contains(&c.y);
+        let floor = mesh
+            .mesh()
+            .patches()
+            .iter()
+            .filter(|p| p.face == 0 && near_the_wall(p.centroid));
+        let (mut whole, mut all) = (0, 0);
         for p in floor {
             all += 1;
-            split += usize::from(p.area < 0.25 * 0.25 * 0.999);
+            whole += usize::from(p.area > 0.25 * 0.25 * 0.999);
         }
-        (split, all)
+        (whole, all)
     };
     for seed in 1..=3 {
         for proximity_rays in [16, 0] {
@@ -165,22 +169,50 @@ fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
                 ..config(seed)
             };
             let r = refine(&mut mesh, &config).unwrap();
-            let (split, all) = along(&mesh);
+            let (whole, all) = along(&mesh);
             if proximity_rays > 0 {
-                assert!(
-                    split * 2 > all,
-                    "seed {seed}: {split} of {all} split along the wall: {:?}",
+                assert_eq!(
+                    whole, 0,
+                    "seed {seed}: {whole} of {all} leaves along the wall unsplit: {:?}",
                     r.rounds
                 );
                 assert!(r.rounds[0].proximity > 0);
             } else {
                 assert_eq!(
-                    split, 0,
+                    (whole, all),
+                    (8, 8),
                     "seed {seed}: split without the test: {:?}",
                     r.rounds
                 );
             }
         }
+    }
+}
+
+#[test]
+fn a_round_adds_about_half_of_what_the_budget_has_left() {
+    // Room for 40 more elements than the start, where the first round marks some 25 elements
+    // (75 more): it adds at most 20 (plus a split's overshoot of 2), the later ones fill the
+    // rest within the budget.
+    let start = |max_patches| {
+        let bounds = AdaptiveBounds {
+            min_edge: 0.05,
+            max_patches,
+        };
+        AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
+    };
+    let budget = start(100_000).len() + 40;
+    for seed in 1..=3 {
+        let mut mesh = start(budget);
+        let r = refine(&mut mesh, &config(seed)).unwrap();
+        let first = r.rounds[1].elements - r.rounds[0].elements;
+        assert!((18..=22).contains(&first), "seed {seed}: {:?}", r.rounds);
+        assert!(
+            mesh.len() > budget - 5 && mesh.len() <= budget,
+            "seed {seed}: {} of {budget}: {:?}",
+            mesh.len(),
+            r.rounds
+        );
     }
 }
 
