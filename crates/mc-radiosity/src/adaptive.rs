@@ -48,7 +48,7 @@
 //! the budget has left at most (all of them in the last round the rays can pay for), so that later
 //! rounds, which see the refined solution, still have elements to place: without it the
 //! proximity marks of the first round took the boxes room's budget (image error at 1e8 rays
-//! 3.23%, 2.88% with it). This is RenderPark's hierarchical refinement turned around:
+//! 3.23%, 2.90% with it). This is RenderPark's hierarchical refinement turned around:
 //! RenderPark's power oracle splits an element whose received power is large, lit evenly or
 //! not; here an element splits only where the measured solution varies beyond its own noise,
 //! its visibility of the light changes or light from close by varies across it.
