@@ -44,11 +44,11 @@
 //!   round).
 //!
 //! Marked elements are split largest contrast first (the contrast times the element's size),
-//! within the mesh's minimum edge and patch budget. A round adds about half of the elements
-//! the budget has left at most (all of them in the last round the rays can pay for), so that later
-//! rounds, which see the refined solution, still have elements to place: without it the
-//! proximity marks of the first round took the boxes room's budget (image error at 1e8 rays
-//! 3.23%, 2.90% with it). This is RenderPark's hierarchical refinement turned around:
+//! within the mesh's minimum edge and patch budget. A round adds at most half of the elements
+//! the budget has left, rounded up ([`AdaptiveMesh::refine_within`]; all of them in the last
+//! round the rays can pay for), so that later rounds, which see the refined solution, still
+//! have elements to place: without it the proximity marks of the first round took the boxes
+//! room's budget (image error at 1e8 rays 3.23%, 2.90% with it). This is RenderPark's hierarchical refinement turned around:
 //! RenderPark's power oracle splits an element whose received power is large, lit evenly or
 //! not; here an element splits only where the measured solution varies beyond its own noise,
 //! its visibility of the light changes or light from close by varies across it.
@@ -271,30 +271,18 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         rays += stats.rays;
         drop(ctx);
         drop(bvh);
-        let mut order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
-        // The round's share of what the patch budget has left (a split adds up to three): about
-        // half of it, or all of it in the last round the rays can pay for (this one's gathering and
-        // the next one's tests on the grown mesh).
+        let order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
+        // The round's share of what the patch budget has left: half of it (rounded up), or all
+        // of it in the last round the rays can pay for (this one's gathering and the next one's
+        // tests on the grown mesh).
         let left = mesh.bounds().max_patches.saturating_sub(mesh.len());
         let next = (tests + 16).saturating_mul((mesh.len() + left / 2) as u64);
         let last = round + 1 == config.rounds
             || rays.saturating_add(round_rays).saturating_add(next) > budget;
         let share = if last { left } else { left.div_ceil(2) };
-        let (mut added, mut keep) = (0, 0);
-        for &i in &order {
-            if added >= share {
-                break;
-            }
-            keep += 1;
-            if mesh.can_split(i as usize) {
-                added += 3;
-            }
-        }
-        stats.held += order.len() - keep;
-        order.truncate(keep);
-        let r = mesh.refine(&order);
+        let r = mesh.refine_within(&order, share);
         stats.split = r.split;
-        stats.held += r.held;
+        stats.held = r.held;
         stats.unrefinable = r.unrefinable;
         if r.split == 0 {
             rounds.push(stats);
@@ -529,13 +517,9 @@ fn marks<C: RayCaster>(
                 visibility_contrast(ctx, &lights, i, lum[i], config.shadow_rays, &mut stream)
             })
             .collect();
-        for (i, c) in contrast.into_iter().enumerate() {
-            if c > config.tolerance {
-                let m = &mut marks[i];
-                m.visibility = true;
-                m.score = m.score.max(c * size[i]);
-            }
-        }
+        mark_contrasts(&mut marks, &contrast, &size, config.tolerance, |m| {
+            m.visibility = true
+        });
     }
     // Light reflected from close by: rays to the surfaces around.
     if config.proximity_rays > 0 {
@@ -549,78 +533,79 @@ fn marks<C: RayCaster>(
             .into_par_iter()
             .map(|i| {
                 let mut stream = key.item(i as u64).stream();
-                let near = Near {
-                    reflected: &reflected,
-                    size: size[i],
-                    rays: config.proximity_rays,
-                };
-                let (contrast, reflected) = near.contrast(ctx, i, &mut stream);
-                if contrast > 0.0 {
-                    contrast / lum[i].max(reflected)
-                } else {
-                    0.0
-                }
+                let rays = config.proximity_rays;
+                proximity_contrast(ctx, &reflected, i, size[i], lum[i], rays, &mut stream)
             })
             .collect();
-        for (i, c) in contrast.into_iter().enumerate() {
-            if c > config.tolerance {
-                let m = &mut marks[i];
-                m.proximity = true;
-                m.score = m.score.max(c * size[i]);
-            }
-        }
+        mark_contrasts(&mut marks, &contrast, &size, config.tolerance, |m| {
+            m.proximity = true
+        });
     }
     marks
 }
 
-/// The proximity test of one element (see the module documentation).
-struct Near<'a> {
-    /// Per patch, the luminance of the radiosity it reflects, `B - E` (W/m²).
-    reflected: &'a [f64],
-    /// The element's size `h` (scene units): surfaces nearer than this are near.
-    size: f64,
-    /// Rays cast.
-    rays: u32,
+/// Marks (by `flag`) the elements whose relative `contrast` is over `tolerance`, scored by the
+/// contrast times the element's `size`.
+fn mark_contrasts(
+    marks: &mut [Mark],
+    contrast: &[f64],
+    size: &[f64],
+    tolerance: f64,
+    flag: impl Fn(&mut Mark),
+) {
+    for ((m, &c), &h) in marks.iter_mut().zip(contrast).zip(size) {
+        if c > tolerance {
+            flag(m);
+            m.score = m.score.max(c * h);
+        }
+    }
 }
 
-impl Near<'_> {
-    /// `(rho |H_near - q H|, rho H)` (W/m², luminance) for element `i`: the contrast, 0 when the
-    /// surfaces nearer than the element's size reflect what the rest of its view does, and the
-    /// radiosity the element reflects by these rays (what the contrast is relative to where the
-    /// element's own estimate is still 0).
-    fn contrast<C: RayCaster>(
-        &self,
-        ctx: &Context<C>,
-        i: usize,
-        stream: &mut Stream,
-    ) -> (f64, f64) {
-        let mesh = ctx.mesh();
-        let patch = &mesh.patches()[i];
-        let rho = luminance(patch.reflectance.as_dvec3());
-        if rho <= 0.0 || self.rays == 0 {
-            return (0.0, 0.0);
-        }
-        let frame = Frame::from_normal(patch.normal);
-        let (mut near, mut all, mut hits_near) = (0.0, 0.0, 0u32);
-        for _ in 0..self.rays {
-            let x = point_on(mesh, i, stream);
-            let u = Vec2::new(stream.uniform(), stream.uniform());
-            let dir = frame.to_world(cosine_hemisphere_concentric(u));
-            let ray = Ray::from_surface(x, patch.normal, dir, i as u32);
-            if let Some(hit) = ctx.caster().closest_hit(&ray)
-                && hit.front
-            {
-                let b = self.reflected[hit.id as usize];
-                all += b;
-                if f64::from(hit.distance) < self.size {
-                    near += b;
-                    hits_near += 1;
-                }
+/// The contrast of the light reflected from close by onto element `i` (see the module
+/// documentation): `rho |H_near - q H|` relative to the larger of `luminance_i` and `rho H`
+/// (what the rays say the element reflects, where its own estimate is still 0); 0 when the
+/// surfaces nearer than the element's size `size` (scene units) reflect what the rest of its
+/// view does. `reflected`: per patch, the luminance of the radiosity it reflects, `B - E`
+/// (W/m²).
+fn proximity_contrast<C: RayCaster>(
+    ctx: &Context<C>,
+    reflected: &[f64],
+    i: usize,
+    size: f64,
+    luminance_i: f64,
+    rays: u32,
+    stream: &mut Stream,
+) -> f64 {
+    let mesh = ctx.mesh();
+    let patch = &mesh.patches()[i];
+    let rho = luminance(patch.reflectance.as_dvec3());
+    if rho <= 0.0 || rays == 0 {
+        return 0.0;
+    }
+    let frame = Frame::from_normal(patch.normal);
+    let (mut close, mut all, mut hits_close) = (0.0, 0.0, 0u32);
+    for _ in 0..rays {
+        let x = point_on(mesh, i, stream);
+        let u = Vec2::new(stream.uniform(), stream.uniform());
+        let dir = frame.to_world(cosine_hemisphere_concentric(u));
+        let ray = Ray::from_surface(x, patch.normal, dir, i as u32);
+        if let Some(hit) = ctx.caster().closest_hit(&ray)
+            && hit.front
+        {
+            let b = reflected[hit.id as usize];
+            all += b;
+            if f64::from(hit.distance) < size {
+                close += b;
+                hits_close += 1;
             }
         }
-        let n = f64::from(self.rays);
-        let share = f64::from(hits_near) / n;
-        (rho * (near / n - share * all / n).abs(), rho * all / n)
+    }
+    let n = f64::from(rays);
+    let contrast = rho * (close / n - f64::from(hits_close) / n * all / n).abs();
+    if contrast > 0.0 {
+        contrast / luminance_i.max(rho * all / n)
+    } else {
+        0.0
     }
 }
 

@@ -190,10 +190,9 @@ fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
 }
 
 #[test]
-fn a_round_adds_about_half_of_what_the_budget_has_left() {
+fn a_round_adds_at_most_half_of_what_the_budget_has_left() {
     // Room for 40 more elements than the start, where the first round marks some 25 elements
-    // (75 more): it adds at most 20 (plus a split's overshoot of 2), the later ones fill the
-    // rest within the budget.
+    // (75 more): it adds at most 20, the later ones fill the rest within the budget.
     let start = |max_patches| {
         let bounds = AdaptiveBounds {
             min_edge: 0.05,

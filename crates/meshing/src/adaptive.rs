@@ -237,6 +237,16 @@ impl AdaptiveMesh {
     /// children would be invalid are kept and counted as unrefinable. The new leaves keep the
     /// order of the old ones, children in place of their parent.
     pub fn refine(&mut self, order: &[u32]) -> Refinement {
+        self.refine_within(order, usize::MAX)
+    }
+
+    /// [`AdaptiveMesh::refine`] adding at most `new` leaves (a split into `k` children adds
+    /// `k - 1`) besides the patch budget: leaves beyond either are held.
+    pub fn refine_within(&mut self, order: &[u32], new: usize) -> Refinement {
+        let budget = self
+            .bounds
+            .max_patches
+            .min(self.leaves.len().saturating_add(new));
         let mut split = vec![None::<Vec<Leaf>>; self.leaves.len()];
         let (mut count, mut unrefinable, mut held) = (self.leaves.len(), 0, 0);
         for &i in order {
@@ -252,7 +262,7 @@ impl AdaptiveMesh {
                 unrefinable += 1;
                 continue;
             };
-            if count + children.len() - 1 > self.bounds.max_patches {
+            if count + children.len() - 1 > budget {
                 held += 1;
                 continue;
             }

@@ -127,6 +127,15 @@ fn the_patch_budget_is_respected_in_the_order_given() {
 }
 
 #[test]
+fn refine_within_adds_at_most_the_leaves_asked() {
+    let s = shapes(Vec3::ZERO);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::None, bounds(0.01, 100)).unwrap();
+    // At most 4 new leaves: the triangle (+3) fits, the quad (+3) is held, the strip (+1) fits.
+    let r = m.refine_within(&[1, 0, 2], 4);
+    assert_eq!((r.split, r.held, m.len()), (2, 1, 7));
+}
+
+#[test]
 fn slivers_tiny_faces_and_faces_far_from_the_origin_terminate() {
     // A needle and a 1e-6-area triangle, where f32 cannot halve the elements for long, and the
     // shapes far from the origin, which the mesh's local frame (issue 16) lets be halved as at
