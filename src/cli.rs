@@ -2,10 +2,10 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_mc_radiosity::{ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
-use mcrad_solve::{Budget, MeshPlan, Settings};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
 use mcrad_render::Exposure;
+use mcrad_solve::{Budget, MeshPlan, Settings};
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -243,7 +243,13 @@ impl Solve {
             } else {
                 saved.method
             },
-            mesh: if given(&["mesh", "no_subdivide", "max_edge", "max_patches", "min_edge"]) {
+            mesh: if given(&[
+                "mesh",
+                "no_subdivide",
+                "max_edge",
+                "max_patches",
+                "min_edge",
+            ]) {
                 self.mesh_plan()
             } else {
                 saved.mesh

@@ -256,6 +256,7 @@ fn solve_error(e: SolveError, args: &Solve) -> anyhow::Error {
         }
         SolveError::Disagree { .. }
         | SolveError::StateMesh { .. }
+        | SolveError::StateReplay(_)
         | SolveError::StateVersion { .. } => {
             let state = args.resume.as_deref().unwrap_or(Path::new("the state"));
             anyhow!("--resume {}: {e}", state.display())

@@ -25,13 +25,18 @@ fn main() -> anyhow::Result<()> {
     problem.settings.seed = args.seed;
     problem.budget.rays = args.rays;
     let answer = mcrad_solve::solve(&problem, &mut |_| ControlFlow::Continue(()))?;
-    let rows = answer.mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
-        patch: answer.patch[i],
-        area: p.area,
-        radiosity: answer.estimate.radiosity()[i],
-        variance: answer.estimate.variance().map(|v| v[i]),
-        face: Some(p.face),
-    });
+    let rows = answer
+        .mesh
+        .patches()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| PatchRow {
+            patch: answer.patch[i],
+            area: p.area,
+            radiosity: answer.estimate.radiosity()[i],
+            variance: answer.estimate.variance().map(|v| v[i]),
+            face: Some(p.face),
+        });
     write_patch_csv(std::fs::File::create(&args.patches)?, rows)?;
     Ok(())
 }

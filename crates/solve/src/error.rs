@@ -41,7 +41,9 @@ pub enum Error {
     #[error("cancelled before the first step completed: there is no answer")]
     CancelledEarly,
     /// A continued run's settings differ from the saved run's.
-    #[error("the saved run has {what} {saved}, this run asks for {given}: continue it with the saved run's {what}")]
+    #[error(
+        "the saved run has {what} {saved}, this run asks for {given}: continue it with the saved run's {what}"
+    )]
     Disagree {
         /// The setting.
         what: &'static str,
@@ -64,6 +66,12 @@ pub enum Error {
         /// Patches of this run.
         now: usize,
     },
+    /// A continued run's scene cannot make the saved run's adaptive mesh.
+    #[error(
+        "the saved run was solved on another scene or mesh: its adaptive mesh cannot be made \
+         from this scene ({0}); continue it with the saved run's scene"
+    )]
+    StateReplay(MeshError),
     /// The state was written by another version of mcrad.
     #[error(
         "the state was saved by mcrad {saved}, this is mcrad {running}: a run can only be \

@@ -135,7 +135,13 @@ impl Run<'_> {
                     settings: self.settings,
                     patch: self.patch,
                 };
-                Ok(RunState::new(&id, &self.answer(estimate)?, 1, steps, escaped_rays))
+                Ok(RunState::new(
+                    &id,
+                    &self.answer(estimate)?,
+                    1,
+                    steps,
+                    escaped_rays,
+                ))
             }
         }
     }
@@ -179,10 +185,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         (Input::Mesh(mesh), _, _) => (mesh.clone(), None, None),
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
             let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
-                .map_err(|source| Error::Mesh {
-                    source,
-                    max_edge: history.start,
-                })?;
+                .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
@@ -201,9 +204,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         (Input::Scene(scene), plan, _) => {
             let subdivision = match plan {
                 MeshPlan::PerFace => Subdivision::None,
-                MeshPlan::Uniform {
-                    max_edge: Some(l),
-                } => Subdivision::MaxEdge(l),
+                MeshPlan::Uniform { max_edge: Some(l) } => Subdivision::MaxEdge(l),
                 _ => Subdivision::default_for(scene),
             };
             // the reference solver refuses a large mesh: stop building it there

@@ -107,7 +107,10 @@ impl Settings {
             ("seed", self.seed.to_string()),
             ("sampler", self.sampler.name().to_string()),
             ("control variate", self.control_variate.name().to_string()),
-            ("ambient term", if self.ambient { "on" } else { "off" }.into()),
+            (
+                "ambient term",
+                if self.ambient { "on" } else { "off" }.into(),
+            ),
             ("unshot threshold", self.unshot_threshold.to_string()),
             (
                 "visibility tolerance",
@@ -121,7 +124,11 @@ impl Settings {
     pub fn agree(&self, given: &Settings) -> Result<(), Error> {
         for ((what, saved), (_, now)) in self.described().into_iter().zip(given.described()) {
             if saved != now {
-                return Err(Error::Disagree { what, saved, given: now });
+                return Err(Error::Disagree {
+                    what,
+                    saved,
+                    given: now,
+                });
             }
         }
         Ok(())

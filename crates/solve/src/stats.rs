@@ -148,7 +148,10 @@ mod tests {
         assert_eq!(v["stop"], "budget");
         assert_eq!(v["sampler"], "qmc");
         assert_eq!(v["rays"], 1000);
-        assert!(v.get("refinement").is_none(), "a fixed mesh writes no rounds");
+        assert!(
+            v.get("refinement").is_none(),
+            "a fixed mesh writes no rounds"
+        );
         let round = RefinementRound {
             elements: 100,
             gradient: 3,
