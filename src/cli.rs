@@ -1,4 +1,4 @@
-//! The command line (its flags are the contract of `ARCHITECTURE.md`).
+//! The command line (its flags are the contract of `docs/cli.md`).
 
 use clap::{Parser, Subcommand, ValueEnum};
 use mcrad_mc_radiosity::{ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
@@ -127,8 +127,8 @@ pub struct Solve {
     /// a quarter of the ray budget or of --time goes to the refinement, then the method solves
     /// the refined mesh and the answer pools its solution with the refinement's estimates) or
     /// `uniform` (every face cut to --max-edge, or the default size). The options that need a
-    /// fixed mesh, --max-edge, --no-subdivide, --reference, --save, --resume and --method
-    /// reference, imply uniform.
+    /// fixed mesh, --max-edge, --no-subdivide, --reference and --method reference, imply
+    /// uniform; --save keeps the adaptive mesh in the state and --resume continues on it.
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
     /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
@@ -527,8 +527,8 @@ mod tests {
     use super::{Args, Command, Solve, parse_count, parse_exposure, parse_size};
     use clap::Parser;
     use mcrad_mc_radiosity::Method;
-    use mcrad_mc_radiosity::schedule::ScheduleConfig;
     use mcrad_render::Exposure;
+    use mcrad_solve::{Budget, Settings};
 
     fn solve(args: &[&str]) -> Solve {
         let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
@@ -541,9 +541,28 @@ mod tests {
     #[test]
     fn the_command_line_defaults_are_the_library_defaults() {
         let s = solve(&[]);
-        assert_eq!(s.schedule_config(), ScheduleConfig::default());
+        assert_eq!(s.settings(), Settings::default());
         assert_eq!(s.method(), Method::default());
-        assert_eq!(solve(&["--time", "5"]).schedule_config().rays, u64::MAX);
+        let now = std::time::Instant::now();
+        let budget = s.budget(now);
+        assert_eq!(budget.total_rays(), Budget::default().total_rays());
+        assert_eq!(solve(&["--time", "5"]).budget(now).total_rays(), u64::MAX);
+    }
+
+    #[test]
+    fn a_continued_run_takes_the_saved_settings_but_what_is_given() {
+        let saved = Settings {
+            seed: 9,
+            method: Method::Prr,
+            ..Settings::default()
+        };
+        let mut s = solve(&["--seed", "4", "--ambient"]);
+        s.given = vec!["seed".into()];
+        let over = s.settings_over(saved, false);
+        assert_eq!(
+            (over.seed, over.method, over.ambient),
+            (4, Method::Prr, false)
+        );
     }
 
     #[test]
