@@ -32,6 +32,6 @@ mod runs;
 mod weighting;
 
 pub use estimate::{Estimate, EstimateError};
-pub use measure::rms_rel;
+pub use measure::{relative_error, rms_rel, weighted_quantile};
 pub use runs::{MergedRuns, Run, RunWeighting, merge_runs};
 pub use weighting::{ByRays, InverseExpectedVariance, InverseVariance, Operand, Weighting, merge};
