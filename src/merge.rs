@@ -1,25 +1,16 @@
 //! `mcrad merge`: independent runs of one scene (different seeds, e.g. one per machine of a
 //! cluster) combined into one solution by inverse variance.
 //!
-//! **The weights.** Run `k` of `K` is weighted, per channel `c`, by `w_kc ∝ 1 / S_kc` with
-//! `S_kc = sum_i V_kic` its reported variance summed over the patches every run reports one
-//! for; the merged value of patch `i` is `sum_k w_kc B_kic` and its variance
-//! `sum_k w_kc² V_kic`. This is the inverse-variance merge per patch and channel under the model
-//! `V_kic = v_ic / e_kc` (the runs differ by an efficiency per run and channel: rays, method),
-//! with each run's efficiency estimated from all its patches pooled. A patch's own variance is
-//! *not* its weight: it is estimated from the same samples as the value and correlated with it
-//! (shot noise: `V ∝ B`), and weights `∝ 1 / V_ki` make the merge a harmonic mean, biased low
-//! by about the relative variance of one run whatever the number of runs (measured on the
-//! Cornell box, four runs of 5e5 rays: -0.18% in total power, mean z -0.28 against -0.12 with
-//! equal weights). A weight pooled over hundreds of patches hardly depends on any one of them,
-//! so the merge of unbiased runs is unbiased; runs of equal budgets get equal weights, and the
-//! merged variance is about `1/K` of one run's.
-//!
-//! A patch whose variance a run does not know (blank in its CSV) gets no weight from it: it is
-//! left out of `S_kc` for every run, and its merged variance is unknown (blank).
+//! The weighting is `combine`'s [`RunWeighting::PooledInverseVariance`]: run `k` is weighted,
+//! per channel, by the inverse of its variance summed over the patches every run reports one
+//! for, the same weight for every patch (a patch's own variance is correlated with its value
+//! and would bias the merge low; the maths and the measurement are on `RunWeighting`). This
+//! module reads the runs, refuses runs of different meshes or the same run twice, and writes
+//! the merged CSV.
 
 use anyhow::{Context, Result, bail, ensure};
 use glam::DVec3;
+use mcrad_combine::{self as combine, EstimateError, Run, RunWeighting};
 use mcrad_export::{PatchRow, read_patch_csv, write_patch_csv};
 use std::path::{Path, PathBuf};
 
@@ -142,75 +133,45 @@ fn check_independent(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<()> {
     Ok(())
 }
 
-/// The merged rows and each run's weight per channel (see the module's documentation).
+/// The merged rows and each run's weight per channel: `combine`'s merge of runs with pooled
+/// inverse-variance weights ([`RunWeighting::PooledInverseVariance`], whose documentation has
+/// the maths), or equal weights when no run reports variances.
 fn merge_runs(paths: &[PathBuf], runs: &[Vec<PatchRow>]) -> Result<(Vec<PatchRow>, Vec<DVec3>)> {
-    let count = runs.len();
-    let with_variance: Vec<bool> = runs
+    let estimates: Vec<Run> = runs
         .iter()
-        .map(|r| r.iter().any(|row| row.variance.is_some()))
-        .collect();
-    let weights: Vec<DVec3> = if with_variance.iter().all(|&v| !v) {
-        eprintln!("warning: no run reports variances: merged with equal weights");
-        vec![DVec3::splat(1.0 / count as f64); count]
+        .map(|r| {
+            Run::new(
+                r.iter().map(|row| row.radiosity).collect(),
+                r.iter().map(|row| row.variance).collect(),
+            )
+        })
+        .collect::<Result<_, _>>()?;
+    let weighting = if estimates.iter().any(Run::has_variance) {
+        RunWeighting::PooledInverseVariance
     } else {
-        if let Some(k) = with_variance.iter().position(|&v| !v) {
-            bail!(
-                "{} has no variances, so it cannot be weighted against the other runs: merge \
-                 runs written by mcrad solve --patches or --save",
-                paths[k].display()
-            );
-        }
-        // Per run and channel, the variance summed over the patches every run knows it for.
-        let mut sums = vec![DVec3::ZERO; count];
-        for i in 0..runs[0].len() {
-            let known: Option<Vec<DVec3>> = runs.iter().map(|r| r[i].variance).collect();
-            if let Some(v) = known {
-                for (s, v) in sums.iter_mut().zip(v) {
-                    *s += v;
-                }
-            }
-        }
-        inverse_weights(&sums)
+        eprintln!("warning: no run reports variances: merged with equal weights");
+        RunWeighting::Equal
     };
-    let merged = (0..runs[0].len())
-        .map(|i| {
-            let (mut value, mut variance) = (DVec3::ZERO, Some(DVec3::ZERO));
-            for (run, w) in runs.iter().zip(&weights) {
-                let row = &run[i];
-                value += *w * row.radiosity;
-                variance = variance.zip(row.variance).map(|(acc, v)| acc + *w * *w * v);
-            }
-            PatchRow {
-                patch: runs[0][i].patch,
-                area: runs[0][i].area,
-                radiosity: value,
-                variance,
-                face: runs[0][i].face,
-            }
+    let merged = match combine::merge_runs(&estimates, weighting) {
+        Err(EstimateError::RunWithoutVariance { run }) => bail!(
+            "{} has no variances, so it cannot be weighted against the other runs: merge \
+             runs written by mcrad solve --patches or --save",
+            paths[run].display()
+        ),
+        other => other?,
+    };
+    let rows = runs[0]
+        .iter()
+        .zip(merged.run.radiosity().iter().zip(merged.run.variance()))
+        .map(|(first, (&radiosity, &variance))| PatchRow {
+            patch: first.patch,
+            area: first.area,
+            radiosity,
+            variance,
+            face: first.face,
         })
         .collect();
-    Ok((merged, weights))
-}
-
-/// Weights `∝ 1 / s_kc` per channel, summing to 1 over the runs. Where some sums are zero
-/// (runs that claim no noise at all) those runs share the weight equally; where all are, every
-/// run does.
-fn inverse_weights(sums: &[DVec3]) -> Vec<DVec3> {
-    let mut weights = vec![DVec3::ZERO; sums.len()];
-    for c in 0..3 {
-        let zeros = sums.iter().filter(|s| s[c] <= 0.0).count();
-        if zeros > 0 {
-            for (w, s) in weights.iter_mut().zip(sums) {
-                w[c] = if s[c] <= 0.0 { 1.0 / zeros as f64 } else { 0.0 };
-            }
-        } else {
-            let total: f64 = sums.iter().map(|s| 1.0 / s[c]).sum();
-            for (w, s) in weights.iter_mut().zip(sums) {
-                w[c] = (1.0 / s[c]) / total;
-            }
-        }
-    }
-    weights
+    Ok((rows, merged.weights))
 }
 
 #[cfg(test)]
@@ -269,13 +230,6 @@ mod tests {
         let (m, _) = merge_runs(&paths(2), &[c.clone(), c]).unwrap();
         assert_eq!(m[0].variance, None);
         assert_eq!(m[0].radiosity.x, 3.0);
-    }
-
-    #[test]
-    fn zero_variance_runs_take_the_weight() {
-        let w = inverse_weights(&[DVec3::new(0.0, 1.0, 0.0), DVec3::new(2.0, 1.0, 0.0)]);
-        assert_eq!(w[0], DVec3::new(1.0, 0.5, 0.5));
-        assert_eq!(w[1], DVec3::new(0.0, 0.5, 0.5));
     }
 
     #[test]

@@ -47,6 +47,16 @@ pub enum EstimateError {
     /// The rule needs variances and an estimate has none.
     #[error("the inverse-variance rule needs a variance for every patch")]
     MissingVariance,
+    /// Runs merged by pooled inverse variance, and run `run` (counted from 0) reports no
+    /// variance for any patch.
+    #[error("run {run} has no variances, so it cannot be weighted against the other runs")]
+    RunWithoutVariance {
+        /// Index of the run among those merged.
+        run: usize,
+    },
+    /// A merge of runs was given none.
+    #[error("no runs to merge")]
+    NoRuns,
 }
 
 impl Estimate {

@@ -19,12 +19,19 @@
 //! the merge. Self-emission `E_i` is exact and the same in every estimate; since the weights
 //! sum to one, `w_a (E + a) + w_b (E + b) = E + w_a a + w_b b`: merging combines the reflected
 //! parts and carries the emission through (tested with [`merge`]).
+//!
+//! Independent runs of one scene (different seeds, machines) merge all at once with
+//! [`merge_runs`] under a [`RunWeighting`]: one weight per run and channel, the inverse of the
+//! run's variance pooled over its patches, which keeps the merge unbiased where a patch's own
+//! variance would not (the maths is on [`RunWeighting`]).
 
 mod estimate;
 pub mod expected;
 mod measure;
+mod runs;
 mod weighting;
 
 pub use estimate::{Estimate, EstimateError};
 pub use measure::{relative_error, rms_rel, weighted_quantile};
+pub use runs::{MergedRuns, Run, RunWeighting, merge_runs};
 pub use weighting::{ByRays, InverseExpectedVariance, InverseVariance, Operand, Weighting, merge};
