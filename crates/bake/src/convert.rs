@@ -91,6 +91,14 @@ fn document(scene: &Scene, camera: Option<&Camera>) -> (json::Root, Vec<u8>) {
         // glTF's emissive factor is radiance and at most 1: the rest in emissive strength
         let l = m.emission / std::f32::consts::PI;
         let strength = l.max_element().max(1.0);
+        // the material extensions have more fields when gltf's features turn them on
+        #[allow(clippy::needless_update)]
+        let extensions = json::extensions::material::Material {
+            emissive_strength: Some(json::extensions::material::EmissiveStrength {
+                emissive_strength: json::extensions::material::EmissiveStrengthFactor(strength),
+            }),
+            ..Default::default()
+        };
         root.push(json::Material {
             name: Some(m.name.clone()),
             pbr_metallic_roughness: json::material::PbrMetallicRoughness {
@@ -102,12 +110,7 @@ fn document(scene: &Scene, camera: Option<&Camera>) -> (json::Root, Vec<u8>) {
                 ..Default::default()
             },
             emissive_factor: json::material::EmissiveFactor((l / strength).to_array()),
-            extensions: Some(json::extensions::material::Material {
-                emissive_strength: Some(json::extensions::material::EmissiveStrength {
-                    emissive_strength: json::extensions::material::EmissiveStrengthFactor(strength),
-                }),
-                ..Default::default()
-            }),
+            extensions: Some(extensions),
             ..Default::default()
         });
     }
@@ -245,5 +248,55 @@ mod tests {
         let e = back.scene.materials()[0].emission;
         assert!((e - m.emission).abs().max_element() < 1e-5, "{e}");
         assert!(back.gltf.is_some());
+    }
+
+    #[test]
+    fn the_scene_in_memory_is_the_glb_file_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("s.mtl"),
+            "newmtl white\nKd 0.7 0.6 0.5\nnewmtl lamp\nKd 0.5 0.5 0.5\nKe 20 10 5\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.path().join("s.obj"),
+            "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n\
+             usemtl white\nf 1 2 3 4\nusemtl lamp\nf 1 5 6 2\nusemtl white\nf 2 6 3\n",
+        )
+        .unwrap();
+        let obj = mcrad_scene_io::load(&dir.path().join("s.obj")).unwrap();
+        let camera = Camera {
+            eye: Vec3::new(0.5, 3.0, 0.5),
+            forward: Vec3::NEG_Y,
+            up: Vec3::Z,
+            fov_y_degrees: 40.0,
+        };
+        let options = LoadOptions::default();
+        let path = dir.path().join("s.obj");
+        let memory = gltf_scene(&obj.scene, Some(&camera), &path, &options).unwrap();
+        let glb = dir.path().join("s.glb");
+        std::fs::write(&glb, glb_from_scene(&obj.scene, Some(&camera)).unwrap()).unwrap();
+        let file = mcrad_scene_io::load_with(&glb, &options).unwrap();
+
+        // the same scene, face for face, and the same document
+        let (a, b) = (&memory.scene, &file.scene);
+        assert_eq!(a.positions(), b.positions());
+        assert_eq!(a.faces(), b.faces());
+        assert_eq!(a.materials(), b.materials());
+        assert_eq!(a.faces().len(), 5, "quads fanned, grouped by material");
+        assert_eq!(memory.camera, file.camera);
+        let (ga, gb) = (memory.gltf.unwrap(), file.gltf.unwrap());
+        assert_eq!(ga.json, gb.json);
+        assert_eq!(ga.buffers.len(), 1);
+        assert_eq!(*ga.buffers[0], *gb.buffers[0]);
+        // the camera reads back as it was (aspect 1)
+        let back = memory.camera.expect("a camera");
+        assert!((back.eye - camera.eye).length() < 1e-6);
+        assert!((back.forward - camera.forward).length() < 1e-6);
+        assert!((back.up - camera.up).length() < 1e-6);
+        assert!((back.fov_y_degrees - 40.0).abs() < 1e-4);
+        // without a camera in the document none is made up
+        let none = gltf_scene(&obj.scene, None, &path, &options).unwrap();
+        assert_eq!(none.camera, None);
     }
 }
