@@ -81,24 +81,12 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         loaded.gltf = None;
     }
     // `mcrad bake` of an OBJ scene: bake into a glTF document made from it (its polygons fanned
-    // into triangles), solved as that document reads back.
-    let _converted = match (&args.bake, &loaded.gltf) {
-        (Some(_), None) => {
-            let dir = tempfile::tempdir().context("could not make a temporary folder")?;
-            let glb = dir.path().join("scene.glb");
-            std::fs::write(
-                &glb,
-                mcrad_bake::glb_from_scene(&loaded.scene, loaded.camera.as_ref()),
-            )
-            .with_context(|| format!("could not write {}", glb.display()))?;
-            let camera = loaded.camera;
-            loaded = mcrad_scene_io::load_with(&glb, &options)
+    // into triangles), solved as that document reads back (made and read in memory).
+    if args.bake.is_some() && loaded.gltf.is_none() {
+        loaded =
+            mcrad_bake::gltf_scene(&loaded.scene, loaded.camera.as_ref(), &args.scene, &options)
                 .with_context(|| format!("{} as glTF", args.scene.display()))?;
-            loaded.camera = loaded.camera.or(camera);
-            Some(dir)
-        }
-        _ => None,
-    };
+    }
 
     let save = args.save.as_ref().filter(|_| !settings.deterministic());
     let problem = Problem {

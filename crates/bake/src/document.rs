@@ -7,6 +7,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use glam::{DVec2, Vec3};
+use mcrad_scene_io::glb::BinaryChunk;
 use serde_json::{Map, Value, json};
 
 use crate::BakeError;
@@ -54,7 +55,7 @@ pub(crate) struct BakedPrimitive {
 /// The document being rewritten: its JSON and the one binary chunk it grows into.
 pub(crate) struct Document {
     root: Value,
-    bin: Vec<u8>,
+    bin: BinaryChunk,
 }
 
 fn field<'v>(v: &'v Value, key: &str) -> Option<&'v Value> {
@@ -92,7 +93,7 @@ impl Document {
         }
         let mut doc = Document {
             root: Value::Null,
-            bin: Vec::new(),
+            bin: BinaryChunk::new(),
         };
         let mut offsets = Vec::new();
         let declared: Vec<usize> = field(&root, "buffers")
@@ -104,14 +105,12 @@ impl Document {
             })
             .unwrap_or_default();
         for (i, data) in buffers.iter().enumerate() {
-            offsets.push(doc.bin.len() as u64);
             let n = declared
                 .get(i)
                 .copied()
                 .unwrap_or(data.len())
                 .min(data.len());
-            doc.bin.extend_from_slice(&data[..n]);
-            doc.align();
+            offsets.push(doc.bin.push(&data[..n]).start as u64);
         }
         for view in array_mut(&mut root, "bufferViews") {
             let buffer = uint(view, "buffer").unwrap_or(0) as usize;
@@ -127,25 +126,16 @@ impl Document {
         Ok(doc)
     }
 
-    /// Pads the binary chunk to a multiple of 4 bytes.
-    fn align(&mut self) {
-        while !self.bin.len().is_multiple_of(4) {
-            self.bin.push(0);
-        }
-    }
-
     /// Appends `bytes` as a new buffer view (with `stride` and `target` when given); its index.
     fn push_view(&mut self, bytes: &[u8], stride: Option<usize>, target: Option<u64>) -> usize {
-        self.align();
-        let mut view =
-            json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+        let range = self.bin.push(bytes);
+        let mut view = json!({"buffer": 0, "byteOffset": range.start, "byteLength": range.len()});
         if let Some(s) = stride {
             view["byteStride"] = json!(s);
         }
         if let Some(t) = target {
             view["target"] = json!(t);
         }
-        self.bin.extend_from_slice(bytes);
         let views = array_mut(&mut self.root, "bufferViews");
         views.push(view);
         views.len() - 1
@@ -229,6 +219,7 @@ impl Document {
             let at = start + c * stride;
             let src = self
                 .bin
+                .as_bytes()
                 .get(at..at + elem)
                 .ok_or_else(|| bad("reads past its buffer"))?;
             bytes.extend_from_slice(src);
@@ -502,6 +493,7 @@ impl Document {
                     let at = start + c * stride + k * csize;
                     let b = self
                         .bin
+                        .as_bytes()
                         .get(at..at + csize)
                         .ok_or_else(|| bad("past its buffer"))?;
                     *o = match ct {
@@ -532,35 +524,15 @@ impl Document {
     }
 
     /// The GLB file: this JSON and the binary chunk.
-    pub(crate) fn into_glb(mut self) -> Result<Vec<u8>, BakeError> {
-        self.align();
-        let object = self.root.as_object_mut().expect("the root is an object");
-        object.insert("buffers".into(), json!([{"byteLength": self.bin.len()}]));
-        let json = serde_json::to_vec(&self.root)
+    pub(crate) fn into_glb(self) -> Result<Vec<u8>, BakeError> {
+        let mut root = self.root;
+        let bin = self.bin.into_bytes();
+        let object = root.as_object_mut().expect("the root is an object");
+        object.insert("buffers".into(), json!([{"byteLength": bin.len()}]));
+        let json = serde_json::to_vec(&root)
             .map_err(|e| BakeError::Document(format!("cannot write the JSON: {e}")))?;
-        Ok(glb(json, self.bin))
+        Ok(mcrad_scene_io::glb::glb_bytes(&json, &bin)?)
     }
-}
-
-/// A GLB file of this JSON chunk and binary chunk (each padded to 4 bytes as GLB requires:
-/// the JSON with spaces, the binary with zeros).
-pub fn glb(mut json: Vec<u8>, mut bin: Vec<u8>) -> Vec<u8> {
-    while !json.len().is_multiple_of(4) {
-        json.push(b' ');
-    }
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length: 0,
-        },
-        json: json.into(),
-        bin: Some(bin.into()),
-    };
-    glb.to_vec().expect("writing to memory cannot fail")
 }
 
 /// The lightmap as an 8-bit sRGB PNG of `irradiance / intensity` (`size × size`, row-major,

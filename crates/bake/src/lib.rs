@@ -37,8 +37,7 @@ use mcrad_scene_io::{GltfSource, LoadOptions, Scene, SceneError};
 use rayon::prelude::*;
 
 use crate::charts::Chart;
-pub use crate::convert::{glb_from_scene, gltf_from_scene};
-pub use crate::document::glb;
+pub use crate::convert::{glb, glb_from_scene, gltf_from_scene, gltf_scene};
 use crate::document::{BakedPrimitive, Document};
 
 /// What went wrong while baking.
@@ -86,6 +85,12 @@ pub enum BakeError {
     /// The document uses something baking does not handle yet.
     #[error("not supported yet: {0}")]
     Unsupported(String),
+    /// The GLB file cannot be written (too large).
+    #[error("{0}")]
+    Glb(#[from] mcrad_scene_io::glb::GlbError),
+    /// A scene made into a glTF document does not read back as a scene.
+    #[error("the scene as glTF: {0}")]
+    Convert(#[source] SceneError),
     /// An external image the document names cannot be embedded.
     #[error("image {index}: {cause}")]
     Image {

@@ -28,9 +28,11 @@ use crate::ExportError;
 use glam::{DVec3, Vec3};
 use gltf::json;
 use json::accessor::{ComponentType, Type};
+use json::buffer::Target;
 use json::mesh::Semantic;
 use json::validation::{Checked::Valid, USize64};
 use mcrad_meshing::Mesh;
+use mcrad_scene_io::glb::{self, BinaryChunk, GlbError, push_accessor, push_view};
 use serde_json::json;
 use std::collections::HashMap;
 use std::io::Write;
@@ -114,27 +116,17 @@ pub fn write_glb<W: Write>(
         .map(|&b| color(b, scale))
         .collect();
 
-    // The binary chunk: one view per attribute, then the indices; all 4-byte aligned.
-    let mut bin = Vec::new();
-    let mut views = Vec::new();
-    for data in [
+    // The binary chunk: one view per attribute, then the indices.
+    let mut bin = BinaryChunk::new();
+    let attribute_ranges: Vec<_> = [
         &geometry.positions,
         &geometry.normals,
         &colors,
         &geometry.radiosity,
-    ] {
-        let start = bin.len();
-        for v in data {
-            for c in v.to_array() {
-                bin.extend_from_slice(&c.to_le_bytes());
-            }
-        }
-        views.push((start, bin.len() - start));
-    }
-    let index_start = bin.len();
-    for i in &geometry.indices {
-        bin.extend_from_slice(&i.to_le_bytes());
-    }
+    ]
+    .map(|data| bin.push_f32(data.iter().flat_map(|v| v.to_array())))
+    .into();
+    let index_range = bin.push_u32(geometry.indices.iter().copied());
 
     let mut root = json::Root {
         asset: json::Asset {
@@ -151,64 +143,32 @@ pub fn write_glb<W: Write>(
         extensions: None,
         extras: None,
     });
-    let view = |root: &mut json::Root, (offset, length): (usize, usize), target| {
-        root.push(json::buffer::View {
-            buffer,
-            byte_length: USize64::from(length),
-            byte_offset: Some(USize64::from(offset)),
-            byte_stride: None,
-            name: None,
-            target: Some(Valid(target)),
-            extensions: None,
-            extras: None,
-        })
-    };
-    let attribute_views: Vec<_> = views
-        .iter()
-        .map(|&v| view(&mut root, v, json::buffer::Target::ArrayBuffer))
-        .collect();
-    let index_view = view(
-        &mut root,
-        (index_start, bin.len() - index_start),
-        json::buffer::Target::ElementArrayBuffer,
-    );
-
     let vertex_count = geometry.positions.len();
     let (min, max) = geometry.positions.iter().fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
         |(lo, hi), &p| (lo.min(p), hi.max(p)),
     );
-    let accessor = |root: &mut json::Root,
-                    view,
-                    count: usize,
-                    component,
-                    type_,
-                    bounds: Option<(Vec3, Vec3)>| {
-        root.push(json::Accessor {
-            buffer_view: Some(view),
-            byte_offset: None,
-            count: USize64::from(count),
-            component_type: Valid(json::accessor::GenericComponentType(component)),
-            extensions: None,
-            extras: None,
-            type_: Valid(type_),
-            min: bounds.map(|(lo, _)| json!(lo.to_array())),
-            max: bounds.map(|(_, hi)| json!(hi.to_array())),
-            name: None,
-            normalized: false,
-            sparse: None,
-        })
-    };
+    let (min, max) = (min.to_array(), max.to_array());
     let semantics = [
         Semantic::Positions,
         Semantic::Normals,
         Semantic::Colors(0),
         Semantic::Extras(RADIOSITY_ATTRIBUTE[1..].to_owned()),
     ];
+    let views: Vec<_> = attribute_ranges
+        .into_iter()
+        .map(|range| push_view(&mut root, buffer, range, Some(Target::ArrayBuffer)))
+        .collect();
+    let index_view = push_view(
+        &mut root,
+        buffer,
+        index_range,
+        Some(Target::ElementArrayBuffer),
+    );
     let mut attributes = std::collections::BTreeMap::new();
-    for (k, (semantic, view)) in semantics.into_iter().zip(attribute_views).enumerate() {
-        let bounds = (k == 0).then_some((min, max));
-        let index = accessor(
+    for (k, (semantic, view)) in semantics.into_iter().zip(views).enumerate() {
+        let bounds = (k == 0).then_some((&min[..], &max[..]));
+        let index = push_accessor(
             &mut root,
             view,
             vertex_count,
@@ -218,7 +178,7 @@ pub fn write_glb<W: Write>(
         );
         attributes.insert(Valid(semantic), index);
     }
-    let indices = accessor(
+    let indices = push_accessor(
         &mut root,
         index_view,
         geometry.indices.len(),
@@ -280,31 +240,15 @@ pub fn write_glb<W: Write>(
     value["materials"][0]["extensions"] = json!({ "KHR_materials_unlit": {} });
     let json_bytes = serde_json::to_vec(&value).map_err(json_error)?;
 
-    // GLB: 12-byte header, then each chunk's 8-byte header and its data padded to 4 bytes.
-    let padded = |n: usize| n.div_ceil(4) * 4;
-    let total = 12 + 8 + padded(json_bytes.len()) as u64 + 8 + padded(bin.len()) as u64;
-    let length = u32::try_from(total).map_err(|_| {
-        gltf_error(format!(
-            "the file would be {total} bytes; GLB is limited to {} ({vertex_count} vertices, {} triangles)",
-            u32::MAX,
-            geometry.indices.len() / 3
-        ))
-    })?;
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length,
-        },
-        json: json_bytes.into(),
-        bin: Some(bin.into()),
-    };
-    glb.to_writer(out).map_err(|e| match e {
-        gltf::Error::Io(source) => ExportError::Io {
+    glb::write_glb(out, &json_bytes, bin.as_bytes()).map_err(|e| match e {
+        GlbError::Io(source) => ExportError::Io {
             what: "glTF binary",
             reason: source,
         },
-        other => gltf_error(other.to_string()),
+        e @ GlbError::TooLarge { .. } => gltf_error(format!(
+            "{e} ({vertex_count} vertices, {} triangles)",
+            geometry.indices.len() / 3
+        )),
     })
 }
 

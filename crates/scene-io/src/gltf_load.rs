@@ -39,6 +39,16 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// Errors name the file and, for geometry, the node, mesh and primitive.
 pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
     let bytes = files::read_file(path, options)?;
+    load_gltf_bytes(bytes, path, options)
+}
+
+/// [`load_gltf`] of a document already in memory: `bytes` are the file's (JSON or GLB), `path`
+/// names it in messages and is the folder its relative URIs (buffers, images) resolve against.
+pub(crate) fn load_gltf_bytes(
+    bytes: Vec<u8>,
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<Loaded, SceneError> {
     let in_file = |e: SceneError| e.in_file(path, Location::File);
     let invalid = |e: gltf::Error| in_file(SceneError::parse(format!("not valid glTF: {e}")));
     // Validation in `gltf-json` 1.4 panics on a POSITION accessor index out of range: parse,

@@ -48,6 +48,7 @@
 
 mod error;
 mod files;
+pub mod glb;
 mod gltf_load;
 mod gltf_texture;
 mod obj;
@@ -156,6 +157,18 @@ pub fn read_named_file(
 /// names), `.gltf` or `.glb`, under the default [`LoadOptions`].
 pub fn load(path: &Path) -> Result<Loaded, SceneError> {
     load_with(path, &LoadOptions::default())
+}
+
+/// A glTF or GLB document already in memory (`bytes`, e.g. made by a writer), read exactly as
+/// [`load_with`] reads the file `path` holding those bytes: `path` names the document in
+/// messages and is where relative URIs (buffers, images) resolve from, under `options`. A GLB
+/// whose buffer is its binary chunk and whose images are embedded reads no file.
+pub fn load_gltf_bytes(
+    bytes: Vec<u8>,
+    path: &Path,
+    options: &LoadOptions,
+) -> Result<Loaded, SceneError> {
+    gltf_load::load_gltf_bytes(bytes, path, options)
 }
 
 /// [`load`] under `options`: which files the scene may name, how large a file may be.

@@ -1,19 +1,21 @@
-//! OBJ + MTL reader (through `tobj`): polygon faces as they are (no triangulation), `Kd` as the
-//! reflectance, `Ke` as the emitted radiosity `E` in W/m².
+//! OBJ + MTL reader (the OBJ parsed once, by `obj_text`; the MTL files by `tobj`): polygon
+//! faces as they are (no triangulation), `Kd` as the reflectance, `Ke` as the emitted
+//! radiosity `E` in W/m².
 
 use crate::error::{Location, SceneError, Warning};
 use crate::files::{self, LoadOptions};
-use crate::obj_text::{self, ObjText};
+use crate::obj_text::{self, ObjText, Statement};
 use crate::{Face, Loaded, Material, Scene};
 use glam::Vec3;
-use std::cell::RefCell;
+use std::collections::HashMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 /// Loads an OBJ file and the MTL files it names (relative to its directory).
 ///
 /// Faces keep their vertex count (quads stay quads) and are numbered (`source`) in file order
 /// over all objects and groups. The positions of all objects are merged into one list; a vertex
-/// used by several objects or material groups appears once per group (`tobj` splits there).
+/// used by several objects or material groups appears once per group (as `tobj` splits).
 /// Materials are those of the MTL files, in load order; a material without `Kd` gets
 /// reflectance 0.5 grey ([`Warning::MaterialDefaulted`]), one without `Ke` emits nothing. Faces
 /// without a material (before any `usemtl`, or naming an unknown material, see
@@ -30,31 +32,39 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
     let obj =
         obj_text::scan_obj(&text).map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
 
-    let libs = MtlLibs {
+    // The faces grouped as `tobj` groups them (one group per object, group and material run),
+    // with the MTL files read by `tobj` as their `mtllib` statements come.
+    let mut libs = MtlLibs {
         obj: path,
         options,
-        lines: &obj.mtllib_lines,
-        state: RefCell::new(MtlState::default()),
+        material_sources: Vec::new(),
     };
-    // `..Default::default()` is needed when tobj's optional features add fields.
-    #[allow(clippy::needless_update)]
-    let options = tobj::LoadOptions {
-        triangulate: false,
-        single_index: false,
-        ignore_points: true,
-        ignore_lines: true,
-        ..Default::default()
-    };
-    let result = tobj::load_obj_buf(&mut obj.text.as_bytes(), &options, |p| libs.load(p));
-    let state = libs.state.into_inner();
-    if let Some(e) = state.error {
-        return Err(e);
+    let mut tobj_materials: Vec<tobj::Material> = Vec::new();
+    let mut by_name: HashMap<String, usize> = HashMap::new();
+    let mut groups: Vec<Group> = Vec::new();
+    let mut group = Group::default();
+    for statement in &obj.statements {
+        match statement {
+            Statement::Mtllib { name, line } => {
+                let (mats, names) = libs.load(name, *line)?;
+                // as `tobj` merges libraries: a later definition of a name wins
+                let offset = tobj_materials.len();
+                tobj_materials.extend(mats);
+                by_name.extend(names.into_iter().map(|(n, i)| (n, i + offset)));
+            }
+            Statement::Group => group.split(&mut groups),
+            Statement::Usemtl(name) => {
+                // an unknown name leaves the faces without a material
+                let id = by_name.get(name).copied();
+                if group.material != id {
+                    group.split(&mut groups);
+                }
+                group.material = id;
+            }
+            Statement::Face(corners) => group.faces.push(corners.clone()),
+        }
     }
-    let tobj_failed = |e: tobj::LoadError| {
-        SceneError::parse(format!("tobj cannot read it: {e}")).in_file(path, Location::File)
-    };
-    let (models, tobj_materials) = result.map_err(tobj_failed)?;
-    let tobj_materials = tobj_materials.map_err(tobj_failed)?;
+    group.split(&mut groups);
 
     let mut warnings = Vec::new();
     let mut materials: Vec<Material> = tobj_materials
@@ -70,15 +80,15 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         }
     }
 
-    let (positions, faces, defaulted) =
-        collect_faces(&models, materials.len()).map_err(|e| e.in_file(path, Location::File))?;
+    let (positions, faces, defaulted) = collect_faces(&obj, &groups, materials.len())
+        .map_err(|e| e.in_file(path, Location::File))?;
     if defaulted > 0 {
         materials.push(Material::builtin_default());
         warnings.push(Warning::DefaultMaterial { faces: defaulted });
     }
 
     let (scene, more) = Scene::new(positions, faces, materials)
-        .map_err(|e| locate(e, path, &obj, &state.material_sources, &tobj_materials))?;
+        .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
     warnings.extend(more);
     Ok(Loaded {
         scene,
@@ -88,72 +98,68 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
     })
 }
 
-/// Reads the MTL files `tobj` asks for, remembering the first error with its line and where
-/// each material was defined.
+/// Faces of one material within one object or group (a `tobj` model).
+#[derive(Default)]
+struct Group {
+    /// Index into the MTL materials, if the `usemtl` in force named a known one.
+    material: Option<usize>,
+    /// Each face's range of [`ObjText::corners`].
+    faces: Vec<Range<usize>>,
+}
+
+impl Group {
+    /// Ends the group if it has faces (the next one keeps its material), as `tobj` does at
+    /// `o`, `g`, a `usemtl` that changes the material and the end of the file.
+    fn split(&mut self, groups: &mut Vec<Group>) {
+        if !self.faces.is_empty() {
+            groups.push(Group {
+                material: self.material,
+                faces: std::mem::take(&mut self.faces),
+            });
+        }
+    }
+}
+
+/// Reads the MTL files an OBJ names, remembering where each material was defined.
 struct MtlLibs<'a> {
     obj: &'a Path,
     options: &'a LoadOptions,
-    /// Line of each `mtllib`, in the order `tobj` asks for them.
-    lines: &'a [usize],
-    state: RefCell<MtlState>,
-}
-
-#[derive(Default)]
-struct MtlState {
-    calls: usize,
-    error: Option<SceneError>,
-    /// File and `newmtl` line of each material, in `tobj`'s material order.
+    /// File and `newmtl` line of each material, in load order.
     material_sources: Vec<(PathBuf, usize)>,
 }
 
 impl MtlLibs<'_> {
-    fn load(&self, name: &Path) -> tobj::MTLLoadResult {
-        let mut state = self.state.borrow_mut();
-        let line = self.lines.get(state.calls).copied().unwrap_or(0);
-        state.calls += 1;
-        let fail = |state: &mut MtlState, e: SceneError, tobj_error| {
-            state.error.get_or_insert(e);
-            Err(tobj_error)
-        };
-        let named = name.to_string_lossy();
-        let mtl = match files::resolve_named(self.obj, &named, false, self.options) {
-            Ok(mtl) => mtl,
-            Err(e) => {
-                let e = e.in_file(self.obj, Location::Line(line));
-                return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
-            }
-        };
+    /// The materials of the library `name` named on OBJ line `line`, and their indices by
+    /// name, as `tobj` reads them.
+    fn load(
+        &mut self,
+        name: &str,
+        line: usize,
+    ) -> Result<(Vec<tobj::Material>, HashMap<String, usize>), SceneError> {
+        let mtl = files::resolve_named(self.obj, name, false, self.options)
+            .map_err(|e| e.in_file(self.obj, Location::Line(line)))?;
         let bytes = match files::read_file(&mtl, self.options) {
             Ok(b) => b,
             Err(SceneError::Io { reason, .. }) => {
-                let e = SceneError::MissingMtl {
+                return Err(SceneError::MissingMtl {
                     obj: self.obj.to_path_buf(),
                     line,
                     mtl,
                     reason,
-                };
-                return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
+                });
             }
-            Err(e) => {
-                let e = e.in_file(self.obj, Location::Line(line));
-                return fail(&mut state, e, tobj::LoadError::OpenFileFailed);
-            }
+            Err(e) => return Err(e.in_file(self.obj, Location::Line(line))),
         };
         let text = String::from_utf8_lossy(&bytes);
-        let mtl_text = match obj_text::scan_mtl(&text) {
-            Ok(t) => t,
-            Err((l, e)) => {
-                let e = e.in_file(&mtl, Location::Line(l));
-                return fail(&mut state, e, tobj::LoadError::MaterialParseError);
-            }
-        };
+        let mtl_text =
+            obj_text::scan_mtl(&text).map_err(|(l, e)| e.in_file(&mtl, Location::Line(l)))?;
         match tobj::load_mtl_buf(&mut mtl_text.text.as_bytes()) {
             Ok((mats, map)) => {
                 for i in 0..mats.len() {
                     let l = mtl_text.newmtl_lines.get(i).copied().unwrap_or(0);
-                    state.material_sources.push((mtl.clone(), l));
+                    self.material_sources.push((mtl.clone(), l));
                 }
-                Ok((mats, map))
+                Ok((mats, map.into_iter().collect()))
             }
             Err(tobj_error) => {
                 // tobj's errors carry no line: find the first line that fails on its own.
@@ -161,7 +167,7 @@ impl MtlLibs<'_> {
                     .text
                     .lines()
                     .position(|l| tobj::load_mtl_buf(&mut l.as_bytes()).is_err());
-                let e = match bad {
+                Err(match bad {
                     Some(i) => SceneError::parse(format!(
                         "cannot parse {}: {tobj_error}",
                         crate::quote(mtl_text.text.lines().nth(i).unwrap_or("").trim())
@@ -169,8 +175,7 @@ impl MtlLibs<'_> {
                     .in_file(&mtl, Location::Line(i + 1)),
                     None => SceneError::parse(format!("tobj cannot read it: {tobj_error}"))
                         .in_file(&mtl, Location::File),
-                };
-                fail(&mut state, e, tobj_error)
+                })
             }
         }
     }
@@ -206,10 +211,13 @@ fn convert_material(m: &tobj::Material, warnings: &mut Vec<Warning>) -> Material
     }
 }
 
-/// Merges the models' positions and faces. Faces without a (known) material get index
-/// `materials` (the default material, appended by the caller); their count is returned.
+/// The groups' positions and faces, in file order: each group lists the positions its faces
+/// use once, in order of first use (as `tobj` does, so a vertex used by several groups appears
+/// once per group). Faces without a (known) material get index `materials` (the default
+/// material, appended by the caller); their count is returned.
 fn collect_faces(
-    models: &[tobj::Model],
+    obj: &ObjText,
+    groups: &[Group],
     materials: usize,
 ) -> Result<(Vec<Vec3>, Vec<Face>, usize), SceneError> {
     let too_many = |what: &str| SceneError::Unsupported {
@@ -219,40 +227,32 @@ fn collect_faces(
     let mut positions = Vec::new();
     let mut faces = Vec::new();
     let mut defaulted = 0;
-    for model in models {
-        let mesh = &model.mesh;
-        let offset = u32::try_from(positions.len()).map_err(|_| too_many("vertices"))?;
-        positions.extend(
-            mesh.positions
-                .chunks_exact(3)
-                .map(|p| vec3([p[0], p[1], p[2]])),
-        );
-        let material = match mesh.material_id {
+    let mut index: HashMap<usize, u32> = HashMap::new();
+    for group in groups {
+        index.clear();
+        let material = match group.material {
             Some(id) if id < materials => id as u32,
             _ => default,
         };
-        // tobj leaves `face_arities` empty when every face is a triangle.
-        let arities = if mesh.face_arities.is_empty() {
-            vec![3; mesh.indices.len() / 3]
-        } else {
-            mesh.face_arities.clone()
-        };
-        let mut start = 0usize;
-        for arity in arities {
-            let end = start + arity as usize;
-            let Some(indices) = mesh.indices.get(start..end) else {
-                break;
-            };
+        for corners in &group.faces {
+            let mut vertices = Vec::with_capacity(corners.len());
+            for &v in &obj.corners[corners.clone()] {
+                let next = u32::try_from(positions.len()).map_err(|_| too_many("vertices"))?;
+                let i = *index.entry(v).or_insert_with(|| {
+                    positions.push(obj.positions[v]);
+                    next
+                });
+                vertices.push(i);
+            }
             let source = u32::try_from(faces.len()).map_err(|_| too_many("faces"))?;
             faces.push(Face {
-                vertices: indices.iter().map(|&i| i + offset).collect(),
+                vertices,
                 material,
                 source,
             });
             if material == default {
                 defaulted += 1;
             }
-            start = end;
         }
     }
     Ok((positions, faces, defaulted))
@@ -286,5 +286,90 @@ fn locate(
             None => e.in_file(obj_path, Location::File),
         },
         _ => e.in_file(obj_path, Location::File),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Positions and faces (vertices, material) as `tobj` groups `obj` (already in the form it
+    /// reads: every `v` first, absolute indices), with `mtl` the MTL files by name.
+    fn as_tobj_reads(obj: &str, mtl: &[(&str, &str)]) -> (Vec<Vec3>, Vec<(Vec<u32>, u32)>) {
+        #[allow(clippy::needless_update)]
+        let options = tobj::LoadOptions {
+            triangulate: false,
+            single_index: false,
+            ignore_points: true,
+            ignore_lines: true,
+            ..Default::default()
+        };
+        let (models, materials) = tobj::load_obj_buf(&mut obj.as_bytes(), &options, |p| {
+            let text = mtl.iter().find(|(n, _)| Path::new(n) == p).unwrap().1;
+            tobj::load_mtl_buf(&mut text.as_bytes())
+        })
+        .unwrap();
+        let default = materials.unwrap().len() as u32;
+        let (mut positions, mut faces) = (Vec::new(), Vec::new());
+        for model in models {
+            let offset = positions.len() as u32;
+            positions.extend(
+                model
+                    .mesh
+                    .positions
+                    .chunks(3)
+                    .map(|p| vec3([p[0], p[1], p[2]])),
+            );
+            let material = model.mesh.material_id.map_or(default, |m| m as u32);
+            // tobj leaves `face_arities` empty when every face is a triangle
+            let mut arities = model.mesh.face_arities.clone();
+            if arities.is_empty() {
+                arities = vec![3; model.mesh.indices.len() / 3];
+            }
+            let mut start = 0;
+            for arity in arities {
+                let end = start + arity as usize;
+                let vertices = model.mesh.indices[start..end].iter().map(|&i| i + offset);
+                faces.push((vertices.collect(), material));
+                start = end;
+            }
+        }
+        (positions, faces)
+    }
+
+    #[test]
+    fn faces_are_grouped_and_materials_resolved_as_tobj_does() {
+        // usemtl before its library, unknown names, repeated and redefined materials, groups,
+        // vertices shared between groups
+        let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\n\
+                   f 1 2 3 4\nusemtl lamp\nf 1 2 3\nmtllib a.mtl\no first\nusemtl white\n\
+                   f 2 5 6 3\nusemtl lamp\nf 1 2 3 4\nusemtl nothing\nf 2 5 6\ng second\n\
+                   f 1 5 6\nusemtl white\nusemtl white\nf 2 5 6\nmtllib b.mtl\nusemtl white\n\
+                   f 3 4 1\nusemtl lamp\nf 2 5 6 3\n";
+        let mtl = [
+            (
+                "a.mtl",
+                "newmtl white\nKd 0.5 0.5 0.5\nnewmtl lamp\nKd 0.5 0.5 0.5\nKe 1 1 1\n",
+            ),
+            ("b.mtl", "newmtl white\nKd 0.25 0.25 0.25\n"),
+        ];
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("s.obj"), obj).unwrap();
+        for (name, text) in mtl {
+            std::fs::write(dir.path().join(name), text).unwrap();
+        }
+        let loaded = load_obj(&dir.path().join("s.obj"), &LoadOptions::default()).unwrap();
+        let (positions, faces) = as_tobj_reads(obj, &mtl);
+        assert_eq!(loaded.scene.positions(), positions);
+        let got: Vec<(Vec<u32>, u32)> = loaded
+            .scene
+            .faces()
+            .iter()
+            .map(|f| (f.vertices.clone(), f.material))
+            .collect();
+        assert_eq!(got, faces);
+        // the second library's `white` is what the last faces use
+        assert_eq!(faces[7].1, 2);
+        assert_eq!(loaded.scene.materials()[2].reflectance, Vec3::splat(0.25));
     }
 }

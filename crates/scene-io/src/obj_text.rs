@@ -1,44 +1,64 @@
-//! A line-by-line pass over OBJ and MTL text before `tobj` sees it.
+//! The OBJ reader's one pass over the file, and a check of MTL text before `tobj` reads it.
 //!
 //! `tobj` reports errors without a line, silently drops faces with fewer than 3 vertices,
 //! rejects valid input (1-component `vt`, mixed vertex colours, faces referring to vertices
 //! defined later in another object) and can panic on some malformed input (`Kd 0.5 0.5`). So the
-//! OBJ is checked here, with line numbers, and handed to `tobj` in a normal form: every `v` line
-//! first as `v x y z` (with `w` divided out, colours dropped), then the other statements in
-//! order, faces as `f a b c ...` with absolute 1-based position indices (texture and normal
-//! indices dropped: the scene does not use them). MTL colour statements are normalised the same
-//! way.
+//! OBJ is parsed here, with line numbers, into what the scene uses: every position (`w` divided
+//! out, colours dropped) and the statements that make faces, in order (`mtllib`, `usemtl`, `o`
+//! and `g`, faces as absolute 0-based position indices; texture and normal indices dropped).
+//! `tobj` reads the MTL files (`crate::obj` groups the faces as `tobj` would). MTL colour
+//! statements are normalised for it here, keeping the lines.
 
 use crate::error::SceneError;
 use glam::Vec3;
+use std::ops::Range;
 
 /// An error with the 1-based line it was found on.
 pub(crate) type LineError = (usize, SceneError);
 
-/// An OBJ file checked and put in the normal form `tobj` reads.
+/// A statement of an OBJ file that makes or groups faces.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum Statement {
+    /// `mtllib NAME` (the rest of the line, trimmed) on line `line`.
+    Mtllib {
+        /// The library's file name.
+        name: String,
+        /// Its 1-based line.
+        line: usize,
+    },
+    /// `usemtl NAME`.
+    Usemtl(String),
+    /// `o` or `g`: a new object or group.
+    Group,
+    /// `f`: these elements of [`ObjText::corners`].
+    Face(Range<usize>),
+}
+
+/// An OBJ file checked and parsed.
 pub(crate) struct ObjText {
-    /// The normal form.
-    pub text: String,
+    /// Every `v` position, in file order (`w` divided out).
+    pub positions: Vec<Vec3>,
+    /// The statements that make faces, in file order.
+    pub statements: Vec<Statement>,
+    /// The faces' corners as 0-based indices into `positions`, face after face.
+    pub corners: Vec<usize>,
     /// The line of each face, in file order (index = the face's `source`).
     pub face_lines: Vec<usize>,
-    /// The line of each `mtllib`, in file order.
-    pub mtllib_lines: Vec<usize>,
     /// Each `usemtl` name with the line of its first use, in file order.
     pub usemtl: Vec<(String, usize)>,
 }
 
-/// Checks an OBJ file and builds its normal form. Errors: unparsable or non-finite vertices,
+/// Checks and parses an OBJ file. Errors: unparsable or non-finite vertices,
 /// faces with fewer than 3 vertices, unparsable or out-of-range vertex indices, `usemtl` without
 /// a name.
 pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
-    let mut vertices = String::new();
-    let mut body = String::new();
     let mut count = 0usize; // vertices defined so far
     let mut forward: Vec<(usize, i64)> = Vec::new(); // positive indices past `count`, to check
     let mut out = ObjText {
-        text: String::new(),
+        positions: Vec::new(),
+        statements: Vec::new(),
+        corners: Vec::new(),
         face_lines: Vec::new(),
-        mtllib_lines: Vec::new(),
         usemtl: Vec::new(),
     };
     for (i, line) in text.lines().enumerate() {
@@ -53,7 +73,7 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
             "v" => {
                 let p = parse_vertex(line, words.collect(), count + 1).map_err(|e| (line_no, e))?;
                 count += 1;
-                vertices.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+                out.positions.push(p);
             }
             "f" => {
                 let corners: Vec<&str> = words.collect();
@@ -74,21 +94,23 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
                 if out.face_lines.len() >= crate::MAX_FACES {
                     return Err((line_no, SceneError::TooManyFaces));
                 }
-                body.push('f');
+                let start = out.corners.len();
                 for corner in corners {
                     let index = parse_face_index(corner, count).map_err(|e| (line_no, e))?;
                     if index > count as i64 {
                         forward.push((line_no, index));
                     }
-                    body.push_str(&format!(" {index}"));
+                    // 1-based and positive here
+                    out.corners.push(index as usize - 1);
                 }
-                body.push('\n');
+                out.statements
+                    .push(Statement::Face(start..out.corners.len()));
                 out.face_lines.push(line_no);
             }
-            "mtllib" => {
-                out.mtllib_lines.push(line_no);
-                body.push_str(&format!("mtllib {}\n", rest()));
-            }
+            "mtllib" => out.statements.push(Statement::Mtllib {
+                name: rest().to_string(),
+                line: line_no,
+            }),
             "usemtl" => {
                 let name = rest();
                 if name.is_empty() {
@@ -97,9 +119,9 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
                 if !out.usemtl.iter().any(|(n, _)| *n == name) {
                     out.usemtl.push((name.to_string(), line_no));
                 }
-                body.push_str(&format!("usemtl {name}\n"));
+                out.statements.push(Statement::Usemtl(name.to_string()));
             }
-            "o" | "g" => body.push_str(&format!("{keyword} {}\n", rest())),
+            "o" | "g" => out.statements.push(Statement::Group),
             // vt, vn, l, p, s and the rest carry nothing the scene uses.
             _ => {}
         }
@@ -111,7 +133,6 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
         };
         return Err((line_no, e));
     }
-    out.text = vertices + &body;
     Ok(out)
 }
 
@@ -248,17 +269,33 @@ mod tests {
     use super::*;
 
     #[test]
-    fn obj_normal_form_hoists_vertices_and_resolves_indices() {
+    fn obj_vertices_are_all_known_and_indices_resolved() {
         let text = "# c\nmtllib a b.mtl\no x\nv 0 0 0\nv 2 0 0 2\nvt 0.5\nusemtl red\n\
                     f 1/1 2//3 -1 4\nv 0 1 0 1 0 0\nv 9 9 9\n  g  y \nf 1 2 3\n";
         let t = scan_obj(text).unwrap();
+        let v = |x, y, z| Vec3::new(x, y, z);
+        // `w` divided out, the colour dropped, the vertex defined after its face known
         assert_eq!(
-            t.text,
-            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 9 9 9\nmtllib a b.mtl\no x\nusemtl red\nf 1 2 2 4\n\
-             g y\nf 1 2 3\n"
+            t.positions,
+            vec![v(0., 0., 0.), v(1., 0., 0.), v(0., 1., 0.), v(9., 9., 9.)]
         );
+        assert_eq!(
+            t.statements,
+            vec![
+                Statement::Mtllib {
+                    name: "a b.mtl".into(),
+                    line: 2
+                },
+                Statement::Group,
+                Statement::Usemtl("red".into()),
+                Statement::Face(0..4),
+                Statement::Group,
+                Statement::Face(4..7),
+            ]
+        );
+        // relative -1 is the latest vertex (2, 0-based 1); 4 is defined later
+        assert_eq!(t.corners, vec![0, 1, 1, 3, 0, 1, 2]);
         assert_eq!(t.face_lines, vec![8, 12]);
-        assert_eq!(t.mtllib_lines, vec![2]);
         assert_eq!(t.usemtl, vec![("red".to_string(), 7)]);
     }
 
