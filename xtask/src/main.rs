@@ -104,7 +104,7 @@ enum Experiment {
     /// term; writes docs/figure2.csv and docs/figure2.png
     Figure2,
     /// Every method on every experiment scene, error against time; writes
-    /// docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
+    /// docs/speed-vs-error.csv, docs/speed-vs-error-SCENE.png, docs/results.md
     SpeedVsError(speed::SpeedArgs),
     /// Uniform meshes of several sizes against adaptive, image error against a path-traced
     /// ground truth and per-face rms_rel, against --time; writes docs/meshing-experiment.md,
