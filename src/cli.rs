@@ -1,11 +1,11 @@
 //! The command line (its flags are the contract of `ARCHITECTURE.md`).
 
 use clap::{Parser, Subcommand, ValueEnum};
-use mcrad_mc_radiosity::schedule::ScheduleConfig;
 use mcrad_mc_radiosity::{ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
-use mcrad_reference::{DEFAULT_VISIBILITY_TOLERANCE, ReferenceConfig};
+use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
 use mcrad_render::Exposure;
+use mcrad_solve::{Budget, MeshPlan, Settings};
 use std::path::PathBuf;
 
 /// Stochastic (Monte Carlo) radiosity.
@@ -207,6 +207,10 @@ pub struct Solve {
     /// Set by `mcrad bake`: bake the solution into the scene's glTF.
     #[arg(skip)]
     pub bake: Option<BakeTarget>,
+    /// The ids of the flags given on the command line (not defaulted), set by `main`: a
+    /// continued run takes the saved settings where no flag says otherwise.
+    #[arg(skip)]
+    pub given: Vec<String>,
 }
 
 /// The most worker threads `--threads` accepts: more only add overhead (the answer does not
@@ -223,63 +227,93 @@ impl Solve {
         }
     }
 
-    /// The library's configuration of the run: `--rays` (default [`DEFAULT_RAYS`], no limit
-    /// with `--time`), `--seed`, `--unshot-threshold`, `--ambient` and
-    /// `--visibility-tolerance`, `--sampler`. With no flag it is [`ScheduleConfig::default`].
-    pub fn schedule_config(&self) -> ScheduleConfig {
-        ScheduleConfig {
-            rays: self.rays.unwrap_or(if self.time.is_some() {
-                u64::MAX
+    /// The settings the flags ask for, defaults where not given.
+    pub fn settings(&self) -> Settings {
+        self.settings_over(Settings::default(), true)
+    }
+
+    /// The settings of a continued run: `saved`, except what the user gave on the command
+    /// line (the library then checks that it agrees with `saved`); with `all`, every setting
+    /// from the flags.
+    pub fn settings_over(&self, saved: Settings, all: bool) -> Settings {
+        let given = |ids: &[&str]| all || ids.iter().any(|id| self.given.iter().any(|g| g == id));
+        Settings {
+            method: if given(&["method", "split"]) {
+                self.method()
             } else {
-                DEFAULT_RAYS
-            }),
-            seed: self.seed,
-            unshot_threshold: self.unshot_threshold,
-            ambient: self.ambient,
-            first_pass_rays: None,
-            sampler: self.sampler,
-            control_variate: self.control_variate,
-            reference: ReferenceConfig {
-                visibility_tolerance: self
-                    .visibility_tolerance
-                    .unwrap_or(DEFAULT_VISIBILITY_TOLERANCE),
-                ..Default::default()
+                saved.method
+            },
+            mesh: if given(&[
+                "mesh",
+                "no_subdivide",
+                "max_edge",
+                "max_patches",
+                "min_edge",
+            ]) {
+                self.mesh_plan()
+            } else {
+                saved.mesh
+            },
+            seed: if given(&["seed"]) {
+                self.seed
+            } else {
+                saved.seed
+            },
+            sampler: if given(&["sampler"]) {
+                self.sampler
+            } else {
+                saved.sampler
+            },
+            control_variate: if given(&["control_variate"]) {
+                self.control_variate
+            } else {
+                saved.control_variate
+            },
+            ambient: if given(&["ambient"]) {
+                self.ambient
+            } else {
+                saved.ambient
+            },
+            unshot_threshold: if given(&["unshot_threshold"]) {
+                self.unshot_threshold
+            } else {
+                saved.unshot_threshold
+            },
+            visibility_tolerance: if given(&["visibility_tolerance"]) {
+                self.visibility_tolerance
+                    .unwrap_or(DEFAULT_VISIBILITY_TOLERANCE)
+            } else {
+                saved.visibility_tolerance
             },
         }
     }
-}
 
-impl Solve {
-    /// The options a saved state must agree on to be continued (besides the mesh, compared by
-    /// its fingerprint, and the seed): the method and the options that change the answer,
-    /// each as a name and the way the command line says it.
-    pub fn state_options(&self) -> crate::state::Options {
-        let subdivision = if self.no_subdivide {
-            "--no-subdivide".to_string()
+    /// The mesh plan of the flags: `--no-subdivide`, `--mesh`, `--max-edge`, `--max-patches`,
+    /// `--min-edge`.
+    fn mesh_plan(&self) -> MeshPlan {
+        if self.no_subdivide {
+            MeshPlan::PerFace
+        } else if self.adaptive() {
+            MeshPlan::Adaptive {
+                max_patches: self.max_patches,
+                min_edge: self.min_edge,
+            }
         } else {
-            self.max_edge.map_or_else(
-                || "the default subdivision".to_string(),
-                |l| format!("--max-edge {l}"),
-            )
-        };
-        let ambient = if self.ambient {
-            "--ambient"
-        } else {
-            "no --ambient"
-        };
-        [
-            ("method", format!("--method {}", self.method().name())),
-            (
-                "unshot threshold",
-                format!("--unshot-threshold {}", self.unshot_threshold),
-            ),
-            ("ambient term", ambient.to_string()),
-            ("sampler", format!("--sampler {}", self.sampler)),
-            ("subdivision", subdivision),
-        ]
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .collect()
+            MeshPlan::Uniform {
+                max_edge: self.max_edge,
+            }
+        }
+    }
+
+    /// The budget of the flags (`--rays`, `--time`, a bake's `--target-error`), the time
+    /// counted from `since`.
+    pub fn budget(&self, since: std::time::Instant) -> Budget {
+        Budget {
+            rays: self.rays,
+            seconds: self.time,
+            since: Some(since),
+            target_error: self.bake.as_ref().and_then(|b| b.target_error),
+        }
     }
 }
 
@@ -370,8 +404,6 @@ impl Solve {
         self.max_edge.is_some()
             || self.no_subdivide
             || self.reference.is_some()
-            || self.save.is_some()
-            || self.resume.is_some()
             || self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic
     }
 
@@ -386,9 +418,6 @@ impl Solve {
             }
             if self.reference.is_some() {
                 return Err("--reference compares patch by patch with a fixed mesh; use it with --mesh uniform".into());
-            }
-            if self.save.is_some() || self.resume.is_some() {
-                return Err("--save and --resume continue a run on the same mesh, which an adaptive mesh refined anew by every piece is not; use them with --mesh uniform".into());
             }
             if self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic {
                 return Err(

@@ -8,16 +8,36 @@ mod solve;
 mod state;
 mod trace;
 
-use clap::Parser;
+use clap::{CommandFactory, FromArgMatches};
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let args = cli::Args::parse();
+    let matches = cli::Args::command().get_matches();
+    let args = match cli::Args::from_arg_matches(&matches) {
+        Ok(args) => args,
+        Err(e) => e.exit(),
+    };
+    // The flags given on the command line: a continued run takes the rest from its state.
+    let given: Vec<String> = matches
+        .subcommand()
+        .map(|(_, sub)| {
+            sub.ids()
+                .filter(|id| {
+                    sub.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine)
+                })
+                .map(|id| id.as_str().to_string())
+                .collect()
+        })
+        .unwrap_or_default();
     let result = match args.command {
-        cli::Command::Solve(solve) => solve::run(&solve),
+        cli::Command::Solve(mut solve) => {
+            solve.given = given;
+            solve::run(&solve)
+        }
         cli::Command::Merge(merge) => merge::run(&merge).map(|()| solve::Outcome::Done),
         cli::Command::Bake(bake) => {
             let mut solve = bake.solve;
+            solve.given = given;
             solve.bake = Some(cli::BakeTarget {
                 out: bake.out,
                 texel: bake.texel,

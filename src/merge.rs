@@ -81,7 +81,7 @@ fn read_run(path: &Path) -> Result<Vec<PatchRow>> {
     if csv {
         Ok(read_patch_csv(path)?)
     } else {
-        Ok(crate::state::RunState::load(path)?.rows())
+        crate::state::rows(&crate::state::load(path)?)
     }
 }
 

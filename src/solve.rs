@@ -1,20 +1,15 @@
-//! `mcrad solve`: load, mesh, build the BVH, run the method, write the results.
+//! `mcrad solve`: flags and files around one call of the library's solve
+//! ([`mcrad_solve::solve`]), with a progress bar, the trace, the saved state and signals.
 
 use crate::cli::Solve;
 use crate::interrupt;
-use crate::state::{Identity, RunState, piece_seed};
+use crate::state;
 use crate::trace::Tracer;
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mcrad_combine::Estimate;
-use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, Refined, refine};
-use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
-use mcrad_mc_radiosity::{Error as SolveError, StopReason};
-use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, Mesh, MeshError, Subdivision,
-};
-use mcrad_raycast::Bvh;
+use mcrad_export::{PatchRow, per_face, write_patch_csv};
+use mcrad_meshing::MeshError;
+use mcrad_solve::{Answer, Error as SolveError, Input, Problem, Progress};
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
 use std::ops::ControlFlow;
@@ -44,21 +39,35 @@ pub fn run(args: &Solve) -> Result<Outcome> {
 }
 
 fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
+    // Setup counts against a time budget: its clock starts before loading.
+    let clock = Instant::now();
     crate::output::check(args)?;
     args.check_mesh_options().map_err(anyhow::Error::msg)?;
     for warning in args.warnings() {
         eprintln!("warning: {warning}");
     }
-    let method = args.method();
-    if method.kind() == Kind::Deterministic {
+    let resumed = match &args.resume {
+        Some(path) => Some(state::load(path)?),
+        None => None,
+    };
+    let settings = match &resumed {
+        Some(saved) => args.settings_over(saved.settings(), false),
+        None => args.settings(),
+    };
+    let method = settings.method;
+    if settings.deterministic() {
         if args.resume.is_some() {
             bail!("--resume: --method {method} is deterministic, there is no run to continue");
         }
         if args.save.is_some() {
             eprintln!("warning: --save does not apply to --method {method} (deterministic)");
         }
+        if args.rays.is_some() || args.time.is_some() {
+            eprintln!(
+                "warning: --rays and --time do not apply to --method {method}; it runs to its accuracy target"
+            );
+        }
     }
-    let setup = Instant::now();
     let options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
         ..Default::default()
@@ -90,292 +99,83 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         }
         _ => None,
     };
-    let scene = &loaded.scene;
-    let mut config = args.schedule_config();
-    let (mesh, refinement) = if args.adaptive() {
-        let (mesh, refined) = adaptive_mesh(args, scene, config.rays)?;
-        if config.rays != u64::MAX {
-            // The method gets what the refinement left, and at least half the budget.
-            config.rays = config
-                .rays
-                .saturating_sub(refined.rays)
-                .max(config.rays / 2)
-                .max(1);
-        }
-        (mesh, Some(refined))
-    } else {
-        let subdivision = if args.no_subdivide {
-            Subdivision::None
-        } else {
-            args.max_edge
-                .map_or_else(|| Subdivision::default_for(scene), Subdivision::MaxEdge)
-        };
-        // the reference solver refuses a large mesh: stop building it there
-        let max_patches = match method.kind() {
-            Kind::Deterministic => config.reference.max_patches,
-            _ => usize::MAX,
-        };
-        let mesh = Mesh::build_at_most(scene, subdivision, max_patches)
-            .map_err(|e| mesh_error(e, args, subdivision))
-            .with_context(|| args.scene.display().to_string())?;
-        (mesh, None)
-    };
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())
-        .with_context(|| args.scene.display().to_string())?;
-    let mut tracer = match (&args.reference, &args.trace) {
-        (Some(reference), Some(trace)) => {
-            Some(Tracer::new(&mesh, reference, trace, args.no_subdivide)?)
-        }
-        _ => None,
-    };
-    let identity = Identity {
-        scene: &args.scene,
-        mesh: &mesh,
-        patch: patch_numbers(args, &mesh),
-        seed: args.seed,
-        options: args.state_options(),
-    };
-    let resumed = match &args.resume {
-        Some(path) => {
-            let state = RunState::load(path)?;
-            state.check_continues(&identity, path)?;
-            Some(state)
-        }
-        None => None,
-    };
-    let save = args
-        .save
-        .as_ref()
-        .filter(|_| method.kind() != Kind::Deterministic);
-    let setup_seconds = setup.elapsed().as_secs_f64();
 
-    // A continuation is an independent run with its own streams (piece number > 0).
-    let piece = resumed.as_ref().map_or(0, |s| s.pieces);
-    config.seed = piece_seed(args.seed, piece);
-    let rays = config.rays;
-    // The reference solver runs to its accuracy target: no budget, no deadline.
-    let deterministic = method.kind() == Kind::Deterministic;
-    if deterministic && (args.rays.is_some() || args.time.is_some()) {
-        eprintln!(
-            "warning: --rays and --time do not apply to --method {method}; it runs to its accuracy target"
-        );
-    }
-    let deadline = if deterministic { None } else { args.time };
-    let bar = progress_bar(args.quiet, if deterministic { u64::MAX } else { rays });
-    let start = Instant::now();
-    let mut trace_error = None;
-    let mut save_error = None;
-    // Whether the steps are complete solutions (they carry a variance): then the last one is
-    // an answer even when the run is stopped.
-    let mut complete_steps = false;
-    // The last step, kept for a signal that abandons the next one.
-    let mut last_step: Option<Solution> = None;
-    // `mcrad bake --target-error`: stop once the texels' error is that small.
-    let target_error = args.bake.as_ref().and_then(|b| b.target_error);
-    let mut target_reached = false;
-    let result = schedule::run_cancellable(
-        method,
-        &mesh,
-        &bvh,
-        &config,
-        interrupt::cancel_flag(),
-        &mut |step| {
-            let seconds = start.elapsed().as_secs_f64();
-            bar.set_position(step.rays.min(rays));
-            bar.set_message(format!("step {}", step.index));
-            complete_steps = step.variance.is_some();
-            // The solution so far: this run's step, merged with the saved pieces when it continues
-            // them (the trace and the state show the whole run).
-            let wanted =
-                (resumed.is_some() && tracer.is_some()) || (save.is_some() && complete_steps);
-            let so_far = wanted
-                .then(|| {
-                    let e = Estimate::new(
-                        step.radiosity.to_vec(),
-                        step.variance.map(<[_]>::to_vec),
-                        step.rays,
-                    )?;
-                    state_after(&identity, resumed.as_ref(), &e, step.index, 0)
-                })
-                .transpose();
-            let so_far = match so_far {
-                Ok(s) => s,
-                Err(e) => {
-                    save_error = Some(e);
-                    return ControlFlow::Break(());
-                }
-            };
-            if let Some(t) = tracer.as_mut() {
-                let recorded = match (&so_far, resumed.is_some()) {
-                    (Some(state), true) => state
-                        .estimate()
-                        .and_then(|e| t.record(seconds, e.rays(), e.radiosity())),
-                    _ => t.record(seconds, step.rays, step.radiosity),
-                };
-                if let Err(e) = recorded {
-                    trace_error = Some(e);
-                    return ControlFlow::Break(());
-                }
-            }
-            if let (Some(path), Some(state)) = (save, &so_far)
-                && complete_steps
-                && let Err(e) = state.save(path)
-            {
-                save_error = Some(e);
-                return ControlFlow::Break(());
-            }
-            if let Ok(estimate) = Estimate::new(
-                step.radiosity.to_vec(),
-                step.variance.map(<[_]>::to_vec),
-                step.rays,
-            ) {
-                last_step = Some(Solution {
-                    estimate,
-                    steps: step.index,
-                    escaped_rays: 0,
-                    unshot_fraction: f64::NAN,
-                    stop: StopReason::Stopped,
-                });
-                interrupt::step_kept();
-            }
-            if interrupt::requested() {
-                return ControlFlow::Break(());
-            }
-            if let (Some(target), Some(variance)) = (target_error, step.variance)
-                && answer_error_p95(
-                    &mesh,
-                    refinement.as_ref(),
-                    step.radiosity,
-                    variance,
-                    step.rays,
-                ) <= target
-            {
-                target_reached = true;
-                return ControlFlow::Break(());
-            }
-            if let Some(budget) = deadline {
-                // Setup counts against the budget: the time left is measured from the start of
-                // loading. At the speed of the run so far, size the rest to what fits.
-                let left = budget - setup.elapsed().as_secs_f64();
-                // Time up is a budget spent, not an interruption: the run finishes as at the
-                // end of a ray budget (a shooting extrapolates what it could not shoot).
-                let fits = rays_that_fit(left, seconds, step.rays);
-                if step.next_rays > fits {
-                    step.limit_rays_left(fits);
-                }
-            }
-            ControlFlow::Continue(())
-        },
-    );
-    // A signal that abandoned a step: the answer is the last complete one.
-    let abandoned = matches!(result, Err(SolveError::Cancelled));
-    let solution = match result {
-        Err(SolveError::Cancelled) => last_step
-            .take()
-            .context("interrupted before the first step completed: nothing to write")?,
-        other => other?,
+    let save = args.save.as_ref().filter(|_| !settings.deterministic());
+    let problem = Problem {
+        input: Input::Scene(&loaded.scene),
+        settings,
+        budget: args.budget(clock),
+        threads: Some(threads),
+        resume: resumed.as_ref(),
+        cancel: Some(interrupt::cancel_flag()),
     };
-    if let Some(e) = trace_error {
+    let bar = progress_bar(args.quiet);
+    let mut tracer: Option<Tracer> = None;
+    let mut failure: Option<anyhow::Error> = None;
+    let mut observer = |progress: &Progress| match observe(
+        args,
+        save.map(|p| p.as_path()),
+        &bar,
+        &mut tracer,
+        progress,
+    ) {
+        Ok(flow) => flow,
+        Err(e) => {
+            failure = Some(e);
+            ControlFlow::Break(())
+        }
+    };
+    let answer = mcrad_solve::solve(&problem, &mut observer);
+    if let Some(e) = failure {
         return Err(e);
     }
-    if let Some(e) = save_error {
-        return Err(e);
+    let answer = answer.map_err(|e| solve_error(e, args))?;
+    for warning in &answer.warnings {
+        eprintln!("warning: {warning}");
     }
     let interrupted = interrupt::requested();
-    if target_reached && !args.quiet {
+    if answer.target_reached && !args.quiet {
         eprintln!(
             "--target-error {}: reached after {} rays",
-            target_error.unwrap_or(0.0),
-            solution.estimate.rays()
+            problem.budget.target_error.unwrap_or(0.0),
+            answer.estimate.rays()
         );
     }
-    let seconds = start.elapsed().as_secs_f64();
-    let piece_rays = solution.estimate.rays();
-    // The answer: this run, merged with the saved pieces when it continues them.
-    let state = state_after(
-        &identity,
-        resumed.as_ref(),
-        &solution.estimate,
-        solution.steps,
-        solution.escaped_rays,
-    )?;
-    let estimate = match resumed {
-        Some(_) => state.estimate()?,
-        None => solution.estimate.clone(),
-    };
-    let solved_rays = estimate.rays();
-    // An adaptive mesh's answer pools what the refinement learnt of each element with the
-    // method's solution (a continued run's pieces are the method's alone).
-    let estimate = match (&refinement, &resumed) {
-        (Some(r), None) => {
-            let all = vec![true; mesh.patches().len()];
-            mcrad_mc_radiosity::adaptive::pool(&mesh, &estimate, &r.pooled, &all)?
-        }
-        _ => estimate,
-    };
     if let Some(path) = save {
-        // A stopped run of a method whose steps are not answers (a shooting wave, a Jacobi
-        // round) lacks part of its light: it is no state to continue.
-        if solution.stop == StopReason::Stopped && !complete_steps {
-            eprintln!(
+        match &answer.state {
+            Some(state) => state::save(state, path)?,
+            // A stopped run of a method whose steps are not answers (a shooting wave, a
+            // Jacobi round) lacks part of its light: it is no state to continue.
+            None => eprintln!(
                 "warning: --save {}: the run of --method {method} stopped before its end and \
                  its solution is incomplete (only the steps of progressive methods are \
                  complete); not saved",
                 path.display()
-            );
-        } else {
-            state.save(path)?;
+            ),
         }
     }
-    let refinement_rays = refinement.as_ref().map_or(0, |r| r.rays);
-    let run = RunStats {
-        method,
-        patches: mesh.patches().len(),
-        rays: solved_rays + refinement_rays,
-        seconds,
-        rays_per_second: piece_rays as f64 / seconds.max(1e-9),
-        iterations: state.steps,
-        seed: args.seed,
-        threads,
-        // Not counted by the steps: unknown when a step was abandoned.
-        escaped_rays: (!abandoned).then_some(state.escaped_rays),
-        unshot_fraction: (!abandoned).then_some(solution.unshot_fraction),
-        stop: solution.stop,
-        setup_seconds,
-        sampler: args.sampler,
-        refinement: refinement.as_ref().map(|r| r.rounds.clone()),
-    };
-    finish(
-        args,
-        &loaded,
-        &mesh,
-        &bvh,
-        &estimate,
-        &identity.patch,
-        &run,
-        &bar,
-    )?;
-    if let Some(r) = refinement
+    finish(args, &loaded, &answer, &bar)?;
+    if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
         println!(
             "adaptive mesh: {} elements after {} refinement rounds ({} rays, counted above)",
-            run.patches,
-            r.rounds.iter().filter(|r| r.split > 0).count(),
-            r.rays
+            answer.stats.patches,
+            rounds.iter().filter(|r| r.split > 0).count(),
+            rounds.iter().map(|r| r.rays).sum::<u64>()
         );
     }
     if interrupted {
         eprintln!(
             "interrupted: {}the outputs hold the last complete step ({} steps, {} rays{})",
-            if abandoned {
+            if answer.cancelled {
                 "the step in progress was abandoned; "
             } else {
                 ""
             },
-            state.steps,
-            solved_rays,
-            if save.is_some() && (complete_steps || solution.stop != StopReason::Stopped) {
+            answer.stats.iterations,
+            answer.estimate.rays(),
+            if save.is_some() && answer.state.is_some() {
                 "; --resume continues it"
             } else {
                 ""
@@ -386,191 +186,96 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     Ok(Outcome::Done)
 }
 
-/// The 95th percentile, by area, of the patches' relative standard error of incident
-/// irradiance ([`mcrad_bake::relative_error`]): what `--target-error` holds the bake to (texels
-/// take their patches' errors, and cover the surfaces in proportion to area).
-/// [`irradiance_error_p95`] of the answer a step would give: on an adaptive mesh, the step
-/// pooled with what the refinement learnt (as the answer is), else the step itself.
-fn answer_error_p95(
-    mesh: &Mesh,
-    refinement: Option<&Refined>,
-    radiosity: &[glam::DVec3],
-    variance: &[glam::DVec3],
-    rays: u64,
-) -> f64 {
-    let pooled = refinement.and_then(|r| {
-        let step = Estimate::new(radiosity.to_vec(), Some(variance.to_vec()), rays).ok()?;
-        let all = vec![true; mesh.patches().len()];
-        mcrad_mc_radiosity::adaptive::pool(mesh, &step, &r.pooled, &all).ok()
-    });
-    match pooled
-        .as_ref()
-        .and_then(|p| Some((p.radiosity(), p.variance()?)))
-    {
-        Some((b, v)) => irradiance_error_p95(mesh, b, v),
-        None => irradiance_error_p95(mesh, radiosity, variance),
-    }
-}
-
-fn irradiance_error_p95(mesh: &Mesh, radiosity: &[glam::DVec3], variance: &[glam::DVec3]) -> f64 {
-    let patches = mesh.patches();
-    let errors: Vec<f64> = patches
-        .iter()
-        .enumerate()
-        .map(|(i, p)| mcrad_bake::relative_error(radiosity[i], p.emission.as_dvec3(), variance[i]))
-        .collect();
-    let areas: Vec<f64> = patches.iter().map(|p| p.area).collect();
-    mcrad_bake::weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)
-}
-
-/// The patch numbers `--patches` writes, in mesh order: the input face with
-/// `--no-subdivide`, else the patch's index.
-fn patch_numbers(args: &Solve, mesh: &Mesh) -> Vec<u32> {
-    mesh.patches()
-        .iter()
-        .enumerate()
-        .map(|(i, p)| if args.no_subdivide { p.face } else { i as u32 })
-        .collect()
-}
-
-/// The state after a run whose solution is `estimate` (`steps` steps, `escaped_rays` escaped
-/// rays): the saved state `resumed` continued by it, or the first piece.
-fn state_after(
-    id: &Identity,
-    resumed: Option<&RunState>,
-    estimate: &Estimate,
-    steps: u32,
-    escaped_rays: u64,
-) -> Result<RunState> {
-    match resumed {
-        Some(state) => state.continued(estimate, steps, escaped_rays),
-        None => Ok(RunState::new(id, estimate, 1, steps, escaped_rays)),
-    }
-}
-
-/// A meshing error with advice that names only the flags the user gave: `--max-edge` is
-/// suggested as a change of the user's own value, or as an alternative to the default
-/// subdivision (whose edge length is said).
-fn mesh_error(e: MeshError, args: &Solve, subdivision: Subdivision) -> anyhow::Error {
-    let advice = match (args.max_edge, subdivision) {
-        (Some(_), _) => "choose a larger --max-edge".to_string(),
-        (None, Subdivision::MaxEdge(l)) => format!(
-            "the default subdivision cuts edges longer than the bounding-box diagonal / {} = {l} \
-             scene units; pass a larger --max-edge, or --no-subdivide",
-            1.0 / mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION
-        ),
-        (None, _) => "use a scene with fewer faces".to_string(),
-    };
-    match e {
-        MeshError::PatchLimit { limit } => anyhow::anyhow!(
-            "--method reference accepts at most {limit} patches and this mesh has more (its \
-             form factors take work and memory that grow as the square of the patch count); \
-             {advice}"
-        ),
-        e => anyhow::anyhow!("{e}; {advice}"),
-    }
-}
-
-/// The adaptive mesh of `--mesh adaptive`: the scene cut to the diagonal / 40 (half the
-/// uniform default's edge) when that takes at most 1 / [`START_SHARE`] of `--max-patches` (the
-/// rest is the refinement's), else to the uniform default when that fits `--max-patches`, else one
-/// element per face (every start within the elements the ray budget pays
-/// [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the time
-/// (`--time`).
-fn adaptive_mesh(
+/// After each step: the progress bar, the trace, the saved state, and a signal's stop.
+fn observe(
     args: &Solve,
-    scene: &mcrad_scene_io::Scene,
-    rays: u64,
-) -> Result<(Mesh, Refined)> {
-    let mut bounds = AdaptiveBounds::default_for(scene);
-    bounds.max_patches = args.max_patches;
-    if let Some(min_edge) = args.min_edge {
-        bounds.min_edge = min_edge;
+    save: Option<&Path>,
+    bar: &ProgressBar,
+    tracer: &mut Option<Tracer>,
+    progress: &Progress,
+) -> Result<ControlFlow<()>> {
+    if progress.step == 1 && progress.budget_rays != u64::MAX {
+        bar.set_length(progress.budget_rays);
     }
-    let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
-    let fits = |mesh: &AdaptiveMesh, share: usize| {
-        mesh.len() <= (bounds.max_patches / share).min(affordable)
-    };
-    let diagonal = scene.bounds().diagonal() as f32;
-    let mut mesh = AdaptiveMesh::new(
-        scene,
-        Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
-        bounds,
-    )?;
-    if !fits(&mesh, START_SHARE) {
-        mesh = AdaptiveMesh::new(scene, Subdivision::default_for(scene), bounds)?;
+    bar.set_position(progress.rays.min(progress.budget_rays));
+    bar.set_message(format!("step {}", progress.step));
+    if let (Some(reference), Some(trace)) = (&args.reference, &args.trace) {
+        if tracer.is_none() {
+            *tracer = Some(Tracer::new(
+                progress.mesh(),
+                reference,
+                trace,
+                args.no_subdivide,
+            )?);
+        }
+        // the answer so far: this piece merged with the saved ones when it continues them
+        let answer = progress.answer()?;
+        if let Some(t) = tracer.as_mut() {
+            t.record(progress.seconds, answer.rays(), answer.radiosity())?;
+        }
     }
-    if !fits(&mesh, 1) {
-        mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)?;
+    if let Some(path) = save
+        && let Some(state) = progress.state()?
+    {
+        state::save(&state, path)?;
     }
-    let config = AdaptiveConfig {
-        rays: if rays == u64::MAX {
-            u64::MAX
-        } else {
-            (rays / 4).max(1)
-        },
-        seconds: args.time.map(|t| t / 4.0),
-        seed: args.seed,
-        ..Default::default()
-    };
-    let refined = refine(&mut mesh, &config)?;
-    let unrefinable = refined.unrefinable();
-    if unrefinable > 0 {
-        eprintln!(
-            "warning: {unrefinable} elements could not be split into valid elements (slivers, \
-             or faces too small for f32 coordinates at the scene's size); kept as they are"
-        );
-    }
-    Ok((mesh.into_mesh(), refined))
+    interrupt::step_kept();
+    Ok(if interrupt::requested() {
+        ControlFlow::Break(())
+    } else {
+        ControlFlow::Continue(())
+    })
 }
 
-/// The finer start (the diagonal / 40) is taken when it holds at most `1 / START_SHARE` of
-/// `--max-patches`. Half: at 1e8 rays, `--max-patches 8000` on the Cornell box measured 0.82%
-/// image error starting at / 40 (3,518 elements) against 1.30% starting at the uniform default
-/// (943), whose large elements the refinement's marks leave as they are where the light bends
-/// gently; on the table room the same budget gave 0.60% against 1.02% (render --spp 256).
-const START_SHARE: usize = 2;
-
-/// The fewest rays of the budget per element of an adaptive run's starting mesh: a finer start
-/// would leave the refinement's rounds and the method too few rays per element (a budget of
-/// 3e4 rays could not pay for one round on the Cornell box's 17,000 starting elements).
-const START_RAYS_PER_ELEMENT: u64 = 16;
-
-/// The share of the time left a `--time` run plans to fill: the rest absorbs the per-step
-/// work that does not scale with rays and the writing of the outputs.
-const TIME_FILL: f64 = 0.97;
-
-/// The rays that fit in `left` seconds at the speed of a run that cast `rays` rays in
-/// `seconds` seconds, with [`TIME_FILL`]'s margin (0 when no time is left).
-fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
-    if left <= 0.0 {
-        return 0;
+/// A library error as the command line says it: meshing errors with advice that names only
+/// the flags the user gave.
+fn solve_error(e: SolveError, args: &Solve) -> anyhow::Error {
+    let scene = args.scene.display();
+    match e {
+        SolveError::CancelledEarly => {
+            anyhow!("interrupted before the first step completed: nothing to write")
+        }
+        SolveError::Mesh { source, max_edge } => {
+            let advice = match (args.max_edge, max_edge) {
+                (Some(_), _) => "choose a larger --max-edge".to_string(),
+                (None, Some(l)) => format!(
+                    "the default subdivision cuts edges longer than the bounding-box diagonal / \
+                     {} = {l} scene units; pass a larger --max-edge, or --no-subdivide",
+                    1.0 / mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION
+                ),
+                (None, None) => "use a scene with fewer faces".to_string(),
+            };
+            match source {
+                MeshError::PatchLimit { limit } => anyhow!(
+                    "{scene}: --method reference accepts at most {limit} patches and this mesh \
+                     has more (its form factors take work and memory that grow as the square of \
+                     the patch count); {advice}"
+                ),
+                e => anyhow!("{scene}: {e}; {advice}"),
+            }
+        }
+        SolveError::Disagree { .. }
+        | SolveError::StateMesh { .. }
+        | SolveError::StateReplay(_)
+        | SolveError::StateVersion { .. } => {
+            let state = args.resume.as_deref().unwrap_or(Path::new("the state"));
+            anyhow!("--resume {}: {e}", state.display())
+        }
+        e => anyhow::Error::new(e).context(scene.to_string()),
     }
-    if rays == 0 {
-        return u64::MAX;
-    }
-    let per_ray = seconds / rays as f64;
-    if per_ray <= 0.0 {
-        return u64::MAX;
-    }
-    (TIME_FILL * left / per_ray).min(u64::MAX as f64) as u64
 }
 
 /// Writes the outputs of a finished solve and prints the summary.
-#[allow(clippy::too_many_arguments)]
 fn finish(
     args: &Solve,
     loaded: &mcrad_scene_io::Loaded,
-    mesh: &Mesh,
-    bvh: &Bvh,
-    estimate: &Estimate,
-    patch: &[u32],
-    run: &RunStats,
+    answer: &Answer,
     bar: &ProgressBar,
 ) -> Result<()> {
+    let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     if let Some(path) = &args.patches {
         let rows = mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
-            patch: patch[i],
+            patch: answer.patch[i],
             area: p.area,
             radiosity: estimate.radiosity()[i],
             variance: estimate.variance().map(|v| v[i]),
@@ -582,26 +287,41 @@ fn finish(
             write_patch_csv(create(path)?, rows)?;
         }
     }
-    crate::output::write(args, mesh, bvh, estimate.radiosity(), loaded.camera, bar)?;
+    crate::output::write(
+        args,
+        mesh,
+        &answer.bvh,
+        estimate.radiosity(),
+        loaded.camera,
+        bar,
+    )?;
     let baked = match &args.bake {
         Some(target) => Some(crate::output::bake(
-            args, target, loaded, mesh, bvh, estimate, bar,
+            args,
+            target,
+            loaded,
+            mesh,
+            &answer.bvh,
+            estimate,
+            bar,
         )?),
         None => None,
     };
     if let Some(path) = &args.stats {
+        let mut out = create(path)?;
         match &baked {
             // the run's statistics and, under "bake", what the bake wrote
             Some(summary) => {
                 let mut json = serde_json::to_value(run).context("the run statistics")?;
                 json["bake"] = summary.clone();
-                let mut out = create(path)?;
-                serde_json::to_writer_pretty(&mut out, &json).context("the run statistics")?;
-                std::io::Write::write_all(&mut out, b"\n")
-                    .and_then(|()| std::io::Write::flush(&mut out))?;
+                serde_json::to_writer_pretty(&mut out, &json)
             }
-            None => run.write_json(create(path)?)?,
+            None => serde_json::to_writer_pretty(&mut out, run),
         }
+        .context("the run statistics")?;
+        std::io::Write::write_all(&mut out, b"\n")
+            .and_then(|()| std::io::Write::flush(&mut out))
+            .with_context(|| format!("could not write {}", path.display()))?;
     }
     bar.finish_and_clear();
     if !args.quiet {
@@ -628,51 +348,19 @@ fn finish(
     Ok(())
 }
 
-/// One row per input face, in face order: the area-weighted means `sum A_i B_i / sum A_i` of
-/// its patches' rows, with the variance of that mean `sum (A_i / A)² V_i` (patches taken as
-/// independent) and the face's area; `patch` is the face number, `face` is `None` (today's
-/// header).
-fn per_face(rows: impl Iterator<Item = PatchRow>) -> Vec<PatchRow> {
-    use std::collections::BTreeMap;
-    // face -> (area, sum A B, sum A² V, every patch had a variance)
-    let mut faces: BTreeMap<u32, (f64, glam::DVec3, glam::DVec3, bool)> = BTreeMap::new();
-    for r in rows {
-        let face = r.face.unwrap_or(r.patch);
-        let e = faces
-            .entry(face)
-            .or_insert((0.0, glam::DVec3::ZERO, glam::DVec3::ZERO, true));
-        e.0 += r.area;
-        e.1 += r.area * r.radiosity;
-        match r.variance {
-            Some(v) => e.2 += r.area * r.area * v,
-            None => e.3 = false,
-        }
-    }
-    faces
-        .into_iter()
-        .map(|(face, (area, sum, var, has_var))| PatchRow {
-            patch: face,
-            area,
-            radiosity: sum / area,
-            variance: has_var.then(|| var / (area * area)),
-            face: None,
-        })
-        .collect()
-}
-
 pub fn create(path: &Path) -> Result<BufWriter<File>> {
     let file =
         File::create(path).with_context(|| format!("could not create {}", path.display()))?;
     Ok(BufWriter::new(file))
 }
 
-/// A bar over the ray budget on an interactive terminal; hidden otherwise or with `--quiet`.
-fn progress_bar(quiet: bool, rays: u64) -> ProgressBar {
+/// A bar over the method's ray budget on an interactive terminal; hidden otherwise or with
+/// `--quiet`.
+fn progress_bar(quiet: bool) -> ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
-    let length = (rays != u64::MAX).then_some(rays);
-    let bar = ProgressBar::with_draw_target(length, ProgressDrawTarget::stderr());
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
     bar.set_style(
         ProgressStyle::with_template(
             "{elapsed_precise} [{bar:40}] {human_pos}/{human_len} rays, {msg}",

@@ -528,7 +528,6 @@ fn adaptive_meshes_refuse_uniform_options() {
             &["--min-edge", "0"][..],
             "'0' is not a positive finite length",
         ),
-        (&["--save", "s.state"][..], "use them with --mesh uniform"),
         (
             &["--method", "reference"][..],
             "--method reference solves a fixed mesh",
@@ -554,8 +553,8 @@ fn adaptive_meshes_refuse_uniform_options() {
     }
 }
 
-/// Without `--mesh` the mesh is adaptive, unless an option needs a fixed mesh (here `--save`,
-/// which continues a run on the same mesh, and `--max-edge`): then it is uniform.
+/// Without `--mesh` the mesh is adaptive, unless an option needs a fixed mesh (here
+/// `--max-edge`): then it is uniform. `--save` keeps it adaptive (the state holds the mesh).
 #[test]
 fn the_default_mesh_is_adaptive_unless_an_option_needs_a_fixed_one() {
     let dir = tempfile::tempdir().unwrap();
@@ -583,7 +582,7 @@ fn the_default_mesh_is_adaptive_unless_an_option_needs_a_fixed_one() {
     let (sized, _) = patches(&["--max-edge", "0.2"]);
     assert!(said.contains("adaptive mesh:"), "{said}");
     assert_ne!(default, uniform);
-    assert_eq!(saved, uniform);
+    assert_eq!(saved, default);
     assert!(sized < uniform);
 }
 

@@ -90,6 +90,9 @@ fn interrupted_solve(dir: &Path, budget: [&str; 2], grace: &str, signal_name: &s
             "--threads",
             "2",
             "--quiet",
+            // the mesh of 943 patches (an adaptive one would refine for a quarter of --time)
+            "--mesh",
+            "uniform",
             "--save",
             &path(dir, "state"),
             "--patches",
@@ -267,39 +270,32 @@ fn a_run_in_three_pieces_agrees_with_one_run() {
     }
 }
 
-/// `method` run in three pieces of 3e5 rays (`--save`, then `--resume` twice) against one run
-/// of 9e5 rays with another seed.
+/// `method` run in three pieces of 3e5 rays (`--save`, then `--resume` twice, naming no
+/// setting again: the state holds them) against one run of 9e5 rays with another seed.
 fn three_pieces_against_one_run(method: &str) {
     let dir = tempfile::tempdir().unwrap();
     let state = path(dir.path(), "state");
     let [first, plain, pieces, one] =
         ["first", "plain", "pieces", "one"].map(|n| path(dir.path(), &format!("{n}.csv")));
     let (pieces_json, one_json) = (path(dir.path(), "p.json"), path(dir.path(), "o.json"));
-    // One run and the pieces on the same mesh: --save implies uniform, so the plain runs say it.
-    let base = [
-        "solve",
-        SCENE,
-        "--threads",
-        "2",
-        "-q",
-        "--mesh",
-        "uniform",
-        "--method",
-        method,
-    ];
+    // One run and the pieces on the same mesh: a uniform one (an adaptive mesh depends on the
+    // budget and the seed).
+    let base = ["solve", SCENE, "--threads", "2", "-q"];
     let run = |extra: &[&str]| {
         let mut args = base.to_vec();
         args.extend_from_slice(extra);
         mcrad(&args);
     };
-    let piece = |extra: &[&str]| {
-        let mut args = vec!["--rays", "3e5", "--seed", "1", "--save", &state];
-        args.extend_from_slice(extra);
-        run(&args);
-    };
-    piece(&["--patches", &first]);
-    piece(&["--resume", &state]);
-    piece(&[
+    let settings = [
+        "--rays", "3e5", "--mesh", "uniform", "--method", method, "--seed", "1",
+    ];
+    let mut first_piece = settings.to_vec();
+    first_piece.extend_from_slice(&["--save", &state, "--patches", &first]);
+    run(&first_piece);
+    run(&["--rays", "3e5", "--resume", &state, "--save", &state]);
+    run(&[
+        "--rays",
+        "3e5",
         "--resume",
         &state,
         "--patches",
@@ -308,6 +304,10 @@ fn three_pieces_against_one_run(method: &str) {
         &pieces_json,
     ]);
     run(&[
+        "--mesh",
+        "uniform",
+        "--method",
+        method,
         "--rays",
         "9e5",
         "--seed",
@@ -318,7 +318,9 @@ fn three_pieces_against_one_run(method: &str) {
         &one_json,
     ]);
     // The first piece is the plain run: --save changes nothing.
-    run(&["--rays", "3e5", "--seed", "1", "--patches", &plain]);
+    let mut plain_run = settings.to_vec();
+    plain_run.extend_from_slice(&["--patches", &plain]);
+    run(&plain_run);
     assert_eq!(read_csv(&first), read_csv(&plain), "{method}");
     // The rays add up: three pieces of 3e5 cast what one run of 9e5 casts (each method
     // spends its budget to within its pass sizes: 2%).
@@ -328,6 +330,8 @@ fn three_pieces_against_one_run(method: &str) {
         (r3 - r1).abs() < 0.02 * r1,
         "{method}: pieces {r3} rays, one run {r1}"
     );
+    assert_eq!(stats(&pieces_json)["method"], method);
+    assert_eq!(stats(&pieces_json)["seed"], 1);
     let (first, pieces, one) = (read_csv(&first), read_csv(&pieces), read_csv(&one));
     let z2 = mean_z2(&pieces, &one);
     assert!((0.6..1.5).contains(&z2), "{method}: mean z² {z2}");
@@ -337,6 +341,41 @@ fn three_pieces_against_one_run(method: &str) {
         (0.25..0.42).contains(&ratio),
         "{method}: variance ratio {ratio}"
     );
+}
+
+#[test]
+fn an_adaptive_run_is_saved_and_continued_on_its_own_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = path(dir.path(), "state");
+    let [first, plain, pieces] = ["first", "plain", "pieces"].map(|n| path(dir.path(), n));
+    let json = path(dir.path(), "p.json");
+    let base = ["solve", SCENE, "--threads", "2", "-q", "--rays", "4e5"];
+    let run = |extra: &[&str]| {
+        let mut args = base.to_vec();
+        args.extend_from_slice(extra);
+        mcrad(&args);
+    };
+    // The default mesh is adaptive: --save keeps it (and the answer) as it is without --save.
+    run(&["--seed", "3", "--save", &state, "--patches", &first]);
+    run(&["--seed", "3", "--patches", &plain, "--stats", &json]);
+    assert_eq!(read_csv(&first), read_csv(&plain));
+    assert!(
+        stats(&json).get("refinement").is_some(),
+        "the default run is adaptive"
+    );
+    // Continued twice with no setting named: the saved seed, method and mesh.
+    run(&["--resume", &state, "--save", &state]);
+    run(&["--resume", &state, "--patches", &pieces, "--stats", &json]);
+    let (first, pieces) = (read_csv(&first), read_csv(&pieces));
+    assert_eq!(first.len(), pieces.len(), "the same mesh");
+    for (a, b) in first.iter().zip(&pieces) {
+        assert_eq!((a.patch, a.area), (b.patch, b.area));
+    }
+    assert_eq!(stats(&json)["seed"], 3);
+    // Three pieces of which the first pooled the refinement's estimates: well under half of
+    // the first piece's variance.
+    let ratio = total_variance(&pieces) / total_variance(&first);
+    assert!((0.2..0.5).contains(&ratio), "variance ratio {ratio}");
 }
 
 #[test]
@@ -355,10 +394,19 @@ fn a_resume_of_another_run_is_refused_with_the_reason() {
         &state,
     ]);
     for (extra, expect) in [
-        (&["--method", "prr"][..], "--method combined"),
-        (&["--seed", "4"][..], "--seed 0"),
-        (&["--max-edge", "0.2"][..], "the default subdivision"),
-        (&["--unshot-threshold", "0.01"][..], "--unshot-threshold"),
+        (
+            &["--method", "prr"][..],
+            "method combined, this run asks for prr",
+        ),
+        (&["--seed", "4"][..], "seed 0, this run asks for 4"),
+        (
+            &["--max-edge", "0.2"][..],
+            "this run asks for uniform, maximum edge 0.2",
+        ),
+        (
+            &["--unshot-threshold", "0.01"][..],
+            "unshot threshold 0.0001, this run asks for 0.01",
+        ),
     ] {
         let mut args = vec![
             "solve",

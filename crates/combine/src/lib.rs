@@ -26,5 +26,5 @@ mod measure;
 mod weighting;
 
 pub use estimate::{Estimate, EstimateError};
-pub use measure::rms_rel;
+pub use measure::{relative_error, rms_rel, weighted_quantile};
 pub use weighting::{ByRays, InverseExpectedVariance, InverseVariance, Operand, Weighting, merge};

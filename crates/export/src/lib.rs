@@ -1,19 +1,17 @@
 //! Results out of mcrad as files: the per-patch CSV (written and read, through serde and the
-//! `csv` crate), run statistics as JSON and binary glTF with per-vertex radiosity (the formats
+//! `csv` crate) and binary glTF with per-vertex radiosity (the formats
 //! of the command line contract in `ARCHITECTURE.md`). Pictures are `mcrad-render`'s.
 //!
 //! Writers take any [`std::io::Write`] and never print; the caller owns files and messages.
 
 mod gltf_out;
 mod patches;
-mod stats;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
 pub use patches::{
-    PATCH_CSV_FACE_HEADER, PATCH_CSV_HEADER, PatchRow, ReadCsvError, read_patch_csv,
+    PATCH_CSV_FACE_HEADER, PATCH_CSV_HEADER, PatchRow, ReadCsvError, per_face, read_patch_csv,
     write_patch_csv,
 };
-pub use stats::RunStats;
 
 /// Why writing a result failed.
 #[derive(Debug, thiserror::Error)]

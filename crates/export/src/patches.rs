@@ -85,6 +85,39 @@ impl From<PatchRow> for WriteRow {
     }
 }
 
+/// One row per input face, in face order: the area-weighted means `sum A_i B_i / sum A_i` of
+/// its patches' rows (W/m²), with the variance of that mean `sum (A_i / A)² V_i` (patches taken
+/// as independent; unknown when a patch's is) and the face's area `A` (scene units²). A row's
+/// face is [`PatchRow::face`], or its `patch` without one; the result's `patch` is the face
+/// number and its `face` is `None`.
+pub fn per_face(rows: impl IntoIterator<Item = PatchRow>) -> Vec<PatchRow> {
+    use std::collections::BTreeMap;
+    // face -> (area, sum A B, sum A² V, every patch had a variance)
+    let mut faces: BTreeMap<u32, (f64, DVec3, DVec3, bool)> = BTreeMap::new();
+    for r in rows {
+        let face = r.face.unwrap_or(r.patch);
+        let e = faces
+            .entry(face)
+            .or_insert((0.0, DVec3::ZERO, DVec3::ZERO, true));
+        e.0 += r.area;
+        e.1 += r.area * r.radiosity;
+        match r.variance {
+            Some(v) => e.2 += r.area * r.area * v,
+            None => e.3 = false,
+        }
+    }
+    faces
+        .into_iter()
+        .map(|(face, (area, sum, var, has_var))| PatchRow {
+            patch: face,
+            area,
+            radiosity: sum / area,
+            variance: has_var.then(|| var / (area * area)),
+            face: None,
+        })
+        .collect()
+}
+
 /// Writes the header `patch,area,r,g,b,var_r,var_g,var_b` and one line per row (`\n` line
 /// ends, no quoting). Numbers are written with Rust's shortest round-trip formatting, so reading
 /// them back gives the same f64; a `None` variance is three blank fields. When the first row

@@ -137,6 +137,20 @@ pub struct AdaptiveMesh {
     leaves: Vec<Leaf>,
     mesh: Mesh,
     bounds: AdaptiveBounds,
+    /// The start and every refinement so far (see [`AdaptiveMesh::history`]).
+    history: History,
+}
+
+/// How an adaptive mesh was made from its scene: its start and, refinement by refinement, the
+/// leaves split (indices into the leaves before that refinement, ascending). Replaying it
+/// ([`AdaptiveMesh::replay`]) on the same scene and bounds gives the same mesh, bit for bit.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct History {
+    /// The starting mesh's uniform cut: `None` for one element per face, else the longest
+    /// edge (scene units) of [`Subdivision::MaxEdge`].
+    pub start: Option<f32>,
+    /// Per refinement, the leaves split, ascending.
+    pub splits: Vec<Vec<u32>>,
 }
 
 impl AdaptiveMesh {
@@ -186,13 +200,52 @@ impl AdaptiveMesh {
         }
         let textures = scene.textures().cloned();
         let mesh = build_mesh(coarse.origin(), &templates, &leaves, textures.clone());
+        let start = match start {
+            Subdivision::None => None,
+            Subdivision::MaxEdge(l) => Some(l),
+        };
         Ok(AdaptiveMesh {
             textures,
             templates,
             leaves,
             mesh,
             bounds,
+            history: History {
+                start,
+                splits: Vec::new(),
+            },
         })
+    }
+
+    /// The adaptive mesh that `history` records, made anew from `scene` within `bounds`: the
+    /// same leaves in the same order as the mesh that recorded it, when scene and bounds are
+    /// the same. Errors: as [`AdaptiveMesh::new`], and [`MeshError::BadHistory`] when a
+    /// recorded split does not apply (another scene or bounds).
+    pub fn replay(
+        scene: &Scene,
+        history: &History,
+        bounds: AdaptiveBounds,
+    ) -> Result<AdaptiveMesh, MeshError> {
+        let start = history
+            .start
+            .map_or(Subdivision::None, Subdivision::MaxEdge);
+        let mut mesh = AdaptiveMesh::new(scene, start, bounds)?;
+        for (round, split) in history.splits.iter().enumerate() {
+            let done = mesh.refine(split);
+            if done.split != split.len() {
+                return Err(MeshError::BadHistory {
+                    round,
+                    recorded: split.len(),
+                    split: done.split,
+                });
+            }
+        }
+        Ok(mesh)
+    }
+
+    /// How this mesh was made: its start and the leaves each refinement split.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The mesh of the current leaves (leaf `i` is patch `i`).
@@ -272,10 +325,12 @@ impl AdaptiveMesh {
         let mut leaves = Vec::with_capacity(count);
         let mut parent = Vec::with_capacity(count);
         let mut done = 0;
+        let mut split_leaves = Vec::new();
         for (i, (leaf, children)) in self.leaves.iter().zip(split).enumerate() {
             match children {
                 Some(children) => {
                     done += 1;
+                    split_leaves.push(i as u32);
                     parent.extend(std::iter::repeat_n(i as u32, children.len()));
                     leaves.extend(children);
                 }
@@ -292,6 +347,7 @@ impl AdaptiveMesh {
             self.textures.clone(),
         );
         self.leaves = leaves;
+        self.history.splits.push(split_leaves);
         Refinement {
             parent,
             split: done,

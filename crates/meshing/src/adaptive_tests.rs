@@ -136,6 +136,35 @@ fn refine_within_adds_at_most_the_leaves_asked() {
 }
 
 #[test]
+fn a_replayed_history_gives_the_same_mesh_and_another_scene_is_refused() {
+    let s = shapes(Vec3::ZERO);
+    let b = bounds(0.01, 100);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::MaxEdge(1.5), b).unwrap();
+    m.refine_within(&[3, 0, 5, 1], 6);
+    m.refine(&[7, 2, 2]);
+    m.refine(&[]);
+    assert_eq!(m.history().start, Some(1.5));
+    assert_eq!(m.history().splits.len(), 3);
+    assert!(
+        m.history()
+            .splits
+            .iter()
+            .all(|s| s.windows(2).all(|w| w[0] < w[1]))
+    );
+    let again = AdaptiveMesh::replay(&s, m.history(), b).unwrap();
+    assert_eq!(again.len(), m.len());
+    assert_eq!(again.mesh().positions(), m.mesh().positions());
+    assert_eq!(again.mesh().triangles(), m.mesh().triangles());
+    assert_eq!(again.history(), m.history());
+    // the same history within a larger minimum edge: splits that cannot be made
+    let tight = AdaptiveMesh::replay(&s, m.history(), bounds(0.9, 100));
+    assert!(
+        matches!(tight, Err(crate::MeshError::BadHistory { .. })),
+        "{tight:?}"
+    );
+}
+
+#[test]
 fn slivers_tiny_faces_and_faces_far_from_the_origin_terminate() {
     // A needle and a 1e-6-area triangle, where f32 cannot halve the elements for long, and the
     // shapes far from the origin, which the mesh's local frame (issue 16) lets be halved as at

@@ -59,6 +59,19 @@ pub enum MeshError {
         /// The limit.
         limit: usize,
     },
+    /// A recorded refinement ([`crate::History`]) does not apply to this scene and bounds.
+    #[error(
+        "refinement {round} of the recorded mesh split {recorded} elements, on this scene only \
+         {split}: another scene, or other mesh bounds"
+    )]
+    BadHistory {
+        /// The refinement (from 0).
+        round: usize,
+        /// Leaves it split when recorded.
+        recorded: usize,
+        /// Leaves it split now.
+        split: usize,
+    },
 }
 
 /// The most patches a mesh may have (indices stay below `2^31`, and memory in reach).

@@ -22,7 +22,7 @@ mod subdivide;
 
 pub use adaptive::{
     AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, DEFAULT_MAX_PATCHES,
-    DEFAULT_MIN_EDGE_FRACTION, Refinement,
+    DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
 pub use build::{DEFAULT_MAX_EDGE_FRACTION, Mesh, MeshError, Patch, Subdivision};
 pub use seams::EdgePoints;

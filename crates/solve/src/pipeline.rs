@@ -1,0 +1,520 @@
+//! [`solve`]: mesh, refine, run, pool, under one budget.
+
+use crate::problem::Input;
+use crate::state::Identity;
+use crate::stats::RefinementRound;
+use crate::{Budget, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed};
+use glam::DVec3;
+use mcrad_combine::{Estimate, relative_error, weighted_quantile};
+use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, Refined, pool, refine};
+use mcrad_mc_radiosity::schedule::{self, ScheduleConfig, Solution, Step};
+use mcrad_mc_radiosity::{Error as MethodError, StopReason};
+use mcrad_meshing::{
+    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
+};
+use mcrad_raycast::Bvh;
+use mcrad_reference::ReferenceConfig;
+use mcrad_scene_io::Scene;
+use std::ops::ControlFlow;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+/// The answer of a solve.
+///
+/// Invariants: `estimate`, `patch` and the mesh's patches have the same length and order.
+#[derive(Debug)]
+pub struct Answer {
+    /// The patches solved for.
+    pub mesh: Mesh,
+    /// The ray caster over `mesh` (renders and bakes reuse it).
+    pub bvh: Bvh,
+    /// Radiosity `B_i` per patch and channel (W/m², mesh order), its estimated variance
+    /// ((W/m²)²) where the method gives one, and the rays behind it. For a continued run, all
+    /// pieces merged.
+    pub estimate: Estimate,
+    /// Each patch's number in outputs (mesh order): its input face with
+    /// [`MeshPlan::PerFace`], else its index.
+    pub patch: Vec<u32>,
+    /// What the run reports of itself.
+    pub stats: RunStats,
+    /// The run's state, to continue it ([`Problem::resume`]); `None` for a deterministic
+    /// method, or a run stopped in a step that is not a complete solution (a shooting wave, a
+    /// Jacobi round).
+    pub state: Option<RunState>,
+    /// Whether the run ended because the error target was reached.
+    pub target_reached: bool,
+    /// Whether a step in progress was abandoned through the cancel flag (the answer is the
+    /// last complete one).
+    pub cancelled: bool,
+    /// Whether every step of the method is a complete solution (the progressive methods): a
+    /// run stopped between steps then still has a state to continue.
+    pub complete_steps: bool,
+    /// What the caller should be told (a repair, a setting without effect), one line each.
+    pub warnings: Vec<String>,
+}
+
+/// A complete step of the run, as the observer of [`solve`] sees it.
+pub struct Progress<'a> {
+    /// Steps done in this piece (1 for the first).
+    pub step: u32,
+    /// Rays the method cast so far in this piece (the refinement's not counted).
+    pub rays: u64,
+    /// The method's ray budget for this piece (`u64::MAX`: none): what `rays` runs up to.
+    pub budget_rays: u64,
+    /// Seconds since the method started.
+    pub seconds: f64,
+    /// Whether the step is a complete solution (it carries a variance).
+    pub complete: bool,
+    run: &'a Run<'a>,
+    step_estimate: &'a Estimate,
+}
+
+impl Progress<'_> {
+    /// The mesh solved (the answer's, patch `i` is `radiosity()[i]`).
+    pub fn mesh(&self) -> &Mesh {
+        self.run.mesh
+    }
+
+    /// This piece's solution after the step (W/m², mesh order).
+    pub fn radiosity(&self) -> &[DVec3] {
+        self.step_estimate.radiosity()
+    }
+
+    /// The answer the run would give if it stopped now: the step pooled with the adaptive
+    /// refinement's estimates, or merged with the saved pieces of a continued run.
+    pub fn answer(&self) -> Result<Estimate, Error> {
+        self.run.answer(self.step_estimate)
+    }
+
+    /// The run's state after the step, to save and continue; `None` for steps that are not
+    /// complete solutions.
+    pub fn state(&self) -> Result<Option<RunState>, Error> {
+        if !self.complete {
+            return Ok(None);
+        }
+        self.run.state(self.step_estimate, self.step, 0).map(Some)
+    }
+}
+
+/// The observer of [`solve`]: called after each complete step; `Break` stops the run there.
+pub type Observer<'o> = dyn FnMut(&Progress) -> ControlFlow<()> + Send + 'o;
+
+/// What a run knows while it runs.
+struct Run<'a> {
+    mesh: &'a Mesh,
+    history: Option<&'a History>,
+    settings: &'a Settings,
+    patch: &'a [u32],
+    refinement: Option<&'a Refined>,
+    resumed: Option<&'a RunState>,
+}
+
+impl Run<'_> {
+    /// The answer from this piece's `estimate` (see [`Progress::answer`]).
+    fn answer(&self, estimate: &Estimate) -> Result<Estimate, Error> {
+        if let Some(state) = self.resumed {
+            return state.continued(estimate, 0, 0)?.estimate();
+        }
+        match self.refinement {
+            Some(r) => {
+                let all = vec![true; self.mesh.patches().len()];
+                Ok(pool(self.mesh, estimate, &r.pooled, &all)?)
+            }
+            None => Ok(estimate.clone()),
+        }
+    }
+
+    /// The state after this piece's `estimate` (`steps` steps, `escaped_rays` escaped rays).
+    fn state(&self, estimate: &Estimate, steps: u32, escaped_rays: u64) -> Result<RunState, Error> {
+        match self.resumed {
+            Some(state) => state.continued(estimate, steps, escaped_rays),
+            None => {
+                let id = Identity {
+                    mesh: self.mesh,
+                    history: self.history,
+                    settings: self.settings,
+                    patch: self.patch,
+                };
+                Ok(RunState::new(
+                    &id,
+                    &self.answer(estimate)?,
+                    1,
+                    steps,
+                    escaped_rays,
+                ))
+            }
+        }
+    }
+}
+
+/// Solves `problem`, handing each complete step to `observer` (which may stop the run with
+/// `Break`; the answer is then that step's). Deterministic for a seed on any thread count,
+/// except where a time budget decides how many rays are cast.
+pub fn solve(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error> {
+    match problem.threads {
+        Some(n) if n != rayon::current_num_threads() => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|source| Error::Threads { threads: n, source })?;
+            pool.install(|| solve_here(problem, observer))
+        }
+        _ => solve_here(problem, observer),
+    }
+}
+
+fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error> {
+    let clock = problem.budget.since.unwrap_or_else(Instant::now);
+    let setup = Instant::now();
+    let settings = &problem.settings;
+    let method = settings.method;
+    let deterministic = settings.deterministic();
+    let mut warnings = Vec::new();
+    if let Some(state) = problem.resume {
+        if deterministic {
+            return Err(Error::DeterministicResume(method));
+        }
+        state.settings().agree(settings)?;
+    }
+    let budget = problem.budget;
+    let mut config = schedule_config(settings, &budget);
+
+    // The mesh: replayed from a saved run, refined anew, or fixed.
+    let history = problem.resume.and_then(RunState::history);
+    let (mesh, refinement, history) = match (problem.input, settings.mesh, history) {
+        (Input::Mesh(mesh), _, _) => (mesh.clone(), None, None),
+        (Input::Scene(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
+            let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
+                .map_err(Error::StateReplay)?;
+            (mesh.into_mesh(), None, Some(history))
+        }
+        (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
+            let (mesh, refined, history) =
+                adaptive_mesh(scene, settings, &budget, config.rays, &mut warnings)?;
+            if config.rays != u64::MAX {
+                // The method gets what the refinement left, and at least half the budget.
+                config.rays = config
+                    .rays
+                    .saturating_sub(refined.rays)
+                    .max(config.rays / 2)
+                    .max(1);
+            }
+            (mesh, Some(refined), Some(history))
+        }
+        (Input::Scene(scene), plan, _) => {
+            let subdivision = match plan {
+                MeshPlan::PerFace => Subdivision::None,
+                MeshPlan::Uniform { max_edge: Some(l) } => Subdivision::MaxEdge(l),
+                _ => Subdivision::default_for(scene),
+            };
+            // the reference solver refuses a large mesh: stop building it there
+            let max_patches = if deterministic {
+                config.reference.max_patches
+            } else {
+                usize::MAX
+            };
+            let mesh = Mesh::build_at_most(scene, subdivision, max_patches).map_err(|source| {
+                Error::Mesh {
+                    source,
+                    max_edge: match subdivision {
+                        Subdivision::None => None,
+                        Subdivision::MaxEdge(l) => Some(l),
+                    },
+                }
+            })?;
+            (mesh, None, None)
+        }
+    };
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let patch: Vec<u32> = mesh
+        .patches()
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            if settings.mesh == MeshPlan::PerFace {
+                p.face
+            } else {
+                i as u32
+            }
+        })
+        .collect();
+    if let Some(state) = problem.resume {
+        state.check_continues(&mesh)?;
+    }
+    let setup_seconds = setup.elapsed().as_secs_f64();
+
+    // A continuation is an independent run with its own streams (piece number > 0).
+    let piece = problem.resume.map_or(0, RunState::pieces);
+    config.seed = piece_seed(settings.seed, piece);
+    let rays = config.rays;
+    let run = Run {
+        mesh: &mesh,
+        history: history.as_ref(),
+        settings,
+        patch: &patch,
+        refinement: refinement.as_ref(),
+        resumed: problem.resume,
+    };
+    // The reference solver runs to its accuracy target: no budget, no deadline.
+    let deadline = if deterministic { None } else { budget.seconds };
+    let start = Instant::now();
+    let mut complete_steps = false;
+    let mut last_step: Option<Solution> = None;
+    let mut target_reached = false;
+    let mut failure: Option<Error> = None;
+    let never = AtomicBool::new(false);
+    let cancel = problem.cancel.unwrap_or(&never);
+    let result = schedule::run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
+        let seconds = start.elapsed().as_secs_f64();
+        complete_steps = step.variance.is_some();
+        let estimate = match step_estimate(step) {
+            Ok(e) => e,
+            Err(e) => {
+                failure = Some(e);
+                return ControlFlow::Break(());
+            }
+        };
+        let progress = Progress {
+            step: step.index,
+            rays: step.rays,
+            budget_rays: if deterministic { u64::MAX } else { rays },
+            seconds,
+            complete: complete_steps,
+            run: &run,
+            step_estimate: &estimate,
+        };
+        let flow = observer(&progress);
+        let target = match (budget.target_error, step.variance.is_some()) {
+            (Some(target), true) => match run.answer(&estimate) {
+                Ok(answer) => error_p95(&mesh, &answer) <= target,
+                Err(e) => {
+                    failure = Some(e);
+                    return ControlFlow::Break(());
+                }
+            },
+            _ => false,
+        };
+        last_step = Some(Solution {
+            estimate,
+            steps: step.index,
+            escaped_rays: 0,
+            unshot_fraction: f64::NAN,
+            stop: StopReason::Stopped,
+        });
+        if flow.is_break() {
+            return ControlFlow::Break(());
+        }
+        if target {
+            target_reached = true;
+            return ControlFlow::Break(());
+        }
+        if let Some(seconds_budget) = deadline {
+            // The time left is measured from the budget's clock. At the speed of the run so
+            // far, size the rest to what fits: time up is a budget spent, not an
+            // interruption (a shooting extrapolates what it could not shoot).
+            let left = seconds_budget - clock.elapsed().as_secs_f64();
+            let fits = rays_that_fit(left, seconds, step.rays);
+            if step.next_rays > fits {
+                step.limit_rays_left(fits);
+            }
+        }
+        ControlFlow::Continue(())
+    });
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    // A cancelled step: the answer is the last complete one.
+    let cancelled = matches!(result, Err(MethodError::Cancelled));
+    let solution = match result {
+        Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
+        other => other?,
+    };
+    let seconds = start.elapsed().as_secs_f64();
+    let piece_rays = solution.estimate.rays();
+    let estimate = run.answer(&solution.estimate)?;
+    let state = run.state(&solution.estimate, solution.steps, solution.escaped_rays)?;
+    // a run stopped in a step that is not an answer lacks part of its light
+    let state_complete = solution.stop != StopReason::Stopped || complete_steps;
+    let solved_rays = match problem.resume {
+        Some(_) => estimate.rays(),
+        None => piece_rays,
+    };
+    let refinement_rays = refinement.as_ref().map_or(0, |r| r.rays);
+    let stats = RunStats {
+        method,
+        patches: mesh.patches().len(),
+        rays: solved_rays + refinement_rays,
+        seconds,
+        rays_per_second: piece_rays as f64 / seconds.max(1e-9),
+        iterations: state.steps(),
+        seed: settings.seed,
+        threads: rayon::current_num_threads(),
+        // Not counted by the steps: unknown when a step was abandoned.
+        escaped_rays: (!cancelled).then_some(state.escaped_rays()),
+        unshot_fraction: (!cancelled).then_some(solution.unshot_fraction),
+        stop: solution.stop,
+        setup_seconds,
+        sampler: settings.sampler,
+        refinement: refinement
+            .as_ref()
+            .map(|r| r.rounds.iter().map(RefinementRound::from).collect()),
+    };
+    Ok(Answer {
+        mesh,
+        bvh,
+        estimate,
+        patch,
+        stats,
+        state: (!deterministic && state_complete).then_some(state),
+        target_reached,
+        cancelled,
+        complete_steps,
+        warnings,
+    })
+}
+
+/// This step's solution as an estimate.
+fn step_estimate(step: &Step) -> Result<Estimate, Error> {
+    Ok(Estimate::new(
+        step.radiosity.to_vec(),
+        step.variance.map(<[_]>::to_vec),
+        step.rays,
+    )?)
+}
+
+/// The schedules' settings for `settings` and `budget`.
+fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
+    ScheduleConfig {
+        rays: budget.total_rays(),
+        seed: settings.seed,
+        unshot_threshold: settings.unshot_threshold,
+        ambient: settings.ambient,
+        first_pass_rays: None,
+        sampler: settings.sampler,
+        control_variate: settings.control_variate,
+        reference: ReferenceConfig {
+            visibility_tolerance: settings.visibility_tolerance,
+            ..Default::default()
+        },
+    }
+}
+
+/// The 95th percentile by area of the patches' relative standard error of incident irradiance
+/// ([`relative_error`]): what a target error holds a solve to. Infinite without variances.
+fn error_p95(mesh: &Mesh, answer: &Estimate) -> f64 {
+    let Some(variance) = answer.variance() else {
+        return f64::INFINITY;
+    };
+    let patches = mesh.patches();
+    let errors: Vec<f64> = patches
+        .iter()
+        .enumerate()
+        .map(|(i, p)| relative_error(answer.radiosity()[i], p.emission.as_dvec3(), variance[i]))
+        .collect();
+    let areas: Vec<f64> = patches.iter().map(|p| p.area).collect();
+    weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)
+}
+
+/// The adaptive plan's bounds on `scene`.
+fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
+    let mut bounds = AdaptiveBounds::default_for(scene);
+    if let MeshPlan::Adaptive {
+        max_patches,
+        min_edge,
+    } = settings.mesh
+    {
+        bounds.max_patches = max_patches;
+        if let Some(l) = min_edge {
+            bounds.min_edge = l;
+        }
+    }
+    bounds
+}
+
+/// The adaptive mesh: the scene cut to the diagonal / 40 when that takes at most
+/// 1 / [`START_SHARE`] of the patch budget (the rest is the refinement's), else to the
+/// uniform default when that fits the budget, else one element per face (every start within
+/// the elements the ray budget pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of
+/// the ray budget and of the time.
+fn adaptive_mesh(
+    scene: &Scene,
+    settings: &Settings,
+    budget: &Budget,
+    rays: u64,
+    warnings: &mut Vec<String>,
+) -> Result<(Mesh, Refined, History), Error> {
+    let bounds = adaptive_bounds(scene, settings);
+    let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
+    let fits = |mesh: &AdaptiveMesh, share: usize| {
+        mesh.len() <= (bounds.max_patches / share).min(affordable)
+    };
+    let mesh_error = |start: Subdivision| {
+        move |source| Error::Mesh {
+            source,
+            max_edge: match start {
+                Subdivision::None => None,
+                Subdivision::MaxEdge(l) => Some(l),
+            },
+        }
+    };
+    let diagonal = scene.bounds().diagonal() as f32;
+    let coarse = Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION);
+    let mut mesh = AdaptiveMesh::new(scene, coarse, bounds).map_err(mesh_error(coarse))?;
+    if !fits(&mesh, START_SHARE) {
+        let uniform = Subdivision::default_for(scene);
+        mesh = AdaptiveMesh::new(scene, uniform, bounds).map_err(mesh_error(uniform))?;
+    }
+    if !fits(&mesh, 1) {
+        mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
+            .map_err(mesh_error(Subdivision::None))?;
+    }
+    let config = AdaptiveConfig {
+        rays: if rays == u64::MAX {
+            u64::MAX
+        } else {
+            (rays / 4).max(1)
+        },
+        seconds: budget.seconds.map(|t| t / 4.0),
+        seed: settings.seed,
+        ..Default::default()
+    };
+    let refined = refine(&mut mesh, &config)?;
+    let unrefinable = refined.unrefinable();
+    if unrefinable > 0 {
+        warnings.push(format!(
+            "{unrefinable} elements could not be split into valid elements (slivers, or faces \
+             too small for f32 coordinates at the scene's size); kept as they are"
+        ));
+    }
+    let history = mesh.history().clone();
+    Ok((mesh.into_mesh(), refined, history))
+}
+
+/// The finer start (the diagonal / 40) is taken when it holds at most `1 / START_SHARE` of the
+/// patch budget: the refinement's marks leave large starting elements as they are where the
+/// light bends gently, so a finer start measured better at equal budgets (docs/meshing.md).
+const START_SHARE: usize = 2;
+
+/// The fewest rays of the budget per element of an adaptive run's starting mesh: a finer start
+/// would leave the refinement's rounds and the method too few rays per element.
+const START_RAYS_PER_ELEMENT: u64 = 16;
+
+/// The share of the time left a time budget plans to fill: the rest absorbs the per-step
+/// work that does not scale with rays and the writing of the outputs.
+const TIME_FILL: f64 = 0.97;
+
+/// The rays that fit in `left` seconds at the speed of a run that cast `rays` rays in
+/// `seconds` seconds, with [`TIME_FILL`]'s margin (0 when no time is left).
+fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
+    if left <= 0.0 {
+        return 0;
+    }
+    if rays == 0 {
+        return u64::MAX;
+    }
+    let per_ray = seconds / rays as f64;
+    if per_ray <= 0.0 {
+        return u64::MAX;
+    }
+    (TIME_FILL * left / per_ray).min(u64::MAX as f64) as u64
+}

@@ -1,0 +1,210 @@
+//! What a solve is asked: the scene, the settings that define its answer, the budget.
+
+use crate::{Error, RunState};
+use mcrad_mc_radiosity::schedule::Kind;
+use mcrad_mc_radiosity::{ControlVariate, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
+use mcrad_meshing::{DEFAULT_MAX_PATCHES, Mesh};
+use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
+use mcrad_scene_io::Scene;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+/// How the scene's faces become the patches solved for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MeshPlan {
+    /// Start coarse and split where the measured light asks for it (the default): the start is
+    /// the faces cut to the bounding-box diagonal / 40 when that holds at most half of
+    /// `max_patches`, else the uniform default when that fits, else one element per face;
+    /// refined with a quarter of the budget.
+    Adaptive {
+        /// The most elements (patches), `>= 1`.
+        max_patches: usize,
+        /// The shortest edge a split may make (scene units, `> 0`); `None`: the diagonal / 640.
+        min_edge: Option<f32>,
+    },
+    /// Every face cut until no patch edge is longer than `max_edge` (scene units, `> 0`);
+    /// `None`: the bounding-box diagonal / 20.
+    Uniform {
+        /// The longest patch edge (scene units).
+        max_edge: Option<f32>,
+    },
+    /// One patch per input face, in face order (patch `i` is input face `i`).
+    PerFace,
+}
+
+impl Default for MeshPlan {
+    /// Adaptive within [`DEFAULT_MAX_PATCHES`] elements, the default minimum edge.
+    fn default() -> Self {
+        MeshPlan::Adaptive {
+            max_patches: DEFAULT_MAX_PATCHES,
+            min_edge: None,
+        }
+    }
+}
+
+/// What defines a run's answer besides the scene and the budget: a saved run records it, and
+/// its continuation runs with it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// The method (the paper's algorithms and their relatives); default `combined`.
+    pub method: Method,
+    /// How faces become patches.
+    pub mesh: MeshPlan,
+    /// Seed of every random stream (the answer is a function of it, whatever the threads).
+    pub seed: u64,
+    /// How rays are drawn: quasi-Monte Carlo (default) or independent.
+    pub sampler: Sampler,
+    /// Patch gathering's control variate.
+    pub control_variate: ControlVariate,
+    /// Add the ambient term (Balog, section 3.1) to shooting solutions.
+    pub ambient: bool,
+    /// Shooting stops at this fraction of the emitted power left unshot, in `[0, 1]`.
+    pub unshot_threshold: f64,
+    /// The reference solver's visibility target (relative standard deviation of a form-factor
+    /// row's visibility; [`Method::Reference`] only).
+    pub visibility_tolerance: f64,
+}
+
+impl Default for Settings {
+    /// The command line's defaults: `combined`, an adaptive mesh, seed 0, QMC, the default
+    /// control variate, no ambient term, [`DEFAULT_UNSHOT_THRESHOLD`] and
+    /// [`DEFAULT_VISIBILITY_TOLERANCE`].
+    fn default() -> Self {
+        Settings {
+            method: Method::default(),
+            mesh: MeshPlan::default(),
+            seed: 0,
+            sampler: Sampler::default(),
+            control_variate: ControlVariate::default(),
+            ambient: false,
+            unshot_threshold: DEFAULT_UNSHOT_THRESHOLD,
+            visibility_tolerance: DEFAULT_VISIBILITY_TOLERANCE,
+        }
+    }
+}
+
+impl Settings {
+    /// Each setting, named, as it reads in messages (`("method", "prr")`, `("mesh", "uniform,
+    /// max edge 0.1")`, ...).
+    pub fn described(&self) -> Vec<(&'static str, String)> {
+        let mesh = match self.mesh {
+            MeshPlan::Adaptive {
+                max_patches,
+                min_edge,
+            } => format!(
+                "adaptive, at most {max_patches} patches, minimum edge {}",
+                min_edge.map_or_else(|| "the default".to_string(), |l| l.to_string())
+            ),
+            MeshPlan::Uniform { max_edge } => format!(
+                "uniform, maximum edge {}",
+                max_edge.map_or_else(|| "the default".to_string(), |l| l.to_string())
+            ),
+            MeshPlan::PerFace => "one patch per face".to_string(),
+        };
+        vec![
+            ("method", self.method.name().to_string()),
+            ("mesh", mesh),
+            ("seed", self.seed.to_string()),
+            ("sampler", self.sampler.name().to_string()),
+            ("control variate", self.control_variate.name().to_string()),
+            (
+                "ambient term",
+                if self.ambient { "on" } else { "off" }.into(),
+            ),
+            ("unshot threshold", self.unshot_threshold.to_string()),
+            (
+                "visibility tolerance",
+                self.visibility_tolerance.to_string(),
+            ),
+        ]
+    }
+
+    /// Checks that `given` asks for the same run as these (saved) settings; the error names
+    /// the first setting that differs with both values ([`Error::Disagree`]).
+    pub fn agree(&self, given: &Settings) -> Result<(), Error> {
+        for ((what, saved), (_, now)) in self.described().into_iter().zip(given.described()) {
+            if saved != now {
+                return Err(Error::Disagree {
+                    what,
+                    saved,
+                    given: now,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether the method is deterministic (the reference solver: no seed, no budget, no state).
+    pub fn deterministic(&self) -> bool {
+        self.method.kind() == Kind::Deterministic
+    }
+}
+
+/// When a run ends: the first of its limits reached.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Budget {
+    /// Total rays over the refinement and the method; `None`: [`crate::DEFAULT_RAYS`], or no
+    /// limit with `seconds`.
+    pub rays: Option<u64>,
+    /// Wall-clock seconds (`> 0`), counted from [`Budget::since`].
+    pub seconds: Option<f64>,
+    /// When the clock of `seconds` started (e.g. before loading the scene); `None`: when
+    /// [`crate::solve`] starts.
+    pub since: Option<Instant>,
+    /// Stop once the 95th percentile by area of the patches' relative standard error of
+    /// incident irradiance is at most this (a fraction, `> 0`); progressive methods only.
+    pub target_error: Option<f64>,
+}
+
+impl Budget {
+    /// The ray budget the run starts from: the rays asked, [`crate::DEFAULT_RAYS`] without a
+    /// limit, or `u64::MAX` (none) under a time budget alone.
+    pub fn total_rays(&self) -> u64 {
+        self.rays.unwrap_or(if self.seconds.is_some() {
+            u64::MAX
+        } else {
+            crate::DEFAULT_RAYS
+        })
+    }
+}
+
+/// What is solved: the scene or a mesh of it.
+#[derive(Debug, Clone, Copy)]
+pub enum Input<'a> {
+    /// A scene, meshed by the settings' [`MeshPlan`].
+    Scene(&'a Scene),
+    /// A mesh built by the caller (the plan is not used).
+    Mesh(&'a Mesh),
+}
+
+/// A solve: the input, the settings that define its answer, the budget and how to run it.
+#[derive(Debug, Clone, Copy)]
+pub struct Problem<'a> {
+    /// What is solved.
+    pub input: Input<'a>,
+    /// The settings; a continued run's must agree with the saved ones ([`Settings::agree`]).
+    pub settings: Settings,
+    /// When to stop.
+    pub budget: Budget,
+    /// Worker threads; `None`: rayon's current pool. The answer does not depend on it.
+    pub threads: Option<usize>,
+    /// A saved run to continue: this run is its next piece, and the answer the two merged.
+    pub resume: Option<&'a RunState>,
+    /// Set (from any thread) to abandon the step in progress; the answer is then the last
+    /// complete step's.
+    pub cancel: Option<&'a AtomicBool>,
+}
+
+impl<'a> Problem<'a> {
+    /// The default solve of `scene`: default settings and budget, all threads, a new run.
+    pub fn new(scene: &'a Scene) -> Problem<'a> {
+        Problem {
+            input: Input::Scene(scene),
+            settings: Settings::default(),
+            budget: Budget::default(),
+            threads: None,
+            resume: None,
+            cancel: None,
+        }
+    }
+}

@@ -1,0 +1,174 @@
+//! What a run reports of itself: the `--stats` JSON.
+
+use mcrad_mc_radiosity::adaptive::RoundStats;
+use mcrad_mc_radiosity::{Method, Sampler, StopReason};
+use serde::{Serialize, Serializer};
+
+/// Statistics of one solve, ready for serde (`mcrad solve --stats F.json` writes them as JSON).
+/// The first eight fields are the command-line contract; the rest extend it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunStats {
+    /// The method that ran, written as its registry name ([`Method::name`]).
+    #[serde(serialize_with = "by_name")]
+    pub method: Method,
+    /// Patches solved for.
+    pub patches: usize,
+    /// Rays cast by the refinement and the method (over every piece of a continued run).
+    pub rays: u64,
+    /// Wall-clock seconds of the solve (loading and meshing excluded).
+    pub seconds: f64,
+    /// This piece's method rays over `seconds` (rays/s).
+    pub rays_per_second: f64,
+    /// Steps of the method over every piece (shooting: waves).
+    pub iterations: u32,
+    /// The run's seed.
+    pub seed: u64,
+    /// Worker threads used.
+    pub threads: usize,
+    /// Rays that hit nothing; `None` (written `null`) when a step was abandoned and the count
+    /// of the last complete step is not known.
+    pub escaped_rays: Option<u64>,
+    /// Unshot power left at the end as a fraction of the emitted power (channels summed);
+    /// `None` (`null`) as for `escaped_rays`.
+    pub unshot_fraction: Option<f64>,
+    /// Why the run ended, written as [`StopReason::name`]: `converged`, `budget` or `stopped`
+    /// (a time budget, an error target, an observer or a cancellation).
+    #[serde(serialize_with = "by_name")]
+    pub stop: StopReason,
+    /// Seconds spent meshing, refining and building the ray caster, besides the caller's own
+    /// setup before the solve (s).
+    pub setup_seconds: f64,
+    /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
+    #[serde(serialize_with = "by_name")]
+    pub sampler: Sampler,
+    /// An adaptive mesh's refinement rounds, in order; absent for a fixed mesh.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub refinement: Option<Vec<RefinementRound>>,
+}
+
+/// What one round of an adaptive mesh's refinement did (counts of elements, and rays).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct RefinementRound {
+    /// Elements before the round.
+    pub elements: usize,
+    /// Elements marked by a gradient beyond the noise.
+    pub gradient: usize,
+    /// Elements marked by a visibility change (some also by a gradient).
+    pub visibility: usize,
+    /// Elements marked by light reflected from close by (some also by the other tests).
+    pub proximity: usize,
+    /// Elements split.
+    pub split: usize,
+    /// Marked elements not split: at the minimum edge or beyond the patch budget.
+    pub held: usize,
+    /// Marked elements that could not be split into valid elements (kept).
+    pub unrefinable: usize,
+    /// Rays cast in the round.
+    pub rays: u64,
+}
+
+impl From<&RoundStats> for RefinementRound {
+    fn from(r: &RoundStats) -> Self {
+        RefinementRound {
+            elements: r.elements,
+            gradient: r.gradient,
+            visibility: r.visibility,
+            proximity: r.proximity,
+            split: r.split,
+            held: r.held,
+            unrefinable: r.unrefinable,
+            rays: r.rays,
+        }
+    }
+}
+
+/// Things named on the command line and in statistics.
+trait Named {
+    fn name(&self) -> &'static str;
+}
+
+impl Named for Method {
+    fn name(&self) -> &'static str {
+        Method::name(*self)
+    }
+}
+
+impl Named for StopReason {
+    fn name(&self) -> &'static str {
+        StopReason::name(*self)
+    }
+}
+
+impl Named for Sampler {
+    fn name(&self) -> &'static str {
+        Sampler::name(*self)
+    }
+}
+
+fn by_name<T: Named, S: Serializer>(value: &T, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_str(value.name())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contract_fields_are_written_by_name() {
+        let s = RunStats {
+            method: Method::TwoPassSplit,
+            patches: 32,
+            rays: 1000,
+            seconds: 0.5,
+            rays_per_second: 2000.0,
+            iterations: 7,
+            seed: 3,
+            threads: 2,
+            escaped_rays: Some(0),
+            unshot_fraction: Some(0.01),
+            stop: StopReason::BudgetSpent,
+            setup_seconds: 0.1,
+            sampler: Sampler::Qmc,
+            refinement: None,
+        };
+        let v = serde_json::to_value(&s).unwrap();
+        for key in [
+            "method",
+            "patches",
+            "rays",
+            "seconds",
+            "rays_per_second",
+            "iterations",
+            "seed",
+            "threads",
+        ] {
+            assert!(v.get(key).is_some(), "missing {key}");
+        }
+        assert_eq!(v["method"], "two-pass-split");
+        assert_eq!(v["stop"], "budget");
+        assert_eq!(v["sampler"], "qmc");
+        assert_eq!(v["rays"], 1000);
+        assert!(
+            v.get("refinement").is_none(),
+            "a fixed mesh writes no rounds"
+        );
+        let round = RefinementRound {
+            elements: 100,
+            gradient: 3,
+            visibility: 5,
+            proximity: 2,
+            split: 7,
+            held: 1,
+            unrefinable: 0,
+            rays: 4096,
+        };
+        let refined = RunStats {
+            refinement: Some(vec![round]),
+            ..s
+        };
+        let v = serde_json::to_value(&refined).unwrap();
+        assert_eq!(v["refinement"][0]["split"], 7);
+        assert_eq!(v["refinement"][0]["proximity"], 2);
+        assert_eq!(v["refinement"][0]["rays"], 4096);
+    }
+}
