@@ -121,25 +121,23 @@ pub fn textured_cornell() -> Result<Vec<u8>> {
     Ok(mcrad_bake::glb(serde_json::to_vec(&doc)?, bin))
 }
 
+/// The arguments of `cargo xtask bake-check`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BakeCheckArgs {
+    /// Seeds 0..K of the Monte Carlo method
+    #[arg(long, value_name = "K", default_value_t = 8)]
+    pub seeds: u64,
+    /// Rays of every run (e.g. 2e6)
+    #[arg(long, value_name = "N", default_value_t = 2_000_000, value_parser = crate::parse_count)]
+    pub rays: u64,
+    /// The method baked and judged
+    #[arg(long, value_name = "M", value_enum, default_value_t = Method::Combined)]
+    pub method: Method,
+}
+
 /// `cargo xtask bake-check [--seeds K] [--rays N] [--method M]` (default `combined`).
-pub fn run(root: &Path, args: &[String]) -> Result<()> {
-    let (mut seeds, mut rays, mut method) = (8u64, 2_000_000u64, Method::Combined);
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut value = || it.next().context("a value");
-        match a.as_str() {
-            "--seeds" => seeds = value()?.parse()?,
-            "--rays" => rays = value()?.parse::<f64>()? as u64,
-            "--method" => {
-                let name = value()?;
-                method = Method::ALL
-                    .into_iter()
-                    .find(|m| m.to_string() == *name)
-                    .with_context(|| format!("no method {name}"))?;
-            }
-            other => bail!("unknown option {other}"),
-        }
-    }
+pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
+    let (seeds, rays, method) = (args.seeds, args.rays, args.method);
     let dir = root.join("target/bake-check");
     std::fs::create_dir_all(&dir)?;
     let path = dir.join("cornell-textured.glb");

@@ -381,60 +381,70 @@ pub struct Options {
     pub sampler: mcrad_mc_radiosity::Sampler,
 }
 
+/// The arguments of `cargo xtask calibrate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CalibrateArgs {
+    /// Seeds 0..K per case and method (at least 2)
+    #[arg(long, value_name = "K", default_value_t = DEFAULT_SEEDS)]
+    pub seeds: u64,
+    /// Rays asked of every run (e.g. 2e5)
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_RAYS, value_parser = crate::parse_count)]
+    pub rays: u64,
+    /// Cases, comma-separated [default: all]
+    #[arg(long, value_name = "a,b", value_delimiter = ',')]
+    pub cases: Vec<String>,
+    /// Monte Carlo methods, comma-separated [default: all of them]
+    #[arg(long, value_name = "m,n", value_delimiter = ',')]
+    pub methods: Vec<Method>,
+    /// Wall-clock limit of one run (seconds)
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_LIMIT)]
+    pub limit: f64,
+    /// The Markdown report, relative to the workspace
+    #[arg(long, value_name = "FILE", default_value = "docs/calibration.md")]
+    pub out: PathBuf,
+    /// How the runs draw their rays [default: the library's]
+    #[arg(
+        long,
+        value_enum,
+        value_name = "random|qmc",
+        hide_possible_values = true
+    )]
+    pub sampler: Option<mcrad_mc_radiosity::Sampler>,
+}
+
 impl Options {
-    /// Parses the arguments after `calibrate`.
-    pub fn parse(root: &Path, args: &[String]) -> Result<Options> {
-        let mut o = Options {
-            seeds: DEFAULT_SEEDS,
-            rays: DEFAULT_RAYS,
-            cases: CASES.iter().collect(),
-            methods: Method::monte_carlo().collect(),
-            limit: DEFAULT_LIMIT,
-            out: root.join("docs/calibration.md"),
-            sampler: mcrad_mc_radiosity::Sampler::default(),
+    /// The settings `args` ask for (the arguments after `calibrate`).
+    pub fn parse(root: &Path, args: &CalibrateArgs) -> Result<Options> {
+        let cases = if args.cases.is_empty() {
+            CASES.iter().collect()
+        } else {
+            args.cases
+                .iter()
+                .map(|n| {
+                    CASES.iter().find(|c| c.name == n).with_context(|| {
+                        let names: Vec<_> = CASES.iter().map(|c| c.name).collect();
+                        format!("unknown case '{n}' (the cases: {})", names.join(", "))
+                    })
+                })
+                .collect::<Result<_>>()?
         };
-        let mut it = args.iter();
-        while let Some(a) = it.next() {
-            let mut value = || {
-                it.next()
-                    .with_context(|| format!("{a} needs a value"))
-                    .cloned()
-            };
-            match a.as_str() {
-                "--seeds" => o.seeds = value()?.parse().context("--seeds")?,
-                "--rays" => o.rays = value()?.parse::<f64>().context("--rays")? as u64,
-                "--limit" => o.limit = value()?.parse().context("--limit")?,
-                "--out" => o.out = root.join(value()?),
-                "--sampler" => {
-                    o.sampler = match value()?.as_str() {
-                        "random" => mcrad_mc_radiosity::Sampler::Random,
-                        "qmc" => mcrad_mc_radiosity::Sampler::Qmc,
-                        other => bail!("--sampler: 'random' or 'qmc', not '{other}'"),
-                    }
-                }
-                "--cases" => {
-                    o.cases = value()?
-                        .split(',')
-                        .map(|n| {
-                            CASES.iter().find(|c| c.name == n).with_context(|| {
-                                let names: Vec<_> = CASES.iter().map(|c| c.name).collect();
-                                format!("unknown case '{n}' (the cases: {})", names.join(", "))
-                            })
-                        })
-                        .collect::<Result<_>>()?
-                }
-                "--methods" => {
-                    o.methods = value()?
-                        .split(',')
-                        .map(|m| m.parse::<Method>())
-                        .collect::<Result<_, _>>()?;
-                    if let Some(m) = o.methods.iter().find(|m| **m == Method::Reference) {
-                        bail!("{m} is not a Monte Carlo method");
-                    }
-                }
-                other => bail!("unknown option '{other}' of calibrate"),
-            }
+        let methods = if args.methods.is_empty() {
+            Method::monte_carlo().collect()
+        } else {
+            args.methods.clone()
+        };
+        if let Some(m) = methods.iter().find(|m| **m == Method::Reference) {
+            bail!("{m} is not a Monte Carlo method");
         }
+        let o = Options {
+            seeds: args.seeds,
+            rays: args.rays,
+            cases,
+            methods,
+            limit: args.limit,
+            out: root.join(&args.out),
+            sampler: args.sampler.unwrap_or_default(),
+        };
         if o.seeds < 2 || o.rays == 0 || o.limit.is_nan() || o.limit <= 0.0 {
             bail!("calibrate needs --seeds >= 2, --rays >= 1 and --limit > 0");
         }
@@ -694,7 +704,7 @@ struct Row {
 }
 
 /// Runs the suite and writes the report.
-pub fn run(root: &Path, args: &[String]) -> Result<()> {
+pub fn run(root: &Path, args: &CalibrateArgs) -> Result<()> {
     let o = Options::parse(root, args)?;
     let start = Instant::now();
     let rows = measure(&o)?;
@@ -1274,20 +1284,15 @@ mod tests {
     #[test]
     fn one_case_runs_end_to_end() {
         let dir = tempfile::tempdir().unwrap();
-        let args: Vec<String> = [
-            "--cases",
-            "furnace-0.5",
-            "--methods",
-            "prr",
-            "--seeds",
-            "2",
-            "--rays",
-            "20000",
-            "--out",
-            "calibration.md",
-        ]
-        .map(String::from)
-        .to_vec();
+        let args = CalibrateArgs {
+            seeds: 2,
+            rays: 20_000,
+            cases: vec!["furnace-0.5".into()],
+            methods: vec![Method::Prr],
+            limit: DEFAULT_LIMIT,
+            out: "calibration.md".into(),
+            sampler: None,
+        };
         let o = Options::parse(dir.path(), &args).unwrap();
         let rows = measure(&o).unwrap();
         assert_eq!(rows.len(), 1);

@@ -17,7 +17,7 @@
 //! power against the reference's) and `docs/figure2-budgets.png` (budgets: rms_rel against
 //! shooting rays), and prints both tables in Markdown.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_lab::plot::{PlotSpec, Series, line_plot};
@@ -48,17 +48,6 @@ const REFINING_WAVES: u32 = 10;
 const GATHER_RAYS: u32 = 20_000;
 /// Seeds per point.
 const SEEDS: u64 = 5;
-
-/// Runs the experiment `name` from the workspace `root`.
-pub fn run(root: &Path, name: Option<&str>) -> Result<()> {
-    match name {
-        Some("figure2") => figure2(root),
-        Some(other) => {
-            bail!("unknown experiment '{other}' (known: figure2, speed-vs-error, meshing)")
-        }
-        None => bail!("name an experiment (known: figure2, speed-vs-error, meshing)"),
-    }
-}
 
 /// Which sweep a point belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -171,7 +160,8 @@ impl Setup {
     }
 }
 
-fn figure2(root: &Path) -> Result<()> {
+/// Runs Figure 2 from the workspace `root` and writes docs/figure2.csv and docs/figure2.png.
+pub fn figure2(root: &Path) -> Result<()> {
     let start = Instant::now();
     let scene_path = root.join("scenes/cornell-box.obj");
     let scene = mcrad_scene_io::load(&scene_path)

@@ -12,63 +12,108 @@ mod speed;
 mod viewer;
 
 use anyhow::{Context, Result, bail};
+use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-const HELP: &str = "\
-cargo xtask <task>
+/// mcrad's project tasks.
+#[derive(Debug, Parser)]
+#[command(
+    name = "cargo xtask",
+    bin_name = "cargo xtask",
+    subcommand_value_name = "TASK",
+    subcommand_help_heading = "Tasks"
+)]
+struct Cli {
+    #[command(subcommand)]
+    task: Option<Task>,
+}
 
-tasks:
-  ci      what CI runs: cargo fmt --check, clippy -D warnings, cargo doc -D warnings, the
-          release test suite
-  bench   the shooting and ray-casting benchmarks (criterion), then tables of their medians;
-          `bench shooting` or `bench raycast` runs one of them; `bench bake` times mcrad bake
-          on a generated 100k-triangle textured glTF of 8,400 instances; `bench first-solution`
-          the fixed cost: each stage from the scene file to a 5% solution of a 310-patch box
-  regress golden-image regression of the bundled scenes (scenes/golden/);
-          `regress --bless` re-renders the goldens and re-measures their noise thresholds
-  experiment figure2
-          the paper's Figure 2: gathering from refining shooting, with and without the
-          ambient term; writes docs/figure2.csv and docs/figure2.png
-  experiment speed-vs-error [--quick] [--seeds N] [--scenes a,b] [--methods m,n]
-                            [--time S] [--target E] [--sampler random|qmc]
-                            [--control-variate off|constant] [--out DIR]
-          every method on every experiment scene, error against time; writes
-          docs/speed-vs-error.csv, docs/speed-vs-error-<scene>.png, docs/results.md
-          (--quick: 1 seed, 1 s per curve, into target/speed-vs-error-quick/)
-  experiment meshing [--quick] [--scenes cornell,table-room,boxes-room] [--times 2.5,5,10]
-                     [--spp N] [--out DIR]
-          uniform meshes of several sizes against adaptive, image error against a path-traced
-          ground truth and per-face rms_rel, against --time; writes
-          docs/meshing-experiment.md, .csv and a plot per scene (caches in target/meshing/)
-  calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
-            [--sampler random|qmc]
-          every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z²,
-          spread/reported variance, power bias, budget use; writes docs/calibration.md
-  gen-scenes
-          writes the generated experiment scenes scenes/boxes-room.obj and
-          scenes/table-room.obj (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ
-  bake-check [--seeds K] [--rays N]
-          a textured Cornell-style room baked from K seeds of combined and from the reference
-          solver: per face, the baked texels' error against the variance the bake reports
-  viewer-check [--docs]
-          bakes scenes/cornell-box.gltf (mcrad bake), renders the GLB with three.js in headless
-          Chromium (Debian's chromium; npm installs three in xtask/viewer) and compares it with
-          mcrad's render of the same solution; --docs updates docs/bake-cornell.png
-  image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png] [--reference-error ERROR.exr]
-          img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor
-          have a neighbour that does), and the same over the darkest third of them; with the
-          reference's standard error per pixel, its noise is subtracted (sum se^2)
-  path-trace SCENE --camera SPEC --size WxH --spp N [--seed S] --out R.exr [--error E.exr]
-          an independent diffuse path tracer (mcrad_lab::pathtrace): the ground truth of a
-          picture, and its standard error per pixel (R.error.exr)
-  gen-references [scene ...]
-          reference solutions of the experiment scenes (default: all but cornell-2k)
-          into scenes/reference/
-";
+/// One task.
+#[derive(Debug, Subcommand)]
+enum Task {
+    /// What CI runs: cargo fmt --check, clippy -D warnings, cargo doc -D warnings, the release
+    /// test suite
+    Ci,
+    /// The shooting and ray-casting benchmarks (criterion), then tables of their medians
+    Bench {
+        /// Only one benchmark [default: shooting and raycast]
+        #[arg(value_enum)]
+        which: Option<Bench>,
+    },
+    /// Golden-image regression of the bundled scenes (scenes/golden/)
+    Regress {
+        /// Re-renders the goldens and re-measures their noise thresholds
+        #[arg(long)]
+        bless: bool,
+    },
+    /// The experiments: the paper's Figure 2, speed against error, meshing
+    Experiment {
+        #[command(subcommand)]
+        experiment: Experiment,
+    },
+    /// Every Monte Carlo method on furnaces and a tiny-light room, K seeds: mean z², spread /
+    /// reported variance, power bias, budget use; writes docs/calibration.md
+    Calibrate(calibrate::CalibrateArgs),
+    /// Writes the generated experiment scenes scenes/boxes-room.obj and scenes/table-room.obj
+    /// (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ
+    GenScenes,
+    /// A textured Cornell-style room baked from K seeds of a method and from the reference
+    /// solver: per face, the baked texels' error against the variance the bake reports
+    BakeCheck(bake_check::BakeCheckArgs),
+    /// Bakes scenes/cornell-box.gltf (mcrad bake), renders the GLB with three.js in headless
+    /// Chromium (Debian's chromium; npm installs three in xtask/viewer) and compares it with
+    /// mcrad's render of the same solution
+    ViewerCheck {
+        /// Updates docs/bake-cornell.png
+        #[arg(long)]
+        docs: bool,
+    },
+    /// img_rel = sqrt(sum (I - R)^2 / sum R^2) over the pixels that see no emitter (nor have a
+    /// neighbour that does), and the same over the darkest third of them; with the reference's
+    /// standard error per pixel, its noise is subtracted (sum se^2)
+    ImageError(path_trace::ImageErrorArgs),
+    /// An independent diffuse path tracer (mcrad_lab::pathtrace): the ground truth of a
+    /// picture, and its standard error per pixel (R.error.exr)
+    PathTrace(path_trace::PathTraceArgs),
+    /// Reference solutions of the experiment scenes into scenes/reference/
+    GenReferences {
+        /// The scenes [default: all but cornell-2k]
+        scenes: Vec<String>,
+    },
+}
+
+/// One of the benchmarks of `cargo xtask bench`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Bench {
+    /// crates/mc-radiosity/benches/shooting.rs
+    Shooting,
+    /// crates/raycast/benches/scenes.rs
+    Raycast,
+    /// Times mcrad bake on a generated 100k-triangle textured glTF of 8,400 instances
+    Bake,
+    /// The fixed cost: each stage from the scene file to a 5% solution of a 310-patch box
+    /// (crates/mc-radiosity/benches/first_solution.rs)
+    FirstSolution,
+}
+
+/// The experiments of `cargo xtask experiment`.
+#[derive(Debug, Subcommand)]
+enum Experiment {
+    /// The paper's Figure 2: gathering from refining shooting, with and without the ambient
+    /// term; writes docs/figure2.csv and docs/figure2.png
+    Figure2,
+    /// Every method on every experiment scene, error against time; writes
+    /// docs/speed-vs-error.csv, docs/speed-vs-error-SCENE.png, docs/results.md
+    SpeedVsError(speed::SpeedArgs),
+    /// Uniform meshes of several sizes against adaptive, image error against a path-traced
+    /// ground truth and per-face rms_rel, against --time; writes docs/meshing-experiment.md,
+    /// .csv and a plot per scene (caches in target/meshing/)
+    Meshing(meshing_exp::MeshingArgs),
+}
 
 fn main() -> std::process::ExitCode {
-    match run() {
+    match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -77,71 +122,68 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn run() -> Result<()> {
-    let task = std::env::args().nth(1);
-    match task.as_deref() {
-        Some("ci") => ci(),
-        Some("bench") if std::env::args().nth(2).as_deref() == Some("bake") => {
+fn run(cli: Cli) -> Result<()> {
+    let Some(task) = cli.task else {
+        Cli::command().print_help()?;
+        return Ok(());
+    };
+    match task {
+        Task::Ci => ci(),
+        Task::Bench {
+            which: Some(Bench::Bake),
+        } => {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             bake_bench::run(&root(), &target_dir().join("release/mcrad"))
         }
-        Some("bench") if std::env::args().nth(2).as_deref() == Some("first-solution") => {
-            bench_first_solution()
-        }
-        Some("bench") => {
-            let which = std::env::args().nth(2);
-            if which.as_deref() != Some("raycast") {
+        Task::Bench {
+            which: Some(Bench::FirstSolution),
+        } => bench_first_solution(),
+        Task::Bench { which } => {
+            if which != Some(Bench::Raycast) {
                 bench()?;
             }
-            if which.as_deref() != Some("shooting") {
+            if which != Some(Bench::Shooting) {
                 bench_raycast()?;
             }
             Ok(())
         }
-        Some("regress") => {
-            let bless = std::env::args().nth(2).as_deref() == Some("--bless");
+        Task::Regress { bless } => {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             regress::run(&root(), &target_dir().join("release/mcrad"), bless)
         }
-        Some("experiment") if std::env::args().nth(2).as_deref() == Some("speed-vs-error") => {
-            let args: Vec<String> = std::env::args().skip(3).collect();
-            speed::run(&root(), &args)
-        }
-        Some("experiment") if std::env::args().nth(2).as_deref() == Some("meshing") => {
-            cargo(&["build", "--release", "--bin", "mcrad"])?;
-            let args: Vec<String> = std::env::args().skip(3).collect();
-            meshing_exp::run(&root(), &target_dir().join("release/mcrad"), &args)
-        }
-        Some("experiment") => experiment::run(&root(), std::env::args().nth(2).as_deref()),
-        Some("calibrate") => calibrate::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>()),
-        Some("gen-scenes") => {
+        Task::Experiment { experiment } => match experiment {
+            Experiment::Figure2 => experiment::figure2(&root()),
+            Experiment::SpeedVsError(args) => speed::run(&root(), &args),
+            Experiment::Meshing(args) => {
+                cargo(&["build", "--release", "--bin", "mcrad"])?;
+                meshing_exp::run(&root(), &target_dir().join("release/mcrad"), &args)
+            }
+        },
+        Task::Calibrate(args) => calibrate::run(&root(), &args),
+        Task::GenScenes => {
             gen_scenes::run(&root())?;
             viewer::write_cornell_gltf(&root())
         }
-        Some("bake-check") => {
-            bake_check::run(&root(), &std::env::args().skip(2).collect::<Vec<_>>())
-        }
-        Some("viewer-check") => {
-            let docs = std::env::args().nth(2).as_deref() == Some("--docs");
+        Task::BakeCheck(args) => bake_check::run(&root(), &args),
+        Task::ViewerCheck { docs } => {
             cargo(&["build", "--release", "--bin", "mcrad"])?;
             viewer::run(&root(), &target_dir().join("release/mcrad"), docs)
         }
-        Some("image-error") => {
-            path_trace::run_image_error(&std::env::args().skip(2).collect::<Vec<_>>())
-        }
-        Some("path-trace") => {
-            path_trace::run_path_trace(&std::env::args().skip(2).collect::<Vec<_>>())
-        }
-        Some("gen-references") => {
-            let names: Vec<String> = std::env::args().skip(2).collect();
-            speed::scenes::generate(&root(), &names)
-        }
-        Some("help" | "-h" | "--help") | None => {
-            print!("{HELP}");
-            Ok(())
-        }
-        Some(other) => bail!("unknown task '{other}'\n\n{HELP}"),
+        Task::ImageError(args) => path_trace::run_image_error(&args),
+        Task::PathTrace(args) => path_trace::run_path_trace(&args),
+        Task::GenReferences { scenes } => speed::scenes::generate(&root(), &scenes),
     }
+}
+
+/// A count written as an integer or in floating point (`2e6`), as the tasks' `--rays` take it.
+fn parse_count(s: &str) -> Result<u64> {
+    let x: f64 = s
+        .parse()
+        .with_context(|| format!("'{s}' is not a number"))?;
+    if !(x >= 0.0 && x <= u64::MAX as f64) {
+        bail!("'{s}' is not a count");
+    }
+    Ok(x as u64)
 }
 
 fn root() -> PathBuf {
@@ -318,4 +360,75 @@ fn bench_first_solution() -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every spelling of a task that the documentation uses still parses (values made up
+    /// where it has placeholders), and no arguments is no task (the help).
+    #[test]
+    fn documented_invocations_parse() {
+        Cli::command().debug_assert();
+        let lines = [
+            "ci",
+            "bench",
+            "bench shooting",
+            "bench raycast",
+            "bench bake",
+            "bench first-solution",
+            "regress",
+            "regress --bless",
+            "experiment figure2",
+            "experiment speed-vs-error",
+            "experiment speed-vs-error --quick",
+            "experiment speed-vs-error --scenes small-light,cornell-2k --methods combined,shoot,prr \
+             --seeds 3 --target 0.01 --time 20 --sampler random",
+            "experiment speed-vs-error --scenes cornell-2k,small-light,boxes-room,cornell-20k \
+             --methods combined --seeds 3 --time 10 --target 0.01 --sampler qmc \
+             --control-variate constant --out somewhere",
+            "experiment meshing",
+            "experiment meshing --quick --scenes cornell,table-room,boxes-room --times 2.5,5,10 \
+             --spp 16 --curve-rays 1e8 --out docs",
+            "calibrate",
+            "calibrate --seeds 16 --rays 2e5 --cases furnace-0.5 --methods prr,combined \
+             --limit 20 --sampler qmc --out docs/calibration.md",
+            "gen-scenes",
+            "bake-check",
+            "bake-check --seeds 8 --rays 2e6 --method combined",
+            "viewer-check",
+            "viewer-check --docs",
+            "image-error A.exr B.exr",
+            "image-error A.exr B.exr diff.png",
+            "image-error IMAGE.exr R.exr --reference-error R.error.exr",
+            "path-trace scenes/cornell-box.obj --camera eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3 \
+             --size 256x256 --spp 16 --out R.exr",
+            "path-trace s.obj --camera eye=0,0,1,look=0,0,0,fov=40 --size 32x24 --spp 4 --seed 3 \
+             --out R.exr --error E.exr",
+            "gen-references",
+            "gen-references cornell-20k small-light",
+        ];
+        for line in lines {
+            let words = line.split_whitespace();
+            let cli = Cli::try_parse_from(std::iter::once("xtask").chain(words));
+            assert!(
+                cli.as_ref().is_ok_and(|c| c.task.is_some()),
+                "{line}: {cli:?}"
+            );
+        }
+        assert!(Cli::try_parse_from(["xtask"]).unwrap().task.is_none());
+        for bad in [
+            "nothing",
+            "bench everything",
+            "regress --blessed",
+            "calibrate --rays x",
+        ] {
+            let words = bad.split_whitespace();
+            assert!(
+                Cli::try_parse_from(std::iter::once("xtask").chain(words)).is_err(),
+                "{bad}"
+            );
+        }
+    }
 }

@@ -84,56 +84,61 @@ struct Options {
     out: PathBuf,
 }
 
+/// The arguments of `cargo xtask experiment meshing`.
+#[derive(Debug, Default, clap::Args)]
+pub struct MeshingArgs {
+    /// A smoke run: 1 s, 16 paths per pixel, 2e6 rays per curve point
+    #[arg(long)]
+    pub quick: bool,
+    /// Scenes, comma-separated (cornell, table-room, boxes-room) [default: all]
+    #[arg(long, value_name = "a,b", value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// `mcrad solve --time` values, comma-separated [default: 2.5,5,10; 1 with --quick]
+    #[arg(long, value_name = "2.5,5,10", value_delimiter = ',')]
+    pub times: Vec<f64>,
+    /// Paths per pixel of the ground truth [default: 1024, 16 with --quick]
+    #[arg(long, value_name = "N")]
+    pub spp: Option<u32>,
+    /// Rays of every run of the patches-against-error curve, 0: no curve [default: 1e8, 2e6
+    /// with --quick]
+    #[arg(long, value_name = "N", value_parser = crate::parse_count)]
+    pub curve_rays: Option<u64>,
+    /// Output directory, relative to the workspace [default: docs]
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
 impl Options {
-    fn parse(root: &Path, args: &[String]) -> Result<Options> {
-        let quick = args.iter().any(|a| a == "--quick");
-        let mut o = Options {
-            scenes: SCENES.iter().collect(),
-            times: if quick {
+    fn parse(root: &Path, args: &MeshingArgs) -> Result<Options> {
+        let quick = args.quick;
+        let scenes = if args.scenes.is_empty() {
+            SCENES.iter().collect()
+        } else {
+            args.scenes
+                .iter()
+                .map(|n| {
+                    SCENES
+                        .iter()
+                        .find(|s| s.name == n)
+                        .with_context(|| format!("unknown scene '{n}'"))
+                })
+                .collect::<Result<_>>()?
+        };
+        Ok(Options {
+            scenes,
+            times: if !args.times.is_empty() {
+                args.times.clone()
+            } else if quick {
                 vec![1.0]
             } else {
                 vec![2.5, 5.0, 10.0]
             },
-            spp: if quick { 16 } else { 1024 },
-            curve_rays: if quick { 2_000_000 } else { 100_000_000 },
-            out: root.join("docs"),
-        };
-        let mut it = args.iter();
-        while let Some(a) = it.next() {
-            let mut value = || it.next().context("an option needs a value");
-            match a.as_str() {
-                "--quick" => {}
-                "--scenes" => {
-                    let names = value()?;
-                    o.scenes = names
-                        .split(',')
-                        .map(|n| {
-                            SCENES
-                                .iter()
-                                .find(|s| s.name == n)
-                                .with_context(|| format!("unknown scene '{n}'"))
-                        })
-                        .collect::<Result<_>>()?;
-                }
-                "--times" => {
-                    o.times = value()?
-                        .split(',')
-                        .map(|t| {
-                            t.parse::<f64>()
-                                .context("--times takes seconds, e.g. 2.5,5,10")
-                        })
-                        .collect::<Result<_>>()?;
-                }
-                "--spp" => o.spp = value()?.parse()?,
-                "--curve-rays" => o.curve_rays = value()?.parse::<f64>()? as u64,
-                "--out" => o.out = root.join(value()?),
-                other => bail!(
-                    "unknown option '{other}' (--quick, --scenes a,b, --times 2.5,5, --spp N, \
-                     --curve-rays N (0: none), --out DIR)"
-                ),
-            }
-        }
-        Ok(o)
+            spp: args.spp.unwrap_or(if quick { 16 } else { 1024 }),
+            curve_rays: args
+                .curve_rays
+                .unwrap_or(if quick { 2_000_000 } else { 100_000_000 }),
+            out: root.join(args.out.as_deref().unwrap_or(Path::new("docs"))),
+        })
     }
 }
 
@@ -161,7 +166,7 @@ impl Point {
 }
 
 /// Runs the experiment (see the module documentation).
-pub fn run(root: &Path, mcrad: &Path, args: &[String]) -> Result<()> {
+pub fn run(root: &Path, mcrad: &Path, args: &MeshingArgs) -> Result<()> {
     let options = Options::parse(root, args)?;
     let work = super::target_dir().join("meshing");
     std::fs::create_dir_all(&work)?;
@@ -307,20 +312,15 @@ fn ground_truth(
     let picture = work.join(format!("{}-truth-{spp}.exr", scene.name));
     let error = work.join(format!("{}-truth-{spp}.error.exr", scene.name));
     if !(picture.is_file() && error.is_file()) {
-        let size = format!("{}x{}", scene.size.0, scene.size.1);
-        super::path_trace::run_path_trace(&[
-            root.join(scene.file).display().to_string(),
-            "--camera".into(),
-            scene.camera.into(),
-            "--size".into(),
-            size,
-            "--spp".into(),
-            spp.to_string(),
-            "--out".into(),
-            picture.display().to_string(),
-            "--error".into(),
-            error.display().to_string(),
-        ])?;
+        super::path_trace::run_path_trace(&super::path_trace::PathTraceArgs {
+            scene: root.join(scene.file),
+            camera: mcrad_render::parse_camera(scene.camera)?,
+            size: scene.size,
+            spp,
+            seed: 0,
+            out: picture.clone(),
+            error: Some(error.clone()),
+        })?;
     }
     Ok((
         mcrad_render::read_exr(&picture)?,

@@ -1,48 +1,57 @@
 //! `cargo xtask path-trace` (a path-traced ground truth of a scene's picture, issue 15 item 4)
 //! and `cargo xtask image-error` (a render's error against such a picture).
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use mcrad_lab::pathtrace::{PathTraceOptions, path_trace};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-const PATH_TRACE_USAGE: &str = "usage: cargo xtask path-trace SCENE --camera SPEC --size WxH \
-    --spp N [--seed S] --out PICTURE.exr [--error ERROR.exr]";
+/// The arguments of `cargo xtask path-trace`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PathTraceArgs {
+    /// The scene file
+    pub scene: PathBuf,
+    /// The camera, as `mcrad render --camera` takes it (eye=x,y,z,look=x,y,z,fov=deg)
+    #[arg(long, value_name = "SPEC", value_parser = |s: &str| mcrad_render::parse_camera(s).map_err(|e| e.to_string()))]
+    pub camera: mcrad_render::Camera,
+    /// The picture's size in pixels
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Paths per pixel
+    #[arg(long, value_name = "N")]
+    pub spp: u32,
+    /// The seed of the paths
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub seed: u64,
+    /// The picture (mean radiance)
+    #[arg(long, value_name = "R.exr")]
+    pub out: PathBuf,
+    /// Each pixel's standard error [default: R.error.exr beside the picture]
+    #[arg(long, value_name = "E.exr")]
+    pub error: Option<PathBuf>,
+}
+
+/// `WxH`, e.g. `256x256`.
+fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let (w, h) = s.split_once('x').context("takes WxH, e.g. 256x256")?;
+    Ok((w.parse()?, h.parse()?))
+}
 
 /// `path-trace SCENE --camera SPEC --size WxH --spp N [--seed S] --out R.exr [--error E.exr]`:
 /// renders the scene's input faces (no meshing) by diffuse path tracing and writes the mean
 /// radiance and, beside it (`R.error.exr` unless `--error` says), each pixel's standard error.
-pub fn run_path_trace(args: &[String]) -> Result<()> {
-    let mut scene = None;
-    let (mut camera, mut size, mut spp, mut seed, mut out, mut error) =
-        (None, None, None, 0u64, None, None);
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut value = || it.next().context(PATH_TRACE_USAGE);
-        match a.as_str() {
-            "--camera" => camera = Some(mcrad_render::parse_camera(value()?)?),
-            "--size" => {
-                let v = value()?;
-                let (w, h) = v
-                    .split_once('x')
-                    .context("--size takes WxH, e.g. 256x256")?;
-                size = Some((w.parse::<u32>()?, h.parse::<u32>()?));
-            }
-            "--spp" => spp = Some(value()?.parse::<u32>()?),
-            "--seed" => seed = value()?.parse()?,
-            "--out" => out = Some(PathBuf::from(value()?)),
-            "--error" => error = Some(PathBuf::from(value()?)),
-            s if !s.starts_with("--") && scene.is_none() => scene = Some(PathBuf::from(s)),
-            other => bail!("unknown argument '{other}'\n{PATH_TRACE_USAGE}"),
-        }
-    }
-    let (Some(scene), Some(camera), Some((width, height)), Some(spp), Some(out)) =
-        (scene, camera, size, spp, out)
-    else {
-        bail!(PATH_TRACE_USAGE);
-    };
+pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
+    let PathTraceArgs {
+        scene,
+        camera,
+        size: (width, height),
+        spp,
+        seed,
+        out,
+        error,
+    } = args.clone();
     let error = error.unwrap_or_else(|| out.with_extension("error.exr"));
     let loaded = mcrad_scene_io::load(&scene)
         .with_context(|| format!("could not load {}", scene.display()))?;
@@ -77,28 +86,34 @@ pub fn run_path_trace(args: &[String]) -> Result<()> {
     Ok(())
 }
 
-const IMAGE_ERROR_USAGE: &str = "usage: cargo xtask image-error IMAGE.exr REFERENCE.exr \
-    [DIFFERENCE.png] [--reference-error ERROR.exr]";
+/// The arguments of `cargo xtask image-error`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ImageErrorArgs {
+    /// The picture judged
+    #[arg(value_name = "IMAGE.exr")]
+    pub image: String,
+    /// The ground truth
+    #[arg(value_name = "REFERENCE.exr")]
+    pub reference: String,
+    /// Writes the signed difference here
+    #[arg(value_name = "DIFFERENCE.png")]
+    pub difference: Option<String>,
+    /// The reference's standard error per pixel (its noise is subtracted)
+    #[arg(long, value_name = "ERROR.exr")]
+    pub reference_error: Option<String>,
+}
 
 /// `image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png] [--reference-error E.exr]`.
-pub fn run_image_error(args: &[String]) -> Result<()> {
-    let (mut files, mut noise) = (Vec::new(), None);
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        if a == "--reference-error" {
-            noise = Some(it.next().context(IMAGE_ERROR_USAGE)?.clone());
-        } else {
-            files.push(a.clone());
-        }
-    }
-    let (image, reference, diff) = match files.as_slice() {
-        [i, r] => (i, r, None),
-        [i, r, d] => (i, r, Some(d)),
-        _ => bail!(IMAGE_ERROR_USAGE),
-    };
+pub fn run_image_error(args: &ImageErrorArgs) -> Result<()> {
+    let (image, reference, diff, noise) = (
+        &args.image,
+        &args.reference,
+        args.difference.as_ref(),
+        args.reference_error.as_ref(),
+    );
     let read = |p: &str| mcrad_render::read_exr(Path::new(p));
     let (image, reference) = (read(image)?, read(reference)?);
-    let noise = noise.as_deref().map(read).transpose()?;
+    let noise = noise.map(|p| read(p)).transpose()?;
     let e = mcrad_lab::compare::image_error_against_noisy(
         &image,
         &reference,

@@ -80,7 +80,7 @@ const NODE_COST: f32 = 2.4;
 /// `planes[2k + 1][h]` their upper bounds, in canonical units; an empty slot has the empty box
 /// `[+inf, -inf]`, which every slab test rejects. `items[i]` is child `i`: a node index, or
 /// [`LEAF`] with the run of packets (see [`leaf_item`]).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
 pub(crate) struct Node {
     pub(crate) planes: [[Vec4; WIDTH / 4]; 6],
@@ -117,7 +117,7 @@ impl Node {
 /// the triangle with all vertices at the origin and id [`NO_ID`](crate::NO_ID): its determinant is 0, so
 /// the packet test computes NaN barycentrics and distances for it, which no test passes (see
 /// `query::crossings`), like any degenerate input triangle.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(32))]
 pub(crate) struct Packet {
     pub(crate) v0: [Vec4; 3],

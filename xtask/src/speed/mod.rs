@@ -48,76 +48,95 @@ pub struct Options {
     pub control_variate: ControlVariate,
 }
 
+/// The arguments of `cargo xtask experiment speed-vs-error`.
+#[derive(Debug, Default, clap::Args)]
+pub struct SpeedArgs {
+    /// One seed, 1 s per curve, into target/speed-vs-error-quick/: a smoke run
+    #[arg(long)]
+    pub quick: bool,
+    /// Seeds 0..N per scene and method [default: 3, 1 with --quick]
+    #[arg(long, value_name = "N")]
+    pub seeds: Option<u64>,
+    /// Scenes, comma-separated [default: every experiment scene]
+    #[arg(long, value_name = "a,b", value_delimiter = ',')]
+    pub scenes: Vec<String>,
+    /// Monte Carlo methods, comma-separated [default: all of them]
+    #[arg(long, value_name = "m,n", value_delimiter = ',')]
+    pub methods: Vec<Method>,
+    /// Wall-clock seconds per curve [default: 12, 1 with --quick]
+    #[arg(long, value_name = "S")]
+    pub time: Option<f64>,
+    /// The relative error a curve stops at
+    #[arg(long, value_name = "E", default_value_t = 0.005)]
+    pub target: f64,
+    /// How the runs draw their rays [default: the library's]
+    #[arg(
+        long,
+        value_enum,
+        value_name = "random|qmc",
+        hide_possible_values = true
+    )]
+    pub sampler: Option<Sampler>,
+    /// The control variate of patch gathering [default: the library's]
+    #[arg(
+        long,
+        value_enum,
+        value_name = "off|constant",
+        hide_possible_values = true
+    )]
+    pub control_variate: Option<ControlVariate>,
+    /// Output directory [default: docs, target/speed-vs-error-quick with --quick]
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
 impl Options {
-    /// Parses the arguments after `speed-vs-error`.
-    pub fn parse(root: &Path, args: &[String]) -> Result<Options> {
-        let quick = args.iter().any(|a| a == "--quick");
-        let mut o = Options {
-            seeds: if quick { 1 } else { 3 },
+    /// The settings `args` ask for (the arguments after `speed-vs-error`).
+    pub fn parse(root: &Path, args: &SpeedArgs) -> Result<Options> {
+        let quick = args.quick;
+        let scenes = if args.scenes.is_empty() {
+            scenes::SCENES.iter().collect()
+        } else {
+            args.scenes
+                .iter()
+                .map(|n| {
+                    scenes::SCENES
+                        .iter()
+                        .find(|s| s.name == n)
+                        .with_context(|| format!("unknown scene '{n}'"))
+                })
+                .collect::<Result<_>>()?
+        };
+        let methods = if args.methods.is_empty() {
+            Method::monte_carlo().collect()
+        } else {
+            args.methods.clone()
+        };
+        if let Some(m) = methods
+            .iter()
+            .find(|m| !Method::monte_carlo().any(|mc| mc == **m))
+        {
+            bail!("unknown Monte Carlo method '{m}'");
+        }
+        let o = Options {
+            seeds: args.seeds.unwrap_or(if quick { 1 } else { 3 }),
             limits: Limits {
-                seconds: if quick { 1.0 } else { 12.0 },
-                target: 0.005,
+                seconds: args.time.unwrap_or(if quick { 1.0 } else { 12.0 }),
+                target: args.target,
                 max_points: 24,
             },
-            scenes: scenes::SCENES.iter().collect(),
-            methods: Method::monte_carlo().collect(),
-            out: root.join(if quick {
-                "target/speed-vs-error-quick"
-            } else {
-                "docs"
+            scenes,
+            methods,
+            out: args.out.clone().unwrap_or_else(|| {
+                root.join(if quick {
+                    "target/speed-vs-error-quick"
+                } else {
+                    "docs"
+                })
             }),
-            sampler: Sampler::default(),
-            control_variate: ControlVariate::default(),
+            sampler: args.sampler.unwrap_or_default(),
+            control_variate: args.control_variate.unwrap_or_default(),
         };
-        let mut it = args.iter();
-        while let Some(a) = it.next() {
-            let mut value = || it.next().with_context(|| format!("{a} needs a value"));
-            match a.as_str() {
-                "--quick" => {}
-                "--seeds" => o.seeds = value()?.parse().context("--seeds: a count")?,
-                "--time" => o.limits.seconds = value()?.parse().context("--time: seconds")?,
-                "--out" => o.out = PathBuf::from(value()?),
-                "--target" => {
-                    o.limits.target = value()?.parse().context("--target: a relative error")?
-                }
-                "--sampler" => {
-                    o.sampler = match value()?.as_str() {
-                        "random" => Sampler::Random,
-                        "qmc" => Sampler::Qmc,
-                        other => bail!("--sampler: 'random' or 'qmc', not '{other}'"),
-                    }
-                }
-                "--control-variate" => {
-                    o.control_variate = match value()?.as_str() {
-                        "off" => ControlVariate::Off,
-                        "constant" => ControlVariate::Constant,
-                        other => bail!("--control-variate: 'off' or 'constant', not '{other}'"),
-                    }
-                }
-                "--scenes" => {
-                    o.scenes = value()?
-                        .split(',')
-                        .map(|n| {
-                            scenes::SCENES
-                                .iter()
-                                .find(|s| s.name == n)
-                                .with_context(|| format!("unknown scene '{n}'"))
-                        })
-                        .collect::<Result<_>>()?;
-                }
-                "--methods" => {
-                    o.methods = value()?
-                        .split(',')
-                        .map(|n| {
-                            Method::monte_carlo()
-                                .find(|m| m.name() == n)
-                                .with_context(|| format!("unknown Monte Carlo method '{n}'"))
-                        })
-                        .collect::<Result<_>>()?;
-                }
-                other => bail!("unknown option '{other}' for speed-vs-error"),
-            }
-        }
         if o.seeds == 0 {
             bail!("--seeds must be at least 1");
         }
@@ -138,7 +157,7 @@ pub struct SceneResult {
 }
 
 /// Runs the experiment and writes its outputs.
-pub fn run(root: &Path, args: &[String]) -> Result<()> {
+pub fn run(root: &Path, args: &SpeedArgs) -> Result<()> {
     let options = Options::parse(root, args)?;
     let start = Instant::now();
     let mut results = Vec::new();
@@ -302,16 +321,25 @@ mod tests {
     #[test]
     fn options_parse_and_reject_unknown_names() {
         let root = crate::root();
-        let args = |s: &str| s.split(' ').map(String::from).collect::<Vec<_>>();
+        /// The command line `s` after `speed-vs-error`.
+        fn args(s: &str) -> Result<SpeedArgs, clap::Error> {
+            #[derive(clap::Parser)]
+            struct Line {
+                #[command(flatten)]
+                args: SpeedArgs,
+            }
+            <Line as clap::Parser>::try_parse_from(std::iter::once("x").chain(s.split(' ')))
+                .map(|l| l.args)
+        }
         let o = Options::parse(
             &root,
-            &args("--quick --scenes cornell-2k --methods shoot,prr"),
+            &args("--quick --scenes cornell-2k --methods shoot,prr").unwrap(),
         )
         .unwrap();
         assert_eq!((o.seeds, o.scenes.len(), o.methods.len()), (1, 1, 2));
-        assert!(Options::parse(&root, &args("--scenes nowhere")).is_err());
-        assert!(Options::parse(&root, &args("--methods teleport")).is_err());
-        assert!(Options::parse(&root, &args("--methods reference")).is_err());
-        assert!(Options::parse(&root, &args("--seeds")).is_err());
+        assert!(Options::parse(&root, &args("--scenes nowhere").unwrap()).is_err());
+        assert!(args("--methods teleport").is_err());
+        assert!(Options::parse(&root, &args("--methods reference").unwrap()).is_err());
+        assert!(args("--seeds").is_err());
     }
 }
