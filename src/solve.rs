@@ -8,9 +8,9 @@ use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_combine::Estimate;
 use mcrad_export::{PatchRow, RunStats, write_patch_csv};
-use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, Refined, refine};
-use mcrad_mc_radiosity::schedule::{self, Kind, Solution};
-use mcrad_mc_radiosity::{Error as SolveError, StopReason};
+use mcrad_mc_radiosity::{
+    AdaptiveConfig, Error as SolveError, Kind, Refined, Solution, StopReason, refine,
+};
 use mcrad_meshing::{
     AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, Mesh, MeshError, Subdivision,
 };
@@ -173,7 +173,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     // `mcrad bake --target-error`: stop once the texels' error is that small.
     let target_error = args.bake.as_ref().and_then(|b| b.target_error);
     let mut target_reached = false;
-    let result = schedule::run_cancellable(
+    let result = mcrad_mc_radiosity::run_cancellable(
         method,
         &mesh,
         &bvh,
@@ -309,7 +309,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let estimate = match (&refinement, &resumed) {
         (Some(r), None) => {
             let all = vec![true; mesh.patches().len()];
-            mcrad_mc_radiosity::adaptive::pool(&mesh, &estimate, &r.pooled, &all)?
+            mcrad_mc_radiosity::pool(&mesh, &estimate, &r.pooled, &all)?
         }
         _ => estimate,
     };
@@ -401,7 +401,7 @@ fn answer_error_p95(
     let pooled = refinement.and_then(|r| {
         let step = Estimate::new(radiosity.to_vec(), Some(variance.to_vec()), rays).ok()?;
         let all = vec![true; mesh.patches().len()];
-        mcrad_mc_radiosity::adaptive::pool(mesh, &step, &r.pooled, &all).ok()
+        mcrad_mc_radiosity::pool(mesh, &step, &r.pooled, &all).ok()
     });
     match pooled
         .as_ref()

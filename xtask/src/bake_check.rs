@@ -12,8 +12,7 @@
 use anyhow::{Context as _, Result, bail};
 use glam::{DVec3, Vec3};
 use mcrad_bake::{BakeInput, BakeOptions, FaceTexels};
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig};
+use mcrad_mc_radiosity::{Method, ScheduleConfig};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use serde_json::{Value, json};
@@ -170,7 +169,7 @@ pub fn run(root: &Path, args: &[String]) -> Result<()> {
         )?;
         Ok(baked.face_texels)
     };
-    let reference = schedule::run(
+    let reference = mcrad_mc_radiosity::run(
         Method::Reference,
         &mesh,
         &bvh,
@@ -185,7 +184,7 @@ pub fn run(root: &Path, args: &[String]) -> Result<()> {
             seed,
             ..Default::default()
         };
-        let s = schedule::run(method, &mesh, &bvh, &config, &mut |_| {
+        let s = mcrad_mc_radiosity::run(method, &mesh, &bvh, &config, &mut |_| {
             ControlFlow::Continue(())
         })?;
         runs.push(bake(s.estimate.radiosity(), s.estimate.variance())?);

@@ -1,8 +1,7 @@
 //! Run statistics as JSON.
 
 use crate::ExportError;
-use mcrad_mc_radiosity::adaptive::RoundStats;
-use mcrad_mc_radiosity::{Method, Sampler, StopReason};
+use mcrad_mc_radiosity::{Method, RoundStats, Sampler, StopReason};
 use serde::Serialize;
 use std::io::Write;
 

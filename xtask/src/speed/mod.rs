@@ -23,8 +23,7 @@ mod results;
 pub mod scenes;
 
 use anyhow::{Context, Result, bail};
-use mcrad_mc_radiosity::schedule::Method;
-use mcrad_mc_radiosity::{ControlVariate, Sampler};
+use mcrad_mc_radiosity::{ControlVariate, Method, Sampler};
 use measure::{Limits, Point, Problem, curve};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

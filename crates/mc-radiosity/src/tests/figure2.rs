@@ -19,11 +19,9 @@
 //! the closed-scene term, which ignores escape), late 0.99; rms_rel rises from late to early by
 //! 0.155 without the term and by 0.019 with it.
 
+use crate::{Context, Emission, ShootConfig, Shooting, ambient, gather_round, shoot, with_ambient};
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::{
-    Context, Emission, ShootConfig, Shooting, ambient, gather_round, shoot, with_ambient,
-};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::StreamKey;
 use mcrad_raycast::Bvh;
