@@ -226,9 +226,7 @@ impl AdaptiveMesh {
         history: &History,
         bounds: AdaptiveBounds,
     ) -> Result<AdaptiveMesh, MeshError> {
-        let start = history
-            .start
-            .map_or(Subdivision::None, Subdivision::MaxEdge);
+        let start = history.start.map_or(Subdivision::None, Subdivision::MaxEdge);
         let mut mesh = AdaptiveMesh::new(scene, start, bounds)?;
         for (round, split) in history.splits.iter().enumerate() {
             let done = mesh.refine(split);

@@ -145,12 +145,7 @@ fn a_replayed_history_gives_the_same_mesh_and_another_scene_is_refused() {
     m.refine(&[]);
     assert_eq!(m.history().start, Some(1.5));
     assert_eq!(m.history().splits.len(), 3);
-    assert!(
-        m.history()
-            .splits
-            .iter()
-            .all(|s| s.windows(2).all(|w| w[0] < w[1]))
-    );
+    assert!(m.history().splits.iter().all(|s| s.windows(2).all(|w| w[0] < w[1])));
     let again = AdaptiveMesh::replay(&s, m.history(), b).unwrap();
     assert_eq!(again.len(), m.len());
     assert_eq!(again.mesh().positions(), m.mesh().positions());
@@ -158,10 +153,7 @@ fn a_replayed_history_gives_the_same_mesh_and_another_scene_is_refused() {
     assert_eq!(again.history(), m.history());
     // the same history within a larger minimum edge: splits that cannot be made
     let tight = AdaptiveMesh::replay(&s, m.history(), bounds(0.9, 100));
-    assert!(
-        matches!(tight, Err(crate::MeshError::BadHistory { .. })),
-        "{tight:?}"
-    );
+    assert!(matches!(tight, Err(crate::MeshError::BadHistory { .. })), "{tight:?}");
 }
 
 #[test]
