@@ -7,6 +7,7 @@
 
 mod adaptive;
 mod calibration;
+mod combined;
 mod common;
 mod control;
 mod far;
