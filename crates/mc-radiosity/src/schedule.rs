@@ -206,6 +206,39 @@ pub fn run_combined_with<C: RayCaster>(
 ///
 /// Errors: `input` not one finite value per patch, `rays_per_patch < 2`, or
 /// [`Error::FarFromOrigin`].
+///
+/// # Example
+///
+/// ```
+/// use glam::{DVec3, Vec3};
+/// use mcrad_mc_radiosity::{Sampler, gather_from};
+/// use mcrad_meshing::{Mesh, Subdivision};
+/// use mcrad_raycast::Bvh;
+/// use mcrad_scene_io::{Face, Material, Scene};
+///
+/// // A closed unit cube, every face emitting 1 W/m² with reflectance 0.5: B = E / (1 - ρ) = 2.
+/// let positions: Vec<Vec3> = (0..8)
+///     .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
+///     .collect();
+/// let quads = [[1, 3, 2, 0], [6, 7, 5, 4], [4, 5, 1, 0], [3, 7, 6, 2], [2, 6, 4, 0], [5, 7, 3, 1]];
+/// let faces = quads
+///     .iter()
+///     .enumerate()
+///     .map(|(k, q)| Face { vertices: q.to_vec(), material: 0, source: k as u32 })
+///     .collect();
+/// let material = Material { name: "m".into(), reflectance: Vec3::splat(0.5), emission: Vec3::ONE };
+/// let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
+/// let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+/// let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+///
+/// // Gathering from the exact solution reproduces it: every ray sees B = 2.
+/// let exact = vec![DVec3::splat(2.0); 6];
+/// let round = gather_from(&mesh, &bvh, &exact, 100, 0, Sampler::Random).unwrap();
+/// assert_eq!(round.rays(), 600);
+/// for b in round.radiosity() {
+///     assert!((b.x - 2.0).abs() < 0.02); // exact unless a ray slipped through an edge
+/// }
+/// ```
 pub fn gather_from<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
