@@ -21,7 +21,7 @@ use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use mcrad_lab::plot::{PlotSpec, Series, line_plot};
 use mcrad_lab::trace::Reference;
-use mcrad_mc_radiosity::{Method, Sampler, ScheduleConfig, Solution, gather_from, run};
+use mcrad_mc_radiosity::{Method, Sampler, ScheduleConfig, Solution, gather_from};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_reference::{ReferenceConfig, reference};
@@ -120,7 +120,7 @@ impl Setup {
             sampler: Sampler::Random,
             ..config.clone()
         };
-        Ok(run(
+        Ok(mcrad_mc_radiosity::run(
             Method::Shoot,
             &self.mesh,
             &self.bvh,
