@@ -1,12 +1,16 @@
 //! The command line (its flags are the contract of `docs/cli.md`).
 
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand, ValueEnum};
-use mcrad_mc_radiosity::{ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
+use mcrad_mc_radiosity::{
+    ControlVariate, DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler, UnknownName,
+};
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
 use mcrad_render::Exposure;
 use mcrad_solve::{Budget, MeshPlan, Settings};
 use std::path::PathBuf;
+use std::str::FromStr;
 
 /// Stochastic (Monte Carlo) radiosity.
 #[derive(Debug, Parser)]
@@ -72,7 +76,7 @@ pub struct Solve {
     /// The scene: .obj (with the .mtl files it names), .gltf or .glb.
     pub scene: PathBuf,
     /// Solution method.
-    #[arg(long, value_enum, default_value_t = Method::default())]
+    #[arg(long, default_value_t = Method::default(), value_parser = method_parser())]
     pub method: Method,
     /// Total ray budget over all passes (accepts 2000000 and 2e6). Default: `DEFAULT_RAYS`, or
     /// no limit with --time.
@@ -89,13 +93,13 @@ pub struct Solve {
     /// How rays are drawn: `random` (independent pseudo-random rays) or `qmc` (each patch's
     /// rays from its own Owen-scrambled Sobol sequence, stratified in point and direction).
     /// Either way the answer is unbiased and the same on any thread count.
-    #[arg(long, value_enum, default_value_t = Sampler::default())]
+    #[arg(long, default_value_t = Sampler::default(), value_parser = sampler_parser())]
     pub sampler: Sampler,
     /// Patch gathering with a control variate: `constant` subtracts from what each ray sees
     /// the mean its patch's hits saw in the round before, and adds it back times the share of
     /// the patch's hemisphere that sees the scene, measured by the rounds before that; unbiased
     /// in open scenes too. `off`: plain gathering.
-    #[arg(long, value_enum, default_value_t = ControlVariate::default())]
+    #[arg(long, default_value_t = ControlVariate::default(), value_parser = control_variate_parser())]
     pub control_variate: ControlVariate,
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
@@ -368,6 +372,60 @@ fn rays_help() -> String {
     )
 }
 
+/// A parser of the names `values` lists (with their help), each read by `T`'s `FromStr`: the
+/// listing of possible values in `--help` and clap's error for any other name.
+fn named<T>(values: impl IntoIterator<Item = PossibleValue>) -> impl TypedValueParser<Value = T>
+where
+    T: FromStr<Err = UnknownName> + Clone + Send + Sync + 'static,
+{
+    PossibleValuesParser::new(values).try_map(|s| s.parse::<T>())
+}
+
+/// `--method`: the registry's names, each with its summary and where the paper describes it.
+fn method_parser() -> impl TypedValueParser<Value = Method> {
+    named(Method::ALL.map(|m| {
+        let help = match m.paper() {
+            Some(paper) => format!("{} (paper, {paper})", m.summary()),
+            None => m.summary().to_string(),
+        };
+        PossibleValue::new(m.name()).help(help)
+    }))
+}
+
+/// `--sampler`: `random` and `qmc`.
+fn sampler_parser() -> impl TypedValueParser<Value = Sampler> {
+    named(Sampler::ALL.map(|s| {
+        PossibleValue::new(s.name()).help(match s {
+            Sampler::Random => "Independent pseudo-random rays ([`mcrad_random::Stream`])",
+            Sampler::Qmc => {
+                "Randomised quasi-Monte Carlo: the rays of a patch are the points of its own \
+                 Owen-scrambled Sobol sequence ([`mcrad_random::Sobol`]), indexed by the \
+                 patch's ray counter (in shooting, continued across waves), so they are \
+                 stratified in point and direction; each patch and pass has an independent \
+                 scramble. The sequence interleaves two independent scrambles, whose difference \
+                 scales the estimators' variances to the stratified rays' true error (the module \
+                 `replicates` of this crate has the maths)"
+            }
+        })
+    }))
+}
+
+/// `--control-variate`: `off` and `constant`.
+fn control_variate_parser() -> impl TypedValueParser<Value = ControlVariate> {
+    named(ControlVariate::ALL.map(|c| {
+        PossibleValue::new(c.name()).help(match c {
+            ControlVariate::Off => {
+                "Plain gathering: a patch's estimate is the mean of what its rays see"
+            }
+            ControlVariate::Constant => {
+                "A constant control variate per patch, `beta_i` from its last round and the \
+                 coverage `S_i` of its hemisphere from the rounds before: unbiased in open \
+                 scenes (the module documentation of `control`)"
+            }
+        })
+    }))
+}
+
 /// The help of `--max-edge`, with the library's default subdivision.
 fn max_edge_help() -> String {
     format!(
@@ -404,7 +462,7 @@ impl Solve {
         self.max_edge.is_some()
             || self.no_subdivide
             || self.reference.is_some()
-            || self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic
+            || self.method().kind() == mcrad_mc_radiosity::Kind::Deterministic
     }
 
     /// Refuses option combinations that contradict each other.
@@ -419,7 +477,7 @@ impl Solve {
             if self.reference.is_some() {
                 return Err("--reference compares patch by patch with a fixed mesh; use it with --mesh uniform".into());
             }
-            if self.method().kind() == mcrad_mc_radiosity::schedule::Kind::Deterministic {
+            if self.method().kind() == mcrad_mc_radiosity::Kind::Deterministic {
                 return Err(
                     "--method reference solves a fixed mesh; use it with --mesh uniform".into(),
                 );

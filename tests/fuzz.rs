@@ -8,8 +8,7 @@
 //! the input is kept in `fuzz-failures/` under Cargo's test scratch directory, to be added to
 //! the corpus); `MCRAD_FUZZ_VERBOSE=1` prints why each refused input was refused.
 
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, Kind, ScheduleConfig};
+use mcrad_mc_radiosity::{Kind, Method, ScheduleConfig};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::Stream;
 use mcrad_raycast::Bvh;
@@ -212,7 +211,7 @@ fn pipeline(scene: &Path, method: Method, seed: u64) -> Reached {
         },
         ..ScheduleConfig::default()
     };
-    match schedule::run(method, &mesh, &bvh, &config, &mut |_| {
+    match mcrad_mc_radiosity::run(method, &mesh, &bvh, &config, &mut |_| {
         ControlFlow::Continue(())
     }) {
         Ok(_) => Reached::Solved,

@@ -12,8 +12,7 @@
 use anyhow::{Context as _, Result, bail};
 use glam::{DVec3, Vec3};
 use mcrad_bake::{BakeInput, BakeOptions, FaceTexels};
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig};
+use mcrad_mc_radiosity::{Method, ScheduleConfig};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use serde_json::{Value, json};
@@ -131,7 +130,7 @@ pub struct BakeCheckArgs {
     #[arg(long, value_name = "N", default_value_t = 2_000_000, value_parser = crate::parse_count)]
     pub rays: u64,
     /// The method baked and judged
-    #[arg(long, value_name = "M", value_enum, default_value_t = Method::Combined)]
+    #[arg(long, value_name = "M", default_value_t = Method::Combined)]
     pub method: Method,
 }
 
@@ -168,7 +167,7 @@ pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
         )?;
         Ok(baked.face_texels)
     };
-    let reference = schedule::run(
+    let reference = mcrad_mc_radiosity::run(
         Method::Reference,
         &mesh,
         &bvh,
@@ -183,7 +182,7 @@ pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
             seed,
             ..Default::default()
         };
-        let s = schedule::run(method, &mesh, &bvh, &config, &mut |_| {
+        let s = mcrad_mc_radiosity::run(method, &mesh, &bvh, &config, &mut |_| {
             ControlFlow::Continue(())
         })?;
         runs.push(bake(s.estimate.radiosity(), s.estimate.variance())?);

@@ -19,7 +19,7 @@
 
 use anyhow::{Context, Result, bail};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::schedule::{self, Method, ScheduleConfig, StopReason};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, StopReason};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};
@@ -403,12 +403,7 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "FILE", default_value = "docs/calibration.md")]
     pub out: PathBuf,
     /// How the runs draw their rays [default: the library's]
-    #[arg(
-        long,
-        value_enum,
-        value_name = "random|qmc",
-        hide_possible_values = true
-    )]
+    #[arg(long, value_name = "random|qmc")]
     pub sampler: Option<mcrad_mc_radiosity::Sampler>,
 }
 
@@ -487,7 +482,7 @@ fn run_once(
 ) -> (Outcome, f64) {
     let start = Instant::now();
     let result = catch_unwind(AssertUnwindSafe(|| {
-        schedule::run(method, mesh, bvh, config, &mut |_| {
+        mcrad_mc_radiosity::run(method, mesh, bvh, config, &mut |_| {
             if start.elapsed().as_secs_f64() > limit {
                 ControlFlow::Break(())
             } else {
@@ -748,7 +743,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
             ),
             Exact::Reference => {
                 let start = Instant::now();
-                let r = schedule::run(
+                let r = mcrad_mc_radiosity::run(
                     Method::Reference,
                     &mesh,
                     &bvh,

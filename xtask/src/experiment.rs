@@ -19,13 +19,9 @@
 
 use anyhow::{Context, Result};
 use glam::DVec3;
-use mcrad_combine::Estimate;
 use mcrad_lab::plot::{PlotSpec, Series, line_plot};
 use mcrad_lab::trace::Reference;
-use mcrad_mc_radiosity::{
-    Context as Estimators, Emission, ShootConfig, Shooting, StreamKey, ambient, gather_round,
-    shoot, with_ambient,
-};
+use mcrad_mc_radiosity::{Method, Sampler, ScheduleConfig, Solution, gather_from};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_reference::{ReferenceConfig, reference};
@@ -100,60 +96,64 @@ struct Setup {
 }
 
 impl Setup {
-    /// What the estimators need of the scene.
-    fn ctx(&self) -> Estimators<'_, Bvh> {
-        Estimators::new(&self.mesh, &self.bvh)
+    /// Shooting (the estimators' `random` sampler) with `config`, stopped after wave
+    /// `stop_after` if given; with `ambient` the ambient term is added to its answer.
+    fn shoot(
+        &self,
+        config: &ScheduleConfig,
+        stop_after: Option<u32>,
+        ambient: bool,
+    ) -> Result<Solution> {
+        let config = ScheduleConfig {
+            ambient,
+            sampler: Sampler::Random,
+            ..config.clone()
+        };
+        Ok(mcrad_mc_radiosity::run(
+            Method::Shoot,
+            &self.mesh,
+            &self.bvh,
+            &config,
+            &mut |step| match stop_after {
+                Some(k) if step.index >= k => ControlFlow::Break(()),
+                _ => ControlFlow::Continue(()),
+            },
+        )?)
     }
 
-    fn shoot(&self, config: &ShootConfig, stop_after: Option<u32>) -> Result<Shooting> {
-        Ok(shoot(&self.ctx(), config, &mut |p| match stop_after {
-            Some(k) if p.waves >= k => ControlFlow::Break(()),
-            _ => ControlFlow::Continue(()),
-        })?)
-    }
-
-    /// Gathers once from `shooting` without and with the ambient term; two rows.
+    /// Shoots with `config` (stopped after wave `stop_after` if given) and gathers once from
+    /// the result without and with the ambient term; two rows.
     fn measure(
         &self,
         sweep: Sweep,
-        budget: u64,
         seed: u64,
-        shooting: &Shooting,
+        config: &ScheduleConfig,
+        stop_after: Option<u32>,
     ) -> Result<[Row; 2]> {
-        let stats = &shooting.stats;
-        let unshot = stats.unshot.element_sum() / stats.emitted.element_sum();
-        let term = ambient(
-            &self.mesh,
-            &shooting.unshot,
-            shooting.stats.escape_fraction(),
-        )?;
         let row = |with: bool| -> Result<Row> {
-            let input: Estimate = if with {
-                with_ambient(&self.mesh, &shooting.estimate, term)?
-            } else {
-                shooting.estimate.clone()
-            };
+            let shooting = self.shoot(config, stop_after, with)?;
             // The gathering's rays depend on the seed only: the same rays gather from every
             // snapshot, with and without the term (common random numbers), so the curves differ
             // by their input, not by the gathering's noise.
-            let round = gather_round(
-                &self.ctx(),
-                input.radiosity(),
-                Emission::Include,
+            let round = gather_from(
+                &self.mesh,
+                &self.bvh,
+                shooting.estimate.radiosity(),
                 GATHER_RAYS,
-                StreamKey::new(seed),
+                seed,
+                Sampler::Random,
             )?;
-            let b = round.estimate.radiosity();
+            let b = round.radiosity();
             Ok(Row {
                 sweep,
-                shooting_rays: stats.rays,
-                budget,
-                waves: stats.waves,
+                shooting_rays: shooting.estimate.rays(),
+                budget: config.rays,
+                waves: shooting.steps,
                 ambient: with,
                 seed,
                 rms_rel: self.exact.rms_rel(b),
                 reflected_ratio: reflected(&self.mesh, b) / self.exact_reflected,
-                unshot,
+                unshot: shooting.unshot_fraction,
             })
         };
         Ok([row(false)?, row(true)?])
@@ -188,25 +188,23 @@ pub fn figure2(root: &Path) -> Result<()> {
     for seed in 0..SEEDS {
         // The refining run is deterministic per seed: stopping it after wave k gives exactly
         // its state at that point, so each snapshot reruns it up to there.
-        let config = ShootConfig {
+        let config = ScheduleConfig {
             rays: REFINING_BUDGET,
             unshot_threshold: 0.0,
             seed,
             ..Default::default()
         };
         for k in 1..=REFINING_WAVES {
-            let shooting = setup.shoot(&config, Some(k))?;
-            rows.extend(setup.measure(Sweep::Refining, REFINING_BUDGET, seed, &shooting)?);
+            rows.extend(setup.measure(Sweep::Refining, seed, &config, Some(k))?);
         }
         for &budget in &BUDGETS {
-            let config = ShootConfig {
+            let config = ScheduleConfig {
                 rays: budget,
                 unshot_threshold: UNSHOT_THRESHOLD,
                 seed,
                 ..Default::default()
             };
-            let shooting = setup.shoot(&config, None)?;
-            rows.extend(setup.measure(Sweep::Budgets, budget, seed, &shooting)?);
+            rows.extend(setup.measure(Sweep::Budgets, seed, &config, None)?);
         }
     }
     let docs = root.join("docs");

@@ -5,8 +5,7 @@
 //! `cargo run --release -p mcrad-export --example patch_csv`
 
 use mcrad_export::{PatchRow, read_patch_csv, write_patch_csv};
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::io::BufWriter;
@@ -22,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rays: 200_000,
         ..ScheduleConfig::default()
     };
-    let solution = schedule::run(Method::Shoot, &mesh, &bvh, &config, &mut |_| {
+    let solution = run(Method::Shoot, &mesh, &bvh, &config, &mut |_| {
         ControlFlow::Continue(())
     })?;
     let estimate = &solution.estimate;

@@ -15,8 +15,7 @@
 //!   (passes, thread dispatch, allocation).
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig, Solution};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, Solution, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::hint::black_box;
@@ -52,7 +51,7 @@ fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, rays: u64, seed: u64) -> Soluti
         seed,
         ..ScheduleConfig::default()
     };
-    schedule::run(method, mesh, bvh, &config, &mut |_| {
+    run(method, mesh, bvh, &config, &mut |_| {
         ControlFlow::Continue(())
     })
     .expect("the Cornell box solves")
@@ -68,7 +67,7 @@ fn useful_budget(mesh: &Mesh, bvh: &Bvh) -> (u64, f64) {
         },
         ..ScheduleConfig::default()
     };
-    let reference = schedule::run(Method::Reference, mesh, bvh, &config, &mut |_| {
+    let reference = run(Method::Reference, mesh, bvh, &config, &mut |_| {
         ControlFlow::Continue(())
     })
     .expect("the reference solver solves the Cornell box");

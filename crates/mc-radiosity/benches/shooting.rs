@@ -4,7 +4,10 @@
 //!
 //! `cargo bench -p mcrad-mc-radiosity --bench shooting` (or `cargo xtask bench`). Each group
 //! casts the same number of rays, so criterion's element throughput compares directly:
-//! - `shoot`: the whole solver, `threshold = 0` so it spends exactly its budget;
+//! - `shoot`: the whole solver (`Method::Shoot` through `run`, with the `random` sampler, the
+//!   shooting estimator's own default), `threshold = 0` so it spends exactly its budget; the
+//!   schedule adds only per-patch bookkeeping (the precision check, the variance of unreached
+//!   patches) to the shooting loop;
 //! - `mcrad_bvh`: `mcrad_raycast::Bvh::closest_hit` over the rays the solver cast (recorded);
 //! - `bare_obvhs`: obvhs's CWBVH `ray_traverse` over the same rays, no id filter, no window
 //!   rule: the scene centred and scaled by a power of two to an extent of 512-1024 (as mcrad's
@@ -13,7 +16,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::{Vec3, Vec3A};
-use mcrad_mc_radiosity::{Context, ShootConfig, shoot};
+use mcrad_mc_radiosity::{Method, Sampler, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::{Bvh, Hit, Ray, RayCaster, SurfacePoint};
 use obvhs::{
@@ -125,17 +128,18 @@ fn bench(c: &mut Criterion) {
     ] {
         let mesh = cornell(subdivision);
         let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-        let config = ShootConfig {
+        let config = ScheduleConfig {
             rays: RAYS,
             unshot_threshold: 0.0,
             seed: 1,
+            sampler: Sampler::Random,
             ..Default::default()
         };
         let recorder = Recorder {
             bvh: &bvh,
             rays: Mutex::new(Vec::new()),
         };
-        let run = shoot(&Context::new(&mesh, &recorder), &config, &mut |_| {
+        let shot = run(Method::Shoot, &mesh, &recorder, &config, &mut |_| {
             ControlFlow::Continue(())
         })
         .unwrap();
@@ -146,15 +150,15 @@ fn bench(c: &mut Criterion) {
 
         let mut group = c.benchmark_group(format!("{name}_{}patches", mesh.patches().len()));
         group.sample_size(10);
-        group.throughput(Throughput::Elements(run.stats.rays));
+        group.throughput(Throughput::Elements(shot.estimate.rays()));
         group.bench_function("shoot", |b| {
             b.iter(|| {
-                shoot(&Context::new(&mesh, &bvh), &config, &mut |_| {
+                run(Method::Shoot, &mesh, &bvh, &config, &mut |_| {
                     ControlFlow::Continue(())
                 })
                 .unwrap()
-                .stats
-                .rays
+                .estimate
+                .rays()
             })
         });
         group.bench_function("mcrad_bvh", |b| {

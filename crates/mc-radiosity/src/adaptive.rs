@@ -1,61 +1,4 @@
-//! Adaptive meshing: refine an [`AdaptiveMesh`] where the solution shows it needs elements.
-//!
-//! [`refine`] solves a pilot on the starting mesh (shooting) and then, for a few rounds, marks
-//! the elements whose solution is not resolved, splits them ([`AdaptiveMesh::refine`]), lets
-//! the children start from their parent's estimate and re-estimates them by one split
-//! gathering step from that inherited solution ([`two_pass_split`]:
-//! `B_i = E_i + D_i + rho_i mean_k (B - E)(hit_k)`, the direct light `D` by sampling the
-//! emitters, the indirect light gathered from the solution learned so far: nothing restarts
-//! from zero, and the new shadows and contact lines show at once, even of a small light that
-//! gathering rays would rarely hit). An element is marked when
-//!
-//! - **a real gradient the display cannot follow**: its luminance differs from the mean of the
-//!   vertex values around it ([`Mesh::seamless_corner_radiosity`], what renders interpolate)
-//!   by more than `noise_sigmas` standard deviations of its own estimate, from the variance it
-//!   reports, *and* by more than `tolerance` of the larger (a difference the picture would
-//!   show). A field linear across an element and its neighbours is interpolated exactly and
-//!   splits nothing, however steep: elements go where the light bends (corners, penumbrae,
-//!   the edge of a light's pool), not where it falls off evenly; or
-//! - **a visibility change**: of `shadow_rays` shadow rays from uniform points of the element
-//!   to points on the emitters (drawn by power), some reach the emitter and some are blocked,
-//!   and the direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
-//!   irradiance estimate, `f` its visible share), is more than `tolerance` of the element's
-//!   luminance: shadow boundaries and the contact lines of objects resting on a surface; or
-//! - **light reflected from close by**: of `proximity_rays` cosine-distributed rays from
-//!   uniform points of the element, those that hit a surface nearer than the element's size
-//!   `h = sqrt(A)` (a share `q` of them) bring the reflected irradiance `H_near`, all of them
-//!   `H` (each hit counting its reflected radiosity `B - E`, W/m²); the element is marked when
-//!   `rho |H_near - q H|`, how far the near surfaces' light departs from what the same share
-//!   of the view brings on average, is more than `tolerance` of its luminance. Near a crease
-//!   or a contact with a surface lit otherwise than the rest of the view (the dark top of a
-//!   wall under a ceiling, a box's side on the floor) the light varies at the element's own
-//!   scale, non-linearly (a linear slope of one surface makes a `d ln d` in the other's
-//!   radiosity at the distance `d` from the crease), which the display's linear interpolation
-//!   cannot follow and the gradient test cannot see in the element means; in an evenly lit
-//!   enclosure (a furnace) the contrast is only the noise of the estimates `B` however close
-//!   the walls (the furnace test marks nothing). Measured at 1e8 rays
-//!   (render --spp 256, docs/meshing.md): Cornell box, 16,000-element budget, image error
-//!   0.73% -> 0.59%; `rho H_near / 2` alone (not against the rest of the view) marked
-//!   every crease of the rooms and took the budget from their shadows (table room, 8,000
-//!   elements: 0.51% -> 0.66%). A hit counts its reflected radiosity alone, as one ray of 16
-//!   that hits a light would outweigh the rest (counting the emitted light too measured no
-//!   better: 8,000-element budgets, Cornell box 0.76% either way, table room 0.60% against
-//!   0.59%, boxes room default 2.94% against 2.97%, with an even share of the budget per
-//!   round).
-//!
-//! Marked elements are split largest contrast first (the contrast times the element's size),
-//! within the mesh's minimum edge and patch budget. A round adds at most half of the elements
-//! the budget has left, rounded up ([`AdaptiveMesh::refine_within`]; all of them in the last
-//! round the rays can pay for), so that later rounds, which see the refined solution, still
-//! have elements to place: without it the proximity marks of the first round took the boxes
-//! room's budget (image error at 1e8 rays 3.23%, 2.90% with it). This is RenderPark's hierarchical refinement turned around:
-//! RenderPark's power oracle splits an element whose received power is large, lit evenly or
-//! not; here an element splits only where the measured solution varies beyond its own noise,
-//! its visibility of the light changes or light from close by varies across it.
-//!
-//! Every random number comes from a stream keyed by (seed, round, element), and the marks are
-//! folded in element order, so the mesh is the same for a seed on any thread count (with a ray
-//! budget; a time budget, [`AdaptiveConfig::seconds`], sizes the rounds by the machine's speed).
+//! Adaptive meshing: [`refine`] (whose documentation describes the method) and [`pool`].
 
 use crate::context::Context;
 use crate::direct::{DirectSampling, SplitConfig, two_pass_split};
@@ -103,7 +46,7 @@ pub struct AdaptiveConfig {
     pub proximity_rays: u32,
     /// A difference counts as a gradient beyond this many of its standard deviations.
     pub noise_sigmas: f64,
-    /// The smallest relative contrast worth an element (see the module documentation).
+    /// The smallest relative contrast worth an element (see [`refine`]).
     pub tolerance: f64,
     /// Seed of every random stream.
     pub seed: u64,
@@ -143,7 +86,6 @@ pub enum AdaptiveError {
 
 /// What one round of [`refine`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RoundStats {
     /// Elements before the round.
     pub elements: usize,
@@ -156,7 +98,7 @@ pub struct RoundStats {
     /// Elements split.
     pub split: usize,
     /// Marked elements not split: at the minimum edge, beyond the patch budget, or beyond the
-    /// round's share of it (see the module documentation).
+    /// round's share of it (see [`refine`]).
     pub held: usize,
     /// Marked elements that could not be split into valid elements (kept).
     pub unrefinable: usize,
@@ -188,8 +130,65 @@ impl Refined {
     }
 }
 
-/// Refines `mesh` where the solution needs it (see the module documentation) and returns the
-/// last estimate on the refined mesh. Deterministic for a seed on any thread count.
+/// Refines `mesh` where the solution needs it and returns the last estimate on the refined
+/// mesh. Deterministic for a seed on any thread count.
+///
+/// [`refine`] solves a pilot on the starting mesh (shooting) and then, for a few rounds, marks
+/// the elements whose solution is not resolved, splits them ([`AdaptiveMesh::refine`]), lets
+/// the children start from their parent's estimate and re-estimates them by one split
+/// gathering step from that inherited solution (the two-pass split of section 1.5:
+/// `B_i = E_i + D_i + rho_i mean_k (B - E)(hit_k)`, the direct light `D` by sampling the
+/// emitters, the indirect light gathered from the solution learned so far: nothing restarts
+/// from zero, and the new shadows and contact lines show at once, even of a small light that
+/// gathering rays would rarely hit). An element is marked when
+///
+/// - **a real gradient the display cannot follow**: its luminance differs from the mean of the
+///   vertex values around it ([`Mesh::seamless_corner_radiosity`], what renders interpolate)
+///   by more than `noise_sigmas` standard deviations of its own estimate, from the variance it
+///   reports, *and* by more than `tolerance` of the larger (a difference the picture would
+///   show). A field linear across an element and its neighbours is interpolated exactly and
+///   splits nothing, however steep: elements go where the light bends (corners, penumbrae,
+///   the edge of a light's pool), not where it falls off evenly; or
+/// - **a visibility change**: of `shadow_rays` shadow rays from uniform points of the element
+///   to points on the emitters (drawn by power), some reach the emitter and some are blocked,
+///   and the direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
+///   irradiance estimate, `f` its visible share), is more than `tolerance` of the element's
+///   luminance: shadow boundaries and the contact lines of objects resting on a surface; or
+/// - **light reflected from close by**: of `proximity_rays` cosine-distributed rays from
+///   uniform points of the element, those that hit a surface nearer than the element's size
+///   `h = sqrt(A)` (a share `q` of them) bring the reflected irradiance `H_near`, all of them
+///   `H` (each hit counting its reflected radiosity `B - E`, W/m²); the element is marked when
+///   `rho |H_near - q H|`, how far the near surfaces' light departs from what the same share
+///   of the view brings on average, is more than `tolerance` of its luminance. Near a crease
+///   or a contact with a surface lit otherwise than the rest of the view (the dark top of a
+///   wall under a ceiling, a box's side on the floor) the light varies at the element's own
+///   scale, non-linearly (a linear slope of one surface makes a `d ln d` in the other's
+///   radiosity at the distance `d` from the crease), which the display's linear interpolation
+///   cannot follow and the gradient test cannot see in the element means; in an evenly lit
+///   enclosure (a furnace) the contrast is only the noise of the estimates `B` however close
+///   the walls (the furnace test marks nothing). Measured at 1e8 rays
+///   (render --spp 256, docs/meshing.md): Cornell box, 16,000-element budget, image error
+///   0.73% -> 0.59%; `rho H_near / 2` alone (not against the rest of the view) marked
+///   every crease of the rooms and took the budget from their shadows (table room, 8,000
+///   elements: 0.51% -> 0.66%). A hit counts its reflected radiosity alone, as one ray of 16
+///   that hits a light would outweigh the rest (counting the emitted light too measured no
+///   better: 8,000-element budgets, Cornell box 0.76% either way, table room 0.60% against
+///   0.59%, boxes room default 2.94% against 2.97%, with an even share of the budget per
+///   round).
+///
+/// Marked elements are split largest contrast first (the contrast times the element's size),
+/// within the mesh's minimum edge and patch budget. A round adds at most half of the elements
+/// the budget has left, rounded up ([`AdaptiveMesh::refine_within`]; all of them in the last
+/// round the rays can pay for), so that later rounds, which see the refined solution, still
+/// have elements to place: without it the proximity marks of the first round took the boxes
+/// room's budget (image error at 1e8 rays 3.23%, 2.90% with it). This is RenderPark's hierarchical refinement turned around:
+/// RenderPark's power oracle splits an element whose received power is large, lit evenly or
+/// not; here an element splits only where the measured solution varies beyond its own noise,
+/// its visibility of the light changes or light from close by varies across it.
+///
+/// Every random number comes from a stream keyed by (seed, round, element), and the marks are
+/// folded in element order, so the mesh is the same for a seed on any thread count (with a ray
+/// budget; a time budget, [`AdaptiveConfig::seconds`], sizes the rounds by the machine's speed).
 pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refined, AdaptiveError> {
     let start = Instant::now();
     let pilot_rays = if config.rays == u64::MAX {
@@ -676,7 +675,7 @@ fn point_on(mesh: &Mesh, i: usize, stream: &mut Stream) -> Vec3 {
     (a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2)).as_vec3()
 }
 
-/// The contrast of the direct light across element `i` (see the module documentation): 0 when
+/// The contrast of the direct light across element `i` (see [`refine`]): 0 when
 /// every shadow ray that can carry light agrees.
 fn visibility_contrast<C: RayCaster>(
     ctx: &Context<C>,

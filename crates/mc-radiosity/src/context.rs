@@ -76,14 +76,6 @@ impl<'a, C: RayCaster> Context<'a, C> {
         self
     }
 
-    /// The control variate of patch gathering.
-    pub fn control_variate(&self) -> ControlVariate {
-        match self.coverage {
-            None => ControlVariate::Off,
-            Some(_) => ControlVariate::Constant,
-        }
-    }
-
     /// What the rounds of patch gathering have learned for the control variate; `None` when
     /// it is off.
     pub(crate) fn coverage(&self) -> Option<&Coverage> {
@@ -132,7 +124,6 @@ impl<'a, C: RayCaster> Context<'a, C> {
 /// is how the rays of one patch relate to each other. The default is [`Sampler::Qmc`]: about
 /// 3x fewer rays to the same error for `combined` (docs/results.md), with honest variances.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Sampler {
     /// Independent pseudo-random rays ([`mcrad_random::Stream`]).
     Random,
@@ -147,6 +138,9 @@ pub enum Sampler {
 }
 
 impl Sampler {
+    /// Every sampler, in the order the command line lists them.
+    pub const ALL: [Sampler; 2] = [Sampler::Random, Sampler::Qmc];
+
     /// The name on the command line and in run statistics: `random` or `qmc`.
     pub const fn name(self) -> &'static str {
         match self {
@@ -156,11 +150,12 @@ impl Sampler {
     }
 }
 
-#[cfg(feature = "serde")]
-impl serde::Serialize for Sampler {
-    /// As its [name](Sampler::name).
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.name())
+impl std::str::FromStr for Sampler {
+    type Err = crate::UnknownName;
+
+    /// The sampler of a [name](Sampler::name) (exactly).
+    fn from_str(s: &str) -> Result<Sampler, crate::UnknownName> {
+        crate::method::parse_name(s, &Sampler::ALL, Sampler::name, "sampler")
     }
 }
 

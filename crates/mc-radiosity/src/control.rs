@@ -44,7 +44,6 @@ use std::sync::Mutex;
 /// Whether patch gathering uses the control variate of this module (the command line's
 /// `--control-variate`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum ControlVariate {
     /// Plain gathering: a patch's estimate is the mean of what its rays see.
     #[default]
@@ -56,6 +55,9 @@ pub enum ControlVariate {
 }
 
 impl ControlVariate {
+    /// Every choice, in the order the command line lists them.
+    pub const ALL: [ControlVariate; 2] = [ControlVariate::Off, ControlVariate::Constant];
+
     /// The name on the command line and in run statistics: `off` or `constant`.
     pub const fn name(self) -> &'static str {
         match self {
@@ -65,17 +67,23 @@ impl ControlVariate {
     }
 }
 
-impl std::fmt::Display for ControlVariate {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+impl std::str::FromStr for ControlVariate {
+    type Err = crate::UnknownName;
+
+    /// The choice of a [name](ControlVariate::name) (exactly).
+    fn from_str(s: &str) -> Result<ControlVariate, crate::UnknownName> {
+        crate::method::parse_name(
+            s,
+            &ControlVariate::ALL,
+            ControlVariate::name,
+            "control variate",
+        )
     }
 }
 
-#[cfg(feature = "serde")]
-impl serde::Serialize for ControlVariate {
-    /// As its [name](ControlVariate::name).
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.name())
+impl std::fmt::Display for ControlVariate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 

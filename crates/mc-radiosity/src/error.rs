@@ -103,7 +103,7 @@ pub enum Error {
     /// sum: overflow).
     #[error(transparent)]
     Estimate(#[from] EstimateError),
-    /// The caller cancelled the run ([`run_cancellable`](crate::schedule::run_cancellable)):
+    /// The caller cancelled the run ([`run_cancellable`](crate::run_cancellable)):
     /// the step in progress was abandoned; the observer has seen every complete step.
     #[error("the run was cancelled")]
     Cancelled,

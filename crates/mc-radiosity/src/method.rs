@@ -3,8 +3,7 @@
 //!
 //! The one `methods!` invocation below generates the [`Method`] enum, [`Method::ALL`], the
 //! name and metadata accessors, [`FromStr`](std::str::FromStr) and [`Display`](fmt::Display),
-//! clap's `ValueEnum` (feature `clap`), serde's `Serialize` (feature `serde`) and the dispatch
-//! of [`schedule::run`](crate::schedule::run), every one an exhaustive match over the same list:
+//! and the dispatch of [`run`](crate::run), every one an exhaustive match over the same list:
 //! a method is added by writing its runner, a file `schedule/<name>.rs` with
 //! `pub(crate) fn run<C: RayCaster>(ctx: &Context<C>, config: &ScheduleConfig, observer: &mut
 //! Observer) -> Result<Solution, Error>` (the dispatch builds the [`Context`] once per run), and
@@ -52,7 +51,8 @@ pub enum StopReason {
 
 impl StopReason {
     /// Every reason.
-    pub const ALL: [StopReason; 3] = [
+    #[cfg(test)]
+    pub(crate) const ALL: [StopReason; 3] = [
         StopReason::Converged,
         StopReason::BudgetSpent,
         StopReason::Stopped,
@@ -74,22 +74,36 @@ impl fmt::Display for StopReason {
     }
 }
 
-#[cfg(feature = "serde")]
-impl serde::Serialize for StopReason {
-    /// As its [name](StopReason::name).
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.name())
-    }
+/// A name that is not one of a [`Method`], a [`Sampler`](crate::Sampler) or a
+/// [`ControlVariate`](crate::ControlVariate): the error of their
+/// [`FromStr`](std::str::FromStr), naming the accepted names.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown {what} '{name}' (the {what}s: {known})")]
+pub struct UnknownName {
+    /// What was named: `method`, `sampler` or `control variate`.
+    what: &'static str,
+    /// The name given.
+    name: String,
+    /// The accepted names, comma separated.
+    known: String,
 }
 
-/// A method name that is not in the registry.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown method '{0}' (the methods: {names})", names = method_names())]
-pub struct UnknownMethod(pub String);
-
-/// The registered names, comma separated.
-fn method_names() -> String {
-    Method::ALL.map(Method::name).join(", ")
+/// The value of `T` named `s` among `all` (exactly as `name` gives it); `what` names `T` in the
+/// error.
+pub(crate) fn parse_name<T: Copy>(
+    s: &str,
+    all: &[T],
+    name: fn(T) -> &'static str,
+    what: &'static str,
+) -> Result<T, UnknownName> {
+    all.iter()
+        .copied()
+        .find(|&v| name(v) == s)
+        .ok_or_else(|| UnknownName {
+            what,
+            name: s.to_string(),
+            known: all.iter().map(|&v| name(v)).collect::<Vec<_>>().join(", "),
+        })
 }
 
 /// Generates [`Method`] and everything read from the list (see the module documentation).
@@ -148,7 +162,7 @@ macro_rules! methods {
                 }
             }
 
-            /// Runs the method: the dispatch behind [`schedule::run`](crate::schedule::run).
+            /// Runs the method: the dispatch behind [`run`](crate::run).
             pub(crate) fn dispatch<C: RayCaster>(
                 self,
                 mesh: &Mesh,
@@ -273,7 +287,7 @@ methods! {
 }
 
 impl Method {
-    /// Whether [`ScheduleConfig::ambient`](crate::schedule::ScheduleConfig::ambient) can change
+    /// Whether [`ScheduleConfig::ambient`](crate::ScheduleConfig::ambient) can change
     /// this method's result: the methods whose answer, or whose gathering's input, is a
     /// shooting solution (`shoot`, `prr`, `two-pass`, `two-pass-split`, `progressive-gather`,
     /// `progressive-two-pass`). `gather`, `bidirectional` and `reference` shoot nothing or only
@@ -314,37 +328,11 @@ impl fmt::Display for Method {
 }
 
 impl std::str::FromStr for Method {
-    type Err = UnknownMethod;
+    type Err = UnknownName;
 
     /// The method of a [name](Method::name) (exactly, as the statistics write it).
-    fn from_str(s: &str) -> Result<Method, UnknownMethod> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| UnknownMethod(s.to_string()))
-    }
-}
-
-#[cfg(feature = "serde")]
-impl serde::Serialize for Method {
-    /// As its [name](Method::name).
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.name())
-    }
-}
-
-#[cfg(feature = "clap")]
-impl clap::ValueEnum for Method {
-    fn value_variants<'a>() -> &'a [Self] {
-        &Method::ALL
-    }
-
-    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
-        let help = match self.paper() {
-            Some(paper) => format!("{} (paper, {paper})", self.summary()),
-            None => self.summary().to_string(),
-        };
-        Some(clap::builder::PossibleValue::new(self.name()).help(help))
+    fn from_str(s: &str) -> Result<Method, UnknownName> {
+        parse_name(s, &Method::ALL, Method::name, "method")
     }
 }
 
@@ -386,34 +374,5 @@ mod tests {
     fn stop_reason_names_are_the_documented_ones() {
         let names = StopReason::ALL.map(StopReason::name);
         assert_eq!(names, ["converged", "budget", "stopped"]);
-    }
-
-    #[cfg(feature = "clap")]
-    #[test]
-    fn clap_value_names_are_the_registry_names() {
-        use clap::ValueEnum;
-        for m in Method::ALL {
-            let v = m.to_possible_value().unwrap();
-            assert_eq!(v.get_name(), m.name());
-            assert_eq!(Method::from_str(m.name(), false), Ok(m));
-        }
-        assert_eq!(Method::value_variants(), &Method::ALL);
-    }
-
-    #[cfg(feature = "serde")]
-    #[test]
-    fn serialized_names_are_the_registry_names() {
-        for m in Method::ALL {
-            assert_eq!(
-                serde_json::to_string(&m).unwrap(),
-                format!("\"{}\"", m.name())
-            );
-        }
-        for s in StopReason::ALL {
-            assert_eq!(
-                serde_json::to_string(&s).unwrap(),
-                format!("\"{}\"", s.name())
-            );
-        }
     }
 }

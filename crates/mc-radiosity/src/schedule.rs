@@ -28,11 +28,7 @@ pub(crate) mod shoot;
 pub(crate) mod two_pass;
 pub(crate) mod two_pass_split;
 
-/// Algorithm 4 (the `combined` method) with a weighting of its choice instead of the default
-/// [`InverseExpectedVariance`](mcrad_combine::InverseExpectedVariance).
-pub use combined::run_with as run_combined_with;
-
-pub use crate::method::{Kind, Method, StopReason};
+use crate::method::{Method, StopReason};
 
 /// The default ray budget of a run: two million rays over all passes.
 pub const DEFAULT_RAYS: u64 = 2_000_000;
@@ -177,6 +173,90 @@ pub fn run_cancellable<C: RayCaster>(
 ) -> Result<Solution, Error> {
     crate::context::check_precision(mesh)?;
     method.dispatch(mesh, caster, config, Some(cancel), observer)
+}
+
+/// Runs Algorithm 4 ([`Method::Combined`]) on `mesh`, casting rays through `caster`, merging
+/// each pass's shooting estimate `S` and gathering estimate `G` per patch and channel into
+/// `C_i = w_i S_i + (1 - w_i) G_i` with `weighting` instead of the method's default
+/// [`InverseExpectedVariance`](mcrad_combine::InverseExpectedVariance). In
+/// [`Weighting::weight`](mcrad_combine::Weighting::weight) the first operand is the shooting
+/// estimate, the second the gathering estimate (radiosity in W/m²), each with its expected
+/// variance ([`Operand::expected`](mcrad_combine::Operand::expected), (W/m²)²). The split of each
+/// pass's rays between shooting and gathering still minimises the error expected under
+/// inverse-variance weights, whatever `weighting` is. With `InverseExpectedVariance` the run is
+/// exactly [`run`]'s with [`Method::Combined`]. Errors as [`run`]'s.
+pub fn run_combined_with<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    weighting: &dyn mcrad_combine::Weighting,
+    observer: &mut Observer,
+) -> Result<Solution, Error> {
+    crate::context::check_precision(mesh)?;
+    combined::run_with(mesh, caster, config, weighting, observer)
+}
+
+/// One Jacobi gathering round from a given solution (Balog, section 1.4): each patch `i` casts
+/// `rays_per_patch` cosine-distributed rays from uniform points and estimates
+/// `B_i = E_i + rho_i mean_k input(hit_k)` (W/m², mesh order), rays that escape seeing 0. The
+/// rays depend on `seed` and `sampler` only, so rounds from different inputs with the same seed
+/// share their rays (common random numbers). The variance reported per patch and channel is
+/// that of the mean given `input`, `rho_i² s² / n` ((W/m²)²; noise already in `input` is not
+/// included); the estimate's rays are `patches × rays_per_patch`.
+///
+/// Errors: `input` not one finite value per patch, `rays_per_patch < 2`, or
+/// [`Error::FarFromOrigin`].
+///
+/// # Example
+///
+/// ```
+/// use glam::{DVec3, Vec3};
+/// use mcrad_mc_radiosity::{Sampler, gather_from};
+/// use mcrad_meshing::{Mesh, Subdivision};
+/// use mcrad_raycast::Bvh;
+/// use mcrad_scene_io::{Face, Material, Scene};
+///
+/// // A closed unit cube, every face emitting 1 W/m² with reflectance 0.5: B = E / (1 - ρ) = 2.
+/// let positions: Vec<Vec3> = (0..8)
+///     .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
+///     .collect();
+/// let quads = [[1, 3, 2, 0], [6, 7, 5, 4], [4, 5, 1, 0], [3, 7, 6, 2], [2, 6, 4, 0], [5, 7, 3, 1]];
+/// let faces = quads
+///     .iter()
+///     .enumerate()
+///     .map(|(k, q)| Face { vertices: q.to_vec(), material: 0, source: k as u32 })
+///     .collect();
+/// let material = Material { name: "m".into(), reflectance: Vec3::splat(0.5), emission: Vec3::ONE };
+/// let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
+/// let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+/// let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+///
+/// // Gathering from the exact solution reproduces it: every ray sees B = 2.
+/// let exact = vec![DVec3::splat(2.0); 6];
+/// let round = gather_from(&mesh, &bvh, &exact, 100, 0, Sampler::Random).unwrap();
+/// assert_eq!(round.rays(), 600);
+/// for b in round.radiosity() {
+///     assert!((b.x - 2.0).abs() < 0.02); // exact unless a ray slipped through an edge
+/// }
+/// ```
+pub fn gather_from<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    input: &[DVec3],
+    rays_per_patch: u32,
+    seed: u64,
+    sampler: crate::Sampler,
+) -> Result<Estimate, Error> {
+    crate::context::check_precision(mesh)?;
+    let ctx = Context::new(mesh, caster).with_sampler(sampler);
+    let round = crate::gather::gather_round(
+        &ctx,
+        input,
+        crate::gather::Emission::Include,
+        rays_per_patch,
+        mcrad_random::StreamKey::new(seed),
+    )?;
+    Ok(round.estimate)
 }
 
 fn shoot_config(config: &ScheduleConfig, rays: u64, seed: u64) -> ShootConfig {

@@ -17,7 +17,7 @@
 
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::schedule::{Kind, Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::{Kind, Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
@@ -463,8 +463,7 @@ fn a_step_with_a_variance_is_the_solution_so_far() {
 fn a_cancelled_run_stops_with_cancelled_and_an_uncancelled_one_is_run() {
     // The flag set at the first step: the next step's jobs are skipped and the run says so.
     // Never set: the run is bit for bit `run`'s.
-    use mcrad_mc_radiosity::Error;
-    use mcrad_mc_radiosity::schedule::run_cancellable;
+    use mcrad_mc_radiosity::{Error, run_cancellable};
     use std::sync::atomic::{AtomicBool, Ordering};
     let (mesh, bvh) = cornell(Subdivision::None);
     let random = Method::ALL

@@ -17,8 +17,7 @@
 //! squares, leaving out the noise of its input.
 
 use glam::DVec3;
-use mcrad_mc_radiosity::Sampler;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::{Method, Sampler, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;

@@ -1,7 +1,7 @@
 //! Why a solve failed.
 
 use mcrad_combine::EstimateError;
-use mcrad_mc_radiosity::adaptive::AdaptiveError;
+use mcrad_mc_radiosity::AdaptiveError;
 use mcrad_meshing::MeshError;
 use mcrad_raycast::BuildError;
 

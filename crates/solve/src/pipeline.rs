@@ -6,9 +6,10 @@ use crate::stats::RefinementRound;
 use crate::{Budget, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed};
 use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
-use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, Refined, pool, refine};
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig, Solution, Step};
-use mcrad_mc_radiosity::{Error as MethodError, StopReason};
+use mcrad_mc_radiosity::{
+    AdaptiveConfig, Error as MethodError, Refined, ScheduleConfig, Solution, Step, StopReason,
+    pool, refine, run_cancellable,
+};
 use mcrad_meshing::{
     AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
@@ -264,7 +265,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let mut failure: Option<Error> = None;
     let never = AtomicBool::new(false);
     let cancel = problem.cancel.unwrap_or(&never);
-    let result = schedule::run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
+    let result = run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         complete_steps = step.variance.is_some();
         let estimate = match step_estimate(step) {

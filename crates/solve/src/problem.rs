@@ -1,7 +1,7 @@
 //! What a solve is asked: the scene, the settings that define its answer, the budget.
 
 use crate::{Error, RunState};
-use mcrad_mc_radiosity::schedule::Kind;
+use mcrad_mc_radiosity::Kind;
 use mcrad_mc_radiosity::{ControlVariate, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
 use mcrad_meshing::{DEFAULT_MAX_PATCHES, Mesh};
 use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;

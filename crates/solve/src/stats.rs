@@ -1,6 +1,6 @@
 //! What a run reports of itself: the `--stats` JSON.
 
-use mcrad_mc_radiosity::adaptive::RoundStats;
+use mcrad_mc_radiosity::RoundStats;
 use mcrad_mc_radiosity::{Method, Sampler, StopReason};
 use serde::{Serialize, Serializer};
 

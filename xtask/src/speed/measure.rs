@@ -17,8 +17,9 @@
 //! predicted to end after the time limit (a ladder rung takes about twice the previous one).
 
 use mcrad_lab::trace::Reference;
-use mcrad_mc_radiosity::schedule::{DEFAULT_UNSHOT_THRESHOLD, Kind, Method, ScheduleConfig, run};
-use mcrad_mc_radiosity::{ControlVariate, Sampler};
+use mcrad_mc_radiosity::{
+    ControlVariate, DEFAULT_UNSHOT_THRESHOLD, Kind, Method, Sampler, ScheduleConfig, run,
+};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;

@@ -23,8 +23,7 @@ mod results;
 pub mod scenes;
 
 use anyhow::{Context, Result, bail};
-use mcrad_mc_radiosity::schedule::Method;
-use mcrad_mc_radiosity::{ControlVariate, Sampler};
+use mcrad_mc_radiosity::{ControlVariate, Method, Sampler};
 use measure::{Limits, Point, Problem, curve};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -70,20 +69,10 @@ pub struct SpeedArgs {
     #[arg(long, value_name = "E", default_value_t = 0.005)]
     pub target: f64,
     /// How the runs draw their rays [default: the library's]
-    #[arg(
-        long,
-        value_enum,
-        value_name = "random|qmc",
-        hide_possible_values = true
-    )]
+    #[arg(long, value_name = "random|qmc")]
     pub sampler: Option<Sampler>,
     /// The control variate of patch gathering [default: the library's]
-    #[arg(
-        long,
-        value_enum,
-        value_name = "off|constant",
-        hide_possible_values = true
-    )]
+    #[arg(long, value_name = "off|constant")]
     pub control_variate: Option<ControlVariate>,
     /// Output directory [default: docs, target/speed-vs-error-quick with --quick]
     #[arg(long, value_name = "DIR")]

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result};
 use glam::DVec3;
 use mcrad_lab::trace::{Numbering, Reference};
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_reference::{ReferenceConfig, reference};

@@ -26,7 +26,7 @@
 //!    [`Weighting`]. The default ([`run`], the registry's `combined`) is
 //!    [`InverseExpectedVariance`]: `w_i = V^G_i / (V^S_i + V^G_i)`, the minimum-variance weights
 //!    of two independent unbiased estimates, from the expected variances below;
-//!    [`run_with`] takes any other weighting (it sees those expected variances in
+//!    [`run_with`] (the crate's `run_combined_with`) takes any other weighting (it sees those expected variances in
 //!    its [`Operand`]s).
 //!
 //! **The variances.** Weights by the estimates' own sample variances bias the merge (they are
@@ -92,7 +92,7 @@ pub(crate) fn run<C: RayCaster>(
 /// previous combination), which [`InverseExpectedVariance`] (the `combined` method's default)
 /// weights by. The split of each pass's rays between shooting and gathering still minimises
 /// the error expected under inverse-variance weights, whatever `weighting` is.
-pub fn run_with<C: RayCaster>(
+pub(crate) fn run_with<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &ScheduleConfig,

@@ -1,8 +1,7 @@
 //! Scenes and helpers shared by the estimator tests (each test crate uses a part of them).
-#![allow(dead_code)]
 
+use crate::{Method, ScheduleConfig, run};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};

@@ -2,11 +2,11 @@
 //! boxes whose rows sum to 1, the closed furnace `B = E / (1 - ρ)`, and an occluded pair
 //! against a Monte Carlo estimate with a known standard error.
 
-mod common;
+use super::common;
 
+use crate::SurfaceSampler;
 use common::{bvh, furnace, material, parallel_squares, quad};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::SurfaceSampler;
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;

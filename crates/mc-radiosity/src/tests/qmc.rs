@@ -5,12 +5,12 @@
 //! compared with the exact value in units of the standard error measured across the runs, a
 //! Student-t with 15 degrees of freedom; each test states its `K` and false-failure rate.
 
-mod common;
+use super::common;
 
+use crate::{Context, Sampler, ShootConfig, shoot};
+use crate::{Method, ScheduleConfig, run};
 use common::{bvh, estimate, furnace, mean_se, on_threads, parallel_squares, spread_over_reported};
 use glam::DVec3;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
-use mcrad_mc_radiosity::{Context, Sampler, ShootConfig, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
 use std::ops::ControlFlow;
 

@@ -7,11 +7,11 @@
 //! is at most that many times 1.2e-3 (under 1% for every test here). The seeds are fixed, so a
 //! pass or a failure is reproducible.
 
-mod common;
+use super::common;
 
+use crate::{Context, ShootConfig, StopReason, shoot};
 use common::{box_faces, furnace, material, parallel_squares};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::{Context, ShootConfig, StopReason, shoot};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Scene};

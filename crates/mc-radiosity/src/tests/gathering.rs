@@ -13,18 +13,18 @@
 //! gathering is exact there, not just unbiased: those tests compare exactly, allowing only for
 //! the rare ray that slips through a shared edge (counted by the estimators; it scores 0).
 
-use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::{
+use crate::{
     Context, DirectSampling, Emission, Error, GatherConfig, ShootConfig, SplitConfig, StopReason,
     ambient, direct, gather, gather_corners, gather_round, mean_reflectance, shoot, two_pass_split,
     with_ambient,
 };
+use glam::{DVec3, Vec3};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::StreamKey;
 use mcrad_scene_io::{Face, Material, Scene};
 use std::ops::ControlFlow;
 
-mod common;
+use super::common;
 use common::{box_faces, bvh, furnace, material, mean_se};
 
 const RUNS: u64 = 16;
@@ -889,8 +889,8 @@ fn lit_floor_furnace(rho: f32) -> Scene {
     .0
 }
 
-fn gather_method(mesh: &Mesh, rays: u64, seed: u64) -> mcrad_mc_radiosity::schedule::Solution {
-    use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
+fn gather_method(mesh: &Mesh, rays: u64, seed: u64) -> crate::Solution {
+    use crate::{Method, ScheduleConfig, run};
     let config = ScheduleConfig {
         rays,
         seed,

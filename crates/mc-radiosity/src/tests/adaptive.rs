@@ -1,12 +1,12 @@
 //! Adaptive refinement: it puts elements at a known shadow boundary and not where the light is
 //! even, keeps its bounds, and is the same on any thread count (fixed seeds).
 
-mod common;
+use super::common;
 
+use crate::{AdaptiveConfig, pool, refine};
+use crate::{Context, ShootConfig, shoot};
 use common::{furnace, material, quad};
 use glam::Vec3;
-use mcrad_mc_radiosity::adaptive::{AdaptiveConfig, pool, refine};
-use mcrad_mc_radiosity::{Context, ShootConfig, shoot};
 use mcrad_meshing::{AdaptiveBounds, AdaptiveMesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::Scene;

@@ -2,11 +2,10 @@
 //! a budget of 200 000 rays each, and measures each against the deterministic reference with
 //! `rms_rel`. An observer sees every complete intermediate solution and could stop the run.
 //!
-//! `cargo run --release -p mcrad-mc-radiosity --example solve`
+//! `cargo run --release -p mcrad-mc-radiosity --example methods`
 
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::Method;
-use mcrad_mc_radiosity::schedule::{self, ScheduleConfig};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
@@ -30,7 +29,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..ScheduleConfig::default()
     };
 
-    let reference = schedule::run(Method::Reference, &mesh, &bvh, &config, &mut |_| {
+    let reference = run(Method::Reference, &mesh, &bvh, &config, &mut |_| {
         ControlFlow::Continue(())
     })?;
     let exact = reference.estimate.radiosity();
@@ -49,7 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for method in [Method::Shoot, Method::Prr, Method::Combined] {
         let start = Instant::now();
         let mut steps = 0;
-        let solution = schedule::run(method, &mesh, &bvh, &config, &mut |_step| {
+        let solution = run(method, &mesh, &bvh, &config, &mut |_step| {
             // `step.radiosity` is the solution so far, after `step.rays` rays.
             steps += 1;
             ControlFlow::Continue(())

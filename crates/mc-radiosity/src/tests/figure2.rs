@@ -19,11 +19,9 @@
 //! the closed-scene term, which ignores escape), late 0.99; rms_rel rises from late to early by
 //! 0.155 without the term and by 0.019 with it.
 
+use crate::{Context, Emission, ShootConfig, Shooting, ambient, gather_round, shoot, with_ambient};
 use glam::DVec3;
 use mcrad_combine::rms_rel;
-use mcrad_mc_radiosity::{
-    Context, Emission, ShootConfig, Shooting, ambient, gather_round, shoot, with_ambient,
-};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::StreamKey;
 use mcrad_raycast::Bvh;
@@ -184,4 +182,88 @@ fn ambient_term_keeps_gathering_from_early_shooting_bright_and_accurate() {
         "reflected ratio early: without {dark:.3}, with {bright:.3}; rms_rel rise early vs late: \
          without {rise_without:.3}, with {rise_with:.3}"
     );
+}
+
+/// `cargo xtask experiment figure2` reaches the estimators through the public interface: a
+/// shooting run is `run` with `Method::Shoot` and the `random` sampler (stopped after wave `k`
+/// by the observer), its ambient term `ScheduleConfig::ambient`, the gathering round
+/// `gather_from`. Exact: the same numbers as the estimators called directly, as the test above
+/// does.
+#[test]
+fn the_public_path_of_the_experiment_is_the_estimators_bit_for_bit() {
+    use crate::{Method, Sampler, ScheduleConfig, gather_from, run};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cornell-box.obj");
+    let scene = mcrad_scene_io::load(&path).unwrap().scene;
+    let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let ctx = Context::new(&mesh, &bvh);
+    for (rays, threshold, stop_after) in [(3_000, 0.0, Some(2)), (20_000, 0.01, None)] {
+        let seed = 3;
+        let direct = shoot(
+            &ctx,
+            &ShootConfig {
+                rays,
+                unshot_threshold: threshold,
+                seed,
+                ..Default::default()
+            },
+            &mut |p| match stop_after {
+                Some(k) if p.waves >= k => ControlFlow::Break(()),
+                _ => ControlFlow::Continue(()),
+            },
+        )
+        .unwrap();
+        for with in [false, true] {
+            let config = ScheduleConfig {
+                rays,
+                unshot_threshold: threshold,
+                seed,
+                ambient: with,
+                sampler: Sampler::Random,
+                ..Default::default()
+            };
+            let public = run(
+                Method::Shoot,
+                &mesh,
+                &bvh,
+                &config,
+                &mut |s| match stop_after {
+                    Some(k) if s.index >= k => ControlFlow::Break(()),
+                    _ => ControlFlow::Continue(()),
+                },
+            )
+            .unwrap();
+            let input = if with {
+                let term = ambient(&mesh, &direct.unshot, direct.stats.escape_fraction()).unwrap();
+                with_ambient(&mesh, &direct.estimate, term).unwrap()
+            } else {
+                direct.estimate.clone()
+            };
+            assert_eq!(public.estimate.radiosity(), input.radiosity());
+            assert_eq!(public.estimate.rays(), direct.stats.rays);
+            assert_eq!(public.steps, direct.stats.waves);
+            assert_eq!(
+                public.unshot_fraction,
+                direct.stats.unshot.element_sum() / direct.stats.emitted.element_sum()
+            );
+            let round = gather_round(
+                &ctx,
+                input.radiosity(),
+                Emission::Include,
+                GATHER_RAYS,
+                StreamKey::new(seed),
+            )
+            .unwrap();
+            let through = gather_from(
+                &mesh,
+                &bvh,
+                public.estimate.radiosity(),
+                GATHER_RAYS,
+                seed,
+                Sampler::Random,
+            )
+            .unwrap();
+            assert_eq!(through, round.estimate);
+        }
+    }
 }

@@ -5,16 +5,16 @@
 //! Statistical tests run `RUNS = 16` independent seeds and compare with Student's t on 15
 //! degrees of freedom: `P(|t| > 4) = 1.2e-3` per compared value.
 
-use glam::DVec3;
-use mcrad_mc_radiosity::{
-    Context, ControlVariate, Emission, GatherConfig, gather, gather_round,
-    schedule::{Method, ScheduleConfig, run},
+use crate::{
+    Context, ControlVariate, Emission, GatherConfig, Method, ScheduleConfig, gather, gather_round,
+    run,
 };
+use glam::DVec3;
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::StreamKey;
 use std::ops::ControlFlow;
 
-mod common;
+use super::common;
 use common::{bvh, furnace, mean_se, on_threads, parallel_squares};
 
 const RUNS: u64 = 16;

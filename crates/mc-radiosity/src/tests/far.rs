@@ -4,12 +4,12 @@
 //! local origin (`Mesh::origin`), so the furnace at 1e7 is the furnace at the origin, bit for
 //! bit, for every method; one moved by a non-round offset agrees within noise (stated below).
 
-mod common;
+use super::common;
 
+use crate::Error;
+use crate::{Method, ScheduleConfig, run};
 use common::{box_faces, material};
 use glam::{DVec3, Vec3};
-use mcrad_mc_radiosity::Error;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_raycast::Bvh;
 use mcrad_scene_io::Scene;

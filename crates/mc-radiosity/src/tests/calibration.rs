@@ -22,14 +22,14 @@
 //! at its most conservative (with the correlation measured, far less: the ratios below sit
 //! within 1.5) and 0.3% from the power.
 
+use crate::{Method, ScheduleConfig, run};
+use crate::{Sampler, StopReason};
 use glam::DVec3;
-use mcrad_mc_radiosity::schedule::{Method, ScheduleConfig, run};
-use mcrad_mc_radiosity::{Sampler, StopReason};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_scene_io::Scene;
 use std::ops::ControlFlow;
 
-mod common;
+use super::common;
 use common::{box_faces, bvh, furnace, material};
 
 const SEEDS: u64 = 16;
