@@ -182,9 +182,7 @@ pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
             seed,
             ..Default::default()
         };
-        let s = mcrad_mc_radiosity::run(method, &mesh, &bvh, &config, &mut |_| {
-            ControlFlow::Continue(())
-        })?;
+        let s = crate::solve_fixed(method, &mesh, &config, &mut |_| ControlFlow::Continue(()))?;
         runs.push(bake(s.estimate.radiosity(), s.estimate.variance())?);
     }
     let k = seeds as f64;

@@ -10,7 +10,7 @@
 //! its form factors need no visibility and are exact to the quadrature tolerance).
 //!
 //! Every method of `Method::monte_carlo()` runs `K` seeds on every case through
-//! [`schedule::run`], one run at a time. A run that returns
+//! the library's solve (`mcrad_solve::solve` on the case's mesh), one run at a time. A run that returns
 //! an error or panics (caught by `catch_unwind`) is reported, not fatal; a run still going after
 //! `--limit` seconds is stopped by its observer at its next step, reported, and the case's
 //! remaining seeds of that method are skipped (a run that never reaches a step is not bounded:
@@ -472,35 +472,31 @@ enum Outcome {
     Panicked(String),
 }
 
-/// Runs `method` once, panics caught, stopped at its first step past `limit` seconds.
-fn run_once(
-    method: Method,
-    mesh: &Mesh,
-    bvh: &Bvh,
-    config: &ScheduleConfig,
-    limit: f64,
-) -> (Outcome, f64) {
+/// Runs `method` once through the library's solve on the fixed `mesh`, panics caught, stopped
+/// at its first step past `limit` seconds.
+fn run_once(method: Method, mesh: &Mesh, config: &ScheduleConfig, limit: f64) -> (Outcome, f64) {
     let start = Instant::now();
     let result = catch_unwind(AssertUnwindSafe(|| {
-        mcrad_mc_radiosity::run(method, mesh, bvh, config, &mut |_| {
+        crate::solve_fixed(method, mesh, config, &mut |_| {
             if start.elapsed().as_secs_f64() > limit {
                 ControlFlow::Break(())
             } else {
                 ControlFlow::Continue(())
             }
         })
+        .map(|a| (a.estimate, a.stats.stop))
     }));
     let secs = start.elapsed().as_secs_f64();
     let outcome = match result {
-        Ok(Ok(s)) if s.stop == StopReason::Stopped => Outcome::Stopped,
-        Ok(Ok(s)) => Outcome::Done(
+        Ok(Ok((_, StopReason::Stopped))) => Outcome::Stopped,
+        Ok(Ok((estimate, stop))) => Outcome::Done(
             RunResult {
-                radiosity: s.estimate.radiosity().to_vec(),
-                variance: s.estimate.variance().map(<[DVec3]>::to_vec),
-                rays: s.estimate.rays(),
-                converged: s.stop == StopReason::Converged,
+                radiosity: estimate.radiosity().to_vec(),
+                variance: estimate.variance().map(<[DVec3]>::to_vec),
+                rays: estimate.rays(),
+                converged: stop == StopReason::Converged,
             },
-            s.stop,
+            stop,
         ),
         Ok(Err(e)) => Outcome::Failed(e.to_string()),
         Err(payload) => Outcome::Panicked(
@@ -775,7 +771,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                     sampler: o.sampler,
                     ..Default::default()
                 };
-                let (outcome, secs) = run_once(method, &mesh, &bvh, &config, o.limit);
+                let (outcome, secs) = run_once(method, &mesh, &config, o.limit);
                 seconds += secs;
                 ended += 1;
                 match outcome {

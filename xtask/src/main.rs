@@ -176,6 +176,38 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// A count written as an integer or in floating point (`2e6`), as the tasks' `--rays` take it.
+/// `method` on the fixed `mesh` through the library's solve ([`mcrad_solve::solve`], as
+/// `mcrad solve` runs it), with `config`'s budget, seed and method settings; `observer` sees
+/// each complete step.
+fn solve_fixed(
+    method: mcrad_mc_radiosity::Method,
+    mesh: &mcrad_meshing::Mesh,
+    config: &mcrad_mc_radiosity::ScheduleConfig,
+    observer: &mut mcrad_solve::Observer,
+) -> Result<mcrad_solve::Answer, mcrad_solve::Error> {
+    let problem = mcrad_solve::Problem {
+        input: mcrad_solve::Input::Mesh(mesh),
+        settings: mcrad_solve::Settings {
+            method,
+            seed: config.seed,
+            sampler: config.sampler,
+            control_variate: config.control_variate,
+            ambient: config.ambient,
+            unshot_threshold: config.unshot_threshold,
+            visibility_tolerance: config.reference.visibility_tolerance,
+            ..Default::default()
+        },
+        budget: mcrad_solve::Budget {
+            rays: Some(config.rays),
+            ..Default::default()
+        },
+        threads: None,
+        resume: None,
+        cancel: None,
+    };
+    mcrad_solve::solve(&problem, observer)
+}
+
 fn parse_count(s: &str) -> Result<u64> {
     let x: f64 = s
         .parse()

@@ -222,40 +222,7 @@ pub struct TexelError {
     pub max: f64,
 }
 
-/// The relative standard error of a patch's incident irradiance `H = (B - E) / rho`:
-/// `sqrt(sum_c var(B_c)) / sum_c (B_c - E_c)` over the RGB channels (`rho` cancels; the variance
-/// of `B` is that of its reflected part, `E` being exact). Infinite where no light arrives
-/// (`B = E`) and the variance is not 0; 0 where both are 0.
-pub fn relative_error(b: DVec3, e: DVec3, variance: DVec3) -> f64 {
-    let reflected = (b - e).element_sum();
-    let sd = variance.max(DVec3::ZERO).element_sum().sqrt();
-    if sd == 0.0 {
-        0.0
-    } else if reflected > 0.0 {
-        sd / reflected
-    } else {
-        f64::INFINITY
-    }
-}
-
-/// The `q`-quantile (in `[0, 1]`) of `values` weighted by `weights` (the smallest value whose
-/// cumulative weight reaches `q` of the total); `None` when the total weight is not positive.
-pub fn weighted_quantile(values: &[f64], weights: &[f64], q: f64) -> Option<f64> {
-    let mut order: Vec<usize> = (0..values.len()).collect();
-    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
-    let total: f64 = weights.iter().sum();
-    if total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return None;
-    }
-    let mut sum = 0.0;
-    for &i in &order {
-        sum += weights[i];
-        if sum >= q * total {
-            return Some(values[i]);
-        }
-    }
-    order.last().map(|&i| values[i])
-}
+pub use mcrad_combine::{relative_error, weighted_quantile};
 
 /// Instance `i`'s triangles over new vertices, one per (vertex, chart) (a triangle in no
 /// chart, a degenerate one, shares its vertices' chartless copies): `copies` and `triangles`
@@ -621,22 +588,5 @@ mod tests {
             DVec3::new(0.5, 0.25, 0.0),
         );
         assert_eq!(h, DVec3::new(4.0, 8.0, 0.0));
-    }
-
-    #[test]
-    fn relative_errors_and_weighted_quantiles() {
-        let b = DVec3::new(3.0, 2.0, 1.0);
-        let e = DVec3::ZERO;
-        assert_eq!(relative_error(b, e, DVec3::new(9.0, 16.0, 11.0)), 1.0);
-        assert_eq!(relative_error(e, e, DVec3::ONE), f64::INFINITY);
-        assert_eq!(relative_error(e, e, DVec3::ZERO), 0.0);
-        let v = [4.0, 1.0, 3.0, 2.0];
-        assert_eq!(weighted_quantile(&v, &[1.0; 4], 0.5), Some(2.0));
-        assert_eq!(weighted_quantile(&v, &[1.0; 4], 0.95), Some(4.0));
-        assert_eq!(
-            weighted_quantile(&v, &[0.0, 0.0, 10.0, 1.0], 0.5),
-            Some(3.0)
-        );
-        assert_eq!(weighted_quantile(&v, &[0.0; 4], 0.5), None);
     }
 }
