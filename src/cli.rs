@@ -7,7 +7,7 @@ use mcrad_mc_radiosity::{
 };
 use mcrad_meshing::DEFAULT_MAX_EDGE_FRACTION;
 use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
-use mcrad_render::Exposure;
+use mcrad_render::{Exposure, RenderSettings};
 use mcrad_solve::{Budget, MeshPlan, Settings};
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -177,7 +177,7 @@ pub struct Solve {
     #[arg(long, value_name = "WxH", default_value = "512x512", value_parser = parse_size)]
     pub size: (u32, u32),
     /// Rays per pixel (anti-aliasing); a square number is stratified.
-    #[arg(long, value_name = "N", default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, value_name = "N", default_value_t = RenderSettings::default().samples_per_pixel, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub spp: u32,
     /// PNG exposure: `auto` (the 99th percentile of luminance maps near white) or stops
     /// (radiance × 2^stops; 0 shows 1 W/(m² sr) as white).
@@ -605,6 +605,11 @@ mod tests {
         let budget = s.budget(now);
         assert_eq!(budget.total_rays(), Budget::default().total_rays());
         assert_eq!(solve(&["--time", "5"]).budget(now).total_rays(), u64::MAX);
+        let render = mcrad_render::RenderSettings::default();
+        assert_eq!(
+            (s.size, s.spp),
+            ((render.width, render.height), render.samples_per_pixel)
+        );
     }
 
     #[test]
