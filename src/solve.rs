@@ -7,7 +7,7 @@ use crate::state;
 use crate::trace::Tracer;
 use anyhow::{Context, Result, anyhow, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mcrad_export::{PatchRow, per_face, write_patch_csv};
+use mcrad_export::{patch_rows, per_face, write_patch_csv};
 use mcrad_meshing::MeshError;
 use mcrad_solve::{Answer, Error as SolveError, Input, Problem, Progress};
 use std::fs::File;
@@ -262,13 +262,12 @@ fn finish(
 ) -> Result<()> {
     let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     if let Some(path) = &args.patches {
-        let rows = mesh.patches().iter().enumerate().map(|(i, p)| PatchRow {
-            patch: answer.patch[i],
-            area: p.area,
-            radiosity: estimate.radiosity()[i],
-            variance: estimate.variance().map(|v| v[i]),
-            face: Some(p.face),
-        });
+        let rows = patch_rows(
+            mesh,
+            &answer.patch,
+            estimate.radiosity(),
+            estimate.variance(),
+        );
         if args.per_face {
             write_patch_csv(create(path)?, per_face(rows))?;
         } else {

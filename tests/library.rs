@@ -2,7 +2,7 @@
 //! `mcrad solve`'s: the same patch CSV, byte for byte (what the example `solve` of
 //! `mcrad-solve` writes).
 
-use mcrad_export::{PatchRow, write_patch_csv};
+use mcrad_export::{patch_rows, write_patch_csv};
 use std::ops::ControlFlow;
 use std::process::Command;
 
@@ -36,18 +36,8 @@ fn the_library_default_answer_is_the_cli_answer_bit_for_bit() {
             answer.stats.refinement.is_some(),
             "the default mesh is adaptive"
         );
-        let rows = answer
-            .mesh
-            .patches()
-            .iter()
-            .enumerate()
-            .map(|(i, p)| PatchRow {
-                patch: answer.patch[i],
-                area: p.area,
-                radiosity: answer.estimate.radiosity()[i],
-                variance: answer.estimate.variance().map(|v| v[i]),
-                face: Some(p.face),
-            });
+        let (b, var) = (answer.estimate.radiosity(), answer.estimate.variance());
+        let rows = patch_rows(&answer.mesh, &answer.patch, b, var);
         let mut library = Vec::new();
         write_patch_csv(&mut library, rows).unwrap();
         let cli = std::fs::read(&csv).unwrap();

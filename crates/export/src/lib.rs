@@ -9,8 +9,8 @@ mod patches;
 
 pub use gltf_out::{AUTO_EXPOSURE_PERCENTILE, GltfOptions, RADIOSITY_ATTRIBUTE, write_glb};
 pub use patches::{
-    PATCH_CSV_FACE_HEADER, PATCH_CSV_HEADER, PatchRow, ReadCsvError, per_face, read_patch_csv,
-    write_patch_csv,
+    PATCH_CSV_FACE_HEADER, PATCH_CSV_HEADER, PatchRow, ReadCsvError, patch_rows, per_face,
+    read_patch_csv, write_patch_csv,
 };
 
 /// Why writing a result failed.

@@ -85,6 +85,27 @@ impl From<PatchRow> for WriteRow {
     }
 }
 
+/// The rows of a solution on `mesh`: patch `i` numbered `patch[i]`, with its area, its
+/// radiosity `radiosity[i]` (W/m²), its variance `variance[i]` ((W/m²)², where known) and its
+/// input face. The slices have one entry per patch, in mesh order.
+pub fn patch_rows<'a>(
+    mesh: &'a mcrad_meshing::Mesh,
+    patch: &'a [u32],
+    radiosity: &'a [DVec3],
+    variance: Option<&'a [DVec3]>,
+) -> impl Iterator<Item = PatchRow> + 'a {
+    mesh.patches()
+        .iter()
+        .enumerate()
+        .map(move |(i, p)| PatchRow {
+            patch: patch[i],
+            area: p.area,
+            radiosity: radiosity[i],
+            variance: variance.map(|v| v[i]),
+            face: Some(p.face),
+        })
+}
+
 /// One row per input face, in face order: the area-weighted means `sum A_i B_i / sum A_i` of
 /// its patches' rows (W/m²), with the variance of that mean `sum (A_i / A)² V_i` (patches taken
 /// as independent; unknown when a patch's is) and the face's area `A` (scene units²). A row's

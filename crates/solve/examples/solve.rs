@@ -4,7 +4,7 @@
 //! `cargo run --release -p mcrad-solve --example solve -- scenes/cornell-box.obj --rays 1e6 --seed 0 --patches out.csv`
 
 use clap::Parser;
-use mcrad_export::{PatchRow, write_patch_csv};
+use mcrad_export::{patch_rows, write_patch_csv};
 use std::ops::ControlFlow;
 
 #[derive(Parser)]
@@ -25,18 +25,8 @@ fn main() -> anyhow::Result<()> {
     problem.settings.seed = args.seed;
     problem.budget.rays = args.rays;
     let answer = mcrad_solve::solve(&problem, &mut |_| ControlFlow::Continue(()))?;
-    let rows = answer
-        .mesh
-        .patches()
-        .iter()
-        .enumerate()
-        .map(|(i, p)| PatchRow {
-            patch: answer.patch[i],
-            area: p.area,
-            radiosity: answer.estimate.radiosity()[i],
-            variance: answer.estimate.variance().map(|v| v[i]),
-            face: Some(p.face),
-        });
+    let (b, var) = (answer.estimate.radiosity(), answer.estimate.variance());
+    let rows = patch_rows(&answer.mesh, &answer.patch, b, var);
     write_patch_csv(std::fs::File::create(&args.patches)?, rows)?;
     Ok(())
 }

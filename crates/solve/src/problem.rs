@@ -10,7 +10,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 /// How the scene's faces become the patches solved for.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum MeshPlan {
     /// Start coarse and split where the measured light asks for it (the default): the start is
     /// the faces cut to the bounding-box diagonal / 40 when that holds at most half of

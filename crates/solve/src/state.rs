@@ -77,26 +77,13 @@ pub struct RunState {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct SavedSettings {
     method: String,
-    mesh: SavedPlan,
+    mesh: MeshPlan,
     seed: u64,
     sampler: String,
     control_variate: String,
     ambient: bool,
     unshot_threshold: f64,
     visibility_tolerance: f64,
-}
-
-/// [`MeshPlan`] as saved.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-enum SavedPlan {
-    Adaptive {
-        max_patches: usize,
-        min_edge: Option<f32>,
-    },
-    Uniform {
-        max_edge: Option<f32>,
-    },
-    PerFace,
 }
 
 /// [`History`] as saved.
@@ -110,17 +97,7 @@ impl From<&Settings> for SavedSettings {
     fn from(s: &Settings) -> Self {
         SavedSettings {
             method: s.method.name().to_string(),
-            mesh: match s.mesh {
-                MeshPlan::Adaptive {
-                    max_patches,
-                    min_edge,
-                } => SavedPlan::Adaptive {
-                    max_patches,
-                    min_edge,
-                },
-                MeshPlan::Uniform { max_edge } => SavedPlan::Uniform { max_edge },
-                MeshPlan::PerFace => SavedPlan::PerFace,
-            },
+            mesh: s.mesh,
             seed: s.seed,
             sampler: s.sampler.name().to_string(),
             control_variate: s.control_variate.name().to_string(),
@@ -136,17 +113,7 @@ impl SavedSettings {
     fn settings(&self) -> Option<Settings> {
         Some(Settings {
             method: self.method.parse::<Method>().ok()?,
-            mesh: match self.mesh {
-                SavedPlan::Adaptive {
-                    max_patches,
-                    min_edge,
-                } => MeshPlan::Adaptive {
-                    max_patches,
-                    min_edge,
-                },
-                SavedPlan::Uniform { max_edge } => MeshPlan::Uniform { max_edge },
-                SavedPlan::PerFace => MeshPlan::PerFace,
-            },
+            mesh: self.mesh,
             seed: self.seed,
             sampler: [Sampler::Random, Sampler::Qmc]
                 .into_iter()
