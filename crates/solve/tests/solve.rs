@@ -1,0 +1,159 @@
+//! The library's solve on the bundled closed furnace (every face `E = 1` W/m², `rho = 0.5`:
+//! exact `B = E / (1 - rho) = 2` W/m² everywhere), and what it promises around the method:
+//! budgets, observers, cancelling, continuing a saved run.
+
+use mcrad_mc_radiosity::Method;
+use mcrad_scene_io::Scene;
+use mcrad_solve::{Budget, Error, MeshPlan, Problem, RunState, Settings, solve};
+use std::ops::ControlFlow;
+use std::sync::atomic::AtomicBool;
+
+fn furnace() -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/furnace.obj");
+    mcrad_scene_io::load(&path).unwrap().scene
+}
+
+fn go(_: &mcrad_solve::Progress) -> ControlFlow<()> {
+    ControlFlow::Continue(())
+}
+
+/// The area-weighted mean radiosity (channels averaged) and the variance of that mean from the
+/// reported variances (patches taken as independent).
+fn mean_and_variance(answer: &mcrad_solve::Answer) -> (f64, f64) {
+    let patches = answer.mesh.patches();
+    let total: f64 = patches.iter().map(|p| p.area).sum();
+    let variance = answer.estimate.variance().expect("a variance");
+    let (mut mean, mut var) = (0.0, 0.0);
+    for (i, p) in patches.iter().enumerate() {
+        let w = p.area / total;
+        mean += w * answer.estimate.radiosity()[i].element_sum() / 3.0;
+        var += w * w * variance[i].element_sum() / 9.0;
+    }
+    (mean, var)
+}
+
+#[test]
+fn the_default_solve_of_a_closed_furnace_is_exact_within_its_error_bars() {
+    let scene = furnace();
+    // k = 4 standard errors over 4 seeds: a false failure about 1 in 15 000 for normal errors.
+    const K: f64 = 4.0;
+    let mut sum = 0.0;
+    let mut var = 0.0;
+    for seed in 0..4 {
+        let mut problem = Problem::new(&scene);
+        problem.settings.seed = seed;
+        problem.budget.rays = Some(200_000);
+        let answer = solve(&problem, &mut go).unwrap();
+        assert!(
+            answer.stats.refinement.is_some(),
+            "the default mesh is adaptive"
+        );
+        assert!(
+            answer.state.is_some(),
+            "a progressive run has a state to continue"
+        );
+        let (m, v) = mean_and_variance(&answer);
+        sum += m;
+        var += v;
+    }
+    let (mean, se) = (sum / 4.0, var.sqrt() / 4.0);
+    assert!(
+        (mean - 2.0).abs() <= K * se.max(1e-9) + 1e-4,
+        "mean {mean} against 2 ± {se}"
+    );
+}
+
+#[test]
+fn a_continued_run_merges_its_pieces_and_refuses_other_settings() {
+    let scene = furnace();
+    let mut problem = Problem::new(&scene);
+    problem.settings.seed = 5;
+    problem.budget.rays = Some(100_000);
+    let first = solve(&problem, &mut go).unwrap();
+    let state = first.state.clone().expect("a state");
+    // written and read back bit for bit
+    let mut bytes = Vec::new();
+    state.write(&mut bytes).unwrap();
+    let state = RunState::read(bytes.as_slice()).unwrap();
+    assert_eq!(state.estimate().unwrap(), first.estimate);
+    assert!(matches!(
+        RunState::read(&b"not a state"[..]),
+        Err(Error::NotAState)
+    ));
+
+    // The continuation takes the saved settings (the adaptive mesh included).
+    let mut next = Problem::new(&scene);
+    next.settings = state.settings();
+    next.budget.rays = Some(100_000);
+    next.resume = Some(&state);
+    let second = solve(&next, &mut go).unwrap();
+    assert_eq!(second.patch, first.patch, "the saved mesh");
+    // the piece's rays (its whole budget: no refinement on a saved mesh) add to the saved ones
+    let added = second.estimate.rays() - first.estimate.rays();
+    assert!((90_000..=105_000).contains(&added), "{added} rays added");
+    assert_eq!(second.stats.rays, second.estimate.rays());
+    let (_, v1) = mean_and_variance(&first);
+    let (m2, v2) = mean_and_variance(&second);
+    assert!(v2 < 0.75 * v1, "two pieces: variance {v2} against {v1}");
+    assert!((m2 - 2.0).abs() <= 4.0 * v2.sqrt() + 1e-4, "mean {m2}");
+
+    // A setting that differs is named with both values.
+    let mut other = next;
+    other.settings.seed = 6;
+    match solve(&other, &mut go) {
+        Err(Error::Disagree { what, saved, given }) => {
+            assert_eq!((what, saved.as_str(), given.as_str()), ("seed", "5", "6"))
+        }
+        r => panic!("not refused: {:?}", r.map(|a| a.stats)),
+    }
+}
+
+#[test]
+fn an_observer_stops_the_run_and_a_cancel_before_the_first_step_has_no_answer() {
+    let scene = furnace();
+    let mut problem = Problem::new(&scene);
+    problem.settings.mesh = MeshPlan::Uniform { max_edge: None };
+    problem.settings.method = Method::Prr;
+    problem.budget.rays = Some(1_000_000);
+    let mut steps = 0;
+    let answer = solve(&problem, &mut |p| {
+        steps += 1;
+        assert_eq!(p.step, steps);
+        assert_eq!(p.mesh().patches().len(), p.radiosity().len());
+        ControlFlow::Break(())
+    })
+    .unwrap();
+    assert_eq!((steps, answer.stats.iterations), (1, 1));
+    assert_eq!(answer.stats.stop, mcrad_mc_radiosity::StopReason::Stopped);
+    assert!(answer.estimate.rays() < 1_000_000);
+
+    let cancelled = AtomicBool::new(true);
+    problem.cancel = Some(&cancelled);
+    assert!(matches!(
+        solve(&problem, &mut go),
+        Err(Error::CancelledEarly)
+    ));
+}
+
+#[test]
+fn an_error_target_ends_a_progressive_run_early() {
+    let scene = furnace();
+    let settings = Settings {
+        mesh: MeshPlan::Uniform { max_edge: None },
+        ..Settings::default()
+    };
+    let mut problem = Problem::new(&scene);
+    problem.settings = settings;
+    problem.budget = Budget {
+        rays: Some(20_000_000),
+        target_error: Some(0.05),
+        ..Budget::default()
+    };
+    let answer = solve(&problem, &mut go).unwrap();
+    assert!(answer.target_reached);
+    assert!(
+        answer.stats.rays < 20_000_000 / 4,
+        "{} rays",
+        answer.stats.rays
+    );
+}
