@@ -712,12 +712,8 @@ pub fn gather<C: RayCaster>(
     })
 }
 
-/// Radiosity gathered at mesh vertices ([`gather_corners`]), one entry per patch corner.
+/// Radiosity gathered at mesh vertices ([`gather_at_vertices`](crate::gather_at_vertices)), one entry per patch corner.
 #[derive(Debug, Clone, PartialEq)]
-#[cfg_attr(
-    not(test),
-    allow(dead_code, reason = "no schedule gathers at vertices yet; tested")
-)]
 pub struct CornerGathering {
     /// Radiosity at each corner (W/m² per channel), indexed by global corner
     /// ([`Mesh::corner_offset`]`(p) + k`): the value of the corner's group.
@@ -766,10 +762,6 @@ pub struct CornerGathering {
 ///
 /// Errors: `input` not one finite value per patch, `groups` made for another mesh, or
 /// `rays_per_vertex < 2`.
-#[cfg_attr(
-    not(test),
-    allow(dead_code, reason = "no schedule gathers at vertices yet; tested")
-)]
 pub fn gather_corners<C: RayCaster>(
     ctx: &Context<C>,
     groups: &CornerGroups,

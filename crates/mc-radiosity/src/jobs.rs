@@ -15,7 +15,6 @@ pub(crate) const JOB_RAYS: u32 = 4096;
 /// Sub-stream tag of patch gathering ([`gather_round`](crate::gather_round)); the chunk number is added to it.
 pub(crate) const PATCH_GATHER: u64 = 1 << 40;
 /// Sub-stream tag of vertex gathering ([`gather_corners`](crate::gather_corners)).
-#[cfg_attr(not(test), allow(dead_code, reason = "used by gather_corners only"))]
 pub(crate) const VERTEX_GATHER: u64 = 2 << 40;
 /// Sub-stream tag of direct-light sampling ([`direct`](crate::direct())).
 pub(crate) const DIRECT_LIGHT: u64 = 3 << 40;

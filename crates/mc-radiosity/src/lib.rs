@@ -16,6 +16,8 @@
 //!   [`Sampler`], [`ControlVariate`]).
 //! - [`run_combined_with`] runs Algorithm 4 (`combined`) with a
 //!   [`Weighting`](mcrad_combine::Weighting) of the caller's choice.
+//! - [`gather_at_vertices`]: radiosity gathered at the mesh's vertices from a solution (the
+//!   paper's per-vertex gathering, section 1.5), for a smooth display without extrapolation.
 //! - [`gather_from`]: one Jacobi gathering round from a given solution (the paper's Figure 2
 //!   gathers from shooting solutions of growing quality).
 //! - [`refine`] and [`pool`]: adaptive meshing, refining an
@@ -54,10 +56,11 @@ pub use adaptive::{AdaptiveConfig, AdaptiveError, Refined, RoundStats, pool, ref
 pub use context::Sampler;
 pub use control::ControlVariate;
 pub use error::Error;
+pub use gather::CornerGathering;
 pub use method::{Kind, Method, StopReason, UnknownName};
 pub use schedule::{
-    DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Observer, ScheduleConfig, Solution, Step, gather_from,
-    run, run_cancellable, run_combined_with,
+    DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Observer, ScheduleConfig, Solution, Step,
+    gather_at_vertices, gather_from, run, run_cancellable, run_combined_with,
 };
 
 // The estimators the schedules compose, for the crate's tests (`src/tests`).
