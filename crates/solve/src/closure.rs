@@ -67,7 +67,7 @@ pub const CLOSURE_SIGMAS: f64 = 4.0;
 
 /// The tag of the probe's random streams (derived from the run's seed: see
 /// [`mcrad_random::derive_seed`]), distinct from every method's.
-const PROBE_TAG: u64 = 0x636c_6f73_7572_65; // "closure"
+const PROBE_TAG: u64 = 0x0063_6c6f_7375_7265; // "closure" in ASCII
 
 /// Where a run's emitted power went, per RGB channel (W), and whether it balances (see the
 /// module's maths in the crate source, `closure.rs`). Written under `"closure"` in `--stats`.

@@ -28,11 +28,8 @@ fn run(problem: &Problem) -> Answer {
 /// Asserts the balance of every channel is within `K` standard errors, and no warning.
 fn balances(c: &Closure, warnings: &[String]) {
     let se = c.balance_se.expect("a standard error");
-    for k in 0..3 {
-        assert!(
-            c.balance[k].abs() <= K * se[k] + 1e-9 * c.emitted[k],
-            "channel {k}: {c:?}"
-        );
+    for (k, ((b, se), e)) in c.balance.iter().zip(se).zip(c.emitted).enumerate() {
+        assert!(b.abs() <= K * se + 1e-9 * e, "channel {k}: {c:?}");
     }
     assert!(
         !warnings.iter().any(|w| w.contains("conserve power")),
@@ -74,10 +71,9 @@ fn the_open_cornell_box_balances_over_seeds() {
             "{c:?}"
         );
         balances(&c, &answer.warnings);
-        for k in 0..3 {
-            sum[k] += c.balance[k];
-            var[k] += c.balance_se.unwrap()[k].powi(2);
-        }
+        let se = c.balance_se.unwrap();
+        sum = std::array::from_fn(|k| sum[k] + c.balance[k]);
+        var = std::array::from_fn(|k| var[k] + se[k] * se[k]);
     }
     for k in 0..3 {
         assert!(
