@@ -41,12 +41,19 @@
 //!
 //! taking the patches' errors as independent: the reported variances carry no correlation
 //! between patches. Measured over 8-16 seeds at 2e6 rays on the Cornell box (open front), the
-//! mean `z²` of the balance is 0.5-0.8 on a uniform mesh (the standard error is honest, a
-//! little large), but 2.2-3.3 on the adaptive mesh (`combined`, `prr`, `bidirectional`): the
-//! children of a split inherit their parent's estimate, and those shared errors are not in the
-//! per-patch variances, so there the standard error is about 1.6x too small and a sound run
-//! may warn (a few in a hundred). Taking the errors within an input face as fully correlated
-//! instead (an upper bound) gave mean `z²` 0.04-0.15: a check that would pass nearly anything. A method whose answer has no variance (`shoot`, `gather`, `two-pass`,
+//! mean `z²` of the balance is 0.5-0.8 on a uniform mesh of 943 patches (the standard error
+//! is honest, a little large), but 2.2-3.3 on the default adaptive mesh of about 5 700
+//! (`combined`, `prr`, `bidirectional`), and still 1.7-2.1 for `combined` run on that mesh
+//! without the refinement's pooling (12 seeds). The many small patches of a face gather from
+//! one shooting solution, and the children of a split start from their parent's estimate:
+//! errors shared between patches that the per-patch variances do not carry (issue 36, item 3).
+//! There the standard error is 1.3-1.8x too small and a sound run may warn, a few times in a
+//! hundred. Taking the errors within an input face as fully correlated instead (an upper bound)
+//! gave mean `z²` 0.04-0.15 on the adaptive mesh and 0.001 on the furnace: a check that would
+//! pass nearly anything. Variances per face that carry the correlation belong here once the
+//! methods report them.
+//!
+//! A method whose answer has no variance (`shoot`, `gather`, `two-pass`,
 //! `two-pass-split`, `reference`) gets the balance without a standard error, and no check.
 //!
 //! **The check.** A channel whose `|balance|` exceeds [`CLOSURE_SIGMAS`] standard errors
