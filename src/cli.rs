@@ -159,7 +159,8 @@ pub struct Solve {
     /// area-weighted mean of its patches, with the header `patch,area,r,g,b,var_r,var_g,var_b`.
     #[arg(long, requires = "patches")]
     pub per_face: bool,
-    /// Write run statistics as JSON.
+    /// Write run statistics as JSON, with the closure report: per channel the power emitted,
+    /// absorbed and escaped (W) and the standard error of their balance.
     #[arg(long, value_name = "F.json")]
     pub stats: Option<PathBuf>,
     /// Render the solution: .png (tone-mapped sRGB) or .exr (linear radiance, W/(m² sr)).

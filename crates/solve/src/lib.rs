@@ -31,15 +31,21 @@
 //! continuation needs nothing repeated, and a setting given again must agree
 //! ([`Settings::agree`]).
 //!
+//! **The closure report** ([`Closure`], in [`RunStats::closure`]): per channel the power
+//! emitted, absorbed and escaped (W) and the standard error of their balance; a balance off by
+//! more than [`CLOSURE_SIGMAS`] standard errors is a warning.
+//!
 //! Randomness is a pure function of the seed: the answer does not depend on the thread count.
 //! The crate does no I/O and never prints: warnings are returned in [`Answer::warnings`].
 
+mod closure;
 mod error;
 mod pipeline;
 mod problem;
 mod state;
 mod stats;
 
+pub use closure::{CLOSURE_SIGMAS, Closure};
 pub use error::Error;
 pub use mcrad_mc_radiosity::DEFAULT_RAYS;
 pub use pipeline::{Answer, Observer, Progress, solve};

@@ -1,5 +1,6 @@
 //! What a run reports of itself: the `--stats` JSON.
 
+use crate::Closure;
 use mcrad_mc_radiosity::RoundStats;
 use mcrad_mc_radiosity::{Method, Sampler, StopReason};
 use serde::{Serialize, Serializer};
@@ -44,6 +45,9 @@ pub struct RunStats {
     /// An adaptive mesh's refinement rounds, in order; absent for a fixed mesh.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refinement: Option<Vec<RefinementRound>>,
+    /// Where the emitted power went, per RGB channel (W): emitted, absorbed, escaped, their
+    /// balance and its standard error ([`Closure`]).
+    pub closure: Closure,
 }
 
 /// What one round of an adaptive mesh's refinement did (counts of elements, and rays).
@@ -130,6 +134,14 @@ mod tests {
             setup_seconds: 0.1,
             sampler: Sampler::Qmc,
             refinement: None,
+            closure: Closure {
+                emitted: [1.0, 2.0, 3.0],
+                absorbed: [0.5, 1.0, 1.5],
+                escaped: [0.5, 1.0, 1.5],
+                balance: [0.0; 3],
+                balance_se: Some([0.01; 3]),
+                rays: 64,
+            },
         };
         let v = serde_json::to_value(&s).unwrap();
         for key in [
@@ -170,5 +182,7 @@ mod tests {
         assert_eq!(v["refinement"][0]["split"], 7);
         assert_eq!(v["refinement"][0]["proximity"], 2);
         assert_eq!(v["refinement"][0]["rays"], 4096);
+        assert_eq!(v["closure"]["emitted"], serde_json::json!([1.0, 2.0, 3.0]));
+        assert_eq!(v["closure"]["balance_se"][2], 0.01);
     }
 }
