@@ -96,6 +96,8 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         threads: Some(threads),
         resume: resumed.as_ref(),
         cancel: Some(interrupt::cancel_flag()),
+        // the closure report is part of the statistics
+        closure: args.stats.is_some(),
     };
     let bar = progress_bar(args.quiet);
     let mut tracer: Option<Tracer> = None;

@@ -204,6 +204,7 @@ fn solve_fixed(
         threads: None,
         resume: None,
         cancel: None,
+        closure: false,
     };
     mcrad_solve::solve(&problem, observer)
 }

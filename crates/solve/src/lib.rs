@@ -31,7 +31,8 @@
 //! continuation needs nothing repeated, and a setting given again must agree
 //! ([`Settings::agree`]).
 //!
-//! **The closure report** ([`Closure`], in [`RunStats::closure`]): per channel the power
+//! **The closure report** ([`Closure`], in [`RunStats::closure`], when [`Problem::closure`]
+//! asks for it: its probe rays cost about a sixteenth of the method's): per channel the power
 //! emitted, absorbed and escaped (W) and the standard error of their balance; a balance off by
 //! more than [`CLOSURE_SIGMAS`] standard errors is a warning.
 //!

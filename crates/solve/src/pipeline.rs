@@ -342,14 +342,18 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     let refinement_rays = refinement.as_ref().map_or(0, |r| r.rays);
     // The closure: its probe has its own streams (from this piece's seed), after the run.
-    let probe_rays = crate::closure::allocate(
-        &mesh,
-        estimate.radiosity(),
-        crate::closure::probe_budget(solved_rays, mesh.patches().len()),
-    );
-    let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
-    let closure = crate::closure::closure(&mesh, &estimate, &probe);
-    warnings.extend(closure.warning());
+    let closure = problem.closure.then(|| {
+        let probe_rays = crate::closure::allocate(
+            &mesh,
+            estimate.radiosity(),
+            crate::closure::probe_budget(solved_rays, mesh.patches().len()),
+        );
+        let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
+        crate::closure::closure(&mesh, &estimate, &probe)
+    });
+    if let Some(c) = &closure {
+        warnings.extend(c.warning());
+    }
     let stats = RunStats {
         method,
         patches: mesh.patches().len(),

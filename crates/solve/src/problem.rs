@@ -193,6 +193,9 @@ pub struct Problem<'a> {
     /// Set (from any thread) to abandon the step in progress; the answer is then the last
     /// complete step's.
     pub cancel: Option<&'a AtomicBool>,
+    /// Report where the power went ([`crate::RunStats::closure`]), with probe rays of about a
+    /// sixteenth of the method's beyond the budget.
+    pub closure: bool,
 }
 
 impl<'a> Problem<'a> {
@@ -205,6 +208,7 @@ impl<'a> Problem<'a> {
             threads: None,
             resume: None,
             cancel: None,
+            closure: false,
         }
     }
 }

@@ -46,8 +46,12 @@ pub struct RunStats {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub refinement: Option<Vec<RefinementRound>>,
     /// Where the emitted power went, per RGB channel (W): emitted, absorbed, escaped, their
-    /// balance and its standard error ([`Closure`]).
-    pub closure: Closure,
+    /// balance and its standard error ([`Closure`]); absent unless [`Problem::closure`] asked
+    /// for it.
+    ///
+    /// [`Problem::closure`]: crate::Problem::closure
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub closure: Option<Closure>,
 }
 
 /// What one round of an adaptive mesh's refinement did (counts of elements, and rays).
@@ -134,14 +138,14 @@ mod tests {
             setup_seconds: 0.1,
             sampler: Sampler::Qmc,
             refinement: None,
-            closure: Closure {
+            closure: Some(Closure {
                 emitted: [1.0, 2.0, 3.0],
                 absorbed: [0.5, 1.0, 1.5],
                 escaped: [0.5, 1.0, 1.5],
                 balance: [0.0; 3],
                 balance_se: Some([0.01; 3]),
                 rays: 64,
-            },
+            }),
         };
         let v = serde_json::to_value(&s).unwrap();
         for key in [

@@ -42,10 +42,11 @@ fn a_closed_furnace_balances_and_nothing_escapes() {
     let scene = bundled("furnace.obj");
     for seed in 0..3 {
         let mut problem = Problem::new(&scene);
+        problem.closure = true;
         problem.settings.seed = seed;
         problem.budget.rays = Some(200_000);
         let answer = run(&problem);
-        let c = answer.stats.closure;
+        let c = answer.stats.closure.expect("asked for");
         // six unit faces at E = 1 W/m²
         assert!((c.emitted[0] - 6.0).abs() < 1e-9, "{c:?}");
         assert_eq!(c.escaped, [0.0; 3]);
@@ -61,11 +62,12 @@ fn the_open_cornell_box_balances_over_seeds() {
     let (mut sum, mut var) = ([0.0; 3], [0.0; 3]);
     for seed in 0..4 {
         let mut problem = Problem::new(&scene);
+        problem.closure = true;
         problem.settings.seed = seed;
         problem.settings.mesh = MeshPlan::Uniform { max_edge: None };
         problem.budget.rays = Some(500_000);
         let answer = run(&problem);
-        let c = answer.stats.closure;
+        let c = answer.stats.closure.expect("asked for");
         assert!(
             c.escaped.iter().zip(c.emitted).all(|(x, e)| *x > 0.1 * e),
             "{c:?}"
@@ -126,6 +128,7 @@ fn light_on_a_black_patch_is_absorbed_by_the_probe() {
     let scene = Scene::new(positions, faces, materials).unwrap().0;
     for method in [Method::Combined, Method::Prr] {
         let mut problem = Problem::new(&scene);
+        problem.closure = true;
         problem.settings.method = method;
         problem.settings.seed = 3;
         problem.settings.mesh = MeshPlan::Uniform {
@@ -133,7 +136,7 @@ fn light_on_a_black_patch_is_absorbed_by_the_probe() {
         };
         problem.budget.rays = Some(200_000);
         let answer = run(&problem);
-        let c = answer.stats.closure;
+        let c = answer.stats.closure.expect("asked for");
         assert!((c.emitted[0] - 1.0).abs() < 1e-6);
         // about a fifth of the floor's light reaches the panel
         assert!(c.absorbed[0] > 0.1 && c.escaped[0] > 0.5, "{c:?}");
