@@ -197,8 +197,8 @@ pub struct Solve {
     #[arg(long, value_name = "S")]
     pub save: Option<PathBuf>,
     /// Continue the run saved in S (by `--save`): this run's --rays or --time are added to it
-    /// as an independent piece with its own random streams, merged by rays. The scene, mesh
-    /// options, method, seed and options must be those of the saved run.
+    /// as an independent piece with its own random streams, merged by rays. The method, seed,
+    /// mesh and options are the saved run's; one given again must agree.
     #[arg(long, value_name = "S")]
     pub resume: Option<PathBuf>,
     /// No progress bar and no summary line (errors and warnings still go to stderr).
@@ -243,22 +243,15 @@ impl Solve {
     pub fn settings_over(&self, saved: Settings, all: bool) -> Settings {
         let given = |ids: &[&str]| all || ids.iter().any(|id| self.given.iter().any(|g| g == id));
         Settings {
-            method: if given(&["method", "split"]) {
-                self.method()
-            } else {
-                saved.method
+            method: match (given(&["method"]), given(&["split"])) {
+                (true, _) => self.method(),
+                // `--split` alone applies to the saved method
+                (false, true) if saved.method == Method::TwoPass && self.split => {
+                    Method::TwoPassSplit
+                }
+                _ => saved.method,
             },
-            mesh: if given(&[
-                "mesh",
-                "no_subdivide",
-                "max_edge",
-                "max_patches",
-                "min_edge",
-            ]) {
-                self.mesh_plan()
-            } else {
-                saved.mesh
-            },
+            mesh: self.mesh_over(saved.mesh, &given),
             seed: if given(&["seed"]) {
                 self.seed
             } else {
@@ -290,6 +283,43 @@ impl Solve {
             } else {
                 saved.visibility_tolerance
             },
+        }
+    }
+
+    /// The saved mesh plan `saved` with the mesh flags that were given (`given`) applied: the
+    /// plan's kind from `--no-subdivide`, `--max-edge` or `--mesh` when one of them is given,
+    /// its bounds from `--max-edge`, `--max-patches` and `--min-edge` when given.
+    fn mesh_over(&self, saved: MeshPlan, given: &dyn Fn(&[&str]) -> bool) -> MeshPlan {
+        let kind_given = given(&["mesh", "no_subdivide", "max_edge"]);
+        let plan = if kind_given { self.mesh_plan() } else { saved };
+        match (plan, saved) {
+            (
+                MeshPlan::Adaptive {
+                    max_patches,
+                    min_edge,
+                },
+                MeshPlan::Adaptive {
+                    max_patches: saved_max,
+                    min_edge: saved_min,
+                },
+            ) => MeshPlan::Adaptive {
+                max_patches: if given(&["max_patches"]) {
+                    max_patches
+                } else {
+                    saved_max
+                },
+                min_edge: if given(&["min_edge"]) {
+                    min_edge
+                } else {
+                    saved_min
+                },
+            },
+            // bounds of an adaptive mesh asked of a saved fixed one: they disagree
+            _ if !kind_given && given(&["max_patches", "min_edge"]) => MeshPlan::Adaptive {
+                max_patches: self.max_patches,
+                min_edge: self.min_edge,
+            },
+            (plan, _) => plan,
         }
     }
 
@@ -449,7 +479,7 @@ pub enum MeshArg {
 impl Solve {
     /// Whether the mesh is adaptive: `--mesh adaptive`, or no `--mesh` and none of the options
     /// that need a fixed mesh (a uniform size, one patch per face, a reference compared patch
-    /// by patch, a saved state continued on the same mesh, the deterministic reference solver).
+    /// by patch, the deterministic reference solver).
     pub fn adaptive(&self) -> bool {
         match self.mesh {
             Some(MeshArg::Adaptive) => true,
@@ -587,7 +617,7 @@ mod tests {
     use clap::Parser;
     use mcrad_mc_radiosity::Method;
     use mcrad_render::Exposure;
-    use mcrad_solve::{Budget, Settings};
+    use mcrad_solve::{Budget, MeshPlan, Settings};
 
     fn solve(args: &[&str]) -> Solve {
         let argv = ["mcrad", "solve", "scene.obj"].iter().chain(args);
@@ -626,6 +656,35 @@ mod tests {
         assert_eq!(
             (over.seed, over.method, over.ambient),
             (4, Method::Prr, false)
+        );
+        // one mesh bound given again keeps the other saved ones
+        let saved = Settings {
+            mesh: MeshPlan::Adaptive {
+                max_patches: 8000,
+                min_edge: Some(0.01),
+            },
+            method: Method::TwoPass,
+            ..Settings::default()
+        };
+        let mut s = solve(&["--min-edge", "0.01", "--split"]);
+        s.given = vec!["min_edge".into(), "split".into()];
+        let over = s.settings_over(saved, false);
+        assert_eq!(over.mesh, saved.mesh);
+        assert_eq!(
+            over.method,
+            Method::TwoPassSplit,
+            "--split applies to the saved method"
+        );
+        let mut s = solve(&["--mesh", "adaptive"]);
+        s.given = vec!["mesh".into()];
+        assert_eq!(s.settings_over(saved, false).mesh, saved.mesh);
+        let mut s = solve(&["--max-edge", "0.2"]);
+        s.given = vec!["max_edge".into()];
+        assert_eq!(
+            s.settings_over(saved, false).mesh,
+            MeshPlan::Uniform {
+                max_edge: Some(0.2)
+            }
         );
     }
 

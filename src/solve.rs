@@ -9,7 +9,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mcrad_export::{patch_rows, per_face, write_patch_csv};
 use mcrad_meshing::MeshError;
-use mcrad_solve::{Answer, Error as SolveError, Input, Problem, Progress};
+use mcrad_solve::{Answer, Error as SolveError, Input, MeshPlan, Problem, Progress, Settings};
 use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
 use std::ops::ControlFlow;
@@ -55,6 +55,12 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         None => args.settings(),
     };
     let method = settings.method;
+    if args.reference.is_some() && matches!(settings.mesh, MeshPlan::Adaptive { .. }) {
+        bail!(
+            "--reference compares patch by patch with a fixed mesh, and the saved run's mesh is \
+             adaptive"
+        );
+    }
     if settings.deterministic() {
         if args.resume.is_some() {
             bail!("--resume: --method {method} is deterministic, there is no run to continue");
@@ -102,8 +108,10 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let bar = progress_bar(args.quiet);
     let mut tracer: Option<Tracer> = None;
     let mut failure: Option<anyhow::Error> = None;
+    let by_face = settings.mesh == MeshPlan::PerFace;
     let mut observer = |progress: &Progress| match observe(
         args,
+        by_face,
         save.map(|p| p.as_path()),
         &bar,
         &mut tracer,
@@ -119,7 +127,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     if let Some(e) = failure {
         return Err(e);
     }
-    let answer = answer.map_err(|e| solve_error(e, args))?;
+    let answer = answer.map_err(|e| solve_error(e, args, &problem.settings))?;
     for warning in &answer.warnings {
         eprintln!("warning: {warning}");
     }
@@ -128,7 +136,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         eprintln!(
             "--target-error {}: reached after {} rays",
             problem.budget.target_error.unwrap_or(0.0),
-            answer.estimate.rays()
+            answer.stats.rays
         );
     }
     if let Some(path) = save {
@@ -164,7 +172,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 ""
             },
             answer.stats.iterations,
-            answer.estimate.rays(),
+            answer.stats.rays,
             if save.is_some() && answer.state.is_some() {
                 "; --resume continues it"
             } else {
@@ -177,8 +185,10 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
 }
 
 /// After each step: the progress bar, the trace, the saved state, and a signal's stop.
+/// (`by_face`: the trace matches the reference by input face, one patch per face.)
 fn observe(
     args: &Solve,
+    by_face: bool,
     save: Option<&Path>,
     bar: &ProgressBar,
     tracer: &mut Option<Tracer>,
@@ -191,12 +201,7 @@ fn observe(
     bar.set_message(format!("step {}", progress.step));
     if let (Some(reference), Some(trace)) = (&args.reference, &args.trace) {
         if tracer.is_none() {
-            *tracer = Some(Tracer::new(
-                progress.mesh(),
-                reference,
-                trace,
-                args.no_subdivide,
-            )?);
+            *tracer = Some(Tracer::new(progress.mesh(), reference, trace, by_face)?);
         }
         // the answer so far: this piece merged with the saved ones when it continues them
         let answer = progress.answer()?;
@@ -219,11 +224,15 @@ fn observe(
 
 /// A library error as the command line says it: meshing errors with advice that names only
 /// the flags the user gave.
-fn solve_error(e: SolveError, args: &Solve) -> anyhow::Error {
+fn solve_error(e: SolveError, args: &Solve, settings: &Settings) -> anyhow::Error {
     let scene = args.scene.display();
     match e {
         SolveError::CancelledEarly => {
             anyhow!("interrupted before the first step completed: nothing to write")
+        }
+        // the adaptive mesh's start (the old message had no advice either)
+        SolveError::Mesh { source, .. } if matches!(settings.mesh, MeshPlan::Adaptive { .. }) => {
+            anyhow!("{scene}: {source}")
         }
         SolveError::Mesh { source, max_edge } => {
             let advice = match (args.max_edge, max_edge) {

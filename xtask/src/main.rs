@@ -175,10 +175,9 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-/// A count written as an integer or in floating point (`2e6`), as the tasks' `--rays` take it.
 /// `method` on the fixed `mesh` through the library's solve ([`mcrad_solve::solve`], as
 /// `mcrad solve` runs it), with `config`'s budget, seed and method settings; `observer` sees
-/// each complete step.
+/// each step.
 fn solve_fixed(
     method: mcrad_mc_radiosity::Method,
     mesh: &mcrad_meshing::Mesh,
@@ -209,6 +208,7 @@ fn solve_fixed(
     mcrad_solve::solve(&problem, observer)
 }
 
+/// A count written as an integer or in floating point (`2e6`), as the tasks' `--rays` take it.
 fn parse_count(s: &str) -> Result<u64> {
     let x: f64 = s
         .parse()

@@ -10,12 +10,20 @@ use std::ops::ControlFlow;
 #[derive(Parser)]
 struct Args {
     scene: std::path::PathBuf,
-    #[arg(long, value_parser = |s: &str| s.parse::<f64>().map(|x| x as u64))]
+    #[arg(long, value_parser = rays)]
     rays: Option<u64>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long)]
     patches: std::path::PathBuf,
+}
+
+/// A ray count as `2000000` or `2e6`.
+fn rays(s: &str) -> Result<u64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x >= 1.0 && x.fract() == 0.0 && x < 1.8e19 => Ok(x as u64),
+        _ => Err(format!("'{s}' is not a whole number of rays")),
+    }
 }
 
 fn main() -> anyhow::Result<()> {

@@ -97,7 +97,8 @@ impl Progress<'_> {
     }
 }
 
-/// The observer of [`solve`]: called after each complete step; `Break` stops the run there.
+/// The observer of [`solve`]: called after each step (a complete solution or not:
+/// [`Progress::complete`]); `Break` stops the run there.
 pub type Observer<'o> = dyn FnMut(&Progress) -> ControlFlow<()> + Send + 'o;
 
 /// What a run knows while it runs.
@@ -166,7 +167,6 @@ pub fn solve(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error
 
 fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error> {
     let clock = problem.budget.since.unwrap_or_else(Instant::now);
-    let setup = Instant::now();
     let settings = &problem.settings;
     let method = settings.method;
     let deterministic = settings.deterministic();
@@ -188,6 +188,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
                 .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
+        }
+        (Input::Scene(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
+            // a state saved from a caller's mesh: its mesh is not the scene's to refine
+            let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
+            return Err(Error::StateMesh { saved, now: 0 });
         }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
             let (mesh, refined, history) =
@@ -242,7 +247,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     if let Some(state) = problem.resume {
         state.check_continues(&mesh)?;
     }
-    let setup_seconds = setup.elapsed().as_secs_f64();
+    let setup_seconds = clock.elapsed().as_secs_f64();
 
     // A continuation is an independent run with its own streams (piece number > 0).
     let piece = problem.resume.map_or(0, RunState::pieces);
@@ -342,11 +347,13 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     let refinement_rays = refinement.as_ref().map_or(0, |r| r.rays);
     // The closure: its probe has its own streams (from this piece's seed), after the run.
-    let closure = problem.closure.then(|| {
+    // Not after a cancel (the caller wants out), and sized by this piece's rays.
+    let wanted = problem.closure && !cancelled && !cancel.load(std::sync::atomic::Ordering::SeqCst);
+    let closure = wanted.then(|| {
         let probe_rays = crate::closure::allocate(
             &mesh,
             estimate.radiosity(),
-            crate::closure::probe_budget(solved_rays, mesh.patches().len()),
+            crate::closure::probe_budget(piece_rays, mesh.patches().len()),
         );
         let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
         crate::closure::closure(&mesh, &estimate, &probe)

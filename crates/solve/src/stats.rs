@@ -36,8 +36,9 @@ pub struct RunStats {
     /// (a time budget, an error target, an observer or a cancellation).
     #[serde(serialize_with = "by_name")]
     pub stop: StopReason,
-    /// Seconds spent meshing, refining and building the ray caster, besides the caller's own
-    /// setup before the solve (s).
+    /// Seconds from the start of the budget's clock ([`crate::Budget::since`]: the CLI starts
+    /// it before loading the scene) to the start of the method: loading, meshing, refining and
+    /// building the ray caster (s).
     pub setup_seconds: f64,
     /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
     #[serde(serialize_with = "by_name")]
