@@ -7,7 +7,9 @@
 //! Layout (metres, y up): the court is 25.2 m x 15.6 m (x by z), open to the sky. Round it runs a
 //! 0.6 m arcade wall and a 3.5 m deep gallery on two storeys (floor at 0 and 5.5 m, ceilings at
 //! 5.1 and 9.6 m, roof at 10 m). The ground storey has 8 arches on each long side and 5 on each
-//! short side; the upper storey twice as many, half as wide. Red banners hang in every other
+//! short side; the upper storey twice as many, half as wide. Arches spring 3 cm from their
+//! column's axis (a ledge on the capital), so that no wall tapers to an edge, where its
+//! triangles would be slivers too thin for mcrad's `f32` geometry at 10M triangles. Red banners hang in every other
 //! ground arch of the long sides, green ones on the short sides. The triangle count is reached
 //! by the tessellation of the columns (a lathed profile: base moulding, taper, flared neck) and
 //! of the arches; the layout never changes.
@@ -53,6 +55,10 @@ const SKY_ABOVE: f64 = 1.0;
 /// How far the sky panel reaches beyond the outer walls (so that the court sees no gap between
 /// roof and panel).
 const SKY_MARGIN: f64 = 2.0;
+/// How far an arch springs from the axis of its column or the face of its pier: the ledge
+/// on which it stands (no wall tapers to an edge at the springing, where its triangles would be
+/// slivers).
+const IMPOST: f64 = 0.03;
 /// Strips across a banner.
 const BANNER_STRIPS: usize = 8;
 
@@ -156,13 +162,13 @@ impl Tessellation {
             self.arch as u64,
             self.depth as u64,
         );
-        // plinth: 4 sides and a ring round the shaft, shaft, capital: a ring, 4 sides, a top
-        let column = 2 * 4 + 2 * s + 2 * s * r + 2 * s + 2 * 5;
-        // court and gallery faces (an arch's first and last segments are single triangles),
-        // underside
-        let bay = 2 * (2 * a - 2) + 2 * a * d;
-        // court, gallery and inner faces; the x sides' piers also their corner's end
-        let pier = 3 * 2;
+        // plinth: 4 sides and a ring round the shaft; shaft; capital: a ring, 4 sides, 2 tops
+        let column = 2 * 4 + 2 * s + 2 * s * r + 2 * s + 2 * 6;
+        // court and gallery faces, underside
+        let bay = 2 * (2 * a) + 2 * a * d;
+        // court, gallery and inner faces, the ledge under the arch; the x sides' piers also
+        // their corner's end
+        let pier = 4 * 2;
         let corner_ends = 2 * 2 * 2 * 2;
         let big = 2 // court floor
             + 4 * 2 * 2 // gallery floors and ceilings (rings of 4 quads), ground storey
@@ -309,28 +315,17 @@ impl Side {
     }
 }
 
-/// Which faces of a [`cuboid`] to write.
-#[derive(PartialEq)]
-enum Faces {
-    Sides,
-    SidesAndTop,
-}
-
-/// A box of half widths `(hu, hw)` centred at `(u, w)` from `y0` to `y1` on `side`: its four
-/// sides, and its top if asked.
+/// The four sides of a box of half widths `(hu, hw)` centred at `(u, w)` from `y0` to `y1` on
+/// `side`.
 fn cuboid<W: Write>(
     obj: &mut Obj<W>,
     side: &Side,
     (u, w): (f64, f64),
     (hu, hw): (f64, f64),
     (y0, y1): (f64, f64),
-    faces: Faces,
 ) -> Result<()> {
     let p = |su: f64, sw: f64, y: f64| side.at(u + su * hu, y, w + sw * hw);
     let ring = [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)];
-    if faces == Faces::SidesAndTop {
-        obj.quad(ring.map(|(a, b)| p(a, b, y1)), DVec3::Y)?;
-    }
     for k in 0..4 {
         let (a, b) = (ring[k], ring[(k + 1) % 4]);
         let out = p(0.5 * (a.0 + b.0), 0.5 * (a.1 + b.1), y0) - p(0.0, 0.0, y0);
@@ -404,14 +399,7 @@ fn column<W: Write>(
             .collect()
     };
     let radial = |c: DVec3| dvec3(c.x - axis.x, 0.0, c.z - axis.z);
-    cuboid(
-        obj,
-        side,
-        (u, w),
-        (plinth.0, plinth.0),
-        (storey.floor, y0),
-        Faces::Sides,
-    )?;
+    cuboid(obj, side, (u, w), (plinth.0, plinth.0), (storey.floor, y0))?;
     let base = storey.radius * profile(0.0);
     obj.grid(&[circle(y0, base), square(y0, plinth.0)], |_| DVec3::Y)?;
     let rows: Vec<Vec<DVec3>> = (0..=tess.rings)
@@ -423,13 +411,31 @@ fn column<W: Write>(
     obj.grid(&rows, radial)?;
     let neck = storey.radius * profile(1.0);
     obj.grid(&[circle(y1, neck), square(y1, 0.5 * T)], |_| -DVec3::Y)?;
-    cuboid(
-        obj,
-        side,
-        (u, w),
-        (0.5 * T, 0.5 * T),
-        (y1, storey.spring),
-        Faces::SidesAndTop,
+    cuboid(obj, side, (u, w), (0.5 * T, 0.5 * T), (y1, storey.spring))?;
+    // the capital's top on either side of the wall that stands on it between two arches
+    let y = storey.spring;
+    for (a, b) in [(u - 0.5 * T, u - IMPOST), (u + IMPOST, u + 0.5 * T)] {
+        panel_flat(obj, side, (a, b), y, DVec3::Y)?;
+    }
+    Ok(())
+}
+
+/// A horizontal rectangle across the wall (`w` from 0 to `T`) from `u0` to `u1` at height `y`.
+fn panel_flat<W: Write>(
+    obj: &mut Obj<W>,
+    side: &Side,
+    (u0, u1): (f64, f64),
+    y: f64,
+    facing: DVec3,
+) -> Result<()> {
+    obj.quad(
+        [
+            side.at(u0, y, 0.0),
+            side.at(u1, y, 0.0),
+            side.at(u1, y, T),
+            side.at(u0, y, T),
+        ],
+        facing,
     )
 }
 
@@ -442,7 +448,7 @@ fn arch<W: Write>(
     (c0, c1): (f64, f64),
     tess: &Tessellation,
 ) -> Result<()> {
-    let (mid, r, y0) = (0.5 * (c0 + c1), 0.5 * (c1 - c0), storey.spring);
+    let (mid, r, y0) = (0.5 * (c0 + c1), 0.5 * (c1 - c0) - IMPOST, storey.spring);
     let n = tess.arch;
     // the arch's points, left to right (u, y)
     let arc: Vec<(f64, f64)> = (0..=n)
@@ -481,28 +487,17 @@ fn arch<W: Write>(
             side.at(u, y, w)
         };
         for k in 0..n {
-            // (arc k, arc k+1, outer k+1) and (arc k, outer k+1, outer k); the first and last
-            // segments start or end at the springing, where arc and outer meet
-            if k + 1 < n {
-                obj.triangle(
-                    [id(k, false), id(k + 1, false), id(k + 1, true)],
-                    [at(k, false), at(k + 1, false), at(k + 1, true)],
-                    facing,
-                )?;
-            } else {
-                obj.triangle(
-                    [id(k, false), id(k, true), id(k + 1, true)],
-                    [at(k, false), at(k, true), at(k + 1, true)],
-                    facing,
-                )?;
-            }
-            if k > 0 && k + 1 < n {
-                obj.triangle(
-                    [id(k, false), id(k + 1, true), id(k, true)],
-                    [at(k, false), at(k + 1, true), at(k, true)],
-                    facing,
-                )?;
-            }
+            // (arc k, arc k+1, outer k+1) and (arc k, outer k+1, outer k)
+            obj.triangle(
+                [id(k, false), id(k + 1, false), id(k + 1, true)],
+                [at(k, false), at(k + 1, false), at(k + 1, true)],
+                facing,
+            )?;
+            obj.triangle(
+                [id(k, false), id(k + 1, true), id(k, true)],
+                [at(k, false), at(k + 1, true), at(k, true)],
+                facing,
+            )?;
         }
     }
     let centre = |p: DVec3| {
@@ -556,6 +551,12 @@ fn piers<W: Write>(obj: &mut Obj<W>, side: &Side, storey: &Storey) -> Result<()>
         panel(obj, side, (ca, cb), y, 0.0, -side.w)?;
         panel(obj, side, (a, b), g, T, side.w)?;
         let inner = if dir > 0.0 { b } else { a };
+        let ledge = if dir > 0.0 {
+            (b, b + IMPOST)
+        } else {
+            (a - IMPOST, a)
+        };
+        panel_flat(obj, side, ledge, storey.spring, -DVec3::Y)?;
         obj.quad(
             [
                 side.at(inner, storey.floor, 0.0),
