@@ -153,7 +153,7 @@ impl Tessellation {
         }
     }
 
-    /// The number of triangles [`write`] writes with this tessellation.
+    /// The number of triangles [`write()`] writes with this tessellation.
     pub fn triangles(&self, sky_panel: bool) -> u64 {
         let (columns, bays, piers) = counts();
         let (s, r, a, d) = (
