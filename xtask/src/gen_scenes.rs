@@ -5,11 +5,84 @@
 //!
 //! Deterministic: the layout comes from a fixed-seed SplitMix64 stream, and the numbers are
 //! written with fixed precision, so rerunning rewrites the same bytes.
+//!
+//! Also the atrium ([`crate::atrium`]), generated on demand into `target/scenes/` (never
+//! committed): `atrium.obj` (+ `atrium.mtl`, and `atrium.glb` with `--glb`) at the default
+//! size, `atrium-N.obj` at `--triangles N`.
 
 use anyhow::{Context, Result};
 use glam::{DVec3, dvec3};
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// The options of `cargo xtask gen-scenes`.
+#[derive(Debug, clap::Args)]
+pub struct GenScenesArgs {
+    /// Triangles of the atrium (about; from 30000 to 1e7), reached by tessellating its columns
+    /// and arches more finely
+    #[arg(long, value_name = "N", default_value_t = crate::atrium::DEFAULT_TRIANGLES,
+          value_parser = crate::parse_count)]
+    pub triangles: u64,
+    /// No emitting sky panel above the atrium's roof (then mcrad finds no emitter until it
+    /// models a sky or sun)
+    #[arg(long)]
+    pub no_sky_panel: bool,
+    /// Also writes the atrium as GLB (atrium.glb, or atrium-N.glb), with a camera in its court
+    #[arg(long)]
+    pub glb: bool,
+    /// Writes only the atrium, not the committed scenes of scenes/
+    #[arg(long)]
+    pub atrium_only: bool,
+    /// Folder of the atrium [default: target/scenes in the workspace]
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
+/// Writes the atrium of `args` (OBJ, MTL, and GLB if asked) into `args.out` (default
+/// `target/scenes` under `root`); returns the OBJ's path.
+pub fn write_atrium(root: &Path, args: &GenScenesArgs) -> Result<PathBuf> {
+    use crate::atrium;
+    atrium::check_triangles(args.triangles)?;
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| root.join("target/scenes"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("could not create {}", dir.display()))?;
+    let stem = if args.triangles == atrium::DEFAULT_TRIANGLES {
+        "atrium".to_string()
+    } else {
+        format!("atrium-{}", args.triangles)
+    };
+    let sky = !args.no_sky_panel;
+    let tess = atrium::Tessellation::for_triangles(args.triangles, sky);
+    let mtl = dir.join("atrium.mtl");
+    std::fs::write(&mtl, atrium::MTL)
+        .with_context(|| format!("could not write {}", mtl.display()))?;
+    let path = dir.join(format!("{stem}.obj"));
+    let start = std::time::Instant::now();
+    let file = std::fs::File::create(&path)
+        .with_context(|| format!("could not write {}", path.display()))?;
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let triangles = atrium::write(&mut out, "atrium.mtl", &tess, sky)
+        .with_context(|| format!("could not write {}", path.display()))?;
+    eprintln!(
+        "wrote {} ({triangles} triangles, {tess:?}) in {:.1} s",
+        path.display(),
+        start.elapsed().as_secs_f64()
+    );
+    if args.glb {
+        let loaded = mcrad_scene_io::load(&path)?;
+        for warning in &loaded.warnings {
+            eprintln!("warning: {warning}");
+        }
+        let glb = mcrad_bake::glb_from_scene(&loaded.scene, Some(&atrium::camera()))?;
+        let glb_path = dir.join(format!("{stem}.glb"));
+        std::fs::write(&glb_path, glb)
+            .with_context(|| format!("could not write {}", glb_path.display()))?;
+        eprintln!("wrote {}", glb_path.display());
+    }
+    Ok(path)
+}
 
 /// Room extent (m): x width, y height, z depth.
 const ROOM: DVec3 = DVec3::new(5.0, 2.6, 4.0);

@@ -1,5 +1,6 @@
 //! Project tasks (matklad's xtask pattern): `cargo xtask <task>`.
 
+mod atrium;
 mod bake_bench;
 mod bake_check;
 mod calibrate;
@@ -56,8 +57,9 @@ enum Task {
     /// reported variance, power bias, budget use; writes docs/calibration.md
     Calibrate(calibrate::CalibrateArgs),
     /// Writes the generated experiment scenes scenes/boxes-room.obj and scenes/table-room.obj
-    /// (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ
-    GenScenes,
+    /// (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ; and the atrium (about 100k
+    /// triangles, or --triangles N) into target/scenes/
+    GenScenes(gen_scenes::GenScenesArgs),
     /// A textured Cornell-style room baked from K seeds of a method and from the reference
     /// solver: per face, the baked texels' error against the variance the bake reports
     BakeCheck(bake_check::BakeCheckArgs),
@@ -160,9 +162,12 @@ fn run(cli: Cli) -> Result<()> {
             }
         },
         Task::Calibrate(args) => calibrate::run(&root(), &args),
-        Task::GenScenes => {
-            gen_scenes::run(&root())?;
-            viewer::write_cornell_gltf(&root())
+        Task::GenScenes(args) => {
+            if !args.atrium_only {
+                gen_scenes::run(&root())?;
+                viewer::write_cornell_gltf(&root())?;
+            }
+            gen_scenes::write_atrium(&root(), &args).map(drop)
         }
         Task::BakeCheck(args) => bake_check::run(&root(), &args),
         Task::ViewerCheck { docs } => {
@@ -428,6 +433,7 @@ mod tests {
             "calibrate --seeds 16 --rays 2e5 --cases furnace-0.5 --methods prr,combined \
              --limit 20 --sampler qmc --out docs/calibration.md",
             "gen-scenes",
+            "gen-scenes --atrium-only --triangles 1e6 --glb --no-sky-panel --out somewhere",
             "bake-check",
             "bake-check --seeds 8 --rays 2e6 --method combined",
             "viewer-check",
