@@ -8,13 +8,13 @@ use mcrad_raycast::BuildError;
 /// Why [`crate::solve`] (or reading a [`crate::RunState`]) failed, by who is responsible.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// The scene could not be meshed as planned (`plan` says how it was asked).
+    /// The scene could not be meshed as planned.
     #[error("{source}")]
     Mesh {
         /// What meshing refused.
         source: MeshError,
-        /// The plan that was being built: the uniform cut's edge (scene units) or `None` for
-        /// one patch per face.
+        /// The uniform cut being built: its longest edge (scene units; for an adaptive mesh,
+        /// its start's), or `None` for one patch per face.
         max_edge: Option<f32>,
     },
     /// The ray caster could not be built over the mesh.

@@ -4,7 +4,7 @@
 //! Problem { scene, settings, budget, threads, resume, cancel }
 //!    │  mesh plan: adaptive (start, refine, pool) | uniform | one patch per face | replayed
 //!    ▼
-//! solve(problem, observer) ── each complete step ──▶ observer(Progress) → Continue | Break
+//! solve(problem, observer) ── after each step ────▶ observer(Progress) → Continue | Break
 //!    │  the method (mc-radiosity's schedules), under the budget and the deadline
 //!    ▼
 //! Answer { mesh, bvh, estimate (W/m² and variance per patch), stats, state }

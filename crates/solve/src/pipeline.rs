@@ -149,8 +149,8 @@ impl Run<'_> {
     }
 }
 
-/// Solves `problem`, handing each complete step to `observer` (which may stop the run with
-/// `Break`; the answer is then that step's). Deterministic for a seed on any thread count,
+/// Solves `problem`, handing each step to `observer` (which may stop the run with `Break`; the
+/// answer is then that step's). Deterministic for a seed on any thread count,
 /// except where a time budget decides how many rays are cast.
 pub fn solve(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error> {
     match problem.threads {
