@@ -129,7 +129,10 @@ pub fn city() -> Result<Vec<u8>> {
         "scenes": [{"nodes": roots}],
         "scene": 0
     });
-    Ok(mcrad_bake::glb(serde_json::to_vec(&doc)?, bin))
+    Ok(mcrad_scene_io::glb::glb_bytes(
+        &serde_json::to_vec(&doc)?,
+        &bin,
+    )?)
 }
 
 /// Writes the city and times two bakes of it.

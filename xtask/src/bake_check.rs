@@ -117,7 +117,10 @@ pub fn textured_cornell() -> Result<Vec<u8>> {
         "scenes": [{"nodes": [0]}],
         "scene": 0
     });
-    Ok(mcrad_bake::glb(serde_json::to_vec(&doc)?, bin))
+    Ok(mcrad_scene_io::glb::glb_bytes(
+        &serde_json::to_vec(&doc)?,
+        &bin,
+    )?)
 }
 
 /// The arguments of `cargo xtask bake-check`.

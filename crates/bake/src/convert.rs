@@ -193,16 +193,6 @@ pub fn glb_from_scene(scene: &Scene, camera: Option<&Camera>) -> Result<Vec<u8>,
     Ok(glb::glb_bytes(&json, &bin)?)
 }
 
-/// A GLB file of this JSON chunk and binary chunk, through the one GLB writer
-/// ([`mcrad_scene_io::glb::glb_bytes`], which pads each chunk to 4 bytes).
-///
-/// # Panics
-/// If the file would exceed GLB's 4 GiB; [`mcrad_scene_io::glb::glb_bytes`] returns that as an
-/// error instead.
-pub fn glb(json: Vec<u8>, bin: Vec<u8>) -> Vec<u8> {
-    glb::glb_bytes(&json, &bin).expect("a GLB file within 4 GiB")
-}
-
 /// The glTF document [`glb_from_scene`] makes of `scene` and `camera`, read back in memory
 /// exactly as `mcrad_scene_io::load_with` reads that GLB file (no file is written): the
 /// [`Loaded`] scene of its triangles (fanned from the faces, grouped per material), with the

@@ -37,7 +37,7 @@ use mcrad_scene_io::{GltfSource, LoadOptions, Scene, SceneError};
 use rayon::prelude::*;
 
 use crate::charts::Chart;
-pub use crate::convert::{glb, glb_from_scene, gltf_from_scene, gltf_scene};
+pub use crate::convert::{glb_from_scene, gltf_from_scene, gltf_scene};
 use crate::document::{BakedPrimitive, Document};
 
 /// What went wrong while baking.

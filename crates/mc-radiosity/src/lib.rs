@@ -40,6 +40,7 @@ mod context;
 mod control;
 mod direct;
 mod error;
+mod fates;
 mod gather;
 mod jobs;
 mod method;
@@ -56,6 +57,7 @@ pub use adaptive::{AdaptiveConfig, AdaptiveError, Refined, RoundStats, pool, ref
 pub use context::Sampler;
 pub use control::ControlVariate;
 pub use error::Error;
+pub use fates::{RayFates, ray_fates};
 pub use gather::CornerGathering;
 pub use method::{Kind, Method, StopReason, UnknownName};
 pub use schedule::{

@@ -61,12 +61,12 @@
 //! [`Answer::warnings`](crate::Answer::warnings): the answer loses or makes light beyond
 //! its error bars (a bias, or error bars too small).
 
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 use mcrad_combine::Estimate;
+use mcrad_mc_radiosity::{RayFates, ray_fates};
 use mcrad_meshing::Mesh;
-use mcrad_random::{StreamKey, derive_seed};
-use mcrad_raycast::{Ray, RayCaster};
-use rayon::prelude::*;
+use mcrad_random::derive_seed;
+use mcrad_raycast::RayCaster;
 use serde::Serialize;
 
 /// Standard errors of the balance beyond which a run warns.
@@ -187,90 +187,12 @@ pub(crate) fn allocate(mesh: &Mesh, radiosity: &[DVec3], budget: u64) -> Vec<u32
 }
 
 /// What the probe's rays saw, per patch.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Probe {
-    /// Per patch: rays cast, `>= 2`.
-    pub rays: Vec<u32>,
-    /// Per patch: rays that hit nothing.
-    pub escaped: Vec<u32>,
-    /// Per patch and channel: rays that first hit a back face or the front of a patch with
-    /// `rho = 0` in the channel.
-    pub sunk: Vec<[u32; 3]>,
-}
+pub(crate) type Probe = RayFates;
 
-/// Casts `rays[i]` (`>= 2`) cosine-distributed rays from uniform points of each patch `i`,
-/// from streams keyed by `seed` and the patch: deterministic on any thread count.
+/// Casts `rays[i]` (`>= 2`) cosine-distributed rays from uniform points of each patch `i`, on
+/// the closure's own streams (from `seed`): deterministic on any thread count.
 pub(crate) fn probe<C: RayCaster>(mesh: &Mesh, caster: &C, rays: Vec<u32>, seed: u64) -> Probe {
-    let key = StreamKey::new(derive_seed(seed, PROBE_TAG));
-    let patches = mesh.patches();
-    let black: Vec<[bool; 3]> = patches
-        .iter()
-        .map(|p| p.reflectance.to_array().map(|r| r == 0.0))
-        .collect();
-    let pos = mesh.positions();
-    let seen: Vec<(u32, [u32; 3])> = (0..patches.len())
-        .into_par_iter()
-        .map(|i| {
-            let patch = &patches[i];
-            let tris = mesh.patch_triangles(patch);
-            let areas: Vec<f64> = tris
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|v| pos[v as usize].as_dvec3());
-                    (b - a).cross(c - a).length()
-                })
-                .collect();
-            let total: f64 = areas.iter().sum();
-            let (t1, t2) = tangents(patch.normal);
-            let mut rng = key.item(i as u64).stream();
-            let (mut escaped, mut sunk) = (0u32, [0u32; 3]);
-            for _ in 0..rays[i] {
-                // a triangle by area, a uniform point in it
-                let mut pick = rng.uniform_f64() * total;
-                let mut t = 0;
-                while t + 1 < tris.len() && pick >= areas[t] {
-                    pick -= areas[t];
-                    t += 1;
-                }
-                let [a, b, c] = tris[t].map(|v| pos[v as usize]);
-                let (u, v) = (rng.uniform().sqrt(), rng.uniform());
-                let point = a + (b - a) * (u * (1.0 - v)) + (c - a) * (u * v);
-                // a cosine-distributed direction (Malley: a uniform disc point lifted)
-                let (r2, phi) = (rng.uniform(), std::f32::consts::TAU * rng.uniform());
-                let r = r2.sqrt();
-                let dir =
-                    t1 * (r * phi.cos()) + t2 * (r * phi.sin()) + patch.normal * (1.0 - r2).sqrt();
-                let ray = Ray::from_surface(point, patch.normal, dir, i as u32);
-                match caster.closest_hit(&ray) {
-                    None => escaped += 1,
-                    Some(h) if !h.front => sunk.iter_mut().for_each(|s| *s += 1),
-                    Some(h) => {
-                        for (s, &dark) in sunk.iter_mut().zip(&black[h.id as usize]) {
-                            *s += u32::from(dark);
-                        }
-                    }
-                }
-            }
-            (escaped, sunk)
-        })
-        .collect();
-    let (escaped, sunk) = seen.into_iter().unzip();
-    Probe {
-        rays,
-        escaped,
-        sunk,
-    }
-}
-
-/// Two unit tangents completing the unit normal `n` to an orthonormal frame (Duff et al.).
-fn tangents(n: Vec3) -> (Vec3, Vec3) {
-    let sign = 1f32.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        Vec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
+    ray_fates(mesh, caster, rays, derive_seed(seed, PROBE_TAG))
 }
 
 /// The closure of `estimate` (radiosity W/m² and variance per patch of `mesh`) with what the

@@ -93,7 +93,8 @@ impl Progress<'_> {
         if !self.complete {
             return Ok(None);
         }
-        self.run.state(self.step_estimate, self.step, 0).map(Some)
+        let (_, state) = self.run.settle(self.step_estimate, self.step, 0)?;
+        Ok(Some(state))
     }
 }
 
@@ -126,10 +127,19 @@ impl Run<'_> {
         }
     }
 
-    /// The state after this piece's `estimate` (`steps` steps, `escaped_rays` escaped rays).
-    fn state(&self, estimate: &Estimate, steps: u32, escaped_rays: u64) -> Result<RunState, Error> {
+    /// The answer and the state after this piece's `estimate` (`steps` steps, `escaped_rays`
+    /// escaped rays), each made once: the state holds the answer.
+    fn settle(
+        &self,
+        estimate: &Estimate,
+        steps: u32,
+        escaped_rays: u64,
+    ) -> Result<(Estimate, RunState), Error> {
         match self.resumed {
-            Some(state) => state.continued(estimate, steps, escaped_rays),
+            Some(saved) => {
+                let state = saved.continued(estimate, steps, escaped_rays)?;
+                Ok((state.estimate()?, state))
+            }
             None => {
                 let id = Identity {
                     mesh: self.mesh,
@@ -137,13 +147,9 @@ impl Run<'_> {
                     settings: self.settings,
                     patch: self.patch,
                 };
-                Ok(RunState::new(
-                    &id,
-                    &self.answer(estimate)?,
-                    1,
-                    steps,
-                    escaped_rays,
-                ))
+                let answer = self.answer(estimate)?;
+                let state = RunState::new(&id, &answer, 1, steps, escaped_rays);
+                Ok((answer, state))
             }
         }
     }
@@ -337,8 +343,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
-    let estimate = run.answer(&solution.estimate)?;
-    let state = run.state(&solution.estimate, solution.steps, solution.escaped_rays)?;
+    let (estimate, state) =
+        run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
     // a run stopped in a step that is not an answer lacks part of its light
     let state_complete = solution.stop != StopReason::Stopped || complete_steps;
     let solved_rays = match problem.resume {
