@@ -109,7 +109,7 @@ enum Exact {
 }
 
 /// The calibration cases.
-pub const CASES: [Case; 7] = [
+pub const CASES: [Case; 8] = [
     Case {
         name: "furnace-0.5",
         what: "closed box, side 12, every face E = 1, rho = 0.5; exact B = 2",
@@ -155,6 +155,17 @@ pub const CASES: [Case; 7] = [
         what: "closed 4 x 2.5 x 3 room, a 0.08 x 0.08 light in the ceiling (1.1e-4 of the \
                area), patches of at most 0.2 (~1.6k); exact: the reference solver",
         build: tiny_light_room,
+        exact: Exact::Reference,
+        rays_factor: 5,
+        rho: None,
+    },
+    Case {
+        name: "slivers",
+        what: "closed 2 m cube, one patch per face (no subdivision): every wall cut at 0.25 m \
+               with 1 cm strips between some cuts, so 0.25 m squares, 1 cm x 0.25 m slivers and \
+               1 cm squares (1014 patches); the light is the 1 cm square at the ceiling's \
+               centre (1e-4 m², 2.5e-5 of the area); exact: the reference solver",
+        build: slivers_room,
         exact: Exact::Reference,
         rays_factor: 5,
         rho: None,
@@ -273,6 +284,72 @@ fn tiny_light_room() -> (Scene, Subdivision) {
         .expect("the room is a valid scene")
         .0;
     (scene, Subdivision::MaxEdge(0.2))
+}
+
+/// Where the walls of [`slivers_room`] are cut, along each of their two axes (m): 0.25 m
+/// apart, with 1 cm strips at 0.25, 0.75, 1.25 and 1.75 and one 1 cm strip at the centre (the
+/// light's, on the ceiling).
+const SLIVER_CUTS: [f32; 14] = [
+    0.0, 0.25, 0.26, 0.5, 0.75, 0.76, 0.995, 1.005, 1.25, 1.26, 1.5, 1.75, 1.76, 2.0,
+];
+
+/// A closed 2 m cube whose six walls are each cut into a 13 x 13 grid of faces at
+/// [`SLIVER_CUTS`] (0.25 m squares, 1 cm x 0.25 m slivers, 1 cm squares), meshed one patch per
+/// face: the ceiling's central 1 cm square is the only light (E = 1e4 W/m², 1 W, 1e-4 m²);
+/// coloured walls as in [`tiny_light_room`]. The room is convex, so the reference solver is
+/// exact to its quadrature tolerance.
+fn slivers_room() -> (Scene, Subdivision) {
+    let s = 2.0f32;
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    let centre = SLIVER_CUTS.len() / 2 - 1;
+    // Wall: origin p, axes u and v (unit), facing `normal`; `light` marks the ceiling.
+    let walls = [
+        (Vec3::ZERO, x, z, y, 0, false), // floor
+        (s * y, x, z, -y, 3, true),      // ceiling
+        (Vec3::ZERO, z, y, x, 1, false), // x = 0
+        (s * x, z, y, -x, 2, false),     // x = s, the accent wall
+        (Vec3::ZERO, x, y, z, 1, false), // z = 0
+        (s * z, x, y, -z, 1, false),     // z = s
+    ];
+    for (p, u, v, normal, material, ceiling) in walls {
+        for i in 0..SLIVER_CUTS.len() - 1 {
+            for k in 0..SLIVER_CUTS.len() - 1 {
+                let (u0, u1) = (SLIVER_CUTS[i], SLIVER_CUTS[i + 1]);
+                let (v0, v1) = (SLIVER_CUTS[k], SLIVER_CUTS[k + 1]);
+                let mut ring = [
+                    p + u0 * u + v0 * v,
+                    p + u1 * u + v0 * v,
+                    p + u1 * u + v1 * v,
+                    p + u0 * u + v1 * v,
+                ];
+                if u.cross(v).dot(normal) < 0.0 {
+                    ring.reverse();
+                }
+                let base = positions.len() as u32;
+                positions.extend(ring);
+                let light = ceiling && i == centre && k == centre;
+                let source = faces.len() as u32;
+                faces.push(Face {
+                    vertices: (base..base + 4).collect(),
+                    material: if light { 4 } else { material },
+                    source,
+                });
+            }
+        }
+    }
+    let materials = vec![
+        material("floor", Vec3::new(0.45, 0.35, 0.25), 0.0),
+        material("wall", Vec3::new(0.7, 0.7, 0.68), 0.0),
+        material("accent", Vec3::new(0.3, 0.5, 0.6), 0.0),
+        material("ceiling", Vec3::splat(0.8), 0.0),
+        material("light", Vec3::ZERO, 1e4),
+    ];
+    let scene = Scene::new(positions, faces, materials)
+        .expect("the room is a valid scene")
+        .0;
+    (scene, Subdivision::None)
 }
 
 /// A closed 2 m cube lit by a 0.5 × 0.5 ceiling light whose floor (two triangles) takes its
