@@ -6,6 +6,7 @@
 #![allow(dead_code)]
 
 mod adaptive;
+mod bias;
 mod calibration;
 mod combined;
 mod common;
