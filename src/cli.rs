@@ -146,9 +146,9 @@ pub struct Solve {
     /// bounding-box diagonal × `DEFAULT_MAX_EDGE_FRACTION`.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length, help = max_edge_help())]
     pub max_edge: Option<f32>,
-    /// Stop shooting when the unshot power is below this fraction of the emitted power. The
-    /// power left unshot is missing from the answer (a bias of about this fraction), so the
-    /// default is small: a run spends its budget. The paper's 0.01 stops sooner.
+    /// End shooting's waves when the unshot power is below this fraction of the emitted power;
+    /// a Russian-roulette tail then ships the rest (no bias). The default is small: a run
+    /// spends its budget. The paper's 0.01 ends the waves sooner.
     #[arg(long, default_value_t = DEFAULT_UNSHOT_THRESHOLD, value_name = "FRACTION")]
     pub unshot_threshold: f64,
     /// Write per-patch radiosity: `patch,area,r,g,b,var_r,var_g,var_b,face` (`face`: the input

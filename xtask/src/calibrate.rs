@@ -46,8 +46,7 @@ mod target {
     /// The power of the mean within this many standard errors of exact.
     pub const POWER_SE: f64 = 3.0;
     /// A power bias below this share of the exact power passes whatever the standard error:
-    /// the solvers' own tolerance (shooting stops with 1e-4 of the emitted power unshot, the
-    /// reference solver integrates to 1e-4 of a row's sum), met exactly by methods whose power
+    /// the reference solver's own tolerance (it integrates to 1e-4 of a row's sum), met exactly by methods whose power
     /// has no noise (shooting conserves it).
     pub const POWER_TOLERANCE: f64 = 1e-4;
     /// The rho 0.999 furnace's power within this relative error.
@@ -1143,8 +1142,8 @@ fn document(o: &Options, table: &str) -> String {
          B_g + B_b)` of the mean of the K runs.\n\
          - **± SE**: its standard error, the standard deviation of the runs' powers / sqrt(K), \
          relative to `P_exact`. **bias / SE**: their ratio, with the SE taken as at least \
-         1e-4 / 3 (a bias below 1e-4 of the power, the solvers' own tolerance, passes: shooting \
-         stops with 1e-4 of the emitted power unshot, and its power has no other noise).\n\
+         1e-4 / 3 (a bias below 1e-4 of the power, the reference solver's own tolerance, passes: \
+         shooting's power has no other noise).\n\
          - **budget used**: rays cast / rays asked, smallest and largest over the runs. A run \
          that converged before spending its budget with every entry exact (variance 0) is shown \
          apart as *exact early* and is no miss: more rays could not improve it.\n\

@@ -33,10 +33,10 @@ use crate::method::{Method, StopReason};
 /// The default ray budget of a run: two million rays over all passes.
 pub const DEFAULT_RAYS: u64 = 2_000_000;
 
-/// The default unshot threshold: shooting stops once the power left unshot is at most this
-/// fraction of the emitted power. That power is missing from the answer (a bias of about this
-/// fraction, lower in proportion), so the default is small and a run normally spends its
-/// budget; the paper's `0.01` stops sooner with a bias of about 1%.
+/// The default unshot threshold: shooting ends its waves once the power left unshot is at most
+/// this fraction of the emitted power, and a Russian-roulette tail ships the rest at the run's
+/// energy per ray (no bias; until issue 36 it was dropped, a bias of up to this fraction). The
+/// paper's `0.01` ends the waves sooner, its tail then costs about 1% more rays.
 pub const DEFAULT_UNSHOT_THRESHOLD: f64 = 1e-4;
 
 /// Settings shared by the schedules.
