@@ -97,7 +97,8 @@ fn solve_cornell_box_writes_patches_stats_and_a_summary() {
     assert_eq!(stats["patches"], 19);
     assert_eq!(stats["seed"], 7);
     assert_eq!(stats["threads"], 2);
-    assert!(stats["rays"].as_u64().unwrap() <= 200_000);
+    // The budget, and the finishing roulette's tail beyond it (at most 5% of it by default).
+    assert!(stats["rays"].as_u64().unwrap() <= 210_000, "{stats}");
     let summary = stdout(&o);
     assert!(
         summary.contains("19 patches") && summary.contains("rays") && summary.contains("Mrays/s"),
