@@ -109,7 +109,7 @@ enum Exact {
 }
 
 /// The calibration cases.
-pub const CASES: [Case; 7] = [
+pub const CASES: [Case; 9] = [
     Case {
         name: "furnace-0.5",
         what: "closed box, side 12, every face E = 1, rho = 0.5; exact B = 2",
@@ -168,6 +168,26 @@ pub const CASES: [Case; 7] = [
         exact: Exact::Reference,
         rays_factor: 2,
         rho: None,
+    },
+    // Issue 36, item 2: one patch per face (`--no-subdivide`), where a patch's variance has
+    // no other patches of its face to pool the quasi-Monte Carlo gain with.
+    Case {
+        name: "furnace-0.9-faces",
+        what: "the rho 0.9 furnace with one patch per face (6 patches, `--no-subdivide`); \
+               exact B = 10",
+        build: || (furnace(0.9, Vec3::ZERO).0, Subdivision::None),
+        exact: Exact::Furnace,
+        rays_factor: 1,
+        rho: Some(0.9),
+    },
+    Case {
+        name: "furnace-0.99-faces",
+        what: "the rho 0.99 furnace with one patch per face (6 patches, `--no-subdivide`); \
+               exact B = 100",
+        build: || (furnace(0.99, Vec3::ZERO).0, Subdivision::None),
+        exact: Exact::Furnace,
+        rays_factor: 1,
+        rho: Some(0.99),
     },
 ];
 
