@@ -1044,8 +1044,8 @@ fn document(o: &Options, table: &str) -> String {
     }
     d.push_str(
         "\nEvery case is closed, so exactness is not a matter of escaping light. The furnaces' \
-         subdivision is the default (diagonal / 20: 12 x 12 patches a face, 864 patches); far \
-         from the origin every vertex is an integer, exact in `f32`, so the far furnace is the \
+         subdivision is the default (diagonal / 20: 12 x 12 patches a face, 864 patches), but \
+         for the `-faces` cases, one patch per face (issue 36, item 2); far from the origin every vertex is an integer, exact in `f32`, so the far furnace is the \
          same mesh as the one at the origin, moved. The room is convex (the light is part of \
          the ceiling), so the reference solver needs no visibility and its answer is exact to \
          its quadrature tolerance (1e-4 of a row's sum) and residual (1e-9).\n\n",
