@@ -108,7 +108,7 @@ enum Exact {
 }
 
 /// The calibration cases.
-pub const CASES: [Case; 8] = [
+pub const CASES: [Case; 10] = [
     Case {
         name: "furnace-0.5",
         what: "closed box, side 12, every face E = 1, rho = 0.5; exact B = 2",
@@ -178,6 +178,26 @@ pub const CASES: [Case; 8] = [
         exact: Exact::Reference,
         rays_factor: 2,
         rho: None,
+    },
+    // Issue 36, item 2: one patch per face (`--no-subdivide`), where a patch's variance has
+    // no other patches of its face to pool the quasi-Monte Carlo gain with.
+    Case {
+        name: "furnace-0.9-faces",
+        what: "the rho 0.9 furnace with one patch per face (6 patches, `--no-subdivide`); \
+               exact B = 10",
+        build: || (furnace(0.9, Vec3::ZERO).0, Subdivision::None),
+        exact: Exact::Furnace,
+        rays_factor: 1,
+        rho: Some(0.9),
+    },
+    Case {
+        name: "furnace-0.99-faces",
+        what: "the rho 0.99 furnace with one patch per face (6 patches, `--no-subdivide`); \
+               exact B = 100",
+        build: || (furnace(0.99, Vec3::ZERO).0, Subdivision::None),
+        exact: Exact::Furnace,
+        rays_factor: 1,
+        rho: Some(0.99),
     },
 ];
 
@@ -1100,8 +1120,8 @@ fn document(o: &Options, table: &str) -> String {
     }
     d.push_str(
         "\nEvery case is closed, so exactness is not a matter of escaping light. The furnaces' \
-         subdivision is the default (diagonal / 20: 12 x 12 patches a face, 864 patches); far \
-         from the origin every vertex is an integer, exact in `f32`, so the far furnace is the \
+         subdivision is the default (diagonal / 20: 12 x 12 patches a face, 864 patches), but \
+         for the `-faces` cases, one patch per face (issue 36, item 2); far from the origin every vertex is an integer, exact in `f32`, so the far furnace is the \
          same mesh as the one at the origin, moved. The room is convex (the light is part of \
          the ceiling), so the reference solver needs no visibility and its answer is exact to \
          its quadrature tolerance (1e-4 of a row's sum) and residual (1e-9).\n\n",

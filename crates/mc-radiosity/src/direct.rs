@@ -193,11 +193,15 @@ fn direct_with<C: RayCaster>(
         acc.occluded += t.occluded;
     }
     let gains = if ctx.sampling() == Sampler::Qmc {
-        replicates::gains(patches.iter().zip(&per_patch).map(|(p, t)| Measure {
-            face: p.face,
-            replicate: t.halves.variance_of_mean(t.moments.n),
-            model: t.moments.variance_of_mean().element_sum(),
-        }))
+        replicates::gains(
+            patches.iter().zip(&per_patch).map(|(p, t)| Measure {
+                face: p.face,
+                replicate: t.halves.variance_of_mean(t.moments.n),
+                model: t.moments.variance_of_mean().element_sum(),
+                dof: 1.0,
+            }),
+            replicates::Toward::Formula,
+        )
     } else {
         vec![1.0; patches.len()]
     };

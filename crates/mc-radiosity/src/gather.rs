@@ -459,7 +459,9 @@ fn with_face_pooled(
                     face: p.face,
                     replicate: s.halves.variance_of_mean(s.moments.n),
                     model: m.element_sum(),
+                    dof: 1.0,
                 }),
+            replicates::Toward::Formula,
         )
     } else {
         vec![1.0; patches.len()]
@@ -845,11 +847,15 @@ pub fn gather_corners<C: RayCaster>(
     if ctx.sampling() == Sampler::Qmc {
         // The variances are the rays' `rho² s² / n` alone (no input noise): scale them by the
         // gain the replicates measure, per input face.
-        let gains = replicates::gains(seen.iter().enumerate().map(|(g, s)| Measure {
-            face: patches[groups.patches(g)[0] as usize].face,
-            replicate: s.halves.variance_of_mean(s.moments.n),
-            model: s.moments.variance_of_mean().element_sum(),
-        }));
+        let gains = replicates::gains(
+            seen.iter().enumerate().map(|(g, s)| Measure {
+                face: patches[groups.patches(g)[0] as usize].face,
+                replicate: s.halves.variance_of_mean(s.moments.n),
+                model: s.moments.variance_of_mean().element_sum(),
+                dof: 1.0,
+            }),
+            replicates::Toward::Formula,
+        );
         replicates::scale(&mut variances, &gains);
     }
     let corners = groups.corner_groups();

@@ -36,6 +36,16 @@
 //! most; on the Cornell box of one patch per face it made the dimmer walls' variances 1.7x too
 //! small, mean `z²` 2.6 against the reference.) Under independent rays the gain would be 1 on
 //! average, so [`Sampler::Random`](crate::Sampler) keeps the formula as it is (exactly 1).
+//!
+//! **Shooting measures more.** A shooting run's waves are independent given the waves before
+//! them, so each wave's even-odd difference is one more degree of freedom ([`Waves`]): a patch
+//! lit over many bounces measures its own gain with tens of them, and shooting's faces are
+//! drawn towards the scene's gain rather than the formula ([`Toward::Scene`]). A face of one
+//! patch (`--no-subdivide`) then reports its stratified error: in a closed furnace of one
+//! patch per face at rho 0.9 and 0.99 (`cargo xtask calibrate`, cases `furnace-*-faces`), the
+//! gain is a few percent, and `prr`'s spread between seeds over its reported variance went
+//! from 0.04 to 0.8-1.0. Gathering and the direct light run one round per call: their
+//! patches keep one difference each, drawn towards the formula as above.
 
 use glam::DVec3;
 
@@ -94,28 +104,138 @@ pub(crate) struct Measure {
     pub replicate: Option<f64>,
     /// The independent-ray formula's variance, summed over the channels.
     pub model: f64,
+    /// The degrees of freedom of `replicate`: 1 for one difference, more for a sum of
+    /// independent differences ([`Waves`]).
+    pub dof: f64,
+}
+
+/// Shooting's replicate differences wave by wave. A wave's even and odd rays are two
+/// independent estimates of what the wave deposits given the power it shoots, so the wave's
+/// difference `d_w = S_0w - S_1w` has mean zero given the waves before it: the `d_w` are
+/// uncorrelated and `E[(sum_w d_w)²] = E[sum_w d_w²]`. The sum of squares measures the same
+/// variance as the run's one difference with about `(sum_w v_w)² / sum_w v_w²` degrees of
+/// freedom instead of one (Satterthwaite, `v_w` the independent-ray formula of wave `w`):
+/// tens for a patch lit over many bounces, so a face of one patch measures its own gain.
+/// (The waves' rays continue their patches' sequences, whose stratification across waves the
+/// per-wave differences do not see: they may overstate the variance a little, never
+/// understate it on that account.)
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Waves {
+    /// This wave's sums per patch.
+    wave: Vec<Halves>,
+    /// The run's sums per patch.
+    total: Vec<Halves>,
+    /// This wave's `sum x²` per patch (channels summed).
+    wave_squares: Vec<f64>,
+    /// Patches that received a deposit in this wave.
+    touched: Vec<u32>,
+    /// `sum_w |d_w|²` per patch.
+    differences: Vec<f64>,
+    /// `sum_w v_w` and `sum_w v_w²` per patch.
+    model: Vec<(f64, f64)>,
+}
+
+impl Waves {
+    /// Sums for `patches` patches.
+    pub fn new(patches: usize) -> Waves {
+        Waves {
+            wave: vec![Halves::default(); patches],
+            total: vec![Halves::default(); patches],
+            wave_squares: vec![0.0; patches],
+            touched: Vec::new(),
+            differences: vec![0.0; patches],
+            model: vec![(0.0, 0.0); patches],
+        }
+    }
+
+    /// Adds a deposit `x` (W per channel) of replicate `r` on patch `j`.
+    #[inline]
+    pub fn push(&mut self, j: usize, r: usize, x: DVec3) {
+        if self.wave_squares[j] == 0.0 {
+            self.touched.push(j as u32);
+        }
+        self.wave[j].push(r, x);
+        self.wave_squares[j] += x.length_squared();
+    }
+
+    /// Closes a wave: its differences join the sums.
+    pub fn end_wave(&mut self) {
+        for j in self.touched.drain(..) {
+            let j = j as usize;
+            let v = self.wave_squares[j];
+            self.differences[j] += self.wave[j].variance_of_sum();
+            self.model[j].0 += v;
+            self.model[j].1 += v * v;
+            self.total[j] = self.total[j].merge(self.wave[j]);
+            self.wave[j] = Halves::default();
+            self.wave_squares[j] = 0.0;
+        }
+    }
+
+    /// Each patch's gain (after the last [`Waves::end_wave`]), `face[j]` the input face of
+    /// patch `j`. The per-wave differences miss the cancellation between the waves of one
+    /// sequence, so they are scaled by `kappa = sum_j D_j / sum_j W_j` over the scene, `D_j`
+    /// the run's one difference and `W_j` the sum of the waves' (the share of the per-wave
+    /// variance the run keeps; one degree of freedom per patch of the scene). The faces' gains
+    /// are then drawn towards the scene's, not towards the formula ([`Toward::Scene`]): with
+    /// tens of degrees of freedom a face measures gains of a few percent (a furnace of one
+    /// patch per face) that the formula's pull would multiply.
+    pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
+        let (mut d, mut w) = (0.0, 0.0);
+        for (j, t) in self.total.iter().enumerate() {
+            if self.model[j].0 > 0.0 {
+                d += t.variance_of_sum();
+                w += self.differences[j];
+            }
+        }
+        let kappa = if w > 0.0 { d / w } else { 1.0 };
+        let measures = face.into_iter().enumerate().map(|(j, face)| {
+            let (v, v2) = self.model[j];
+            Measure {
+                face,
+                replicate: (v > 0.0).then_some(kappa * self.differences[j]),
+                model: v,
+                dof: if v2 > 0.0 { v * v / v2 } else { 1.0 },
+            }
+        });
+        gains(measures, Toward::Scene)
+    }
+}
+
+/// What a face's gain is drawn towards ([`gains`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Toward {
+    /// Gain 1, the independent-ray formula: for measures of one degree of freedom a patch.
+    Formula,
+    /// The scene's gain, `sum q / sum v` over every measured item.
+    Scene,
 }
 
 /// Each item's gain `g_f` ([module](self)), in the order of `items`.
-pub(crate) fn gains(items: impl IntoIterator<Item = Measure>) -> Vec<f64> {
+pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) -> Vec<f64> {
     let items: Vec<Measure> = items.into_iter().collect();
     let n_faces = items.iter().map(|m| m.face as usize + 1).max().unwrap_or(0);
-    let (mut q, mut v, mut count) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0u64; n_faces]);
+    let (mut q, mut v, mut dof) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0.0; n_faces]);
     for m in &items {
         if let Some(r) = m.replicate {
             let f = m.face as usize;
             q[f] += r;
             v[f] += m.model;
-            count[f] += 1;
+            dof[f] += m.dof;
         }
     }
+    let (q_all, v_all) = (q.iter().sum::<f64>(), v.iter().sum::<f64>());
+    let target = match toward {
+        Toward::Scene if v_all > 0.0 => q_all / v_all,
+        _ => 1.0,
+    };
     let face_gain: Vec<f64> = (0..n_faces)
         .map(|f| {
-            if count[f] == 0 || v[f] <= 0.0 {
-                return 1.0;
+            if dof[f] <= 0.0 || v[f] <= 0.0 {
+                return target;
             }
-            let prior = PRIOR_PATCHES * v[f] / count[f] as f64;
-            (q[f] + prior) / (v[f] + prior)
+            let prior = PRIOR_PATCHES * v[f] / dof[f];
+            (q[f] + prior * target) / (v[f] + prior)
         })
         .collect();
     items.iter().map(|m| face_gain[m.face as usize]).collect()
@@ -154,8 +274,12 @@ mod tests {
             face,
             replicate: Some(0.25),
             model: 1.0,
+            dof: 1.0,
         };
-        let g = gains((0..101).map(|i| measure(u32::from(i == 100))));
+        let g = gains(
+            (0..101).map(|i| measure(u32::from(i == 100))),
+            Toward::Formula,
+        );
         let face0 = (25.0 + 4.0) / 104.0;
         let face1 = (0.25 + 4.0) / 5.0;
         assert!(
@@ -167,6 +291,9 @@ mod tests {
             replicate: None,
             ..measure(0)
         };
-        assert_eq!(gains([unmeasured, unmeasured]), vec![1.0, 1.0]);
+        assert_eq!(
+            gains([unmeasured, unmeasured], Toward::Formula),
+            vec![1.0, 1.0]
+        );
     }
 }

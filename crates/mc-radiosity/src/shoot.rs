@@ -74,7 +74,7 @@ use crate::context::Sampler;
 use crate::error::Error;
 use crate::jobs::SHOOT_QMC;
 use crate::method::StopReason;
-use crate::replicates::{self, Halves, Measure};
+use crate::replicates::{self, Waves};
 use crate::sampling::stochastic_round;
 use crate::surface::{Rays, SurfaceSampler};
 use glam::DVec3;
@@ -309,9 +309,8 @@ pub fn shoot<C: RayCaster>(
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
-    // sequence (crate::replicates).
-    let mut halves =
-        (ctx.sampling() == Sampler::Qmc).then(|| vec![Halves::default(); patches.len()]);
+    // sequence, wave by wave (crate::replicates).
+    let mut waves = (ctx.sampling() == Sampler::Qmc).then(|| Waves::new(patches.len()));
     let mut stats = ShootStats {
         rays: 0,
         waves: 0,
@@ -418,8 +417,8 @@ pub fn shoot<C: RayCaster>(
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
-                        if let Some(halves) = halves.as_mut() {
-                            halves[j].push(replicate(job.first + t as u64), kept);
+                        if let Some(waves) = waves.as_mut() {
+                            waves.push(j, replicate(job.first + t as u64), kept);
                         }
                         kept_sum += kept;
                         kept_squares += kept * kept;
@@ -435,6 +434,9 @@ pub fn shoot<C: RayCaster>(
             }
         }
         stats.waves += 1;
+        if let Some(waves) = waves.as_mut() {
+            waves.end_wave();
+        }
         radiosity_so_far(patches, &reflected, &mut radiosity);
         let progress = ShootProgress {
             waves: stats.waves,
@@ -452,17 +454,10 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
-    if let Some(halves) = &halves {
+    if let Some(waves) = &waves {
         // The sums of squares assume independent rays: scale them by the gain the replicates
-        // measure (crate::replicates).
-        let gains =
-            replicates::gains(patches.iter().zip(halves).zip(&squares).map(|((p, h), s)| {
-                Measure {
-                    face: p.face,
-                    replicate: (*s != DVec3::ZERO).then(|| h.variance_of_sum()),
-                    model: s.element_sum(),
-                }
-            }));
+        // measure, wave by wave (crate::replicates).
+        let gains = waves.gains(patches.iter().map(|p| p.face));
         replicates::scale(&mut squares, &gains);
     }
     if extrapolate {
