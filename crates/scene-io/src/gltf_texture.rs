@@ -26,6 +26,8 @@ pub(crate) struct TextureReader<'a> {
     /// Unreadable textures: (document index, reason), each once.
     pub unreadable: Vec<(usize, String)>,
     pub out: SceneTextures,
+    /// The largest texel of each of `out.textures`, per channel.
+    maxima: Vec<Vec3>,
 }
 
 /// What a material asks of the textures: (texture, texCoord set) for base colour and emission.
@@ -62,19 +64,23 @@ impl<'a> TextureReader<'a> {
             decoded: HashMap::new(),
             unreadable: Vec::new(),
             out: SceneTextures::default(),
+            maxima: Vec::new(),
         }
     }
 
     /// Records the mappings of a primitive's triangles (`triangles[k]` is face
     /// `first_source + k`, corners placed at `world`), if its material has textures or it has
-    /// vertex colours.
+    /// vertex colours; `scale` multiplies the mapped vertex colours (it undoes the clamp of a
+    /// factor channel of 1.0). Returns the largest `COLOR_0 × baseColorTexture` the faces take,
+    /// per channel (1 without a mapping: the material's factor applies as it is).
     pub(crate) fn add_primitive(
         &mut self,
         primitive: &gltf::Primitive,
         first_source: usize,
         triangles: &[[u32; 3]],
         world: &[Vec3],
-    ) {
+        scale: Vec3,
+    ) -> Vec3 {
         let w = wanted(&primitive.material());
         let buffers = self.buffers;
         let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
@@ -82,7 +88,7 @@ impl<'a> TextureReader<'a> {
             .read_colors(0)
             .map(|c| c.into_rgb_f32().map(Vec3::from).collect());
         if w.base.is_none() && w.emissive.is_none() && colors.is_none() {
-            return;
+            return Vec3::ONE;
         }
         let set = w.base.or(w.emissive).map_or(0, |(_, s)| s);
         let uv: Option<Vec<Vec2>> = reader
@@ -99,8 +105,10 @@ impl<'a> TextureReader<'a> {
         let colors_ok = colors.as_ref().is_none_or(|v| v.len() == n);
         let uv_ok = uv.as_ref().is_none_or(|v| v.len() == n);
         if !colors_ok || !uv_ok || (base.is_none() && emissive.is_none() && colors.is_none()) {
-            return;
+            return Vec3::ONE;
         }
+        let texel_max = base.map_or(Vec3::ONE, |t| self.maxima[t as usize]);
+        let mut reach = Vec3::ZERO;
         if self.out.faces.len() < first_source + triangles.len() {
             self.out.faces.resize(first_source + triangles.len(), None);
         }
@@ -111,10 +119,14 @@ impl<'a> TextureReader<'a> {
                     .map_or(Vec2::ZERO, |u| u[at(i)])
                     .clamp(Vec2::splat(-1e6), Vec2::splat(1e6))
             };
-            let color_of = |i: usize| colors.as_ref().map_or(Vec3::ONE, |c| c[at(i)]);
+            let color_of = |i: usize| colors.as_ref().map_or(Vec3::ONE, |c| c[at(i)]) * scale;
             let uv = [uv_of(0), uv_of(1), uv_of(2)];
             // NaN texture coordinates: the face keeps its factors
             let uv_ok = uv.iter().all(|u| u.is_finite());
+            let texel_max = if uv_ok { texel_max } else { Vec3::ONE };
+            for i in 0..3 {
+                reach = reach.max(color_of(i) / scale * texel_max);
+            }
             self.out.faces[first_source + k] = Some(FaceMapping {
                 corners: [world[at(0)], world[at(1)], world[at(2)]],
                 uv,
@@ -123,6 +135,7 @@ impl<'a> TextureReader<'a> {
                 emissive: emissive.filter(|_| uv_ok),
             });
         }
+        reach
     }
 
     /// The index in `out.textures` of document texture `index`, decoding it the first time;
@@ -137,6 +150,7 @@ impl<'a> TextureReader<'a> {
         };
         let slot = match result {
             Ok(texture) => {
+                self.maxima.push(texture.max());
                 self.out.textures.push(Arc::new(texture));
                 Some((self.out.textures.len() - 1) as u32)
             }

@@ -89,6 +89,14 @@ impl Texture {
         Some(Texture { levels, wrap })
     }
 
+    /// The largest texel of the full-resolution level, per channel (unitless).
+    pub fn max(&self) -> Vec3 {
+        self.levels[0]
+            .texels
+            .iter()
+            .fold(Vec3::ZERO, |m, &t| m.max(t))
+    }
+
     /// Width and height of the full-resolution level, texels.
     pub fn size(&self) -> (u32, u32) {
         (self.levels[0].width, self.levels[0].height)

@@ -600,3 +600,144 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
         );
     }
 }
+
+/// A PNG of `width × height` texels from `rgba` (8 bits per channel, top row first).
+fn png_rgba(width: u32, height: u32, rgba: &[u8]) -> String {
+    let mut png = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut png),
+        rgba,
+        width,
+        height,
+        image::ExtendedColorType::Rgba8,
+    )
+    .unwrap();
+    format!("data:image/png;base64,{}", base64(&png))
+}
+
+/// The unit quad (u = x, v = z) with material `material` (JSON) whose textures are image 0 at
+/// `image` (a URI), sampler `sampler` (JSON) and, if `colors`, vertex colours `COLOR_0`
+/// (its four corners as given).
+fn textured_quad(material: &str, image: &str, sampler: &str, colors: Option<[f32; 12]>) -> Loaded {
+    let mut doc = two_quads();
+    let uv: Vec<u8> = [[0f32, 0.], [0., 1.], [1., 1.], [1., 0.]]
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let view = doc.view(&uv);
+    doc.accessors.push(format!(
+        r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC2"}}"#
+    ));
+    let color = colors.map_or(String::new(), |c| {
+        let bytes: Vec<u8> = c.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let view = doc.view(&bytes);
+        doc.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC3"}}"#
+        ));
+        format!(r#","COLOR_0":{}"#, doc.accessors.len() - 1)
+    });
+    let rest = format!(
+        r#""nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0,
+          "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":2{color}}},"indices":1,"material":0}}]}}],
+          "samplers":[{sampler}],
+          "textures":[{{"source":0,"sampler":0}}],"images":[{{"uri":"{image}"}}],
+          "materials":[{material}],"extensionsUsed":["KHR_texture_transform"]"#
+    );
+    load_ok("t.gltf", doc.gltf(&rest).as_bytes())
+}
+
+/// The quad's strip `x0 <= x <= x1` (all of z), as a polygon of the quad's plane.
+fn strip(x0: f32, x1: f32) -> [Vec3; 4] {
+    [
+        Vec3::new(x0, 0., 0.),
+        Vec3::new(x0, 0., 1.),
+        Vec3::new(x1, 0., 1.),
+        Vec3::new(x1, 0., 0.),
+    ]
+}
+
+#[test]
+fn the_clamp_is_warned_once_per_material_and_only_where_the_texture_reaches_one() {
+    let white = |factor: &str| {
+        format!(
+            r#"{{"name":"m","emissiveFactor":[1,1,1],"pbrMetallicRoughness":{{"baseColorFactor":{factor},"baseColorTexture":{{"index":0}}}}}}"#
+        )
+    };
+    let clamp = r#"{"wrapS":33071,"wrapT":33071}"#;
+    // a texture whose brightest texel is sRGB 200 (linear 0.578): a factor of 1.0 is glTF's
+    // default and the product never reaches 1: no warning, and the patch reflectance is the
+    // texel itself (the factor's 1.0 is not replaced by 0.999)
+    let grey = png_rgba(2, 1, &[200, 200, 200, 255, 100, 100, 100, 255]);
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(&white("[1,1,1,1]"), &grey, clamp, None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let rho = scene.materials()[0].reflectance;
+    let (albedo, _) = scene
+        .textures()
+        .unwrap()
+        .average(0, &strip(0.0, 0.25))
+        .unwrap();
+    let texel = mcrad_scene_io::srgb_to_linear(200.0 / 255.0);
+    assert!(((rho * albedo) - Vec3::splat(texel)).abs().max_element() < 1e-6);
+    // a white texel (255) under a factor of 1.0 in two channels: one warning, 2 channels
+    let white_texel = png_rgba(2, 1, &[255, 255, 255, 255, 0, 0, 0, 255]);
+    let Loaded { warnings, .. } = textured_quad(&white("[1,0.5,1,1]"), &white_texel, clamp, None);
+    assert_eq!(
+        warnings,
+        vec![Warning::ReflectanceClamped {
+            material: "m".into(),
+            count: 2
+        }]
+    );
+    assert!(
+        warnings[0]
+            .to_string()
+            .contains("reaches 1.0 in 2 channels")
+    );
+    // vertex colours count too: red 0.5 on every corner keeps the red channel below 1
+    let Loaded { warnings, .. } = textured_quad(
+        &white("[1,1,1,1]"),
+        &white_texel,
+        clamp,
+        Some([0.5, 1., 1., 0.5, 1., 1., 0.5, 1., 1., 0.5, 1., 1.]),
+    );
+    assert_eq!(
+        warnings,
+        vec![Warning::ReflectanceClamped {
+            material: "m".into(),
+            count: 2
+        }]
+    );
+}
+
+#[test]
+fn jpeg_textures_decode() {
+    let mut jpeg = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95),
+        &[128u8; 8 * 8 * 3],
+        8,
+        8,
+        image::ExtendedColorType::Rgb8,
+    )
+    .unwrap();
+    let uri = format!("data:image/jpeg;base64,{}", base64(&jpeg));
+    let material =
+        r#"{"emissiveFactor":[1,1,1],"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#;
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(material, &uri, "{}", None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (albedo, _) = scene
+        .textures()
+        .unwrap()
+        .average(0, &strip(0.0, 1.0))
+        .unwrap();
+    let grey = mcrad_scene_io::srgb_to_linear(128.0 / 255.0);
+    assert!(
+        (albedo - Vec3::splat(grey)).abs().max_element() < 0.02,
+        "{albedo}"
+    );
+}
