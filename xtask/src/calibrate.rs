@@ -351,9 +351,11 @@ fn textured_room() -> (Scene, Subdivision) {
         Some(mcrad_scene_io::FaceMapping {
             corners,
             uv: corners.map(|p| glam::Vec2::new(p.x, p.z) / s),
+            emissive_uv: corners.map(|p| glam::Vec2::new(p.x, p.z) / s),
             colors: [Vec3::ONE; 3],
             base: Some(0),
             emissive: None,
+            alpha: None,
         })
     };
     let textures = mcrad_scene_io::SceneTextures {

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3};
+use glam::{Affine2, Mat2, Vec2, Vec3};
 use gltf::texture::WrappingMode;
 
 use crate::error::Warning;
@@ -30,23 +30,61 @@ pub(crate) struct TextureReader<'a> {
     maxima: Vec<Vec3>,
 }
 
-/// What a material asks of the textures: (texture, texCoord set) for base colour and emission.
+/// One texture a material asks for: its document index, the `TEXCOORD` set it reads and the
+/// `KHR_texture_transform` of those coordinates (the identity without one).
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    index: usize,
+    set: u32,
+    transform: Affine2,
+}
+
+/// What a material asks of the textures: base colour and emission.
 #[derive(Debug, Clone, Copy, Default)]
 struct Wanted {
-    base: Option<(usize, u32)>,
-    emissive: Option<(usize, u32)>,
+    base: Option<Slot>,
+    emissive: Option<Slot>,
 }
 
 fn wanted(material: &gltf::Material) -> Wanted {
     let base = material
         .pbr_metallic_roughness()
         .base_color_texture()
-        .map(|t| (t.texture().index(), t.tex_coord()));
+        .map(|t| slot(&t));
     let emissive = material
         .emissive_texture()
         .filter(|_| material.emissive_factor().iter().any(|&f| f > 0.0))
-        .map(|t| (t.texture().index(), t.tex_coord()));
+        .map(|t| slot(&t));
     Wanted { base, emissive }
+}
+
+/// The texture, coordinate set and transform of a `textureInfo`: with `KHR_texture_transform`
+/// the coordinates used are `offset + R (scale ⊙ uv)` with `R = [[cos r, sin r], [-sin r, cos
+/// r]]` (rows; `r` the rotation in radians, counter-clockwise in the image), and its `texCoord`,
+/// if given, replaces the `textureInfo`'s.
+fn slot(info: &gltf::texture::Info) -> Slot {
+    let (set, transform) = match info.texture_transform() {
+        Some(t) => (
+            t.tex_coord().unwrap_or(info.tex_coord()),
+            uv_transform(t.offset(), t.rotation(), t.scale()),
+        ),
+        None => (info.tex_coord(), Affine2::IDENTITY),
+    };
+    Slot {
+        index: info.texture().index(),
+        set,
+        transform,
+    }
+}
+
+/// The `KHR_texture_transform` map `uv -> offset + R (scale ⊙ uv)` (see [`slot`]).
+fn uv_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> Affine2 {
+    let (s, c) = rotation.sin_cos();
+    let rotate = Mat2::from_cols(Vec2::new(c, -s), Vec2::new(s, c));
+    Affine2::from_mat2_translation(
+        rotate * Mat2::from_diagonal(Vec2::from(scale)),
+        Vec2::from(offset),
+    )
 }
 
 impl<'a> TextureReader<'a> {
@@ -90,21 +128,29 @@ impl<'a> TextureReader<'a> {
         if w.base.is_none() && w.emissive.is_none() && colors.is_none() {
             return Vec3::ONE;
         }
-        let set = w.base.or(w.emissive).map_or(0, |(_, s)| s);
-        let uv: Option<Vec<Vec2>> = reader
-            .read_tex_coords(set)
-            .map(|t| t.into_f32().map(Vec2::from).collect());
-        let texture = |this: &mut Self, t: Option<(usize, u32)>| {
-            let (index, _) = t?;
-            uv.as_ref()?;
-            this.texture(index)
+        // each texture's coordinates: its set, transformed
+        let coordinates = |slot: Option<Slot>| -> Option<Vec<Vec2>> {
+            let slot = slot?;
+            let uv = reader.read_tex_coords(slot.set)?.into_f32();
+            Some(
+                uv.map(|t| {
+                    let t = slot.transform.transform_point2(Vec2::from(t));
+                    t.clamp(Vec2::splat(-1e6), Vec2::splat(1e6))
+                })
+                .collect(),
+            )
         };
-        let base = texture(self, w.base);
-        let emissive = texture(self, w.emissive);
+        let (base_uv, emissive_uv) = (coordinates(w.base), coordinates(w.emissive));
         let n = world.len();
+        let read = |this: &mut Self, slot: Option<Slot>, uv: &Option<Vec<Vec2>>| {
+            // (texture coordinates of another length than the positions: the texture is not used)
+            uv.as_ref().filter(|uv| uv.len() == n)?;
+            this.texture(slot?.index)
+        };
+        let base = read(self, w.base, &base_uv);
+        let emissive = read(self, w.emissive, &emissive_uv);
         let colors_ok = colors.as_ref().is_none_or(|v| v.len() == n);
-        let uv_ok = uv.as_ref().is_none_or(|v| v.len() == n);
-        if !colors_ok || !uv_ok || (base.is_none() && emissive.is_none() && colors.is_none()) {
+        if !colors_ok || (base.is_none() && emissive.is_none() && colors.is_none()) {
             return Vec3::ONE;
         }
         let texel_max = base.map_or(Vec3::ONE, |t| self.maxima[t as usize]);
@@ -114,15 +160,18 @@ impl<'a> TextureReader<'a> {
         }
         for (k, t) in triangles.iter().enumerate() {
             let at = |i: usize| t[i] as usize;
-            let uv_of = |i: usize| {
-                uv.as_ref()
-                    .map_or(Vec2::ZERO, |u| u[at(i)])
-                    .clamp(Vec2::splat(-1e6), Vec2::splat(1e6))
-            };
+            let uv_of =
+                |uv: &Option<Vec<Vec2>>, i: usize| uv.as_ref().map_or(Vec2::ZERO, |u| u[at(i)]);
             let color_of = |i: usize| colors.as_ref().map_or(Vec3::ONE, |c| c[at(i)]) * scale;
-            let uv = [uv_of(0), uv_of(1), uv_of(2)];
+            let uv = [0, 1, 2].map(|i| uv_of(&base_uv, i));
+            let emissive_uv = [0, 1, 2].map(|i| uv_of(&emissive_uv, i));
             // NaN texture coordinates: the face keeps its factors
-            let uv_ok = uv.iter().all(|u| u.is_finite());
+            let finite = |uv: &[Vec2; 3]| uv.iter().all(|u| u.is_finite());
+            let (base, emissive) = (
+                base.filter(|_| finite(&uv)),
+                emissive.filter(|_| finite(&emissive_uv)),
+            );
+            let uv_ok = base.is_some();
             let texel_max = if uv_ok { texel_max } else { Vec3::ONE };
             for i in 0..3 {
                 reach = reach.max(color_of(i) / scale * texel_max);
@@ -130,9 +179,11 @@ impl<'a> TextureReader<'a> {
             self.out.faces[first_source + k] = Some(FaceMapping {
                 corners: [world[at(0)], world[at(1)], world[at(2)]],
                 uv,
+                emissive_uv,
                 colors: [color_of(0), color_of(1), color_of(2)],
-                base: base.filter(|_| uv_ok),
-                emissive: emissive.filter(|_| uv_ok),
+                base,
+                emissive,
+                alpha: None,
             });
         }
         reach

@@ -15,6 +15,8 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
+use crate::FaceAlpha;
+
 /// How texture coordinates outside `[0, 1]` wrap (glTF sampler `wrapS`/`wrapT`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Wrap {
@@ -140,14 +142,19 @@ fn wrap(i: i64, n: u32, mode: Wrap) -> u32 {
 pub struct FaceMapping {
     /// The face's corners (scene units), in the order of `uv` and `colors`.
     pub corners: [Vec3; 3],
-    /// Texture coordinates of the corners (the set each texture names).
+    /// Texture coordinates of the corners on the base-colour texture (the set it names, with
+    /// its `KHR_texture_transform` applied).
     pub uv: [Vec2; 3],
+    /// Texture coordinates of the corners on the emissive texture (likewise).
+    pub emissive_uv: [Vec2; 3],
     /// Linear vertex colours (`COLOR_0` rgb, 1 without).
     pub colors: [Vec3; 3],
     /// The base-colour texture (index into [`SceneTextures::textures`]).
     pub base: Option<u32>,
     /// The emissive texture.
     pub emissive: Option<u32>,
+    /// Where light passes the face (glTF `alphaMode` `MASK` or `BLEND`); `None`: opaque.
+    pub alpha: Option<FaceAlpha>,
 }
 
 /// The textures of a scene and the mapping of each textured face, by face source number
@@ -184,7 +191,8 @@ impl SceneTextures {
             let v = e1.cross(d).dot(n) / nn;
             [1.0 - u - v, u, v].map(|w| w as f32)
         };
-        let uv_area_face = (m.uv[1] - m.uv[0]).perp_dot(m.uv[2] - m.uv[0]).abs() / 2.0;
+        let uv_area = |uv: &[Vec2; 3]| (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs() / 2.0;
+        let uv_area_face = [uv_area(&m.uv), uv_area(&m.emissive_uv)];
         let face_area = (nn.sqrt() / 2.0) as f32;
         let (mut albedo, mut emission, mut total) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
         let p0 = points.first()?.as_dvec3();
@@ -195,8 +203,8 @@ impl SceneTextures {
                 continue;
             }
             // texels each sample covers, on the base level, of the larger texture
-            let uv_area = uv_area_face * area / face_area;
-            let level = |t: Option<u32>| {
+            let level = |t: Option<u32>, uv_area_face: f32| {
+                let uv_area = uv_area_face * area / face_area;
                 t.and_then(|t| self.textures.get(t as usize))
                     .map_or(0, |t| {
                         let (w, h) = t.size();
@@ -204,7 +212,8 @@ impl SceneTextures {
                         per_sample.max(1.0).sqrt().log2().floor() as usize
                     })
             };
-            let (base_level, emissive_level) = (level(m.base), level(m.emissive));
+            let base_level = level(m.base, uv_area_face[0]);
+            let emissive_level = level(m.emissive, uv_area_face[1]);
             let (mut sa, mut se) = (Vec3::ZERO, Vec3::ZERO);
             for k in 0..SAMPLES {
                 // stratified point of the unit square, warped uniformly onto the triangle
@@ -213,14 +222,14 @@ impl SceneTextures {
                 let r = s.sqrt();
                 let p = p0 * (1.0 - r) + p1 * (r * (1.0 - t)) + p2 * (r * t);
                 let wts = weights(p);
-                let uv = m.uv[0] * wts[0] + m.uv[1] * wts[1] + m.uv[2] * wts[2];
+                let at = |uv: &[Vec2; 3]| uv[0] * wts[0] + uv[1] * wts[1] + uv[2] * wts[2];
                 let color = m.colors[0] * wts[0] + m.colors[1] * wts[1] + m.colors[2] * wts[2];
-                let tex = |t: Option<u32>, level: usize| {
+                let tex = |t: Option<u32>, uv: &[Vec2; 3], level: usize| {
                     t.and_then(|t| self.textures.get(t as usize))
-                        .map_or(Vec3::ONE, |t| t.sample(uv, level))
+                        .map_or(Vec3::ONE, |t| t.sample(at(uv), level))
                 };
-                sa += color * tex(m.base, base_level);
-                se += tex(m.emissive, emissive_level);
+                sa += color * tex(m.base, &m.uv, base_level);
+                se += tex(m.emissive, &m.emissive_uv, emissive_level);
             }
             albedo += sa / SAMPLES as f32 * area;
             emission += se / SAMPLES as f32 * area;
@@ -269,9 +278,11 @@ mod tests {
         let face = |base| FaceMapping {
             corners: [Vec3::ZERO, Vec3::X, Vec3::Y],
             uv: [Vec2::ZERO, Vec2::X, Vec2::Y],
+            emissive_uv: [Vec2::ZERO, Vec2::X, Vec2::Y],
             colors: [Vec3::ONE, Vec3::new(0.0, 1.0, 1.0), Vec3::ONE],
             base: Some(base),
             emissive: None,
+            alpha: None,
         };
         let scene = SceneTextures {
             textures: vec![t, Arc::new(half)],

@@ -741,3 +741,46 @@ fn jpeg_textures_decode() {
         "{albedo}"
     );
 }
+
+#[test]
+fn texture_transforms_move_the_lookup() {
+    // 2 x 2 texels: top row red, green; bottom row blue, white (sRGB 0 and 255: linear 0, 1)
+    let image = png_rgba(
+        2,
+        2,
+        &[
+            255, 0, 0, 255, 0, 255, 0, 255, //
+            0, 0, 255, 255, 255, 255, 255, 255,
+        ],
+    );
+    let material = |transform: &str| {
+        format!(
+            r#"{{"emissiveFactor":[1,1,1],"pbrMetallicRoughness":{{"baseColorFactor":[0.5,0.5,0.5,1],
+              "baseColorTexture":{{"index":0,"texCoord":1,"extensions":{{"KHR_texture_transform":{transform}}}}}}}}}"#
+        )
+    };
+    let centre = [
+        Vec3::new(0.49, 0., 0.49),
+        Vec3::new(0.49, 0., 0.51),
+        Vec3::new(0.51, 0., 0.51),
+        Vec3::new(0.51, 0., 0.49),
+    ];
+    let albedo = |transform: &str| {
+        let Loaded { scene, .. } = textured_quad(&material(transform), &image, "{}", None);
+        scene.textures().map(|t| t.average(0, &centre).unwrap().0)
+    };
+    // The quad's centre has uv (0.5, 0.5). The specification's example (offset (0, 1), a
+    // quarter turn, scale 1/2): uv' = offset + R (scale ⊙ uv) with R = [[cos, sin], [-sin,
+    // cos]] gives (0.5 v, 1 - 0.5 u) = (0.25, 0.75), the centre of the bottom-left texel (blue).
+    // (Without the rotation: (0.25, 1.25), which repeats to red; the rotation the other way:
+    // (-0.25, 1.25), green; no transform: the mean of all four.) texCoord 0 replaces the
+    // textureInfo's 1, which the primitive does not have.
+    let spec = r#"{"texCoord":0,"offset":[0,1],"rotation":1.5707963,"scale":[0.5,0.5]}"#;
+    let blue = albedo(spec).expect("texCoord 0 is read");
+    assert!((blue - Vec3::Z).abs().max_element() < 0.03, "{blue}");
+    // offset alone: (0.5, 0.5) + (0.25, -0.25) = (0.75, 0.25), the top-right texel (green)
+    let green = albedo(r#"{"texCoord":0,"offset":[0.25,-0.25]}"#).unwrap();
+    assert!((green - Vec3::Y).abs().max_element() < 0.03, "{green}");
+    // without the override the textureInfo's set 1 is missing: no mapping
+    assert!(albedo(r#"{"offset":[0.25,-0.25]}"#).is_none());
+}
