@@ -1,17 +1,5 @@
 //! Cut-out and translucent surfaces (glTF `alphaMode` `MASK` and `BLEND`): where light passes a
-//! face.
-//!
-//! The alpha of a point of a face is `a = baseColorFactor.a × COLOR_0.a × baseColorTexture.a`
-//! (each 1 where absent; the texture's alpha is linear, sampled bilinearly on its full-size
-//! level). Under `MASK` light passes where `a < alphaCutoff` and meets an opaque surface
-//! elsewhere; under `BLEND` a ray passes with probability `1 - a` (decided by the caller's
-//! uniform number, so that a seeded solve gives the same answer on any thread count).
-//!
-//! The rule for radiosity: a patch of such a face is the *opaque part* of its polygon. Its area
-//! ([`SceneTextures::coverage`](crate::SceneTextures::coverage)) is the polygon's area times the
-//! opaque fraction (`MASK`: the fraction where `a >= alphaCutoff`; `BLEND`: the mean of `a`), so
-//! its radiosity `B` is the exitance of the opaque surface and `B × area` its power: light that
-//! passes a cut-out texel is neither received nor reflected there.
+//! face (the rules are [`FaceAlpha`]'s).
 
 /// How alpha decides where light passes (glTF `alphaMode`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,6 +14,18 @@ pub enum AlphaMode {
 }
 
 /// The alpha of one face: at a point `factor × COLOR_0 alpha × texture alpha`, tested by `mode`.
+///
+/// The alpha of a point of a face is `a = baseColorFactor.a × COLOR_0.a × baseColorTexture.a`
+/// (each 1 where absent; the texture's alpha is linear, sampled bilinearly on its full-size
+/// level). Under `MASK` light passes where `a < alphaCutoff` and meets an opaque surface
+/// elsewhere; under `BLEND` a ray passes with probability `1 - a` (decided by the caller's
+/// uniform number, so that a seeded solve gives the same answer on any thread count).
+///
+/// The rule for radiosity: a patch of such a face is the *opaque part* of its polygon. Its area
+/// ([`SceneTextures::coverage`](crate::SceneTextures::coverage)) is the polygon's area times the
+/// opaque fraction (`MASK`: the fraction where `a >= alphaCutoff`; `BLEND`: the mean of `a`), so
+/// its radiosity `B` is the exitance of the opaque surface and `B × area` its power: light that
+/// passes a cut-out texel is neither received nor reflected there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FaceAlpha {
     /// `MASK` or `BLEND`.

@@ -465,11 +465,6 @@ pub enum Warning {
         /// Why the first could not be read.
         reason: String,
     },
-    /// Materials with `alphaMode` `MASK` or `BLEND`: their surfaces are treated as opaque.
-    AlphaIgnored {
-        /// How many materials.
-        materials: usize,
-    },
 }
 
 impl fmt::Display for Warning {
@@ -541,11 +536,6 @@ impl fmt::Display for Warning {
                  the material's factors alone",
                 if *count == 1 { "" } else { "s" },
                 crate::quote(reason)
-            ),
-            Warning::AlphaIgnored { materials } => write!(
-                f,
-                "{materials} material{} with alphaMode MASK or BLEND: treated as opaque",
-                if *materials == 1 { "" } else { "s" }
             ),
         }
     }

@@ -33,8 +33,9 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// textured face's reflectance `factor × COLOR_0 × texture` is clamped to 0.999 per patch;
 /// a material is warned once ([`Warning::ReflectanceClamped`]) if that product can reach 1.0
 /// on one of its faces (a white texel or vertex colour under a factor of 1), not for a factor
-/// of 1.0 its textures keep below 1;
-/// `alphaMode` `MASK`/`BLEND` is treated as opaque ([`Warning::AlphaIgnored`]). Primitives
+/// of 1.0 its textures keep below 1. Faces of `alphaMode` `MASK` or `BLEND` get a mapping with
+/// a [`FaceAlpha`](crate::FaceAlpha): light passes them where their alpha says (see
+/// [`FaceAlpha`](crate::FaceAlpha)). Primitives
 /// without a material get
 /// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
 /// ([`Warning::DefaultMaterial`]). Skins and morph targets are ignored; the first perspective camera in node order becomes
@@ -74,7 +75,7 @@ pub(crate) fn load_gltf_bytes(
     let buffers = load_buffers(&document, path, blob, options).map_err(in_file)?;
 
     let mut warnings = Vec::new();
-    let (mut materials, factors) = convert_materials(&document, &mut warnings);
+    let (mut materials, factors) = convert_materials(&document);
     let mut geometry = Geometry {
         textures: crate::gltf_texture::TextureReader::new(&document, path, options, &buffers),
         buffers: &buffers,
@@ -277,11 +278,7 @@ pub fn percent_decode(uri: &str) -> Option<String> {
 
 /// The document's materials, and for each its `baseColorFactor` rgb as written in the file
 /// (before channels of exactly 1.0 become [`CLAMPED_REFLECTANCE`]).
-fn convert_materials(
-    document: &gltf::Document,
-    warnings: &mut Vec<Warning>,
-) -> (Vec<Material>, Vec<Vec3>) {
-    let mut blended = 0;
+fn convert_materials(document: &gltf::Document) -> (Vec<Material>, Vec<Vec3>) {
     let (materials, factors) = document
         .materials()
         .enumerate()
@@ -299,9 +296,6 @@ fn convert_materials(
                 Vec3::splat(CLAMPED_REFLECTANCE),
                 factor,
             );
-            if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
-                blended += 1;
-            }
             let radiance = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
             let material = Material {
                 name,
@@ -311,9 +305,6 @@ fn convert_materials(
             (material, factor)
         })
         .unzip();
-    if blended > 0 {
-        warnings.push(Warning::AlphaIgnored { materials: blended });
-    }
     (materials, factors)
 }
 

@@ -1,7 +1,7 @@
 //! glTF textures read for the solver: base-colour and emissive textures decoded (under the file
 //! policy), and each textured triangle's mapping.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -11,6 +11,7 @@ use gltf::texture::WrappingMode;
 use crate::error::Warning;
 use crate::files::LoadOptions;
 use crate::texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
+use crate::{AlphaMode, FaceAlpha};
 
 /// The largest texture edge decoded, texels (larger images are refused with a warning).
 pub const MAX_TEXTURE_EDGE: u32 = 16384;
@@ -28,6 +29,20 @@ pub(crate) struct TextureReader<'a> {
     pub out: SceneTextures,
     /// The largest texel of each of `out.textures`, per channel.
     maxima: Vec<Vec3>,
+    /// Document textures whose alpha is kept: the base-colour textures of alpha-tested
+    /// materials.
+    alpha_textures: HashSet<usize>,
+}
+
+/// How a material's alpha lets light through: `None` for `OPAQUE`.
+fn alpha_mode(material: &gltf::Material) -> Option<AlphaMode> {
+    match material.alpha_mode() {
+        gltf::material::AlphaMode::Opaque => None,
+        gltf::material::AlphaMode::Mask => Some(AlphaMode::Mask {
+            cutoff: material.alpha_cutoff().unwrap_or(0.5),
+        }),
+        gltf::material::AlphaMode::Blend => Some(AlphaMode::Blend),
+    }
 }
 
 /// One texture a material asks for: its document index, the `TEXCOORD` set it reads and the
@@ -103,6 +118,12 @@ impl<'a> TextureReader<'a> {
             unreadable: Vec::new(),
             out: SceneTextures::default(),
             maxima: Vec::new(),
+            alpha_textures: document
+                .materials()
+                .filter(|m| alpha_mode(m).is_some())
+                .filter_map(|m| m.pbr_metallic_roughness().base_color_texture())
+                .map(|t| t.texture().index())
+                .collect(),
         }
     }
 
@@ -119,13 +140,17 @@ impl<'a> TextureReader<'a> {
         world: &[Vec3],
         scale: Vec3,
     ) -> Vec3 {
-        let w = wanted(&primitive.material());
+        let material = primitive.material();
+        let w = wanted(&material);
+        let alpha = alpha_mode(&material);
         let buffers = self.buffers;
         let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-        let colors: Option<Vec<Vec3>> = reader
-            .read_colors(0)
-            .map(|c| c.into_rgb_f32().map(Vec3::from).collect());
-        if w.base.is_none() && w.emissive.is_none() && colors.is_none() {
+        let rgba: Option<Vec<[f32; 4]>> =
+            reader.read_colors(0).map(|c| c.into_rgba_f32().collect());
+        let colors: Option<Vec<Vec3>> = rgba
+            .as_ref()
+            .map(|c| c.iter().map(|&[r, g, b, _]| Vec3::new(r, g, b)).collect());
+        if w.base.is_none() && w.emissive.is_none() && colors.is_none() && alpha.is_none() {
             return Vec3::ONE;
         }
         // each texture's coordinates: its set, transformed
@@ -150,9 +175,11 @@ impl<'a> TextureReader<'a> {
         let base = read(self, w.base, &base_uv);
         let emissive = read(self, w.emissive, &emissive_uv);
         let colors_ok = colors.as_ref().is_none_or(|v| v.len() == n);
-        if !colors_ok || (base.is_none() && emissive.is_none() && colors.is_none()) {
+        let nothing = base.is_none() && emissive.is_none() && colors.is_none() && alpha.is_none();
+        if !colors_ok || nothing {
             return Vec3::ONE;
         }
+        let factor_alpha = material.pbr_metallic_roughness().base_color_factor()[3];
         let texel_max = base.map_or(Vec3::ONE, |t| self.maxima[t as usize]);
         let mut reach = Vec3::ZERO;
         if self.out.faces.len() < first_source + triangles.len() {
@@ -183,7 +210,11 @@ impl<'a> TextureReader<'a> {
                 colors: [color_of(0), color_of(1), color_of(2)],
                 base,
                 emissive,
-                alpha: None,
+                alpha: alpha.map(|mode| FaceAlpha {
+                    mode,
+                    factor: factor_alpha.clamp(0.0, 1.0),
+                    colors: [0, 1, 2].map(|i| rgba.as_ref().map_or(1.0, |c| c[at(i)][3])),
+                }),
             });
         }
         reach
@@ -250,7 +281,17 @@ impl<'a> TextureReader<'a> {
         limits.max_image_height = Some(MAX_TEXTURE_EDGE);
         limits.max_alloc = Some(2 << 30);
         reader.limits(limits);
-        let image = reader.decode().map_err(|e| e.to_string())?.to_rgb8();
+        let decoded = reader.decode().map_err(|e| e.to_string())?;
+        // (alpha is linear in glTF; kept for alpha-tested materials only)
+        let alpha = (decoded.color().has_alpha() && self.alpha_textures.contains(&texture.index()))
+            .then(|| {
+                let rgba = decoded.to_rgba8();
+                rgba.pixels()
+                    .map(|p| f32::from(p.0[3]) / 255.0)
+                    .collect::<Vec<f32>>()
+            });
+        let image = decoded.to_rgb8();
+        drop(decoded);
         let (w, h) = image.dimensions();
         let texels = image
             .pixels()
@@ -262,13 +303,19 @@ impl<'a> TextureReader<'a> {
             WrappingMode::MirroredRepeat => Wrap::Mirror,
         };
         let sampler = texture.sampler();
-        Texture::new(
+        let texture = Texture::new(
             w,
             h,
             texels,
             [mode(sampler.wrap_s()), mode(sampler.wrap_t())],
         )
-        .ok_or_else(|| "the image is empty".to_string())
+        .ok_or_else(|| "the image is empty".to_string())?;
+        match alpha {
+            Some(alpha) => texture
+                .with_alpha(alpha)
+                .ok_or_else(|| "its alpha does not match its size".to_string()),
+            None => Ok(texture),
+        }
     }
 
     /// The warnings for textures that could not be read.

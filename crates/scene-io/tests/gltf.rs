@@ -533,7 +533,7 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
     let Loaded {
         scene, warnings, ..
     } = load_ok("t.gltf", doc.gltf(&rest(&png)).as_bytes());
-    assert_eq!(warnings, vec![Warning::AlphaIgnored { materials: 1 }]);
+    assert!(warnings.is_empty(), "{warnings:?}");
     let textures = scene.textures().expect("textured");
     // the material's factor stays 0.8; the texture over a polygon of the quad: white (1) on
     // the left quarter, black (0) on the right quarter (sRGB 0 and 255 decode to 0 and 1)
@@ -574,7 +574,12 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
         unreadable.to_string().contains("missing.png"),
         "{unreadable}"
     );
-    assert!(scene.textures().is_none(), "nothing left to map");
+    // (the faces keep a mapping for their alpha mode only)
+    let textures = scene.textures().expect("alpha-tested");
+    assert!(
+        textures.faces.iter().flatten().all(|m| m.base.is_none()),
+        "no texture left to map"
+    );
     // a KTX2 texture (the image crate reads none) and a texture over the size limit: warned
     let ktx2 = format!(
         "data:image/ktx2;base64,{}",
@@ -783,4 +788,76 @@ fn texture_transforms_move_the_lookup() {
     assert!((green - Vec3::Y).abs().max_element() < 0.03, "{green}");
     // without the override the textureInfo's set 1 is missing: no mapping
     assert!(albedo(r#"{"offset":[0.25,-0.25]}"#).is_none());
+}
+
+#[test]
+fn alpha_masks_and_blends_decide_where_light_passes() {
+    // a 4 x 4 checker of alpha 255 and 0 (top-left opaque), white
+    let texels: Vec<u8> = (0..16)
+        .flat_map(|i| {
+            let a = if (i % 4 + i / 4) % 2 == 0 { 255 } else { 0 };
+            [255, 255, 255, a]
+        })
+        .collect();
+    let image = png_rgba(4, 4, &texels);
+    let material = |mode: &str, factor_alpha: f32| {
+        format!(
+            r#"{{"emissiveFactor":[1,1,1],{mode},"pbrMetallicRoughness":{{
+              "baseColorFactor":[0.5,0.5,0.5,{factor_alpha}],"baseColorTexture":{{"index":0}}}}}}"#
+        )
+    };
+    let whole = strip(0.0, 1.0);
+    // MASK (cut-off 0.5): the checker's opaque half; light passes the cells of alpha 0 (the
+    // texel at u = x, v = z: cell (1, 0) is cut out, (0, 0) and (1, 1) are not)
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(&material(r#""alphaMode":"MASK""#, 1.0), &image, "{}", None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let t = scene.textures().unwrap();
+    assert!(t.has_alpha());
+    for source in 0..2 {
+        let c = t.coverage(source, &whole).unwrap();
+        assert!((c - 0.5).abs() < 0.01, "{c}");
+    }
+    let cell = |i: f32, j: f32| Vec3::new((i + 0.5) / 4.0, 0.0, (j + 0.5) / 4.0);
+    let source_of = |p: Vec3| if p.x <= p.z { 0 } else { 1 };
+    for (i, j, cut) in [
+        (0., 0., false),
+        (1., 0., true),
+        (1., 1., false),
+        (2., 3., true),
+    ] {
+        let p = cell(i, j);
+        assert_eq!(t.passes(source_of(p), p, 0.5), cut, "cell {i} {j}");
+    }
+    // a cut-off above the opaque texels' alpha factor: everything passes
+    let Loaded { scene, .. } = textured_quad(
+        &material(r#""alphaMode":"MASK","alphaCutoff":0.6"#, 0.5),
+        &image,
+        "{}",
+        None,
+    );
+    let t = scene.textures().unwrap();
+    assert_eq!(t.coverage(0, &whole), Some(0.0));
+    // BLEND: the mean alpha (half the cells, times the factor 0.5); an opaque cell passes a
+    // ray with probability 1 - 0.5, decided by the caller's number
+    let Loaded { scene, .. } =
+        textured_quad(&material(r#""alphaMode":"BLEND""#, 0.5), &image, "{}", None);
+    let t = scene.textures().unwrap();
+    let c = t.coverage(1, &whole).unwrap();
+    assert!((c - 0.25).abs() < 0.01, "{c}");
+    let p = cell(1.0, 1.0);
+    assert!(!t.passes(source_of(p), p, 0.3));
+    assert!(t.passes(source_of(p), p, 0.7));
+    // OPAQUE: no alpha test, whatever the texture's alpha
+    let Loaded { scene, .. } = textured_quad(
+        &material(r#""alphaMode":"OPAQUE""#, 1.0),
+        &image,
+        "{}",
+        None,
+    );
+    let t = scene.textures().unwrap();
+    assert!(!t.has_alpha());
+    assert_eq!(t.coverage(0, &whole), None);
+    assert!(!t.passes(0, cell(1.0, 0.0), 0.5));
 }
