@@ -102,7 +102,10 @@ impl Texture {
     /// full-size level, in the same order; `None` when the count does not match.
     pub fn with_alpha(self, alpha: Vec<f32>) -> Option<Texture> {
         let l = &self.levels[0];
-        (alpha.len() == l.texels.len()).then(|| Texture {
+        if alpha.len() != l.texels.len() {
+            return None;
+        }
+        Some(Texture {
             alpha: Some(alpha),
             ..self
         })
