@@ -262,12 +262,11 @@ impl Mesh {
         let normal = area2.normalize_or_zero();
         // a textured face: the material's factors times the texture's mean over this patch
         let (mut reflectance, mut emission) = (t.reflectance, t.emission);
-        if let Some(textures) = &self.textures {
-            if let Some((albedo, glow)) = textures.average(t.face, &self.world_corners(corners)) {
-                reflectance =
-                    (reflectance * albedo).clamp(Vec3::ZERO, Vec3::splat(MAX_REFLECTANCE));
-                emission = (emission * glow).max(Vec3::ZERO);
-            }
+        if let Some(textures) = &self.textures
+            && let Some((albedo, glow)) = textures.average(t.face, &self.world_corners(corners))
+        {
+            reflectance = (reflectance * albedo).clamp(Vec3::ZERO, Vec3::splat(MAX_REFLECTANCE));
+            emission = (emission * glow).max(Vec3::ZERO);
         }
         // an alpha-tested face: only the opaque part receives and reflects light
         let mut area = area2.length() / 2.0;

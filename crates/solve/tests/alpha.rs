@@ -48,7 +48,7 @@ fn horizontal(y: f32, [x0, x1, z0, z1]: [f32; 4], up: bool) -> [Vec3; 4] {
 /// `corners` (from [`horizontal`]): its mapping with `mode`.
 fn checker(n: u32, corners: [Vec3; 4], rect: [f32; 4], mode: AlphaMode) -> (Texture, FaceMapping) {
     let alpha = (0..n * n)
-        .map(|i| ((i % n + i / n) % 2 == 0) as u32 as f32)
+        .map(|i| f32::from(u8::from((i % n + i / n).is_multiple_of(2))))
         .collect();
     let texture = Texture::new(n, n, vec![Vec3::ONE; (n * n) as usize], [Wrap::Repeat; 2])
         .unwrap()
