@@ -14,7 +14,6 @@ use glam::{DVec3, Vec3};
 use mcrad_bake::{BakeInput, BakeOptions, FaceTexels};
 use mcrad_mc_radiosity::{Method, ScheduleConfig};
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::Bvh;
 use serde_json::{Value, json};
 use std::ops::ControlFlow;
 use std::path::Path;
@@ -148,7 +147,7 @@ pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
     let loaded = mcrad_scene_io::load_with(&path, &options)?;
     let gltf = loaded.gltf.as_deref().context("a glTF scene")?;
     let mesh = Mesh::build(&loaded.scene, Subdivision::MaxEdge(0.1))?;
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let bvh = mesh.caster()?;
     let bake = |radiosity: &[DVec3], variance: Option<&[DVec3]>| -> Result<Vec<FaceTexels>> {
         let input = BakeInput {
             path: &path,

@@ -21,7 +21,6 @@ use anyhow::{Context, Result, bail};
 use glam::{DVec3, Vec3};
 use mcrad_mc_radiosity::{Method, ScheduleConfig, StopReason};
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::Bvh;
 use mcrad_scene_io::{Face, Material, Scene};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::fmt::Write as _;
@@ -447,9 +446,11 @@ fn textured_room() -> (Scene, Subdivision) {
         Some(mcrad_scene_io::FaceMapping {
             corners,
             uv: corners.map(|p| glam::Vec2::new(p.x, p.z) / s),
+            emissive_uv: corners.map(|p| glam::Vec2::new(p.x, p.z) / s),
             colors: [Vec3::ONE; 3],
             base: Some(0),
             emissive: None,
+            alpha: None,
         })
     };
     let textures = mcrad_scene_io::SceneTextures {
@@ -823,7 +824,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
     for case in &o.cases {
         let (scene, subdivision) = (case.build)();
         let mesh = Mesh::build(&scene, subdivision)?;
-        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+        let bvh = mesh.caster()?;
         let areas: Vec<f64> = mesh.patches().iter().map(|p| p.area).collect();
         eprintln!("{}: {} patches", case.name, mesh.patches().len());
         let exact: Option<Vec<DVec3>> = match case.exact {

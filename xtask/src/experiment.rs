@@ -168,7 +168,7 @@ pub fn figure2(root: &Path) -> Result<()> {
         .with_context(|| format!("could not load {}", scene_path.display()))?
         .scene;
     let mesh = Mesh::build(&scene, Subdivision::None)?;
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let bvh = mesh.caster()?;
     let reference = reference(&mesh, &bvh, &ReferenceConfig::default(), &|_| {})?;
     let exact = reference.estimate.radiosity().to_vec();
     let setup = Setup {

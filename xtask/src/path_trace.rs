@@ -4,7 +4,6 @@
 use anyhow::{Context, Result};
 use mcrad_lab::pathtrace::{PathTraceOptions, path_trace};
 use mcrad_meshing::{Mesh, Subdivision};
-use mcrad_raycast::Bvh;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -56,7 +55,7 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
     let loaded = mcrad_scene_io::load(&scene)
         .with_context(|| format!("could not load {}", scene.display()))?;
     let mesh = Mesh::build(&loaded.scene, Subdivision::None)?;
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let bvh = mesh.caster()?;
     let camera = camera.translated(mesh.origin().as_dvec3());
     let options = PathTraceOptions {
         width,

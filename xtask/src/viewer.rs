@@ -30,7 +30,7 @@ const STOPS: f32 = 0.0;
 pub fn write_cornell_gltf(root: &Path) -> Result<()> {
     let loaded = mcrad_scene_io::load(&root.join("scenes/cornell-box.obj"))?;
     let mesh = mcrad_meshing::Mesh::build(&loaded.scene, mcrad_meshing::Subdivision::None)?;
-    let bvh = mcrad_raycast::Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let bvh = mesh.caster()?;
     let camera = Camera::frame_scene(&mesh, &bvh)?;
     let camera = mcrad_scene_io::Camera {
         eye: camera.eye(),

@@ -439,7 +439,7 @@ fn rays_that_fit(seconds: f64, start: Instant, rays: u64) -> u64 {
 
 /// The BVH of `mesh`'s triangles tagged with their patch indices.
 fn caster(mesh: &Mesh) -> Result<Bvh, BuildError> {
-    Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())
+    mesh.caster()
 }
 
 /// Why an element is marked, and how urgently (0: not marked).

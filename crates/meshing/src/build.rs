@@ -80,7 +80,10 @@ pub const MAX_PATCHES: u64 = 1 << 28;
 /// One patch: a planar convex polygon.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Patch {
-    /// Area `A_i` in scene units², computed in f64, `> 0`.
+    /// Area `A_i` in scene units², computed in f64, `> 0`. On an alpha-tested face (glTF
+    /// `MASK` or `BLEND`) the area of its opaque part: the polygon's area times its opaque
+    /// fraction ([`SceneTextures::coverage`], at least [`MIN_COVERAGE`]), so that `B_i` is the
+    /// exitance of the opaque surface and `B_i A_i` its power.
     pub area: f64,
     /// Unit geometric normal on the front side (vertices counter-clockwise seen from it).
     pub normal: Vec3,
@@ -259,22 +262,21 @@ impl Mesh {
         let normal = area2.normalize_or_zero();
         // a textured face: the material's factors times the texture's mean over this patch
         let (mut reflectance, mut emission) = (t.reflectance, t.emission);
-        if let Some(textures) = &self.textures {
-            // (the mapping is in world coordinates; the mesh in its local frame)
-            let points: Vec<Vec3> = corners
-                .iter()
-                .map(|&c| {
-                    (self.positions[c as usize].as_dvec3() + self.origin.as_dvec3()).as_vec3()
-                })
-                .collect();
-            if let Some((albedo, glow)) = textures.average(t.face, &points) {
-                reflectance =
-                    (reflectance * albedo).clamp(Vec3::ZERO, Vec3::splat(MAX_REFLECTANCE));
-                emission = (emission * glow).max(Vec3::ZERO);
-            }
+        if let Some(textures) = &self.textures
+            && let Some((albedo, glow)) = textures.average(t.face, &self.world_corners(corners))
+        {
+            reflectance = (reflectance * albedo).clamp(Vec3::ZERO, Vec3::splat(MAX_REFLECTANCE));
+            emission = (emission * glow).max(Vec3::ZERO);
+        }
+        // an alpha-tested face: only the opaque part receives and reflects light
+        let mut area = area2.length() / 2.0;
+        if let Some(textures) = &self.textures
+            && let Some(coverage) = textures.coverage(t.face, &self.world_corners(corners))
+        {
+            area *= f64::from(coverage.max(MIN_COVERAGE));
         }
         self.patches.push(Patch {
-            area: area2.length() / 2.0,
+            area,
             normal: normal.as_vec3(),
             centroid: if doubled_areas > 0.0 {
                 (moment / doubled_areas).as_vec3()
@@ -290,6 +292,20 @@ impl Mesh {
             first_triangle,
             triangle_count: (corners.len() - 2) as u32,
         });
+    }
+
+    /// The world positions of vertices `corners` (texture mappings are in world
+    /// coordinates; the mesh in its local frame).
+    fn world_corners(&self, corners: &[u32]) -> Vec<Vec3> {
+        corners
+            .iter()
+            .map(|&c| (self.positions[c as usize].as_dvec3() + self.origin.as_dvec3()).as_vec3())
+            .collect()
+    }
+
+    /// The scene's textures and alpha-tested faces this mesh was cut from, if any.
+    pub fn textures(&self) -> Option<&Arc<SceneTextures>> {
+        self.textures.as_ref()
     }
 
     /// The patches, in mesh order.
@@ -397,6 +413,10 @@ impl Mesh {
         Ok(())
     }
 }
+
+/// The smallest opaque fraction a patch of an alpha-tested face keeps (a patch cut out
+/// entirely is never hit, and keeps a positive area).
+pub const MIN_COVERAGE: f32 = 1e-3;
 
 /// The largest reflectance a texture may give a patch (a texel of 1 under a factor of 1).
 const MAX_REFLECTANCE: f32 = 0.999;

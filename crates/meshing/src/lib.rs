@@ -14,6 +14,7 @@
 //! they do not, the mesh has T-junctions, which patch radiosity does not mind.
 
 mod adaptive;
+mod alpha;
 mod build;
 mod reconstruct;
 mod seams;
@@ -24,7 +25,8 @@ pub use adaptive::{
     AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, DEFAULT_MAX_PATCHES,
     DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
-pub use build::{DEFAULT_MAX_EDGE_FRACTION, Mesh, MeshError, Patch, Subdivision};
+pub use alpha::AlphaTest;
+pub use build::{DEFAULT_MAX_EDGE_FRACTION, MIN_COVERAGE, Mesh, MeshError, Patch, Subdivision};
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 

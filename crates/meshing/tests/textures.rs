@@ -32,9 +32,11 @@ fn textured_square() -> Scene {
         Some(FaceMapping {
             corners: t.map(|i| p[i as usize]),
             uv: t.map(|i| p[i as usize].truncate()),
+            emissive_uv: t.map(|i| p[i as usize].truncate()),
             colors: [Vec3::ONE; 3],
             base: Some(0),
             emissive: None,
+            alpha: None,
         })
     };
     scene.with_textures(SceneTextures {

@@ -1,7 +1,7 @@
 //! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
 //! mcrad's 16-wide layout ([`crate::wide`]).
 
-use std::{cell::Cell, ops::Range};
+use std::{cell::Cell, ops::Range, sync::Arc};
 
 use glam::{Vec3, Vec3A};
 use obvhs::{
@@ -17,7 +17,7 @@ use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use crate::traverse::{Avx2, Avx512};
 use crate::{
-    BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
+    AnyHit, BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
     query::{Query, crossings, refine},
     traverse::{self, LeafTest, NodeRay, NodeTest, Sse, Stack},
@@ -115,6 +115,8 @@ pub struct Bvh {
     bounds: (Vec3, Vec3),
     /// Number of input triangles.
     triangle_count: usize,
+    /// The crossings that let rays pass, if any (see [`Bvh::with_any_hit`]).
+    any_hit: Option<Arc<dyn AnyHit>>,
 }
 
 impl std::fmt::Debug for Bvh {
@@ -126,6 +128,7 @@ impl std::fmt::Debug for Bvh {
             .field("stack", &self.wide.stack)
             .field("bounds", &self.bounds)
             .field("scale", &self.frame.scale())
+            .field("any_hit", &self.any_hit.is_some())
             .finish()
     }
 }
@@ -175,7 +178,18 @@ impl Bvh {
             frame,
             bounds,
             triangle_count: triangles.len(),
+            any_hit: None,
         })
+    }
+
+    /// This BVH with an any-hit test: every crossing that would count (the closest so far, or
+    /// a blocker of a segment) is first offered to `test`, and ignored where it lets the ray
+    /// pass (see [`AnyHit`]). A BVH without one (the default) pays nothing for it.
+    pub fn with_any_hit(self, test: Arc<dyn AnyHit>) -> Bvh {
+        Bvh {
+            any_hit: Some(test),
+            ..self
+        }
     }
 
     /// This BVH with the portable node test (four children at a time, SSE on x86_64) even
@@ -350,6 +364,7 @@ impl Task for Closest<'_> {
             q: &q,
             shift,
             ids: (self.exclude, self.exclude),
+            any_hit: bvh.any_hit.as_deref().map(|t| (t, &bvh.frame)),
         };
         let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
         best.found()
@@ -391,6 +406,7 @@ impl Task for Blocked<'_> {
             q: &q,
             shift,
             ids: (self.ia, self.ib),
+            any_hit: bvh.any_hit.as_deref().map(|t| (t, &bvh.frame)),
         };
         traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
     }
@@ -497,6 +513,8 @@ struct Leaves<'a> {
     shift: f32,
     /// The ids that never count (a ray's `exclude` twice, or a segment's two end points').
     ids: (u32, u32),
+    /// The BVH's any-hit test and the frame that places its points.
+    any_hit: Option<(&'a dyn AnyHit, &'a Frame)>,
 }
 
 impl LeafTest for Leaves<'_> {
@@ -525,13 +543,22 @@ impl Leaves<'_> {
         while hot != 0 {
             let j = hot.trailing_zeros() as usize;
             hot &= hot - 1;
-            best.offer(c.t[j] + self.shift, packet.ids[j], c.front >> j & 1 != 0);
+            let t = c.t[j] + self.shift;
+            if self.any_hit.is_some() && (t > best.t || self.passes(packet.ids[j], c.t[j])) {
+                continue;
+            }
+            best.offer(t, packet.ids[j], c.front >> j & 1 != 0);
         }
         let mut cold = c.cold & keep;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
             if let Some((t, front)) = refine(&packet.lane(j), self.q) {
+                if self.any_hit.is_some()
+                    && (t + self.shift > best.t || self.passes(packet.ids[j], c.t[j]))
+                {
+                    continue;
+                }
                 best.offer(t + self.shift, packet.ids[j], front);
             }
         }
@@ -544,18 +571,39 @@ impl Leaves<'_> {
             return false;
         };
         let keep = !excluded(packet, self.ids.0, self.ids.1);
-        if c.hot & keep != 0 {
+        let blocks = |j: usize| self.any_hit.is_none() || !self.passes(packet.ids[j], c.t[j]);
+        let mut hot = c.hot & keep;
+        if hot != 0 && self.any_hit.is_none() {
             return true;
+        }
+        while hot != 0 {
+            let j = hot.trailing_zeros() as usize;
+            hot &= hot - 1;
+            if blocks(j) {
+                return true;
+            }
         }
         let mut cold = c.cold & keep;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
-            if refine(&packet.lane(j), self.q).is_some() {
+            if refine(&packet.lane(j), self.q).is_some() && blocks(j) {
                 return true;
             }
         }
         false
+    }
+
+    /// Whether the any-hit test lets the query pass triangle `id`, crossed at canonical
+    /// distance `t` from the query's origin.
+    #[cold]
+    #[inline(never)]
+    fn passes(&self, id: u32, t: f32) -> bool {
+        let Some((test, frame)) = self.any_hit else {
+            return false;
+        };
+        let point = self.q.origin.as_dvec3() + self.q.dir.as_dvec3() * f64::from(t);
+        test.passes(id, frame.world(point), Vec3::from(self.q.dir))
     }
 }
 

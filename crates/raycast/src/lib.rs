@@ -272,6 +272,19 @@ pub struct Hit {
     pub front: bool,
 }
 
+/// An any-hit test ([`Bvh::with_any_hit`]): the crossings of some triangles let a ray pass
+/// (cut-out or translucent surfaces), and the ray goes on as if they were not there, for the
+/// closest hit and for occlusion alike.
+///
+/// The answer must depend on the arguments alone (a random choice drawn from a hash of them, not
+/// from a shared generator), so that the same ray gets the same hits on any thread.
+pub trait AnyHit: Send + Sync {
+    /// Whether the ray (or segment) along the unit `dir` passes the triangle of id `id` that it
+    /// crosses at `point` (scene units). Cheap for ids that never pass: it is asked for every
+    /// crossing that would otherwise count.
+    fn passes(&self, id: u32, point: Vec3, dir: Vec3) -> bool;
+}
+
 /// The small visibility interface estimators use (implemented by [`Bvh`] and [`BruteForce`]).
 ///
 /// Both methods take `&self` and the implementors are `Sync`: share one caster across threads.

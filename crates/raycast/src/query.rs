@@ -21,8 +21,8 @@ const SLACK: f32 = 1.0 / 256.0;
 /// [`exact::ray_rule`]) and the distances within which crossings are re-decided exactly.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Query {
-    origin: Vec3A,
-    dir: Vec3A,
+    pub(crate) origin: Vec3A,
+    pub(crate) dir: Vec3A,
     len: f32,
     window_start: f32,
     window_end: f32,

@@ -442,13 +442,15 @@ pub enum Warning {
         /// How many primitives (per node instance).
         count: usize,
     },
-    /// glTF reflectance channels of exactly 1.0 were set to 0.999, the largest value the solver
-    /// accepts with margin. Example: `material 'white': 3 reflectance channels of exactly 1.0
-    /// clamped to 0.999`.
+    /// A glTF material's reflectance (`baseColorFactor`, times `COLOR_0 × baseColorTexture` on
+    /// textured faces) reaches 1.0 in some channels on some of its faces; there it is clamped to
+    /// 0.999, the largest value the solver accepts with margin. Raised once per material, and
+    /// not for a factor of 1.0 whose textures stay below 1. Example: `material 'white':
+    /// reflectance (baseColorFactor × texture) reaches 1.0 in 3 channels, clamped to 0.999`.
     ReflectanceClamped {
         /// The material's name.
         material: String,
-        /// How many channels were clamped (1 to 3).
+        /// How many channels reach 1.0 (1 to 3).
         count: usize,
     },
     /// Textures that could not be read (missing file, unknown format such as KTX2 or WebP,
@@ -462,11 +464,6 @@ pub enum Warning {
         first: usize,
         /// Why the first could not be read.
         reason: String,
-    },
-    /// Materials with `alphaMode` `MASK` or `BLEND`: their surfaces are treated as opaque.
-    AlphaIgnored {
-        /// How many materials.
-        materials: usize,
     },
 }
 
@@ -524,8 +521,10 @@ impl fmt::Display for Warning {
             ),
             Warning::ReflectanceClamped { material, count } => write!(
                 f,
-                "material {}: {count} reflectance channels of exactly 1.0 clamped to 0.999",
-                crate::quote(material)
+                "material {}: reflectance (baseColorFactor × texture) reaches 1.0 in {count} \
+                 channel{}, clamped to 0.999",
+                crate::quote(material),
+                if *count == 1 { "" } else { "s" }
             ),
             Warning::TexturesUnreadable {
                 count,
@@ -537,11 +536,6 @@ impl fmt::Display for Warning {
                  the material's factors alone",
                 if *count == 1 { "" } else { "s" },
                 crate::quote(reason)
-            ),
-            Warning::AlphaIgnored { materials } => write!(
-                f,
-                "{materials} material{} with alphaMode MASK or BLEND: treated as opaque",
-                if *materials == 1 { "" } else { "s" }
             ),
         }
     }

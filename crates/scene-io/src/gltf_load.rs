@@ -24,13 +24,18 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// ([`Warning::PrimitivesSkipped`]). Vertices are not shared between primitives.
 ///
 /// Materials are the document's, in order (unnamed ones are called `material<i>`):
-/// reflectance = `baseColorFactor` rgb (alpha ignored; channels of exactly 1.0 become 0.999,
-/// [`Warning::ReflectanceClamped`]; above 1 is an error), emission
+/// reflectance = `baseColorFactor` rgb (alpha ignored; above 1 is an error), emission
 /// `E = pi * emissiveFactor * emissiveStrength` in W/m². Textured faces (`baseColorTexture`,
 /// `emissiveTexture` with a non-zero factor, `COLOR_0`) get a mapping in the scene's
 /// [`SceneTextures`](crate::SceneTextures), which multiplies those factors over each patch;
-/// textures that cannot be read are warned ([`Warning::TexturesUnreadable`]) and left out;
-/// `alphaMode` `MASK`/`BLEND` is treated as opaque ([`Warning::AlphaIgnored`]). Primitives
+/// textures that cannot be read are warned ([`Warning::TexturesUnreadable`]) and left out.
+/// The solver needs `rho < 1`: a factor channel of exactly 1.0 is stored as 0.999 and a
+/// textured face's reflectance `factor × COLOR_0 × texture` is clamped to 0.999 per patch;
+/// a material is warned once ([`Warning::ReflectanceClamped`]) if that product can reach 1.0
+/// on one of its faces (a white texel or vertex colour under a factor of 1), not for a factor
+/// of 1.0 its textures keep below 1. Faces of `alphaMode` `MASK` or `BLEND` get a mapping with
+/// a [`FaceAlpha`](crate::FaceAlpha): light passes them where their alpha says (see
+/// [`FaceAlpha`](crate::FaceAlpha)). Primitives
 /// without a material get
 /// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
 /// ([`Warning::DefaultMaterial`]). Skins and morph targets are ignored; the first perspective camera in node order becomes
@@ -70,7 +75,7 @@ pub(crate) fn load_gltf_bytes(
     let buffers = load_buffers(&document, path, blob, options).map_err(in_file)?;
 
     let mut warnings = Vec::new();
-    let mut materials = convert_materials(&document, &mut warnings);
+    let (mut materials, factors) = convert_materials(&document);
     let mut geometry = Geometry {
         textures: crate::gltf_texture::TextureReader::new(&document, path, options, &buffers),
         buffers: &buffers,
@@ -81,6 +86,8 @@ pub(crate) fn load_gltf_bytes(
         })?,
         positions: Vec::new(),
         faces: Vec::new(),
+        factors: &factors,
+        reach: vec![Vec3::ZERO; factors.len()],
         defaulted: 0,
         skipped: 0,
         instances: Vec::new(),
@@ -112,6 +119,7 @@ pub(crate) fn load_gltf_bytes(
         e => in_file(e),
     })?;
 
+    warnings.extend(clamp_warnings(&materials, &factors, &geometry.reach));
     if geometry.skipped > 0 {
         warnings.push(Warning::PrimitivesSkipped {
             count: geometry.skipped,
@@ -268,9 +276,10 @@ pub fn percent_decode(uri: &str) -> Option<String> {
     String::from_utf8(out).ok()
 }
 
-fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> Vec<Material> {
-    let mut blended = 0;
-    let materials = document
+/// The document's materials, and for each its `baseColorFactor` rgb as written in the file
+/// (before channels of exactly 1.0 become [`CLAMPED_REFLECTANCE`]).
+fn convert_materials(document: &gltf::Document) -> (Vec<Material>, Vec<Vec3>) {
+    let (materials, factors) = document
         .materials()
         .enumerate()
         .map(|(i, m)| {
@@ -280,32 +289,40 @@ fn convert_materials(document: &gltf::Document, warnings: &mut Vec<Warning>) -> 
                 .unwrap_or_else(|| format!("material{i}"));
             let pbr = m.pbr_metallic_roughness();
             let [r, g, b, _alpha] = pbr.base_color_factor();
-            let mut rgb = [r, g, b];
-            let clamped = rgb.iter_mut().filter(|c| **c == 1.0).fold(0, |n, c| {
-                *c = CLAMPED_REFLECTANCE;
-                n + 1
-            });
-            if clamped > 0 {
-                warnings.push(Warning::ReflectanceClamped {
-                    material: name.clone(),
-                    count: clamped,
-                });
-            }
-            if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
-                blended += 1;
-            }
+            let factor = Vec3::new(r, g, b);
+            // (warned after the geometry, only where a face's texture lets it reach 1)
+            let rgb = Vec3::select(
+                factor.cmpeq(Vec3::ONE),
+                Vec3::splat(CLAMPED_REFLECTANCE),
+                factor,
+            );
             let radiance = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
-            Material {
+            let material = Material {
                 name,
-                reflectance: Vec3::from(rgb),
+                reflectance: rgb,
                 emission: std::f32::consts::PI * radiance,
-            }
+            };
+            (material, factor)
         })
-        .collect();
-    if blended > 0 {
-        warnings.push(Warning::AlphaIgnored { materials: blended });
-    }
+        .unzip();
+    (materials, factors)
+}
+
+/// One [`Warning::ReflectanceClamped`] per material where `baseColorFactor` times the largest
+/// value its faces' `COLOR_0 × baseColorTexture` takes (`reach`, per channel; 0 for a material
+/// no face uses) reaches 1.0 in some channel.
+fn clamp_warnings(materials: &[Material], factors: &[Vec3], reach: &[Vec3]) -> Vec<Warning> {
     materials
+        .iter()
+        .zip(factors.iter().zip(reach))
+        .filter_map(|(m, (&factor, &reach))| {
+            let count = (factor * reach).cmpge(Vec3::ONE).bitmask().count_ones() as usize;
+            (count > 0).then(|| Warning::ReflectanceClamped {
+                material: m.name.clone(),
+                count,
+            })
+        })
+        .collect()
 }
 
 /// Calls `visit` on every node of the default scene (else the first scene, else all root
@@ -355,6 +372,11 @@ struct Geometry<'b> {
     /// Textures and the mappings of textured faces.
     textures: crate::gltf_texture::TextureReader<'b>,
     buffers: &'b [gltf::buffer::Data],
+    /// Each document material's `baseColorFactor` rgb as in the file.
+    factors: &'b [Vec3],
+    /// Per document material, the largest `COLOR_0 × baseColorTexture` of its faces, per
+    /// channel (1 for faces without either).
+    reach: Vec<Vec3>,
     /// Material index given to primitives without a material.
     default_material: u32,
     positions: Vec<Vec3>,
@@ -453,9 +475,23 @@ impl Geometry<'_> {
             self.positions.push(world.transform_point3(*p));
         }
         let placed = &self.positions[offset as usize..];
-        self.textures
-            .add_primitive(primitive, self.faces.len(), &triangles, placed);
-        let material = match primitive.material().index() {
+        // a factor channel of 1.0 is stored as 0.999: the texture's mapping makes up for it
+        let index = primitive.material().index();
+        let file_factor = index.and_then(|i| self.factors.get(i)).copied();
+        let scale = file_factor.map_or(Vec3::ONE, |f| {
+            Vec3::select(
+                f.cmpeq(Vec3::ONE),
+                Vec3::splat(1.0 / CLAMPED_REFLECTANCE),
+                Vec3::ONE,
+            )
+        });
+        let reach =
+            self.textures
+                .add_primitive(primitive, self.faces.len(), &triangles, placed, scale);
+        if let Some(r) = index.and_then(|i| self.reach.get_mut(i)) {
+            *r = r.max(reach);
+        }
+        let material = match index {
             Some(i) => i as u32,
             None => {
                 self.defaulted += triangles.len();

@@ -1,16 +1,17 @@
 //! glTF textures read for the solver: base-colour and emissive textures decoded (under the file
 //! policy), and each textured triangle's mapping.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3};
+use glam::{Affine2, Mat2, Vec2, Vec3};
 use gltf::texture::WrappingMode;
 
 use crate::error::Warning;
 use crate::files::LoadOptions;
 use crate::texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
+use crate::{AlphaMode, FaceAlpha};
 
 /// The largest texture edge decoded, texels (larger images are refused with a warning).
 pub const MAX_TEXTURE_EDGE: u32 = 16384;
@@ -26,25 +27,79 @@ pub(crate) struct TextureReader<'a> {
     /// Unreadable textures: (document index, reason), each once.
     pub unreadable: Vec<(usize, String)>,
     pub out: SceneTextures,
+    /// The largest texel of each of `out.textures`, per channel.
+    maxima: Vec<Vec3>,
+    /// Document textures whose alpha is kept: the base-colour textures of alpha-tested
+    /// materials.
+    alpha_textures: HashSet<usize>,
 }
 
-/// What a material asks of the textures: (texture, texCoord set) for base colour and emission.
+/// How a material's alpha lets light through: `None` for `OPAQUE`.
+fn alpha_mode(material: &gltf::Material) -> Option<AlphaMode> {
+    match material.alpha_mode() {
+        gltf::material::AlphaMode::Opaque => None,
+        gltf::material::AlphaMode::Mask => Some(AlphaMode::Mask {
+            cutoff: material.alpha_cutoff().unwrap_or(0.5),
+        }),
+        gltf::material::AlphaMode::Blend => Some(AlphaMode::Blend),
+    }
+}
+
+/// One texture a material asks for: its document index, the `TEXCOORD` set it reads and the
+/// `KHR_texture_transform` of those coordinates (the identity without one).
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    index: usize,
+    set: u32,
+    transform: Affine2,
+}
+
+/// What a material asks of the textures: base colour and emission.
 #[derive(Debug, Clone, Copy, Default)]
 struct Wanted {
-    base: Option<(usize, u32)>,
-    emissive: Option<(usize, u32)>,
+    base: Option<Slot>,
+    emissive: Option<Slot>,
 }
 
 fn wanted(material: &gltf::Material) -> Wanted {
     let base = material
         .pbr_metallic_roughness()
         .base_color_texture()
-        .map(|t| (t.texture().index(), t.tex_coord()));
+        .map(|t| slot(&t));
     let emissive = material
         .emissive_texture()
         .filter(|_| material.emissive_factor().iter().any(|&f| f > 0.0))
-        .map(|t| (t.texture().index(), t.tex_coord()));
+        .map(|t| slot(&t));
     Wanted { base, emissive }
+}
+
+/// The texture, coordinate set and transform of a `textureInfo`: with `KHR_texture_transform`
+/// the coordinates used are `offset + R (scale ⊙ uv)` with `R = [[cos r, sin r], [-sin r, cos
+/// r]]` (rows; `r` the rotation in radians, counter-clockwise in the image), and its `texCoord`,
+/// if given, replaces the `textureInfo`'s.
+fn slot(info: &gltf::texture::Info) -> Slot {
+    let (set, transform) = match info.texture_transform() {
+        Some(t) => (
+            t.tex_coord().unwrap_or(info.tex_coord()),
+            uv_transform(t.offset(), t.rotation(), t.scale()),
+        ),
+        None => (info.tex_coord(), Affine2::IDENTITY),
+    };
+    Slot {
+        index: info.texture().index(),
+        set,
+        transform,
+    }
+}
+
+/// The `KHR_texture_transform` map `uv -> offset + R (scale ⊙ uv)` (see [`slot`]).
+fn uv_transform(offset: [f32; 2], rotation: f32, scale: [f32; 2]) -> Affine2 {
+    let (s, c) = rotation.sin_cos();
+    let rotate = Mat2::from_cols(Vec2::new(c, -s), Vec2::new(s, c));
+    Affine2::from_mat2_translation(
+        rotate * Mat2::from_diagonal(Vec2::from(scale)),
+        Vec2::from(offset),
+    )
 }
 
 impl<'a> TextureReader<'a> {
@@ -62,67 +117,107 @@ impl<'a> TextureReader<'a> {
             decoded: HashMap::new(),
             unreadable: Vec::new(),
             out: SceneTextures::default(),
+            maxima: Vec::new(),
+            alpha_textures: document
+                .materials()
+                .filter(|m| alpha_mode(m).is_some())
+                .filter_map(|m| m.pbr_metallic_roughness().base_color_texture())
+                .map(|t| t.texture().index())
+                .collect(),
         }
     }
 
     /// Records the mappings of a primitive's triangles (`triangles[k]` is face
     /// `first_source + k`, corners placed at `world`), if its material has textures or it has
-    /// vertex colours.
+    /// vertex colours; `scale` multiplies the mapped vertex colours (it undoes the clamp of a
+    /// factor channel of 1.0). Returns the largest `COLOR_0 × baseColorTexture` the faces take,
+    /// per channel (1 without a mapping: the material's factor applies as it is).
     pub(crate) fn add_primitive(
         &mut self,
         primitive: &gltf::Primitive,
         first_source: usize,
         triangles: &[[u32; 3]],
         world: &[Vec3],
-    ) {
-        let w = wanted(&primitive.material());
+        scale: Vec3,
+    ) -> Vec3 {
+        let material = primitive.material();
+        let w = wanted(&material);
+        let alpha = alpha_mode(&material);
         let buffers = self.buffers;
         let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-        let colors: Option<Vec<Vec3>> = reader
-            .read_colors(0)
-            .map(|c| c.into_rgb_f32().map(Vec3::from).collect());
-        if w.base.is_none() && w.emissive.is_none() && colors.is_none() {
-            return;
+        let rgba: Option<Vec<[f32; 4]>> =
+            reader.read_colors(0).map(|c| c.into_rgba_f32().collect());
+        let colors: Option<Vec<Vec3>> = rgba
+            .as_ref()
+            .map(|c| c.iter().map(|&[r, g, b, _]| Vec3::new(r, g, b)).collect());
+        if w.base.is_none() && w.emissive.is_none() && colors.is_none() && alpha.is_none() {
+            return Vec3::ONE;
         }
-        let set = w.base.or(w.emissive).map_or(0, |(_, s)| s);
-        let uv: Option<Vec<Vec2>> = reader
-            .read_tex_coords(set)
-            .map(|t| t.into_f32().map(Vec2::from).collect());
-        let texture = |this: &mut Self, t: Option<(usize, u32)>| {
-            let (index, _) = t?;
-            uv.as_ref()?;
-            this.texture(index)
+        // each texture's coordinates: its set, transformed
+        let coordinates = |slot: Option<Slot>| -> Option<Vec<Vec2>> {
+            let slot = slot?;
+            let uv = reader.read_tex_coords(slot.set)?.into_f32();
+            Some(
+                uv.map(|t| {
+                    let t = slot.transform.transform_point2(Vec2::from(t));
+                    t.clamp(Vec2::splat(-1e6), Vec2::splat(1e6))
+                })
+                .collect(),
+            )
         };
-        let base = texture(self, w.base);
-        let emissive = texture(self, w.emissive);
+        let (base_uv, emissive_uv) = (coordinates(w.base), coordinates(w.emissive));
         let n = world.len();
+        let read = |this: &mut Self, slot: Option<Slot>, uv: &Option<Vec<Vec2>>| {
+            // (texture coordinates of another length than the positions: the texture is not used)
+            uv.as_ref().filter(|uv| uv.len() == n)?;
+            this.texture(slot?.index)
+        };
+        let base = read(self, w.base, &base_uv);
+        let emissive = read(self, w.emissive, &emissive_uv);
         let colors_ok = colors.as_ref().is_none_or(|v| v.len() == n);
-        let uv_ok = uv.as_ref().is_none_or(|v| v.len() == n);
-        if !colors_ok || !uv_ok || (base.is_none() && emissive.is_none() && colors.is_none()) {
-            return;
+        let nothing = base.is_none() && emissive.is_none() && colors.is_none() && alpha.is_none();
+        if !colors_ok || nothing {
+            return Vec3::ONE;
         }
+        let factor_alpha = material.pbr_metallic_roughness().base_color_factor()[3];
+        let texel_max = base.map_or(Vec3::ONE, |t| self.maxima[t as usize]);
+        let mut reach = Vec3::ZERO;
         if self.out.faces.len() < first_source + triangles.len() {
             self.out.faces.resize(first_source + triangles.len(), None);
         }
         for (k, t) in triangles.iter().enumerate() {
             let at = |i: usize| t[i] as usize;
-            let uv_of = |i: usize| {
-                uv.as_ref()
-                    .map_or(Vec2::ZERO, |u| u[at(i)])
-                    .clamp(Vec2::splat(-1e6), Vec2::splat(1e6))
-            };
-            let color_of = |i: usize| colors.as_ref().map_or(Vec3::ONE, |c| c[at(i)]);
-            let uv = [uv_of(0), uv_of(1), uv_of(2)];
+            let uv_of =
+                |uv: &Option<Vec<Vec2>>, i: usize| uv.as_ref().map_or(Vec2::ZERO, |u| u[at(i)]);
+            let color_of = |i: usize| colors.as_ref().map_or(Vec3::ONE, |c| c[at(i)]) * scale;
+            let uv = [0, 1, 2].map(|i| uv_of(&base_uv, i));
+            let emissive_uv = [0, 1, 2].map(|i| uv_of(&emissive_uv, i));
             // NaN texture coordinates: the face keeps its factors
-            let uv_ok = uv.iter().all(|u| u.is_finite());
+            let finite = |uv: &[Vec2; 3]| uv.iter().all(|u| u.is_finite());
+            let (base, emissive) = (
+                base.filter(|_| finite(&uv)),
+                emissive.filter(|_| finite(&emissive_uv)),
+            );
+            let uv_ok = base.is_some();
+            let texel_max = if uv_ok { texel_max } else { Vec3::ONE };
+            for i in 0..3 {
+                reach = reach.max(color_of(i) / scale * texel_max);
+            }
             self.out.faces[first_source + k] = Some(FaceMapping {
                 corners: [world[at(0)], world[at(1)], world[at(2)]],
                 uv,
+                emissive_uv,
                 colors: [color_of(0), color_of(1), color_of(2)],
-                base: base.filter(|_| uv_ok),
-                emissive: emissive.filter(|_| uv_ok),
+                base,
+                emissive,
+                alpha: alpha.map(|mode| FaceAlpha {
+                    mode,
+                    factor: factor_alpha.clamp(0.0, 1.0),
+                    colors: [0, 1, 2].map(|i| rgba.as_ref().map_or(1.0, |c| c[at(i)][3])),
+                }),
             });
         }
+        reach
     }
 
     /// The index in `out.textures` of document texture `index`, decoding it the first time;
@@ -137,6 +232,7 @@ impl<'a> TextureReader<'a> {
         };
         let slot = match result {
             Ok(texture) => {
+                self.maxima.push(texture.max());
                 self.out.textures.push(Arc::new(texture));
                 Some((self.out.textures.len() - 1) as u32)
             }
@@ -185,7 +281,17 @@ impl<'a> TextureReader<'a> {
         limits.max_image_height = Some(MAX_TEXTURE_EDGE);
         limits.max_alloc = Some(2 << 30);
         reader.limits(limits);
-        let image = reader.decode().map_err(|e| e.to_string())?.to_rgb8();
+        let decoded = reader.decode().map_err(|e| e.to_string())?;
+        // (alpha is linear in glTF; kept for alpha-tested materials only)
+        let alpha = (decoded.color().has_alpha() && self.alpha_textures.contains(&texture.index()))
+            .then(|| {
+                let rgba = decoded.to_rgba8();
+                rgba.pixels()
+                    .map(|p| f32::from(p.0[3]) / 255.0)
+                    .collect::<Vec<f32>>()
+            });
+        let image = decoded.to_rgb8();
+        drop(decoded);
         let (w, h) = image.dimensions();
         let texels = image
             .pixels()
@@ -197,13 +303,19 @@ impl<'a> TextureReader<'a> {
             WrappingMode::MirroredRepeat => Wrap::Mirror,
         };
         let sampler = texture.sampler();
-        Texture::new(
+        let texture = Texture::new(
             w,
             h,
             texels,
             [mode(sampler.wrap_s()), mode(sampler.wrap_t())],
         )
-        .ok_or_else(|| "the image is empty".to_string())
+        .ok_or_else(|| "the image is empty".to_string())?;
+        match alpha {
+            Some(alpha) => texture
+                .with_alpha(alpha)
+                .ok_or_else(|| "its alpha does not match its size".to_string()),
+            None => Ok(texture),
+        }
     }
 
     /// The warnings for textures that could not be read.

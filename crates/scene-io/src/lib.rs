@@ -46,6 +46,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod alpha;
 mod error;
 mod files;
 pub mod glb;
@@ -57,6 +58,7 @@ mod polygon;
 mod scene;
 mod texture;
 
+pub use alpha::{AlphaMode, FaceAlpha};
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
 pub use gltf_load::{GltfSource, PrimitiveInstance, percent_decode};

@@ -15,6 +15,8 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
+use crate::FaceAlpha;
+
 /// How texture coordinates outside `[0, 1]` wrap (glTF sampler `wrapS`/`wrapT`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Wrap {
@@ -41,6 +43,9 @@ struct Level {
 pub struct Texture {
     levels: Vec<Level>,
     wrap: [Wrap; 2],
+    /// The full-size level's alpha (linear, `[0, 1]`, row-major like the texels), kept for
+    /// alpha-tested materials only ([`Texture::with_alpha`]).
+    alpha: Option<Vec<f32>>,
 }
 
 /// sRGB-encoded `[0, 1]` to linear.
@@ -86,7 +91,41 @@ impl Texture {
                 texels,
             });
         }
-        Some(Texture { levels, wrap })
+        Some(Texture {
+            levels,
+            wrap,
+            alpha: None,
+        })
+    }
+
+    /// This texture with an alpha channel: `alpha` holds one value in `[0, 1]` per texel of the
+    /// full-size level, in the same order; `None` when the count does not match.
+    pub fn with_alpha(self, alpha: Vec<f32>) -> Option<Texture> {
+        let l = &self.levels[0];
+        if alpha.len() != l.texels.len() {
+            return None;
+        }
+        Some(Texture {
+            alpha: Some(alpha),
+            ..self
+        })
+    }
+
+    /// The bilinear lookup of the alpha channel at `uv` on the full-size level (wrapping as the
+    /// colours do); 1 for a texture without alpha.
+    pub fn alpha(&self, uv: Vec2) -> f32 {
+        let (Some(alpha), l) = (&self.alpha, &self.levels[0]) else {
+            return 1.0;
+        };
+        bilinear(uv, l.width, l.height, self.wrap, |i| alpha[i])
+    }
+
+    /// The largest texel of the full-resolution level, per channel (unitless).
+    pub fn max(&self) -> Vec3 {
+        self.levels[0]
+            .texels
+            .iter()
+            .fold(Vec3::ZERO, |m, &t| m.max(t))
     }
 
     /// Width and height of the full-resolution level, texels.
@@ -98,19 +137,28 @@ impl Texture {
     /// on mip level `level` (clamped to the chain).
     pub fn sample(&self, uv: Vec2, level: usize) -> Vec3 {
         let l = &self.levels[level.min(self.levels.len() - 1)];
-        let x = uv.x * l.width as f32 - 0.5;
-        let y = uv.y * l.height as f32 - 0.5;
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let texel = |i: f32, j: f32| {
-            let i = wrap(i as i64, l.width, self.wrap[0]);
-            let j = wrap(j as i64, l.height, self.wrap[1]);
-            l.texels[(j * l.width + i) as usize]
-        };
-        let top = texel(x0, y0) * (1.0 - fx) + texel(x0 + 1.0, y0) * fx;
-        let bottom = texel(x0, y0 + 1.0) * (1.0 - fx) + texel(x0 + 1.0, y0 + 1.0) * fx;
-        top * (1.0 - fy) + bottom * fy
+        bilinear(uv, l.width, l.height, self.wrap, |i| l.texels[i])
     }
+}
+
+/// The bilinear interpolation at `uv` of the texels `texel(index)` of a `width × height` image
+/// (row-major, top row first), wrapping as `modes`.
+fn bilinear<T>(uv: Vec2, width: u32, height: u32, modes: [Wrap; 2], texel: impl Fn(usize) -> T) -> T
+where
+    T: std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
+    let x = uv.x * width as f32 - 0.5;
+    let y = uv.y * height as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let at = |i: f32, j: f32| {
+        let i = wrap(i as i64, width, modes[0]);
+        let j = wrap(j as i64, height, modes[1]);
+        texel((j * width + i) as usize)
+    };
+    let top = at(x0, y0) * (1.0 - fx) + at(x0 + 1.0, y0) * fx;
+    let bottom = at(x0, y0 + 1.0) * (1.0 - fx) + at(x0 + 1.0, y0 + 1.0) * fx;
+    top * (1.0 - fy) + bottom * fy
 }
 
 /// Texel index `i` wrapped into `0..n`.
@@ -132,14 +180,19 @@ fn wrap(i: i64, n: u32, mode: Wrap) -> u32 {
 pub struct FaceMapping {
     /// The face's corners (scene units), in the order of `uv` and `colors`.
     pub corners: [Vec3; 3],
-    /// Texture coordinates of the corners (the set each texture names).
+    /// Texture coordinates of the corners on the base-colour texture (the set it names, with
+    /// its `KHR_texture_transform` applied).
     pub uv: [Vec2; 3],
+    /// Texture coordinates of the corners on the emissive texture (likewise).
+    pub emissive_uv: [Vec2; 3],
     /// Linear vertex colours (`COLOR_0` rgb, 1 without).
     pub colors: [Vec3; 3],
     /// The base-colour texture (index into [`SceneTextures::textures`]).
     pub base: Option<u32>,
     /// The emissive texture.
     pub emissive: Option<u32>,
+    /// Where light passes the face (glTF `alphaMode` `MASK` or `BLEND`); `None`: opaque.
+    pub alpha: Option<FaceAlpha>,
 }
 
 /// The textures of a scene and the mapping of each textured face, by face source number
@@ -155,6 +208,45 @@ pub struct SceneTextures {
 /// Samples per fan triangle of a polygon (a 4 × 4 stratified pattern).
 const SAMPLES: usize = 16;
 
+/// Samples per fan triangle of a polygon for its opaque fraction (a 32 × 32 stratified
+/// pattern: a cut-out edge crossing a patch is placed to about 1/32 of its size).
+const COVERAGE_SAMPLES: usize = 32;
+
+impl FaceMapping {
+    /// The barycentric weights of a point in the face (projected onto its plane), and the
+    /// squared length of the face's doubled normal; `None` for a degenerate face.
+    fn weights(&self) -> Option<(impl Fn(glam::DVec3) -> [f32; 3], f64)> {
+        let [a, b, c] = self.corners.map(|p| p.as_dvec3());
+        let (e1, e2) = (b - a, c - a);
+        let n = e1.cross(e2);
+        let nn = n.length_squared();
+        if nn <= 0.0 || !nn.is_finite() {
+            return None;
+        }
+        let weights = move |p: glam::DVec3| {
+            let d = p - a;
+            let u = d.cross(e2).dot(n) / nn;
+            let v = e1.cross(d).dot(n) / nn;
+            [1.0 - u - v, u, v].map(|w| w as f32)
+        };
+        Some((weights, nn))
+    }
+
+    /// The alpha at the point of barycentric weights `w`: `factor × COLOR_0 alpha × texture
+    /// alpha` (see [`FaceAlpha`]), or `None` for an opaque face.
+    fn alpha_at(&self, textures: &[Arc<Texture>], w: [f32; 3]) -> Option<(crate::AlphaMode, f32)> {
+        let a = self.alpha.as_ref()?;
+        let color = a.colors[0] * w[0] + a.colors[1] * w[1] + a.colors[2] * w[2];
+        let texture = self
+            .base
+            .and_then(|t| textures.get(t as usize))
+            .map_or(1.0, |t| {
+                t.alpha(self.uv[0] * w[0] + self.uv[1] * w[1] + self.uv[2] * w[2])
+            });
+        Some((a.mode, a.factor * color * texture))
+    }
+}
+
 impl SceneTextures {
     /// The factors a polygon lying in face `source` applies to its material: `(albedo,
     /// emission)`, each the mean over the polygon's area of `COLOR_0 × baseColorTexture` and of
@@ -162,21 +254,9 @@ impl SceneTextures {
     /// units, convex and planar, fanned from the first. `None` when the face has no mapping.
     pub fn average(&self, source: u32, points: &[Vec3]) -> Option<(Vec3, Vec3)> {
         let m = self.faces.get(source as usize)?.as_ref()?;
-        let [a, b, c] = m.corners.map(|p| p.as_dvec3());
-        let (e1, e2) = (b - a, c - a);
-        let n = e1.cross(e2);
-        let nn = n.length_squared();
-        if nn <= 0.0 || !nn.is_finite() {
-            return None;
-        }
-        // barycentric weights of p in the face (projected onto its plane)
-        let weights = |p: glam::DVec3| {
-            let d = p - a;
-            let u = d.cross(e2).dot(n) / nn;
-            let v = e1.cross(d).dot(n) / nn;
-            [1.0 - u - v, u, v].map(|w| w as f32)
-        };
-        let uv_area_face = (m.uv[1] - m.uv[0]).perp_dot(m.uv[2] - m.uv[0]).abs() / 2.0;
+        let (weights, nn) = m.weights()?;
+        let uv_area = |uv: &[Vec2; 3]| (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]).abs() / 2.0;
+        let uv_area_face = [uv_area(&m.uv), uv_area(&m.emissive_uv)];
         let face_area = (nn.sqrt() / 2.0) as f32;
         let (mut albedo, mut emission, mut total) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
         let p0 = points.first()?.as_dvec3();
@@ -187,8 +267,8 @@ impl SceneTextures {
                 continue;
             }
             // texels each sample covers, on the base level, of the larger texture
-            let uv_area = uv_area_face * area / face_area;
-            let level = |t: Option<u32>| {
+            let level = |t: Option<u32>, uv_area_face: f32| {
+                let uv_area = uv_area_face * area / face_area;
                 t.and_then(|t| self.textures.get(t as usize))
                     .map_or(0, |t| {
                         let (w, h) = t.size();
@@ -196,7 +276,8 @@ impl SceneTextures {
                         per_sample.max(1.0).sqrt().log2().floor() as usize
                     })
             };
-            let (base_level, emissive_level) = (level(m.base), level(m.emissive));
+            let base_level = level(m.base, uv_area_face[0]);
+            let emissive_level = level(m.emissive, uv_area_face[1]);
             let (mut sa, mut se) = (Vec3::ZERO, Vec3::ZERO);
             for k in 0..SAMPLES {
                 // stratified point of the unit square, warped uniformly onto the triangle
@@ -205,20 +286,73 @@ impl SceneTextures {
                 let r = s.sqrt();
                 let p = p0 * (1.0 - r) + p1 * (r * (1.0 - t)) + p2 * (r * t);
                 let wts = weights(p);
-                let uv = m.uv[0] * wts[0] + m.uv[1] * wts[1] + m.uv[2] * wts[2];
+                let at = |uv: &[Vec2; 3]| uv[0] * wts[0] + uv[1] * wts[1] + uv[2] * wts[2];
                 let color = m.colors[0] * wts[0] + m.colors[1] * wts[1] + m.colors[2] * wts[2];
-                let tex = |t: Option<u32>, level: usize| {
+                let tex = |t: Option<u32>, uv: &[Vec2; 3], level: usize| {
                     t.and_then(|t| self.textures.get(t as usize))
-                        .map_or(Vec3::ONE, |t| t.sample(uv, level))
+                        .map_or(Vec3::ONE, |t| t.sample(at(uv), level))
                 };
-                sa += color * tex(m.base, base_level);
-                se += tex(m.emissive, emissive_level);
+                sa += color * tex(m.base, &m.uv, base_level);
+                se += tex(m.emissive, &m.emissive_uv, emissive_level);
             }
             albedo += sa / SAMPLES as f32 * area;
             emission += se / SAMPLES as f32 * area;
             total += area;
         }
         (total > 0.0).then(|| (albedo / total, emission / total))
+    }
+
+    /// Whether some face is alpha-tested ([`FaceMapping::alpha`]).
+    pub fn has_alpha(&self) -> bool {
+        self.faces.iter().flatten().any(|m| m.alpha.is_some())
+    }
+
+    /// Whether light passes face `source` at `point` (scene units, on the face): its
+    /// [`AlphaMode`](crate::AlphaMode) applied to the alpha there, `u` a uniform number in
+    /// `[0, 1)` for `BLEND`. `false` for an opaque face.
+    pub fn passes(&self, source: u32, point: Vec3, u: f32) -> bool {
+        let Some(m) = self.faces.get(source as usize).and_then(Option::as_ref) else {
+            return false;
+        };
+        if m.alpha.is_none() {
+            return false;
+        }
+        m.weights()
+            .and_then(|(weights, _)| m.alpha_at(&self.textures, weights(point.as_dvec3())))
+            .is_some_and(|(mode, alpha)| mode.passes(alpha, u))
+    }
+
+    /// The opaque fraction of a polygon lying in face `source` (see [`FaceAlpha`](crate::FaceAlpha)): under
+    /// `MASK` the fraction of its area where alpha `>= alphaCutoff`, under `BLEND` its mean
+    /// alpha, from a stratified pattern of 32 × 32 points per fan triangle. `points` as for
+    /// [`SceneTextures::average`]. `None` for a face that is not alpha-tested.
+    pub fn coverage(&self, source: u32, points: &[Vec3]) -> Option<f32> {
+        let m = self.faces.get(source as usize)?.as_ref()?;
+        m.alpha.as_ref()?;
+        let (weights, _) = m.weights()?;
+        let p0 = points.first()?.as_dvec3();
+        let (mut opaque, mut total) = (0.0f64, 0.0f64);
+        let n = COVERAGE_SAMPLES;
+        for w in points.get(1..)?.windows(2) {
+            let (p1, p2) = (w[0].as_dvec3(), w[1].as_dvec3());
+            let area = (p1 - p0).cross(p2 - p0).length() / 2.0;
+            if area.is_nan() || area <= 0.0 {
+                continue;
+            }
+            let mut sum = 0.0f64;
+            for k in 0..n * n {
+                let (i, j) = ((k % n) as f64, (k / n) as f64);
+                let (s, t) = ((i + 0.5) / n as f64, (j + 0.5) / n as f64);
+                let r = s.sqrt();
+                let p = p0 * (1.0 - r) + p1 * (r * (1.0 - t)) + p2 * (r * t);
+                if let Some((mode, alpha)) = m.alpha_at(&self.textures, weights(p)) {
+                    sum += f64::from(mode.opacity(alpha));
+                }
+            }
+            opaque += sum / (n * n) as f64 * area;
+            total += area;
+        }
+        (total > 0.0).then(|| (opaque / total) as f32)
     }
 }
 
@@ -261,9 +395,11 @@ mod tests {
         let face = |base| FaceMapping {
             corners: [Vec3::ZERO, Vec3::X, Vec3::Y],
             uv: [Vec2::ZERO, Vec2::X, Vec2::Y],
+            emissive_uv: [Vec2::ZERO, Vec2::X, Vec2::Y],
             colors: [Vec3::ONE, Vec3::new(0.0, 1.0, 1.0), Vec3::ONE],
             base: Some(base),
             emissive: None,
+            alpha: None,
         };
         let scene = SceneTextures {
             textures: vec![t, Arc::new(half)],

@@ -533,7 +533,7 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
     let Loaded {
         scene, warnings, ..
     } = load_ok("t.gltf", doc.gltf(&rest(&png)).as_bytes());
-    assert_eq!(warnings, vec![Warning::AlphaIgnored { materials: 1 }]);
+    assert!(warnings.is_empty(), "{warnings:?}");
     let textures = scene.textures().expect("textured");
     // the material's factor stays 0.8; the texture over a polygon of the quad: white (1) on
     // the left quarter, black (0) on the right quarter (sRGB 0 and 255 decode to 0 and 1)
@@ -574,7 +574,12 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
         unreadable.to_string().contains("missing.png"),
         "{unreadable}"
     );
-    assert!(scene.textures().is_none(), "nothing left to map");
+    // (the faces keep a mapping for their alpha mode only)
+    let textures = scene.textures().expect("alpha-tested");
+    assert!(
+        textures.faces.iter().flatten().all(|m| m.base.is_none()),
+        "no texture left to map"
+    );
     // a KTX2 texture (the image crate reads none) and a texture over the size limit: warned
     let ktx2 = format!(
         "data:image/ktx2;base64,{}",
@@ -599,4 +604,260 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
             "{warnings:?}"
         );
     }
+}
+
+/// A PNG of `width × height` texels from `rgba` (8 bits per channel, top row first).
+fn png_rgba(width: u32, height: u32, rgba: &[u8]) -> String {
+    let mut png = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut png),
+        rgba,
+        width,
+        height,
+        image::ExtendedColorType::Rgba8,
+    )
+    .unwrap();
+    format!("data:image/png;base64,{}", base64(&png))
+}
+
+/// The unit quad (u = x, v = z) with material `material` (JSON) whose textures are image 0 at
+/// `image` (a URI), sampler `sampler` (JSON) and, if `colors`, vertex colours `COLOR_0`
+/// (its four corners as given).
+fn textured_quad(material: &str, image: &str, sampler: &str, colors: Option<[f32; 12]>) -> Loaded {
+    let mut doc = two_quads();
+    let uv: Vec<u8> = [[0f32, 0.], [0., 1.], [1., 1.], [1., 0.]]
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let view = doc.view(&uv);
+    doc.accessors.push(format!(
+        r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC2"}}"#
+    ));
+    let color = colors.map_or(String::new(), |c| {
+        let bytes: Vec<u8> = c.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let view = doc.view(&bytes);
+        doc.accessors.push(format!(
+            r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC3"}}"#
+        ));
+        format!(r#","COLOR_0":{}"#, doc.accessors.len() - 1)
+    });
+    let rest = format!(
+        r#""nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0,
+          "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":2{color}}},"indices":1,"material":0}}]}}],
+          "samplers":[{sampler}],
+          "textures":[{{"source":0,"sampler":0}}],"images":[{{"uri":"{image}"}}],
+          "materials":[{material}],"extensionsUsed":["KHR_texture_transform"]"#
+    );
+    load_ok("t.gltf", doc.gltf(&rest).as_bytes())
+}
+
+/// The quad's strip `x0 <= x <= x1` (all of z), as a polygon of the quad's plane.
+fn strip(x0: f32, x1: f32) -> [Vec3; 4] {
+    [
+        Vec3::new(x0, 0., 0.),
+        Vec3::new(x0, 0., 1.),
+        Vec3::new(x1, 0., 1.),
+        Vec3::new(x1, 0., 0.),
+    ]
+}
+
+#[test]
+fn the_clamp_is_warned_once_per_material_and_only_where_the_texture_reaches_one() {
+    let white = |factor: &str| {
+        format!(
+            r#"{{"name":"m","emissiveFactor":[1,1,1],"pbrMetallicRoughness":{{"baseColorFactor":{factor},"baseColorTexture":{{"index":0}}}}}}"#
+        )
+    };
+    let clamp = r#"{"wrapS":33071,"wrapT":33071}"#;
+    // a texture whose brightest texel is sRGB 200 (linear 0.578): a factor of 1.0 is glTF's
+    // default and the product never reaches 1: no warning, and the patch reflectance is the
+    // texel itself (the factor's 1.0 is not replaced by 0.999)
+    let grey = png_rgba(2, 1, &[200, 200, 200, 255, 100, 100, 100, 255]);
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(&white("[1,1,1,1]"), &grey, clamp, None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let rho = scene.materials()[0].reflectance;
+    let (albedo, _) = scene
+        .textures()
+        .unwrap()
+        .average(0, &strip(0.0, 0.25))
+        .unwrap();
+    let texel = mcrad_scene_io::srgb_to_linear(200.0 / 255.0);
+    assert!(((rho * albedo) - Vec3::splat(texel)).abs().max_element() < 1e-6);
+    // a white texel (255) under a factor of 1.0 in two channels: one warning, 2 channels
+    let white_texel = png_rgba(2, 1, &[255, 255, 255, 255, 0, 0, 0, 255]);
+    let Loaded { warnings, .. } = textured_quad(&white("[1,0.5,1,1]"), &white_texel, clamp, None);
+    assert_eq!(
+        warnings,
+        vec![Warning::ReflectanceClamped {
+            material: "m".into(),
+            count: 2
+        }]
+    );
+    assert!(
+        warnings[0]
+            .to_string()
+            .contains("reaches 1.0 in 2 channels")
+    );
+    // vertex colours count too: red 0.5 on every corner keeps the red channel below 1
+    let Loaded { warnings, .. } = textured_quad(
+        &white("[1,1,1,1]"),
+        &white_texel,
+        clamp,
+        Some([0.5, 1., 1., 0.5, 1., 1., 0.5, 1., 1., 0.5, 1., 1.]),
+    );
+    assert_eq!(
+        warnings,
+        vec![Warning::ReflectanceClamped {
+            material: "m".into(),
+            count: 2
+        }]
+    );
+}
+
+#[test]
+fn jpeg_textures_decode() {
+    let mut jpeg = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95),
+        &[128u8; 8 * 8 * 3],
+        8,
+        8,
+        image::ExtendedColorType::Rgb8,
+    )
+    .unwrap();
+    let uri = format!("data:image/jpeg;base64,{}", base64(&jpeg));
+    let material =
+        r#"{"emissiveFactor":[1,1,1],"pbrMetallicRoughness":{"baseColorTexture":{"index":0}}}"#;
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(material, &uri, "{}", None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (albedo, _) = scene
+        .textures()
+        .unwrap()
+        .average(0, &strip(0.0, 1.0))
+        .unwrap();
+    let grey = mcrad_scene_io::srgb_to_linear(128.0 / 255.0);
+    assert!(
+        (albedo - Vec3::splat(grey)).abs().max_element() < 0.02,
+        "{albedo}"
+    );
+}
+
+#[test]
+fn texture_transforms_move_the_lookup() {
+    // 2 x 2 texels: top row red, green; bottom row blue, white (sRGB 0 and 255: linear 0, 1)
+    let image = png_rgba(
+        2,
+        2,
+        &[
+            255, 0, 0, 255, 0, 255, 0, 255, //
+            0, 0, 255, 255, 255, 255, 255, 255,
+        ],
+    );
+    let material = |transform: &str| {
+        format!(
+            r#"{{"emissiveFactor":[1,1,1],"pbrMetallicRoughness":{{"baseColorFactor":[0.5,0.5,0.5,1],
+              "baseColorTexture":{{"index":0,"texCoord":1,"extensions":{{"KHR_texture_transform":{transform}}}}}}}}}"#
+        )
+    };
+    let centre = [
+        Vec3::new(0.49, 0., 0.49),
+        Vec3::new(0.49, 0., 0.51),
+        Vec3::new(0.51, 0., 0.51),
+        Vec3::new(0.51, 0., 0.49),
+    ];
+    let albedo = |transform: &str| {
+        let Loaded { scene, .. } = textured_quad(&material(transform), &image, "{}", None);
+        scene.textures().map(|t| t.average(0, &centre).unwrap().0)
+    };
+    // The quad's centre has uv (0.5, 0.5). The specification's example (offset (0, 1), a
+    // quarter turn, scale 1/2): uv' = offset + R (scale ⊙ uv) with R = [[cos, sin], [-sin,
+    // cos]] gives (0.5 v, 1 - 0.5 u) = (0.25, 0.75), the centre of the bottom-left texel (blue).
+    // (Without the rotation: (0.25, 1.25), which repeats to red; the rotation the other way:
+    // (-0.25, 1.25), green; no transform: the mean of all four.) texCoord 0 replaces the
+    // textureInfo's 1, which the primitive does not have.
+    let spec = r#"{"texCoord":0,"offset":[0,1],"rotation":1.5707963,"scale":[0.5,0.5]}"#;
+    let blue = albedo(spec).expect("texCoord 0 is read");
+    assert!((blue - Vec3::Z).abs().max_element() < 0.03, "{blue}");
+    // offset alone: (0.5, 0.5) + (0.25, -0.25) = (0.75, 0.25), the top-right texel (green)
+    let green = albedo(r#"{"texCoord":0,"offset":[0.25,-0.25]}"#).unwrap();
+    assert!((green - Vec3::Y).abs().max_element() < 0.03, "{green}");
+    // without the override the textureInfo's set 1 is missing: no mapping
+    assert!(albedo(r#"{"offset":[0.25,-0.25]}"#).is_none());
+}
+
+#[test]
+fn alpha_masks_and_blends_decide_where_light_passes() {
+    // a 4 x 4 checker of alpha 255 and 0 (top-left opaque), white
+    let texels: Vec<u8> = (0..16)
+        .flat_map(|i| {
+            let a = if (i % 4 + i / 4) % 2 == 0 { 255 } else { 0 };
+            [255, 255, 255, a]
+        })
+        .collect();
+    let image = png_rgba(4, 4, &texels);
+    let material = |mode: &str, factor_alpha: f32| {
+        format!(
+            r#"{{"emissiveFactor":[1,1,1],{mode},"pbrMetallicRoughness":{{
+              "baseColorFactor":[0.5,0.5,0.5,{factor_alpha}],"baseColorTexture":{{"index":0}}}}}}"#
+        )
+    };
+    let whole = strip(0.0, 1.0);
+    // MASK (cut-off 0.5): the checker's opaque half; light passes the cells of alpha 0 (the
+    // texel at u = x, v = z: cell (1, 0) is cut out, (0, 0) and (1, 1) are not)
+    let Loaded {
+        scene, warnings, ..
+    } = textured_quad(&material(r#""alphaMode":"MASK""#, 1.0), &image, "{}", None);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let t = scene.textures().unwrap();
+    assert!(t.has_alpha());
+    for source in 0..2 {
+        let c = t.coverage(source, &whole).unwrap();
+        assert!((c - 0.5).abs() < 0.01, "{c}");
+    }
+    let cell = |i: f32, j: f32| Vec3::new((i + 0.5) / 4.0, 0.0, (j + 0.5) / 4.0);
+    let source_of = |p: Vec3| if p.x <= p.z { 0 } else { 1 };
+    for (i, j, cut) in [
+        (0., 0., false),
+        (1., 0., true),
+        (1., 1., false),
+        (2., 3., true),
+    ] {
+        let p = cell(i, j);
+        assert_eq!(t.passes(source_of(p), p, 0.5), cut, "cell {i} {j}");
+    }
+    // a cut-off above the opaque texels' alpha factor: everything passes
+    let Loaded { scene, .. } = textured_quad(
+        &material(r#""alphaMode":"MASK","alphaCutoff":0.6"#, 0.5),
+        &image,
+        "{}",
+        None,
+    );
+    let t = scene.textures().unwrap();
+    assert_eq!(t.coverage(0, &whole), Some(0.0));
+    // BLEND: the mean alpha (half the cells, times the factor 0.5); an opaque cell passes a
+    // ray with probability 1 - 0.5, decided by the caller's number
+    let Loaded { scene, .. } =
+        textured_quad(&material(r#""alphaMode":"BLEND""#, 0.5), &image, "{}", None);
+    let t = scene.textures().unwrap();
+    let c = t.coverage(1, &whole).unwrap();
+    assert!((c - 0.25).abs() < 0.01, "{c}");
+    let p = cell(1.0, 1.0);
+    assert!(!t.passes(source_of(p), p, 0.3));
+    assert!(t.passes(source_of(p), p, 0.7));
+    // OPAQUE: no alpha test, whatever the texture's alpha
+    let Loaded { scene, .. } = textured_quad(
+        &material(r#""alphaMode":"OPAQUE""#, 1.0),
+        &image,
+        "{}",
+        None,
+    );
+    let t = scene.textures().unwrap();
+    assert!(!t.has_alpha());
+    assert_eq!(t.coverage(0, &whole), None);
+    assert!(!t.passes(0, cell(1.0, 0.0), 0.5));
 }

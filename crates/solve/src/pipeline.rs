@@ -237,7 +237,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             (mesh, None, None)
         }
     };
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+    let bvh = mesh.caster()?;
     let patch: Vec<u32> = mesh
         .patches()
         .iter()

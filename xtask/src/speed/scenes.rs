@@ -140,7 +140,7 @@ impl ExpScene {
             .max_edge
             .map_or(Subdivision::None, Subdivision::MaxEdge);
         let mesh = Mesh::build(&scene, subdivision)?;
-        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
+        let bvh = mesh.caster()?;
         Ok(Loaded {
             mesh,
             bvh,
