@@ -43,6 +43,7 @@ mod error;
 mod fates;
 mod gather;
 mod jobs;
+mod lights;
 mod method;
 mod replicates;
 mod sampling;

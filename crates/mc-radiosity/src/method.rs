@@ -171,6 +171,19 @@ macro_rules! methods {
                 cancel: Option<&std::sync::atomic::AtomicBool>,
                 observer: &mut Observer,
             ) -> Result<Solution, Error> {
+                if !config.lights.is_empty() {
+                    // Lights without a surface: their direct light becomes emission
+                    // (`crate::lights`), then the method runs without them.
+                    let lit = crate::lights::light_mesh(mesh, caster, config, cancel)?;
+                    let mut rest = config.clone();
+                    rest.lights = Vec::new();
+                    if rest.rays != u64::MAX {
+                        rest.rays = rest.rays.saturating_sub(lit.rays).max(1);
+                    }
+                    let mut seen = |step: &crate::schedule::Step| lit.observe(step, observer);
+                    let solution = self.dispatch(&lit.mesh, caster, &rest, cancel, &mut seen)?;
+                    return lit.finish(solution);
+                }
                 let ctx = Context::new(mesh, caster)
                     .with_cancel(cancel)
                     .with_sampler(config.sampler)

@@ -313,6 +313,13 @@ impl Mesh {
         &self.patches
     }
 
+    /// Sets the emitted radiosity `E` (W/m² per channel) of patch `patch` (mesh order), for a
+    /// solver that turns light from elsewhere (lights without a surface) into the light a
+    /// patch sends out. Panics if `patch` is out of range.
+    pub fn set_emission(&mut self, patch: usize, emission: Vec3) {
+        self.patches[patch].emission = emission;
+    }
+
     /// The world position (scene units) of the local frame's origin: every position of the
     /// mesh is relative to it. It is the centre of the scene's bounding box rounded to a
     /// multiple of `2^k`, the smallest power of two not below the box's diagonal, so it is

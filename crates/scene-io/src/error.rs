@@ -314,6 +314,17 @@ pub enum SceneError {
         /// The area at or below which a face counts as degenerate, scene units².
         degenerate_area: f64,
     },
+    /// A light (point, spot, sun) with a value out of range. Example: `light 2 (spot): cone
+    /// angles inner 0.5 and outer 0.4 are not 0 <= inner < outer <= pi/2`.
+    #[error("light {index} ({kind}): {reason}")]
+    BadLight {
+        /// Index of the light in the scene's list (glTF: in the order the nodes are visited).
+        index: usize,
+        /// The kind of light: `point`, `spot` or `sun`.
+        kind: &'static str,
+        /// What is wrong, with the value.
+        reason: String,
+    },
 }
 
 fn obj_index_message(index: i64, available: usize) -> String {
@@ -329,7 +340,8 @@ fn obj_index_message(index: i64, available: usize) -> String {
 fn no_emitter_message(dropped: &Option<(usize, u32)>, area: f64, degenerate: f64) -> String {
     match dropped {
         None => "the scene has no emitting face (no material with emission > 0 is used by any \
-                 face)"
+                 face) and no light: light it with an emissive material or a light (glTF \
+                 KHR_lights_punctual point, spot or directional)"
             .to_string(),
         Some((count, first)) => format!(
             "the scene has no emitting face left: its {count} emitting face{s} {was} dropped as \

@@ -16,7 +16,7 @@ pub const DEFAULT_MAX_FILE_BYTES: u64 = 1 << 30;
 
 /// How [`load_with`](crate::load_with) reads a scene. The default is the safe policy:
 /// named files inside the scene's folder only, at most [`DEFAULT_MAX_FILE_BYTES`] each.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct LoadOptions {
     /// Read files the scene names (OBJ `mtllib`, glTF buffer URIs) even when they lie outside
     /// the folder of the scene file: absolute paths, `file:` URIs, `..` that climbs out of
@@ -26,6 +26,15 @@ pub struct LoadOptions {
     /// The largest file read, in bytes: the scene file, each MTL file and each glTF buffer
     /// ([`SceneError::FileTooLarge`] beyond).
     pub max_file_bytes: u64,
+    /// Lights added to the scene's own (a sun the caller sets), in the scene's frame and
+    /// radiometric units; none by default.
+    pub lights: Vec<crate::Light>,
+    /// The luminous efficacy `K` (lm/W) that converts glTF lights' photometric intensities
+    /// to radiometric ones: a point or spot light of `I` cd radiates `I / K` W/sr, a
+    /// directional light of `E_v` lux gives `E_v / K` W/m². Default
+    /// [`DEFAULT_LIGHT_EFFICACY`](crate::DEFAULT_LIGHT_EFFICACY) (683, Blender's exporter's
+    /// factor); 1 reads the intensities as radiometric. Must be positive and finite.
+    pub light_efficacy: f64,
 }
 
 impl Default for LoadOptions {
@@ -33,6 +42,8 @@ impl Default for LoadOptions {
         LoadOptions {
             allow_outside_paths: false,
             max_file_bytes: DEFAULT_MAX_FILE_BYTES,
+            lights: Vec::new(),
+            light_efficacy: crate::DEFAULT_LIGHT_EFFICACY,
         }
     }
 }
@@ -165,7 +176,7 @@ mod tests {
         let safe = LoadOptions::default();
         let open = LoadOptions {
             allow_outside_paths: true,
-            ..safe
+            ..safe.clone()
         };
         let scene = Path::new("scenes/room/room.obj");
         let why = |name: &str, uri: bool| match resolve_named(scene, name, uri, &safe) {

@@ -40,6 +40,8 @@ const CLAMPED_REFLECTANCE: f32 = 0.999;
 /// [`Material::builtin_default`] (0.5 grey, not glTF's white), appended last
 /// ([`Warning::DefaultMaterial`]). Skins and morph targets are ignored; the first perspective camera in node order becomes
 /// [`Loaded::camera`] (its node's world transform applied; orthographic cameras are ignored).
+/// `KHR_lights_punctual` lights become [`Light`](crate::Light)s in node order, converted at
+/// [`LoadOptions::light_efficacy`] (`gltf_light`), followed by [`LoadOptions::lights`].
 ///
 /// Errors name the file and, for geometry, the node, mesh and primitive.
 pub(crate) fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
@@ -93,9 +95,13 @@ pub(crate) fn load_gltf_bytes(
         instances: Vec::new(),
     };
     let mut camera = None;
+    let mut lights = Vec::new();
     walk_scene(&document, |node, world| {
         if camera.is_none() {
             camera = node.camera().and_then(|c| perspective(&c, world));
+        }
+        if let Some(light) = crate::gltf_light::node_light(node, world, options.light_efficacy)? {
+            lights.push(light);
         }
         let Some(mesh) = node.mesh() else {
             return Ok(());
@@ -139,7 +145,9 @@ pub(crate) fn load_gltf_bytes(
         ..
     } = geometry;
     warnings.extend(textures.warnings());
-    let (mut scene, more) = Scene::new(positions, faces, materials).map_err(in_file)?;
+    lights.extend(options.lights.iter().cloned());
+    let (mut scene, more) =
+        Scene::new_lit(positions, faces, materials, lights).map_err(in_file)?;
     warnings.extend(more);
     if textures.out.faces.iter().any(Option::is_some) {
         scene = scene.with_textures(textures.out);

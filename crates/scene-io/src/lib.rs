@@ -50,8 +50,10 @@ mod alpha;
 mod error;
 mod files;
 pub mod glb;
+mod gltf_light;
 mod gltf_load;
 mod gltf_texture;
+mod light;
 mod obj;
 mod obj_text;
 mod polygon;
@@ -62,7 +64,11 @@ pub use alpha::{AlphaMode, FaceAlpha};
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
 pub use gltf_load::{GltfSource, PrimitiveInstance, percent_decode};
+pub use gltf_light::SUN_DIAMETER_EXTRA;
 pub use gltf_texture::MAX_TEXTURE_EDGE;
+pub use light::{
+    DEFAULT_LIGHT_EFFICACY, DEFAULT_SUN_DIAMETER, Light, LightSample, PointLight, SpotLight, Sun,
+};
 pub use scene::{Bounds, Face, Material, Scene};
 pub use texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
 

@@ -87,7 +87,7 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         warnings.push(Warning::DefaultMaterial { faces: defaulted });
     }
 
-    let (scene, more) = Scene::new(positions, faces, materials)
+    let (scene, more) = Scene::new_lit(positions, faces, materials, options.lights.clone())
         .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
     warnings.extend(more);
     Ok(Loaded {

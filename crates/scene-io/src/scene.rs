@@ -79,6 +79,7 @@ pub struct Scene {
     faces: Vec<Face>,
     materials: Vec<Material>,
     textures: Option<std::sync::Arc<crate::SceneTextures>>,
+    lights: Vec<crate::Light>,
 }
 
 impl Scene {
@@ -118,6 +119,25 @@ impl Scene {
         faces: Vec<Face>,
         materials: Vec<Material>,
     ) -> Result<(Scene, Vec<Warning>), SceneError> {
+        Scene::new_lit(positions, faces, materials, Vec::new())
+    }
+
+    /// [`Scene::new`] with `lights` besides the emitting faces (in the scene's frame): a scene
+    /// with a light needs no emitting face. Errors as [`Scene::new`]'s, plus
+    /// [`SceneError::BadLight`] for a light out of range ([`Light::check`](crate::Light::check)).
+    pub fn new_lit(
+        positions: Vec<Vec3>,
+        faces: Vec<Face>,
+        materials: Vec<Material>,
+        lights: Vec<crate::Light>,
+    ) -> Result<(Scene, Vec<Warning>), SceneError> {
+        for (index, light) in lights.iter().enumerate() {
+            light.check().map_err(|reason| SceneError::BadLight {
+                index,
+                kind: light.kind(),
+                reason,
+            })?;
+        }
         if faces.is_empty() {
             return Err(SceneError::NoFaces { dropped: 0 });
         }
@@ -198,9 +218,10 @@ impl Scene {
                 dropped: dropped.count,
             });
         }
-        if !kept
-            .iter()
-            .any(|f| materials[f.material as usize].is_emitter())
+        if lights.is_empty()
+            && !kept
+                .iter()
+                .any(|f| materials[f.material as usize].is_emitter())
         {
             return Err(SceneError::NoEmitter {
                 dropped_emitters: dark.first.map(|first| (dark.count, first)),
@@ -234,8 +255,15 @@ impl Scene {
             faces: kept,
             materials,
             textures: None,
+            lights,
         };
         Ok((scene, warnings))
+    }
+
+    /// The lights without a surface (point, spot, sun), in the scene's frame and radiometric
+    /// units; the emitting faces are the other light sources.
+    pub fn lights(&self) -> &[crate::Light] {
+        &self.lights
     }
 
     /// The scene with textured albedo and emission: the faces `textures` maps take their
@@ -561,7 +589,29 @@ mod tests {
         n[0].emission = Vec3::ZERO;
         assert_eq!(
             err(p.clone(), f.clone(), n),
-            "the scene has no emitting face (no material with emission > 0 is used by any face)"
+            "the scene has no emitting face (no material with emission > 0 is used by any face) \
+             and no light: light it with an emissive material or a light (glTF \
+             KHR_lights_punctual point, spot or directional)"
+        );
+        // A light is enough.
+        let mut n = m.clone();
+        n[0].emission = Vec3::ZERO;
+        let sun = crate::Light::Sun(crate::Sun {
+            direction: Vec3::Z,
+            irradiance: glam::DVec3::ONE,
+            diameter: 0.0,
+        });
+        let (scene, _) = Scene::new_lit(p.clone(), f.clone(), n.clone(), vec![sun]).unwrap();
+        assert_eq!(scene.lights().len(), 1);
+        let bad = crate::Light::Sun(crate::Sun {
+            direction: Vec3::Z,
+            irradiance: glam::DVec3::NEG_ONE,
+            diameter: 0.0,
+        });
+        let e = Scene::new_lit(p.clone(), f.clone(), n, vec![bad]).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "light 0 (sun): irradiance [-1, -1, -1] is negative or not finite"
         );
     }
 

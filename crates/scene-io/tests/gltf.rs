@@ -384,12 +384,89 @@ fn no_emitter_and_empty_scene() {
         "n.gltf",
         doc.gltf(&format!("{SCENE},{materials}")).as_bytes(),
     );
-    assert_contains(&m, &["n.gltf: the scene has no emitting face"]);
+    assert_contains(&m, &["n.gltf: the scene has no emitting face", "and no light"]);
     let (m, _) = load_err(
         "empty.gltf",
         doc.gltf(r#""scenes":[{"nodes":[]}]"#).as_bytes(),
     );
     assert_contains(&m, &["empty.gltf: the scene has no faces"]);
+}
+
+/// The floor of [`two_quads`] unlit, with `KHR_lights_punctual` lights on nodes: a point light
+/// of 683 cd (colour (1, 0.5, 0.25)) under the scaled "room" node at local (0, 1, 0), a spot
+/// turned to look down -y, and a directional light looking down -y with an angular diameter
+/// of 2 degrees in its extras.
+const LIT: &str = r#""scene":0,"scenes":[{"nodes":[0,2,3]}],
+  "nodes":[
+    {"name":"room","mesh":0,"translation":[1,2,3],"scale":[2,2,2],"children":[1]},
+    {"name":"bulb","translation":[0,1,0],"extensions":{"KHR_lights_punctual":{"light":0}}},
+    {"name":"spot","translation":[0,4,0],"rotation":[-0.70710678,0,0,0.70710678],
+     "extensions":{"KHR_lights_punctual":{"light":1}}},
+    {"name":"sun","rotation":[-0.70710678,0,0,0.70710678],
+     "extensions":{"KHR_lights_punctual":{"light":2}}}],
+  "meshes":[
+    {"name":"floor","primitives":[{"attributes":{"POSITION":0},"indices":1,"material":0}]}],
+  "materials":[{"name":"floor","pbrMetallicRoughness":{"baseColorFactor":[0.5,0.5,0.5,1]}}],
+  "extensions":{"KHR_lights_punctual":{"lights":[
+    {"type":"point","intensity":683,"color":[1,0.5,0.25],"range":10},
+    {"type":"spot","intensity":1366,"spot":{"innerConeAngle":0.1,"outerConeAngle":0.3}},
+    {"type":"directional","intensity":68300,"extras":{"angular_diameter":2.0}}]}},
+  "extensionsUsed":["KHR_lights_punctual"]"#;
+
+#[test]
+fn punctual_lights_are_placed_by_their_nodes_in_radiometric_units() {
+    use mcrad_scene_io::{LoadOptions, load_with};
+    let doc = two_quads();
+    let loaded = load_ok("lit.gltf", doc.gltf(LIT).as_bytes());
+    let lights = loaded.scene.lights();
+    assert_eq!(lights.len(), 3);
+    let close = |a: Vec3, b: Vec3| (a - b).length() < 1e-5;
+    let mcrad_scene_io::Light::Point(p) = &lights[0] else {
+        panic!("{:?}", lights[0])
+    };
+    // Under the room's scale 2 and translation (1, 2, 3): local (0, 1, 0) is (1, 4, 3); the
+    // range is not scaled.
+    assert!(close(p.position, Vec3::new(1.0, 4.0, 3.0)), "{}", p.position);
+    assert!((p.intensity - glam::DVec3::new(1.0, 0.5, 0.25)).length() < 1e-12);
+    assert_eq!(p.range, Some(10.0));
+    let mcrad_scene_io::Light::Spot(s) = &lights[1] else {
+        panic!("{:?}", lights[1])
+    };
+    assert!(close(s.direction, Vec3::NEG_Y), "{}", s.direction);
+    assert!((s.point.intensity.x - 2.0).abs() < 1e-12);
+    assert!((s.inner - 0.1).abs() < 1e-7 && (s.outer - 0.3).abs() < 1e-7);
+    let mcrad_scene_io::Light::Sun(sun) = &lights[2] else {
+        panic!("{:?}", lights[2])
+    };
+    assert!(close(sun.direction, Vec3::Y), "{}", sun.direction);
+    assert!((sun.irradiance.x - 100.0).abs() < 1e-9);
+    assert!((sun.diameter - 2f64.to_radians()).abs() < 1e-12);
+
+    // Efficacy 1 reads the intensities as radiometric; a caller's sun comes last.
+    let (_dir, path) = write("lit.gltf", doc.gltf(LIT).as_bytes());
+    let extra = mcrad_scene_io::Light::Sun(mcrad_scene_io::Sun {
+        direction: Vec3::Z,
+        irradiance: glam::DVec3::ONE,
+        diameter: 0.0,
+    });
+    let options = LoadOptions {
+        light_efficacy: 1.0,
+        lights: vec![extra.clone()],
+        ..LoadOptions::default()
+    };
+    let loaded = load_with(&path, &options).unwrap();
+    let lights = loaded.scene.lights();
+    assert_eq!(lights.len(), 4);
+    let mcrad_scene_io::Light::Point(p) = &lights[0] else {
+        panic!()
+    };
+    assert!((p.intensity.x - 683.0).abs() < 1e-9);
+    assert_eq!(lights[3], extra);
+
+    // A bad cone is refused with the light named.
+    let bad = LIT.replace("\"innerConeAngle\":0.1", "\"innerConeAngle\":0.5");
+    let (m, _) = load_err("bad.gltf", doc.gltf(&bad).as_bytes());
+    assert_contains(&m, &["bad.gltf", "light 1 (spot): cone angles inner 0.5"]);
 }
 
 #[test]

@@ -185,6 +185,9 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     }
     let budget = problem.budget;
     let mut config = schedule_config(settings, &budget);
+    if let Input::Scene(scene) = problem.input {
+        config.lights = scene.lights().to_vec();
+    }
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
@@ -199,6 +202,24 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             // a state saved from a caller's mesh: its mesh is not the scene's to refine
             let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
             return Err(Error::StateMesh { saved, now: 0 });
+        }
+        (Input::Scene(scene), MeshPlan::Adaptive { .. }, None)
+            if !deterministic && !scene.lights().is_empty() && problem.resume.is_none() =>
+        {
+            // Adaptive refinement does not see lights without a surface yet: the uniform
+            // starting mesh instead, said once.
+            warnings.push(
+                "the scene has lights without a surface (point, spot, sun): adaptive meshing \
+                 does not refine for them yet, the uniform mesh is used"
+                    .to_string(),
+            );
+            let mesh = Mesh::build(scene, Subdivision::default_for(scene)).map_err(|source| {
+                Error::Mesh {
+                    source,
+                    max_edge: None,
+                }
+            })?;
+            (mesh, None, None)
         }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
             let (mesh, refined, history) =
@@ -424,6 +445,7 @@ fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
             visibility_tolerance: settings.visibility_tolerance,
             ..Default::default()
         },
+        lights: Vec::new(),
     }
 }
 

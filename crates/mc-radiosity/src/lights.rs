@@ -1,0 +1,200 @@
+//! Lights without a surface (point, spot, sun; [`mcrad_scene_io::Light`]): their direct light,
+//! sampled with shadow rays, becomes the first light the patches send out.
+//!
+//! A singular light has no patch to shoot from or to gather towards. The radiosity equation
+//! with lights is `B_i = E_i + rho_i H_i + rho_i sum_j F_ij B_j`, where `H_i` is the mean
+//! irradiance (W/m²) the lights give patch `i` directly: the equation without lights for the
+//! emission `E'_i = E_i + rho_i H_i`. So before any method runs, each patch estimates
+//! `H_i = mean_k sum_l E_l(x_k) max(0, n_i · w_l) V(x_k, l)` over `n` jittered uniform points
+//! `x_k` (a stratified grid through [`SurfaceSampler::point2`]), one shadow ray per point and
+//! light (a sun's direction jittered in its cone), and the method then solves the mesh with
+//! `E'`: shooting starts from the lit patches, gathering and the direct part find them as
+//! emitters. The estimate's variance `rho_i² s_i² / n` (`s_i²` the sample variance of the
+//! points' irradiance, conservative for stratified points) adds to every reported variance of
+//! `B_i`; the noise it carries on to other patches through reflection, averaged over many
+//! points, is not counted. Rays escaping the scene see nothing (where an environment light
+//! would be read).
+
+use crate::error::Error;
+use crate::schedule::{Observer, ScheduleConfig, Solution, Step};
+use crate::surface::SurfaceSampler;
+use glam::{DVec3, Vec3};
+use mcrad_combine::Estimate;
+use mcrad_meshing::Mesh;
+use mcrad_random::Stream;
+use mcrad_raycast::{RayCaster, SurfacePoint};
+use mcrad_scene_io::Light;
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// The pass number of the lights' streams (distinct from every schedule's passes).
+const LIGHT_PASS: u64 = 0x4c49_4748_5453_0000;
+
+/// The mesh lit by the lights: emission `E + rho H`, the variance `rho² Var(H)` of each patch,
+/// and the shadow rays cast.
+pub(crate) struct Lit {
+    /// The mesh with emission `E'_i = E_i + rho_i H_i`.
+    pub(crate) mesh: Mesh,
+    /// `rho_i² s_i² / n` per patch and channel, (W/m²)².
+    pub(crate) variance: Vec<DVec3>,
+    /// Shadow rays cast.
+    pub(crate) rays: u64,
+}
+
+/// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches lights)))` in `[2, 16]`
+/// (a quarter of the budget at most, unless the mesh is too large for 4 points a patch); 64
+/// without a budget.
+pub(crate) fn points_per_patch(budget: u64, patches: usize, lights: usize) -> u32 {
+    if budget == u64::MAX {
+        return 64;
+    }
+    let per = budget as f64 / (4.0 * patches.max(1) as f64 * lights.max(1) as f64);
+    let m = per.sqrt().floor().clamp(2.0, 16.0) as u32;
+    m * m
+}
+
+/// The direct light of `config.lights` (in the scene's frame) on `mesh`, with `n` points per
+/// patch ([`points_per_patch`] of the budget), the streams keyed by `(config.seed,
+/// LIGHT_PASS, patch)`. [`Error::Cancelled`] once `cancel` is set.
+pub(crate) fn light_mesh<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+    cancel: Option<&AtomicBool>,
+) -> Result<Lit, Error> {
+    let lights: Vec<Light> = config
+        .lights
+        .iter()
+        .map(|l| l.translated(-mesh.origin()))
+        .collect();
+    let patches = mesh.patches();
+    let n = points_per_patch(config.rays, patches.len(), lights.len());
+    let sampler = SurfaceSampler::new(mesh);
+    let far = far_distance(mesh);
+    let seed = config.seed;
+    let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
+    let moments: Vec<(DVec3, DVec3)> = (0..patches.len())
+        .into_par_iter()
+        .map(|i| {
+            if cancelled() {
+                return (DVec3::ZERO, DVec3::ZERO);
+            }
+            let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, 0);
+            let normal = patches[i].normal;
+            irradiance_moments(i, normal, n, &lights, &sampler, caster, far, &mut rng)
+        })
+        .collect();
+    if cancelled() {
+        return Err(Error::Cancelled);
+    }
+    let mut lit = mesh.clone();
+    let mut variance = Vec::with_capacity(patches.len());
+    for (i, (mean, var)) in moments.into_iter().enumerate() {
+        let rho = patches[i].reflectance.as_dvec3();
+        let emission = patches[i].emission.as_dvec3() + rho * mean;
+        lit.set_emission(i, emission.as_vec3());
+        variance.push(rho * rho * var);
+    }
+    Ok(Lit {
+        mesh: lit,
+        variance,
+        rays: u64::from(n) * patches.len() as u64 * lights.len() as u64,
+    })
+}
+
+/// The mean irradiance of `n` stratified points of `patch` and the variance of that mean
+/// (`s² / n`), W/m² and (W/m²)² per channel.
+#[allow(clippy::too_many_arguments)]
+fn irradiance_moments<C: RayCaster>(
+    patch: usize,
+    normal: Vec3,
+    n: u32,
+    lights: &[Light],
+    sampler: &SurfaceSampler,
+    caster: &C,
+    far: f64,
+    rng: &mut Stream,
+) -> (DVec3, DVec3) {
+    let m = (f64::from(n).sqrt().round() as u32).max(1);
+    let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
+    let nd = normal.as_dvec3();
+    for a in 0..m {
+        for b in 0..m {
+            let u = [
+                ((a as f32 + rng.uniform()) / m as f32).min(1.0 - f32::EPSILON),
+                ((b as f32 + rng.uniform()) / m as f32).min(1.0 - f32::EPSILON),
+            ];
+            let x = sampler.point2(patch, u);
+            let mut h = DVec3::ZERO;
+            for light in lights {
+                let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
+                    continue;
+                };
+                let cos = nd.dot(s.direction);
+                if cos <= 0.0 {
+                    continue;
+                }
+                let reach = if s.distance.is_finite() {
+                    s.distance
+                } else {
+                    far
+                };
+                let target = (x.as_dvec3() + s.direction * reach).as_vec3();
+                let from = SurfacePoint::new(x, normal, patch as u32);
+                if !caster.occluded(&from, &SurfacePoint::free(target)) {
+                    h += s.irradiance * cos;
+                }
+            }
+            sum += h;
+            sum2 += h * h;
+        }
+    }
+    let count = f64::from(m * m);
+    let mean = sum / count;
+    let var = if count > 1.0 {
+        ((sum2 - sum * mean) / (count - 1.0)).max(DVec3::ZERO) / count
+    } else {
+        DVec3::ZERO
+    };
+    (mean, var)
+}
+
+/// A distance that leaves the mesh's bounding box from any point in it: twice its diagonal
+/// (scene units; 1 for a mesh of one point).
+fn far_distance(mesh: &Mesh) -> f64 {
+    let (lo, hi) = mesh.positions().iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    (2.0 * f64::from((hi - lo).length())).max(1.0)
+}
+
+impl Lit {
+    /// The observer's view of a step of the method run on the lit mesh: the light's rays
+    /// counted, its variance added.
+    pub(crate) fn observe(&self, step: &Step, observer: &mut Observer) -> ControlFlow<()> {
+        let variance: Option<Vec<DVec3>> = step.variance.map(|v| self.add_variance(v));
+        let seen = Step {
+            index: step.index,
+            rays: step.rays + self.rays,
+            next_rays: step.next_rays,
+            radiosity: step.radiosity,
+            variance: variance.as_deref(),
+            limit: step.limit,
+        };
+        observer(&seen)
+    }
+
+    /// The method's solution with the light's rays and variance included.
+    pub(crate) fn finish(&self, mut solution: Solution) -> Result<Solution, Error> {
+        let e = &solution.estimate;
+        let variance = e.variance().map(|v| self.add_variance(v));
+        solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
+        Ok(solution)
+    }
+
+    fn add_variance(&self, v: &[DVec3]) -> Vec<DVec3> {
+        v.iter().zip(&self.variance).map(|(a, b)| *a + *b).collect()
+    }
+}

@@ -1,0 +1,169 @@
+//! Lights without a surface in every method, against exact answers.
+//!
+//! - A closed cube of side 4 and reflectance 0.5 with an isotropic point light of power `Phi`
+//!   at its centre (CIE 171:2006's closed-room case): the area-mean irradiance is
+//!   `Phi / (S (1 - rho))`, so the area-mean radiosity is `rho Phi / (S (1 - rho))`. Every
+//!   method, over 4 seeds: the mean of the runs' area-means within 4 standard errors of their
+//!   spread (plus 2e-3 of the answer for the bias a shooting threshold or a gathering
+//!   remainder may leave).
+//! - The sun on an open upward plane: `B = rho E sin(elevation)` exactly.
+
+use glam::{DVec3, Vec3};
+use mcrad_mc_radiosity::{Method, ScheduleConfig, run};
+use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_raycast::Bvh;
+use mcrad_scene_io::{Face, Light, Material, PointLight, Scene, Sun};
+use std::ops::ControlFlow;
+
+/// The inside of a cube of side `side` centred at the origin (faces facing in), reflectance
+/// `rho`, no emission, and `lights`.
+fn cube(side: f32, rho: f32, lights: Vec<Light>) -> Scene {
+    let h = side / 2.0;
+    let p: Vec<Vec3> = (0..8)
+        .map(|i| {
+            Vec3::new(
+                if i & 1 == 0 { -h } else { h },
+                if i & 2 == 0 { -h } else { h },
+                if i & 4 == 0 { -h } else { h },
+            )
+        })
+        .collect();
+    // Counter-clockwise seen from inside.
+    let quads = [
+        [0, 1, 3, 2], // z = -h, seen from +z
+        [4, 6, 7, 5], // z = +h
+        [0, 4, 5, 1], // y = -h
+        [2, 3, 7, 6], // y = +h
+        [0, 2, 6, 4], // x = -h
+        [1, 5, 7, 3], // x = +h
+    ];
+    let faces = quads
+        .iter()
+        .enumerate()
+        .map(|(i, q)| Face {
+            vertices: q.to_vec(),
+            material: 0,
+            source: i as u32,
+        })
+        .collect();
+    let material = Material {
+        name: "wall".into(),
+        reflectance: Vec3::splat(rho),
+        emission: Vec3::ZERO,
+    };
+    Scene::new_lit(p, faces, vec![material], lights).unwrap().0
+}
+
+fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, config: &ScheduleConfig) -> Vec<DVec3> {
+    run(method, mesh, bvh, config, &mut |_| ControlFlow::Continue(()))
+        .unwrap_or_else(|e| panic!("{method}: {e}"))
+        .estimate
+        .radiosity()
+        .to_vec()
+}
+
+fn area_mean(mesh: &Mesh, b: &[DVec3]) -> DVec3 {
+    let total: f64 = mesh.patches().iter().map(|p| p.area).sum();
+    mesh.patches()
+        .iter()
+        .zip(b)
+        .map(|(p, b)| *b * p.area)
+        .sum::<DVec3>()
+        / total
+}
+
+#[test]
+fn a_point_light_in_a_closed_cube_gives_the_closed_room_answer_in_every_method() {
+    let (side, rho, intensity) = (4.0f32, 0.5f64, DVec3::new(10.0, 20.0, 5.0));
+    let light = Light::Point(PointLight {
+        position: Vec3::new(0.1, -0.05, 0.02),
+        intensity,
+        range: None,
+    });
+    let scene = cube(side, rho as f32, vec![light.clone()]);
+    // Patch walls not aligned with the light's symmetry: 1-unit patches, 96 of them.
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let phi = light.power().unwrap();
+    let s = 6.0 * f64::from(side * side);
+    let exact = phi * rho / (s * (1.0 - rho));
+    let seeds = 4;
+    for method in Method::ALL {
+        let means: Vec<DVec3> = (0..seeds)
+            .map(|seed| {
+                let config = ScheduleConfig {
+                    rays: 200_000,
+                    seed,
+                    lights: scene.lights().to_vec(),
+                    ..Default::default()
+                };
+                area_mean(&mesh, &solve(method, &mesh, &bvh, &config))
+            })
+            .collect();
+        let n = f64::from(seeds as u32);
+        let mean = means.iter().sum::<DVec3>() / n;
+        let var = means
+            .iter()
+            .map(|m| (*m - mean) * (*m - mean))
+            .sum::<DVec3>()
+            / (n - 1.0);
+        let se = (var / n).map(f64::sqrt);
+        for c in 0..3 {
+            let tolerance = 4.0 * se[c] + 2e-3 * exact[c];
+            assert!(
+                (mean[c] - exact[c]).abs() <= tolerance,
+                "{method}: channel {c}: mean {} exact {} (se {})",
+                mean[c],
+                exact[c],
+                se[c]
+            );
+        }
+    }
+}
+
+#[test]
+fn the_sun_on_an_open_plane_gives_rho_e_sin_elevation() {
+    let elevation = 30f64.to_radians();
+    let (rho, e) = (0.4f32, 800.0);
+    let sun = Light::Sun(Sun {
+        direction: Vec3::new(elevation.cos() as f32, 0.0, elevation.sin() as f32) * 3.0,
+        irradiance: DVec3::splat(e),
+        diameter: 0.53f64.to_radians(),
+    });
+    let positions = vec![
+        Vec3::new(-1.0, -1.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(-1.0, 1.0, 0.0),
+    ];
+    let faces = vec![Face {
+        vertices: vec![0, 1, 2, 3],
+        material: 0,
+        source: 0,
+    }];
+    let material = Material {
+        name: "ground".into(),
+        reflectance: Vec3::splat(rho),
+        emission: Vec3::ZERO,
+    };
+    let scene = Scene::new_lit(positions, faces, vec![material], vec![sun]).unwrap().0;
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap();
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let exact = f64::from(rho) * e * elevation.sin();
+    for method in [Method::Shoot, Method::Gather, Method::Combined] {
+        let config = ScheduleConfig {
+            rays: 100_000,
+            lights: scene.lights().to_vec(),
+            ..Default::default()
+        };
+        let b = solve(method, &mesh, &bvh, &config);
+        for (i, b) in b.iter().enumerate() {
+            // The sun's disk tilts a few rays by up to 0.27 degrees: 1e-4 relative at most.
+            assert!(
+                (b.x - exact).abs() < 1e-4 * exact,
+                "{method}: patch {i}: {} vs {exact}",
+                b.x
+            );
+        }
+    }
+}
