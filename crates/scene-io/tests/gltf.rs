@@ -585,44 +585,20 @@ fn half_white_png() -> Vec<u8> {
 
 #[test]
 fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
-    let mut doc = two_quads();
     // u = x, v = z over the quad
-    let uv: Vec<u8> = [[0f32, 0.], [0., 1.], [1., 1.], [1., 0.]]
-        .iter()
-        .flatten()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
-    let view = doc.view(&uv);
-    doc.accessors.push(format!(
-        r#"{{"bufferView":{view},"componentType":5126,"count":4,"type":"VEC2"}}"#
-    ));
     let png = format!("data:image/png;base64,{}", base64(&half_white_png()));
-    let rest = |image: &str| {
-        format!(
-            r#""nodes":[{{"mesh":0}}],"scenes":[{{"nodes":[0]}}],"scene":0,
-          "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0,"TEXCOORD_0":2}},"indices":1,"material":0}}]}}],
-          "samplers":[{{"wrapS":33071,"wrapT":33071}}],
-          "textures":[{{"source":0,"sampler":0}}],"images":[{{"uri":"{image}"}}],
-          "materials":[{{"emissiveFactor":[1,1,1],"alphaMode":"MASK",
-             "pbrMetallicRoughness":{{"baseColorFactor":[0.8,0.8,0.8,1],"baseColorTexture":{{"index":0}}}}}}]"#
-        )
-    };
+    let material = r#"{"emissiveFactor":[1,1,1],"alphaMode":"MASK",
+        "pbrMetallicRoughness":{"baseColorFactor":[0.8,0.8,0.8,1],"baseColorTexture":{"index":0}}}"#;
+    let quad =
+        |image: &str| textured_quad(material, image, r#"{"wrapS":33071,"wrapT":33071}"#, None);
     let Loaded {
         scene, warnings, ..
-    } = load_ok("t.gltf", doc.gltf(&rest(&png)).as_bytes());
+    } = quad(&png);
     assert!(warnings.is_empty(), "{warnings:?}");
     let textures = scene.textures().expect("textured");
     // the material's factor stays 0.8; the texture over a polygon of the quad: white (1) on
     // the left quarter, black (0) on the right quarter (sRGB 0 and 255 decode to 0 and 1)
     assert_eq!(scene.materials()[0].reflectance, Vec3::splat(0.8));
-    let strip = |x0: f32, x1: f32| {
-        [
-            Vec3::new(x0, 0., 0.),
-            Vec3::new(x0, 0., 1.),
-            Vec3::new(x1, 0., 1.),
-            Vec3::new(x1, 0., 0.),
-        ]
-    };
     for source in 0..2 {
         let (left, emission) = textures.average(source, &strip(0.0, 0.25)).unwrap();
         let (right, _) = textures.average(source, &strip(0.75, 1.0)).unwrap();
@@ -633,7 +609,7 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
     // a missing image: warned, the faces keep the factor alone
     let Loaded {
         scene, warnings, ..
-    } = load_ok("t.gltf", doc.gltf(&rest("missing.png")).as_bytes());
+    } = quad("missing.png");
     let unreadable = warnings
         .iter()
         .find(|w| {
@@ -673,7 +649,7 @@ fn textured_faces_map_their_texture_and_unreadable_textures_are_warned() {
     .unwrap();
     let huge = format!("data:image/png;base64,{}", base64(&huge));
     for image in [ktx2, huge] {
-        let Loaded { warnings, .. } = load_ok("t.gltf", doc.gltf(&rest(&image)).as_bytes());
+        let Loaded { warnings, .. } = quad(&image);
         assert!(
             warnings
                 .iter()
