@@ -55,11 +55,17 @@ fn cube(side: f32, rho: f32, lights: Vec<Light>) -> Scene {
 }
 
 fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, config: &ScheduleConfig) -> Vec<DVec3> {
-    run(method, mesh, bvh, config, &mut |_| ControlFlow::Continue(()))
-        .unwrap_or_else(|e| panic!("{method}: {e}"))
-        .estimate
-        .radiosity()
-        .to_vec()
+    run(
+        method,
+        mesh,
+        bvh,
+        config,
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .unwrap_or_else(|e| panic!("{method}: {e}"))
+    .estimate
+    .radiosity()
+    .to_vec()
 }
 
 fn area_mean(mesh: &Mesh, b: &[DVec3]) -> DVec3 {
@@ -156,7 +162,9 @@ fn sun_on_a_plane(diameter: f64, tolerance: f64) {
         reflectance: Vec3::splat(rho),
         emission: Vec3::ZERO,
     };
-    let scene = Scene::new_lit(positions, faces, vec![material], vec![sun]).unwrap().0;
+    let scene = Scene::new_lit(positions, faces, vec![material], vec![sun])
+        .unwrap()
+        .0;
     let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.5)).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let exact = f64::from(rho) * e * elevation.sin();
