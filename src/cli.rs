@@ -209,6 +209,16 @@ pub struct Solve {
     /// Without it they are refused.
     #[arg(long)]
     pub allow_outside_paths: bool,
+    /// The sun: X,Y,Z the direction towards it (any length), E the irradiance in W/m² on a
+    /// surface facing it, DIAM its angular diameter in degrees (default 0.53; 0 is a single
+    /// direction). Added to the scene's own lights.
+    #[arg(long, value_name = "X,Y,Z,E[,DIAM]", allow_negative_numbers = true, value_parser = parse_sun)]
+    pub sun: Option<mcrad_scene_io::Light>,
+    /// The luminous efficacy K (lm/W) that turns glTF lights' photometric intensities into
+    /// radiometric ones: I cd radiates I/K W/sr, E_v lux gives E_v/K W/m². 683 round-trips
+    /// Blender's exporter; 1 reads the intensities as radiometric.
+    #[arg(long, value_name = "K", default_value_t = mcrad_scene_io::DEFAULT_LIGHT_EFFICACY, value_parser = parse_fraction)]
+    pub light_efficacy: f64,
     /// Set by `mcrad bake`: bake the solution into the scene's glTF.
     #[arg(skip)]
     pub bake: Option<BakeTarget>,
@@ -569,6 +579,41 @@ fn parse_fraction(s: &str) -> Result<f64, String> {
         Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
         _ => Err(format!("'{s}' is not a positive finite number")),
     }
+}
+
+/// Parses `--sun X,Y,Z,E[,DIAM]`: a direction towards the sun (not zero), an irradiance
+/// `E >= 0` (W/m²) and an angular diameter in degrees in `[0, 90)` (0.53 by default).
+fn parse_sun(s: &str) -> Result<mcrad_scene_io::Light, String> {
+    let usage = || format!("'{s}' is not X,Y,Z,E[,DIAM] (direction, W/m², degrees)");
+    let parts: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| usage())?;
+    if !(parts.len() == 4 || parts.len() == 5) || parts.iter().any(|x| !x.is_finite()) {
+        return Err(usage());
+    }
+    let direction = glam::DVec3::new(parts[0], parts[1], parts[2]);
+    if direction.length() == 0.0 {
+        return Err(format!("'{s}': the direction towards the sun is zero"));
+    }
+    if parts[3] < 0.0 {
+        return Err(format!(
+            "'{s}': the irradiance {} W/m² is negative",
+            parts[3]
+        ));
+    }
+    let degrees = parts.get(4).copied().unwrap_or(0.53);
+    if !(0.0..90.0).contains(&degrees) {
+        return Err(format!(
+            "'{s}': the angular diameter {degrees} degrees is not in [0, 90)"
+        ));
+    }
+    Ok(mcrad_scene_io::Light::Sun(mcrad_scene_io::Sun {
+        direction: direction.normalize().as_vec3(),
+        irradiance: glam::DVec3::splat(parts[3]),
+        diameter: degrees.to_radians(),
+    }))
 }
 
 /// Parses a positive finite length (`--max-edge`, `--min-edge`).

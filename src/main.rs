@@ -52,7 +52,18 @@ fn main() -> ExitCode {
         Ok(solve::Outcome::Interrupted) => ExitCode::from(interrupt::EXIT_INTERRUPTED),
         Err(err) => {
             // One clear line: the error and its causes, joined.
-            eprintln!("error: {err:#}");
+            let unlit = err.chain().any(|e| {
+                matches!(
+                    e.downcast_ref::<mcrad_scene_io::SceneError>()
+                        .map(mcrad_scene_io::SceneError::innermost),
+                    Some(mcrad_scene_io::SceneError::NoEmitter { .. })
+                )
+            });
+            if unlit {
+                eprintln!("error: {err:#}; or give --sun X,Y,Z,E");
+            } else {
+                eprintln!("error: {err:#}");
+            }
             ExitCode::FAILURE
         }
     }

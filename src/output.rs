@@ -100,6 +100,8 @@ pub fn bake(
     };
     let load_options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
+        lights: args.sun.iter().cloned().collect(),
+        light_efficacy: args.light_efficacy,
         ..Default::default()
     };
     let input = mcrad_bake::BakeInput {

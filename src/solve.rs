@@ -76,6 +76,8 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     }
     let options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
+        lights: args.sun.iter().cloned().collect(),
+        light_efficacy: args.light_efficacy,
         ..Default::default()
     };
     let mut loaded = mcrad_scene_io::load_with(&args.scene, &options)?;

@@ -159,6 +159,41 @@ fn furnace_from_the_command_line_is_near_two() {
     assert!((mean - 2.0).abs() < 0.02, "{mean}");
 }
 
+/// An unlit plane (reflectance 0.5): refused with the ways to light it; under `--sun` at 30
+/// degrees elevation with 1000 W/m² and a delta disk, `B = rho E sin(elevation) = 250` exactly.
+#[test]
+fn an_unlit_scene_is_refused_and_the_sun_lights_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let plane = write(
+        dir.path(),
+        "plane.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+    );
+    let plane = plane.to_str().unwrap();
+    assert_clean_failure(&["solve", plane, "-q"], "--sun X,Y,Z,E");
+    let csv = path(dir.path(), "p.csv");
+    let sun = format!("{},0,{},1000,0", 30f64.to_radians().cos(), 0.5);
+    let o = mcrad(&[
+        "solve",
+        plane,
+        "-q",
+        "--rays",
+        "2e4",
+        "--sun",
+        &sun,
+        "--patches",
+        &csv,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for row in read_csv(&csv) {
+        assert!((row.radiosity.x - 250.0).abs() < 1e-3, "{row:?}");
+    }
+    assert_clean_failure(
+        &["solve", plane, "--sun", "0,0,0,5"],
+        "direction towards the sun is zero",
+    );
+}
+
 /// Runs a bad invocation and checks for one clear error line, a non-zero exit and no panic.
 fn assert_clean_failure(args: &[&str], expect: &str) {
     let o = mcrad(args);

@@ -39,7 +39,9 @@ pub(crate) fn node_light(
     let colour = DVec3::from(light.color().map(f64::from));
     let intensity = f64::from(light.intensity());
     if !(intensity.is_finite() && intensity >= 0.0) {
-        return Err(bad(format!("intensity {intensity} is negative or not finite")));
+        return Err(bad(format!(
+            "intensity {intensity} is negative or not finite"
+        )));
     }
     let radiometric = colour * (intensity / efficacy);
     let position = world.transform_point3(Vec3::ZERO);

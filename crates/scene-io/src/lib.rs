@@ -63,8 +63,8 @@ mod texture;
 pub use alpha::{AlphaMode, FaceAlpha};
 pub use error::{Location, SceneError, Warning};
 pub use files::{DEFAULT_MAX_FILE_BYTES, LoadOptions, Outside};
-pub use gltf_load::{GltfSource, PrimitiveInstance, percent_decode};
 pub use gltf_light::SUN_DIAMETER_EXTRA;
+pub use gltf_load::{GltfSource, PrimitiveInstance, percent_decode};
 pub use gltf_texture::MAX_TEXTURE_EDGE;
 pub use light::{
     DEFAULT_LIGHT_EFFICACY, DEFAULT_SUN_DIAMETER, Light, LightSample, PointLight, SpotLight, Sun,

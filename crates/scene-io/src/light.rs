@@ -285,11 +285,20 @@ mod tests {
             intensity: DVec3::new(9.0, 18.0, 0.0),
             range: None,
         };
-        let s = Light::Point(p.clone()).sample(Vec3::ZERO, [0.5; 2]).unwrap();
+        let s = Light::Point(p.clone())
+            .sample(Vec3::ZERO, [0.5; 2])
+            .unwrap();
         assert_eq!(s.direction, DVec3::Z);
-        assert!((s.irradiance - DVec3::new(1.0, 2.0, 0.0)).abs().max_element() < 1e-12);
+        assert!(
+            (s.irradiance - DVec3::new(1.0, 2.0, 0.0))
+                .abs()
+                .max_element()
+                < 1e-12
+        );
         p.range = Some(6.0);
-        let s = Light::Point(p.clone()).sample(Vec3::ZERO, [0.5; 2]).unwrap();
+        let s = Light::Point(p.clone())
+            .sample(Vec3::ZERO, [0.5; 2])
+            .unwrap();
         assert!((s.irradiance.x - (1.0 - 0.5f64.powi(4))).abs() < 1e-12);
         p.range = Some(3.0);
         assert!(Light::Point(p).sample(Vec3::ZERO, [0.5; 2]).is_none());
@@ -324,7 +333,10 @@ mod tests {
         });
         let numeric = 2.0 * PI * (1.0 - co) * sum / n as f64 * 8.0;
         let power = Light::Spot(sp).power().unwrap();
-        assert!((power.x - numeric).abs() < 1e-6 * numeric, "{power} {numeric}");
+        assert!(
+            (power.x - numeric).abs() < 1e-6 * numeric,
+            "{power} {numeric}"
+        );
     }
 
     #[test]

@@ -384,7 +384,10 @@ fn no_emitter_and_empty_scene() {
         "n.gltf",
         doc.gltf(&format!("{SCENE},{materials}")).as_bytes(),
     );
-    assert_contains(&m, &["n.gltf: the scene has no emitting face", "and no light"]);
+    assert_contains(
+        &m,
+        &["n.gltf: the scene has no emitting face", "and no light"],
+    );
     let (m, _) = load_err(
         "empty.gltf",
         doc.gltf(r#""scenes":[{"nodes":[]}]"#).as_bytes(),
@@ -426,7 +429,11 @@ fn punctual_lights_are_placed_by_their_nodes_in_radiometric_units() {
     };
     // Under the room's scale 2 and translation (1, 2, 3): local (0, 1, 0) is (1, 4, 3); the
     // range is not scaled.
-    assert!(close(p.position, Vec3::new(1.0, 4.0, 3.0)), "{}", p.position);
+    assert!(
+        close(p.position, Vec3::new(1.0, 4.0, 3.0)),
+        "{}",
+        p.position
+    );
     assert!((p.intensity - glam::DVec3::new(1.0, 0.5, 0.25)).length() < 1e-12);
     assert_eq!(p.range, Some(10.0));
     let mcrad_scene_io::Light::Spot(s) = &lights[1] else {
