@@ -23,6 +23,8 @@ use mcrad_raycast::Bvh;
 use std::ops::ControlFlow;
 use std::path::Path;
 
+mod common;
+
 const SEEDS: u64 = 32;
 /// How far the reported variance may be from the observed one, as a factor either way.
 const FACTOR: f64 = 1.5;
@@ -106,35 +108,13 @@ fn reported_variances_match_the_spread_over_seeds() {
 /// errors of 1.
 #[test]
 fn one_patch_per_face_reports_its_stratified_error() {
-    use glam::Vec3;
-    use mcrad_scene_io::{Face, Material, Scene};
-    // The unit cube seen from inside, as scenes/furnace.obj, at rho 0.9.
-    let positions: Vec<Vec3> = (0..8)
-        .map(|k| Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32))
-        .collect();
-    let quads = [
-        [1, 3, 2, 0],
-        [6, 7, 5, 4],
-        [4, 5, 1, 0],
-        [3, 7, 6, 2],
-        [2, 6, 4, 0],
-        [5, 7, 3, 1],
-    ];
-    let faces = quads
-        .iter()
-        .enumerate()
-        .map(|(k, q)| Face {
-            vertices: q.to_vec(),
-            material: 0,
-            source: k as u32,
-        })
-        .collect();
-    let material = Material {
+    // A unit cube furnace, as scenes/furnace.obj, at rho 0.9.
+    let material = mcrad_scene_io::Material {
         name: "furnace".into(),
-        reflectance: Vec3::splat(0.9),
-        emission: Vec3::ONE,
+        reflectance: glam::Vec3::splat(0.9),
+        emission: glam::Vec3::ONE,
     };
-    let scene = Scene::new(positions, faces, vec![material]).unwrap().0;
+    let scene = common::cube(1.0, material, Vec::new());
     let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let seeds = 16u64;
