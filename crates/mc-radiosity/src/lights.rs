@@ -103,6 +103,32 @@ pub(crate) fn light_mesh<C: RayCaster>(
     })
 }
 
+/// The direct light of `config.lights` on `mesh` computed deterministically by the reference
+/// solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is wholly lit,
+/// fine quadrature where it is partly shadowed): no variance.
+pub(crate) fn exact_light_mesh<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &ScheduleConfig,
+) -> Lit {
+    let lights: Vec<Light> = config
+        .lights
+        .iter()
+        .map(|l| l.translated(-mesh.origin()))
+        .collect();
+    let direct = mcrad_reference::direct_irradiance(mesh, caster, &lights);
+    let mut lit = mesh.clone();
+    for (i, (patch, h)) in mesh.patches().iter().zip(&direct.irradiance).enumerate() {
+        let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * *h;
+        lit.set_emission(i, emission.as_vec3());
+    }
+    Lit {
+        mesh: lit,
+        variance: vec![DVec3::ZERO; mesh.patches().len()],
+        rays: direct.rays,
+    }
+}
+
 /// The mean irradiance of `n` stratified points of `patch` and the variance of that mean
 /// (`s² / n`), W/m² and (W/m²)² per channel.
 #[allow(clippy::too_many_arguments)]

@@ -174,7 +174,11 @@ macro_rules! methods {
                 if !config.lights.is_empty() {
                     // Lights without a surface: their direct light becomes emission
                     // (`crate::lights`), then the method runs without them.
-                    let lit = crate::lights::light_mesh(mesh, caster, config, cancel)?;
+                    let lit = if matches!(self, Method::Reference) {
+                        crate::lights::exact_light_mesh(mesh, caster, config)
+                    } else {
+                        crate::lights::light_mesh(mesh, caster, config, cancel)?
+                    };
                     let mut rest = config.clone();
                     rest.lights = Vec::new();
                     if rest.rays != u64::MAX {

@@ -93,6 +93,7 @@
 //! }
 //! ```
 
+mod direct;
 mod form_factor;
 mod matrix;
 mod quadrature;
@@ -100,6 +101,7 @@ mod shaft;
 mod solve;
 mod visibility;
 
+pub use direct::{Direct, FINE, PROBE, direct_irradiance};
 pub use form_factor::point_polygon_form_factor;
 pub use matrix::{FormFactorStats, FormFactors, form_factors};
 pub use solve::{Solution, solve};

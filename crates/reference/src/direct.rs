@@ -1,0 +1,298 @@
+//! The direct irradiance of lights without a surface (point, spot, sun), deterministically:
+//! what the reference solver adds as emission `rho H` (see [`direct_irradiance`]).
+//!
+//! For patch `i` of area `A_i` and a light, `H_i = (1/A_i) ∫_{P_i} E(x) max(0, n_i · w(x))
+//! V(x) dA` (W/m²), with `E(x) w(x)` the light's irradiance at `x` on a surface facing it
+//! ([`Light::sample`]) and `V` the visibility, tested at [`PROBE`] points of each patch triangle
+//! (Roberts' R2 low-discrepancy sequence folded into the triangle) with one shadow ray each:
+//! - every probe lit (and the light wholly in front of the patch): the unoccluded integral in
+//!   closed form where one exists: an isotropic point light without a range gives
+//!   `I Ω_i / A_i`, with `Ω_i` the solid angle the patch subtends at the light (since
+//!   `cos θ_x dA / r² = dΩ`); a sun gives `E n_i · w` (the cone's mean cosine is divided out
+//!   by [`Light::sample`]). Spot cones and range windows take the equal-weight rule on
+//!   [`FINE`] R2 points per triangle (the integrand is smooth there).
+//! - no probe lit: 0.
+//! - some lit: the equal-weight rule with visibility on [`FINE`] R2 points per triangle, a
+//!   sun's direction taken from the same sequence in its cone. Across a straight shadow edge
+//!   the error is about `2e-4` of the patch's irradiance (measured against the closed form of a
+//!   half-shadowed square; a lattice rule errs by up to half a cell along axis-aligned edges).
+//!
+//! A shadow that falls between all [`PROBE`] points (a thin pole far from the light) is missed:
+//! such a patch counts as wholly lit. Nothing is random: the answer depends on the mesh, the
+//! lights and the caster only.
+
+use glam::{DVec3, Vec3};
+use mcrad_meshing::Mesh;
+use mcrad_raycast::{RayCaster, SurfacePoint};
+use mcrad_scene_io::Light;
+use rayon::prelude::*;
+
+/// Points per triangle that probe the visibility.
+pub const PROBE: u32 = 256;
+/// Points per triangle where the light is partly hidden or has no closed form.
+pub const FINE: u32 = 16_384;
+
+/// What [`direct_irradiance`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Direct {
+    /// Per patch, the mean direct irradiance from all lights, W/m² per channel (`>= 0`).
+    pub irradiance: Vec<DVec3>,
+    /// Shadow rays cast.
+    pub rays: u64,
+    /// Patch-light pairs integrated in closed form (wholly lit, no spot cone or range).
+    pub exact: u64,
+    /// Patch-light pairs integrated by the centroid rule ([`FINE`]² sub-triangles each).
+    pub quadrature: u64,
+}
+
+/// The mean direct irradiance of each patch of `mesh` from `lights` (in the mesh's frame:
+/// translated by `-mesh.origin()`), with visibility from `caster` (ids = patch indices); see
+/// the [module documentation](self).
+pub fn direct_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, lights: &[Light]) -> Direct {
+    let positions = mesh.positions();
+    let far = far_distance(positions);
+    let per_patch: Vec<(DVec3, u64, u64, u64)> = (0..mesh.patches().len())
+        .into_par_iter()
+        .map(|i| {
+            let patch = &mesh.patches()[i];
+            let triangles: Vec<[DVec3; 3]> = mesh
+                .patch_triangles(patch)
+                .iter()
+                .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
+                .collect();
+            let target = Target {
+                id: i as u32,
+                normal: patch.normal,
+                triangles: &triangles,
+                far,
+            };
+            let mut out = (DVec3::ZERO, 0, 0, 0);
+            for light in lights {
+                let (h, rays, exact) = target.irradiance(light, caster);
+                out.0 += h;
+                out.1 += rays;
+                if exact {
+                    out.2 += 1;
+                } else if h != DVec3::ZERO {
+                    out.3 += 1;
+                }
+            }
+            out
+        })
+        .collect();
+    Direct {
+        irradiance: per_patch.iter().map(|p| p.0).collect(),
+        rays: per_patch.iter().map(|p| p.1).sum(),
+        exact: per_patch.iter().map(|p| p.2).sum(),
+        quadrature: per_patch.iter().map(|p| p.3).sum(),
+    }
+}
+
+/// One patch as a receiver: its triangles in f64, normal and id.
+struct Target<'a> {
+    id: u32,
+    normal: Vec3,
+    triangles: &'a [[DVec3; 3]],
+    far: f64,
+}
+
+impl Target<'_> {
+    /// `(H, shadow rays, closed form?)` for one light.
+    fn irradiance<C: RayCaster>(&self, light: &Light, caster: &C) -> (DVec3, u64, bool) {
+        let area: f64 = self.triangles.iter().map(triangle_area).sum();
+        if area <= 0.0 {
+            return (DVec3::ZERO, 0, false);
+        }
+        let (lit, rays) = self.probe(light, caster);
+        if lit == 0 {
+            return (DVec3::ZERO, rays, false);
+        }
+        let all = lit == rays && self.wholly_in_front(light);
+        if all && let Some(h) = self.closed_form(light, area) {
+            return (h, rays, true);
+        }
+        let (sum, more) = self.point_rule(light, caster, FINE, !all);
+        (sum / area, rays + more, false)
+    }
+
+    /// Probe points lit by `light`, and rays cast (one per point the light reaches at all).
+    fn probe<C: RayCaster>(&self, light: &Light, caster: &C) -> (u64, u64) {
+        let (mut lit, mut rays) = (0, 0);
+        for t in self.triangles {
+            for (k, (x, _)) in r2_points(t, PROBE).enumerate() {
+                if let Some(s) = light.sample(x.as_vec3(), direction_u(k)) {
+                    if self.normal.as_dvec3().dot(s.direction) <= 0.0 {
+                        continue;
+                    }
+                    rays += 1;
+                    if self.visible(x, &s, caster) {
+                        lit += 1;
+                    }
+                }
+            }
+        }
+        (lit, rays)
+    }
+
+    /// `∫ E max(0, n · w) V dA` (W per channel) by the equal-weight rule on `k` R2 points per
+    /// triangle, with visibility tested when `shadows`; and the rays cast.
+    fn point_rule<C: RayCaster>(
+        &self,
+        light: &Light,
+        caster: &C,
+        k: u32,
+        shadows: bool,
+    ) -> (DVec3, u64) {
+        let n = self.normal.as_dvec3();
+        let (mut sum, mut rays) = (DVec3::ZERO, 0);
+        for t in self.triangles {
+            for (j, (x, a)) in r2_points(t, k).enumerate() {
+                let Some(s) = light.sample(x.as_vec3(), direction_u(j)) else {
+                    continue;
+                };
+                let cos = n.dot(s.direction);
+                if cos <= 0.0 {
+                    continue;
+                }
+                if shadows {
+                    rays += 1;
+                    if !self.visible(x, &s, caster) {
+                        continue;
+                    }
+                }
+                sum += s.irradiance * cos * a;
+            }
+        }
+        (sum, rays)
+    }
+
+    /// The unoccluded mean irradiance in closed form, where one exists.
+    fn closed_form(&self, light: &Light, area: f64) -> Option<DVec3> {
+        match light {
+            Light::Point(p) if p.range.is_none() => {
+                let o = p.position.as_dvec3();
+                let omega: f64 = self
+                    .triangles
+                    .iter()
+                    .map(|t| solid_angle(t.map(|v| v - o)))
+                    .sum();
+                Some(p.intensity * omega / area)
+            }
+            Light::Sun(s) => {
+                let w = s.direction.as_dvec3().normalize();
+                Some(s.irradiance * self.normal.as_dvec3().dot(w).max(0.0))
+            }
+            _ => None,
+        }
+    }
+
+    /// Whether every point of the patch faces the light: a point light in front of the
+    /// patch's plane, a sun whose whole cone is above the horizon.
+    fn wholly_in_front(&self, light: &Light) -> bool {
+        let n = self.normal.as_dvec3();
+        match light {
+            Light::Point(p) => self.in_front(n, p.position.as_dvec3()),
+            Light::Spot(s) => self.in_front(n, s.point.position.as_dvec3()),
+            Light::Sun(s) => {
+                let w = s.direction.as_dvec3().normalize();
+                n.dot(w) > (0.5 * s.diameter).sin()
+            }
+        }
+    }
+
+    fn in_front(&self, n: DVec3, light: DVec3) -> bool {
+        self.triangles
+            .iter()
+            .flatten()
+            .all(|v| n.dot(light - *v) > 0.0)
+    }
+
+    fn visible<C: RayCaster>(&self, x: DVec3, s: &mcrad_scene_io::LightSample, caster: &C) -> bool {
+        let reach = if s.distance.is_finite() {
+            s.distance
+        } else {
+            self.far
+        };
+        let to = (x + s.direction * reach).as_vec3();
+        let from = SurfacePoint::new(x.as_vec3(), self.normal, self.id);
+        !caster.occluded(&from, &SurfacePoint::free(to))
+    }
+}
+
+/// `n` points of `t` (Roberts' R2 sequence in the unit square, folded into the triangle) with
+/// equal weights `area / n`, in a fixed order.
+fn r2_points(t: &[DVec3; 3], n: u32) -> impl Iterator<Item = (DVec3, f64)> + '_ {
+    let weight = triangle_area(t) / f64::from(n);
+    let (e1, e2) = (t[1] - t[0], t[2] - t[0]);
+    (0..n as usize).map(move |j| {
+        let [mut u, mut v] = direction_u(j);
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        (t[0] + e1 * u + e2 * v, weight)
+    })
+}
+
+/// The `k`-th point of Roberts' R2 sequence in `[0, 1)²`: where probe and quadrature points
+/// and a sun's direction in its cone are taken.
+fn direction_u(k: usize) -> [f64; 2] {
+    const A: [f64; 2] = [0.754_877_666_246_692_7, 0.569_840_290_998_053_2];
+    let k = k as f64 + 0.5;
+    A.map(|a| (k * a).fract().clamp(0.0, 1.0 - 1e-12))
+}
+
+/// The solid angle (sr) a triangle with corners `r` (relative to the viewpoint) subtends, by
+/// Van Oosterom and Strackee's formula.
+fn solid_angle(r: [DVec3; 3]) -> f64 {
+    let l = r.map(|v| v.length());
+    let numerator = r[0].dot(r[1].cross(r[2])).abs();
+    let denominator =
+        l[0] * l[1] * l[2] + r[0].dot(r[1]) * l[2] + r[0].dot(r[2]) * l[1] + r[1].dot(r[2]) * l[0];
+    2.0 * numerator.atan2(denominator)
+}
+
+fn triangle_area(t: &[DVec3; 3]) -> f64 {
+    0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
+}
+
+/// A distance that leaves the mesh's bounding box from any point in it: twice its diagonal
+/// (at least 1 scene unit).
+fn far_distance(positions: &[Vec3]) -> f64 {
+    let (lo, hi) = positions.iter().fold(
+        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    (2.0 * f64::from((hi - lo).length())).max(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn r2_points_lie_in_the_triangle_and_weigh_its_area() {
+        let t = [DVec3::ZERO, DVec3::X * 2.0, DVec3::Y * 3.0];
+        let points: Vec<_> = r2_points(&t, 4096).collect();
+        assert_eq!(points.len(), 4096);
+        let area: f64 = points.iter().map(|p| p.1).sum();
+        assert!((area - 3.0).abs() < 1e-12);
+        for (p, _) in &points {
+            assert!(p.x >= 0.0 && p.y >= 0.0 && p.x / 2.0 + p.y / 3.0 <= 1.0 + 1e-12);
+        }
+        let centroid = points.iter().map(|p| p.0 * p.1).sum::<DVec3>() / area;
+        assert!((centroid - DVec3::new(2.0 / 3.0, 1.0, 0.0)).length() < 1e-3);
+    }
+
+    #[test]
+    fn the_solid_angle_of_a_cube_face_is_a_sixth_of_the_sphere() {
+        // A face of the cube [-1, 1]³ seen from its centre, as two triangles.
+        let c = [
+            DVec3::new(-1.0, -1.0, 1.0),
+            DVec3::new(1.0, -1.0, 1.0),
+            DVec3::new(1.0, 1.0, 1.0),
+            DVec3::new(-1.0, 1.0, 1.0),
+        ];
+        let omega = solid_angle([c[0], c[1], c[2]]) + solid_angle([c[0], c[2], c[3]]);
+        assert!((omega - 4.0 * std::f64::consts::PI / 6.0).abs() < 1e-12);
+    }
+}
