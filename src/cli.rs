@@ -581,39 +581,9 @@ fn parse_fraction(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Parses `--sun X,Y,Z,E[,DIAM]`: a direction towards the sun (not zero), an irradiance
-/// `E >= 0` (W/m²) and an angular diameter in degrees in `[0, 90)` (0.53 by default).
+/// Parses `--sun X,Y,Z,E[,DIAM]` ([`mcrad_scene_io::Sun`]'s `FromStr`).
 fn parse_sun(s: &str) -> Result<mcrad_scene_io::Light, String> {
-    let usage = || format!("'{s}' is not X,Y,Z,E[,DIAM] (direction, W/m², degrees)");
-    let parts: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| usage())?;
-    if !(parts.len() == 4 || parts.len() == 5) || parts.iter().any(|x| !x.is_finite()) {
-        return Err(usage());
-    }
-    let direction = glam::DVec3::new(parts[0], parts[1], parts[2]);
-    if direction.length() == 0.0 {
-        return Err(format!("'{s}': the direction towards the sun is zero"));
-    }
-    if parts[3] < 0.0 {
-        return Err(format!(
-            "'{s}': the irradiance {} W/m² is negative",
-            parts[3]
-        ));
-    }
-    let degrees = parts.get(4).copied().unwrap_or(0.53);
-    if !(0.0..90.0).contains(&degrees) {
-        return Err(format!(
-            "'{s}': the angular diameter {degrees} degrees is not in [0, 90)"
-        ));
-    }
-    Ok(mcrad_scene_io::Light::Sun(mcrad_scene_io::Sun {
-        direction: direction.normalize().as_vec3(),
-        irradiance: glam::DVec3::splat(parts[3]),
-        diameter: degrees.to_radians(),
-    }))
+    s.parse().map(mcrad_scene_io::Light::Sun)
 }
 
 /// Parses a positive finite length (`--max-edge`, `--min-edge`).

@@ -320,6 +320,7 @@ fn ground_truth(
             seed: 0,
             out: picture.clone(),
             error: Some(error.clone()),
+            sun: None,
         })?;
     }
     Ok((

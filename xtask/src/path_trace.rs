@@ -30,6 +30,9 @@ pub struct PathTraceArgs {
     /// Each pixel's standard error [default: R.error.exr beside the picture]
     #[arg(long, value_name = "E.exr")]
     pub error: Option<PathBuf>,
+    /// The sun, as `mcrad solve --sun` takes it (added to the scene's own lights)
+    #[arg(long, value_name = "X,Y,Z,E[,DIAM]", allow_negative_numbers = true)]
+    pub sun: Option<mcrad_scene_io::Sun>,
 }
 
 /// `WxH`, e.g. `256x256`.
@@ -50,9 +53,14 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
         seed,
         out,
         error,
+        sun,
     } = args.clone();
     let error = error.unwrap_or_else(|| out.with_extension("error.exr"));
-    let loaded = mcrad_scene_io::load(&scene)
+    let options = mcrad_scene_io::LoadOptions {
+        lights: sun.into_iter().map(mcrad_scene_io::Light::Sun).collect(),
+        ..Default::default()
+    };
+    let loaded = mcrad_scene_io::load_with(&scene, &options)
         .with_context(|| format!("could not load {}", scene.display()))?;
     let mesh = Mesh::build(&loaded.scene, Subdivision::None)?;
     let bvh = mesh.caster()?;
@@ -64,7 +72,13 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
         seed,
     };
     let start = Instant::now();
-    let picture = path_trace(&mesh, &bvh, &camera, &options)?;
+    let lights: Vec<_> = loaded
+        .scene
+        .lights()
+        .iter()
+        .map(|l| l.translated(-mesh.origin()))
+        .collect();
+    let picture = path_trace(&mesh, &lights, &bvh, &camera, &options)?;
     let seconds = start.elapsed().as_secs_f64();
     mcrad_render::write_exr(&picture.radiance, &out)?;
     mcrad_render::write_exr(&picture.standard_error, &error)?;

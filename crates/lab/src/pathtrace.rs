@@ -16,6 +16,11 @@
 //! direction per steradian, the light sample scores `T rho (E_y / π) cos θ_x / (π (p_L + p_C))`
 //! and an emitter hit after a bounce `T (E / π) p_C / (p_C + p_L)`.
 //!
+//! Lights without a surface (point, spot, sun: [`Light`]) cannot be hit, so each path vertex
+//! samples every one of them once ([`Light::sample`], a sun's direction uniform in its cone) with
+//! a shadow ray and scores `T rho / π E_l max(0, n · w_l)`: the singular part of the light, no
+//! weighting needed.
+//!
 //! The standard error of a pixel is the sample standard deviation of its paths over
 //! `sqrt(samples)`: what the image error subtracts to judge a render against this picture
 //! ([`compare::image_error_against_noisy`](crate::compare::image_error_against_noisy)).
@@ -28,6 +33,7 @@ use mcrad_meshing::Mesh;
 use mcrad_random::Stream;
 use mcrad_raycast::{Ray, RayCaster, SurfacePoint};
 use mcrad_render::{Camera, Image};
+use mcrad_scene_io::Light;
 use rayon::prelude::*;
 use std::f64::consts::FRAC_1_PI;
 
@@ -80,6 +86,10 @@ pub enum PathTraceError {
 /// The scene as the path tracer sees it.
 struct Scene<'a> {
     mesh: &'a Mesh,
+    /// Lights without a surface, in the mesh's frame.
+    lights: &'a [Light],
+    /// A distance that leaves the scene from any point in it (scene units).
+    far: f64,
     /// Emitter triangles: (triangle, cumulative power share up to and including it).
     emitters: Vec<(usize, f64)>,
     triangles: Vec<[Vec3; 3]>,
@@ -88,7 +98,7 @@ struct Scene<'a> {
 }
 
 impl<'a> Scene<'a> {
-    fn new(mesh: &'a Mesh) -> Scene<'a> {
+    fn new(mesh: &'a Mesh, lights: &'a [Light]) -> Scene<'a> {
         let triangles = mesh.triangle_positions();
         let patches = mesh.patches();
         let mut emitters = Vec::new();
@@ -104,8 +114,14 @@ impl<'a> Scene<'a> {
         for e in &mut emitters {
             e.1 /= power;
         }
+        let (lo, hi) = mesh.positions().iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
         Scene {
             mesh,
+            lights,
+            far: (2.0 * f64::from((hi - lo).length())).max(1.0),
             emitters,
             triangles,
             power,
@@ -163,14 +179,16 @@ fn cosine_direction(n: Vec3, rng: &mut Stream) -> Vec3 {
         .as_vec3()
 }
 
-/// Renders `mesh` as seen by `camera` (in the mesh's local frame: translate a world camera by
-/// [`Mesh::origin`] with [`Camera::translated`]) by diffuse path tracing (see the
-/// [module documentation](self)), each pixel the mean of `samples_per_pixel` paths through
+/// Renders `mesh`, lit by its emitting patches and by `lights` (in the mesh's local frame:
+/// [`Light::translated`] by `-mesh.origin()`), as seen by `camera` (in the same frame: translate
+/// a world camera by [`Mesh::origin`] with [`Camera::translated`]) by diffuse path tracing (see
+/// the [module documentation](self)), each pixel the mean of `samples_per_pixel` paths through
 /// uniform points of its square.
 ///
 /// Errors: an empty image, or fewer than 2 paths per pixel.
 pub fn path_trace<C: RayCaster + Sync>(
     mesh: &Mesh,
+    lights: &[Light],
     caster: &C,
     camera: &Camera,
     options: &PathTraceOptions,
@@ -185,7 +203,7 @@ pub fn path_trace<C: RayCaster + Sync>(
     if options.samples_per_pixel < 2 {
         return Err(PathTraceError::TooFewSamples(options.samples_per_pixel));
     }
-    let scene = Scene::new(mesh);
+    let scene = Scene::new(mesh, lights);
     let n = options.samples_per_pixel as f64;
     let pixels: Vec<(Vec3, Vec3, u64)> = (0..u64::from(w) * u64::from(h))
         .into_par_iter()
@@ -283,6 +301,26 @@ fn radiance<C: RayCaster>(
                 }
             }
         }
+        // Lights without a surface: one shadow ray each.
+        for light in scene.lights {
+            let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
+                continue;
+            };
+            let cos = nx.as_dvec3().dot(s.direction);
+            if cos <= 0.0 {
+                continue;
+            }
+            *rays += 1;
+            let reach = if s.distance.is_finite() {
+                s.distance
+            } else {
+                scene.far
+            };
+            let to = (x.as_dvec3() + s.direction * reach).as_vec3();
+            if !caster.occluded(&SurfacePoint::new(x, nx, i as u32), &SurfacePoint::free(to)) {
+                radiance += throughput * rho * s.irradiance * (cos * FRAC_1_PI);
+            }
+        }
         // The bounce: BRDF rho/π times cos over the cosine density cos/π is rho.
         let mut survive = 1.0;
         if vertex >= ROULETTE_AFTER {
@@ -361,7 +399,7 @@ mod tests {
             samples_per_pixel: spp,
             seed,
         };
-        path_trace(mesh, &bvh, &camera, &options).unwrap()
+        path_trace(mesh, &[], &bvh, &camera, &options).unwrap()
     }
 
     #[test]
@@ -405,6 +443,154 @@ mod tests {
         }
     }
 
+    /// An open square `[-2, 2]²` at `z = 0` facing up, reflectance `rho`, seen from 1 above
+    /// looking straight down (60°: the picture is all square), lit by `lights`.
+    fn lit_ground(rho: f32, lights: &[Light], spp: u32) -> (PathTraced, Camera) {
+        let positions = vec![
+            Vec3::new(-2.0, -2.0, 0.0),
+            Vec3::new(2.0, -2.0, 0.0),
+            Vec3::new(2.0, 2.0, 0.0),
+            Vec3::new(-2.0, 2.0, 0.0),
+        ];
+        let faces = vec![Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }];
+        let material = Material {
+            name: "ground".into(),
+            reflectance: Vec3::splat(rho),
+            emission: Vec3::ZERO,
+        };
+        let scene = Input::new_lit(positions, faces, vec![material], lights.to_vec())
+            .unwrap()
+            .0;
+        let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 1.0), -Vec3::Z, Vec3::Y, 60.0)
+            .unwrap()
+            .translated(-mesh.origin().as_dvec3());
+        let lights: Vec<Light> = lights
+            .iter()
+            .map(|l| l.translated(-mesh.origin()))
+            .collect();
+        let options = PathTraceOptions {
+            width: 24,
+            height: 24,
+            samples_per_pixel: spp,
+            seed: 7,
+        };
+        (
+            path_trace(&mesh, &lights, &bvh, &camera, &options).unwrap(),
+            camera,
+        )
+    }
+
+    #[test]
+    fn the_sun_on_an_open_plane_shows_rho_e_sin_elevation_over_pi() {
+        // The sun's disk (0.53°) jitters n · w by about 5e-3 of it: per pixel and channel
+        // z = (L - exact) / SE, the mean z² over 1728 values within [0.7, 1.4].
+        use mcrad_scene_io::Sun;
+        let elevation = 40f64.to_radians();
+        let sun = Light::Sun(Sun {
+            direction: Vec3::new(elevation.cos() as f32, 0.0, elevation.sin() as f32),
+            irradiance: DVec3::new(500.0, 600.0, 700.0),
+            diameter: 0.53f64.to_radians(),
+        });
+        let rho = 0.4;
+        let (picture, _) = lit_ground(rho, &[sun], 16);
+        let exact =
+            DVec3::new(500.0, 600.0, 700.0) * (f64::from(rho) * elevation.sin() * FRAC_1_PI);
+        let mut z2 = 0.0;
+        for (l, se) in picture
+            .radiance
+            .pixels
+            .iter()
+            .zip(&picture.standard_error.pixels)
+        {
+            for c in 0..3 {
+                let (l, se) = (l[c] as f64, se[c] as f64);
+                assert!(se > 0.0 && se < 1e-2 * exact[c], "pixel spread {se}");
+                z2 += ((l - exact[c]) / se).powi(2);
+            }
+        }
+        let mean_z2 = z2 / (3 * picture.radiance.pixels.len()) as f64;
+        assert!((0.7..=1.4).contains(&mean_z2), "mean z² {mean_z2:.3}");
+    }
+
+    #[test]
+    fn a_point_light_shows_its_inverse_square_law_and_a_spot_its_cone() {
+        // A point light 2 above (0.3, 0.2): a ground point g shows rho I h / (pi r³); a pixel,
+        // the mean of that over its box (8 x 8 points): within 4 of its standard errors (its
+        // paths' spread is the box's spread of g) plus 1e-4 of it for the 64-point rule.
+        use mcrad_scene_io::{PointLight, SpotLight};
+        let (rho, intensity, h) = (0.5f32, 40.0, 2.0);
+        let position = Vec3::new(0.3, 0.2, h as f32);
+        let point = PointLight {
+            position,
+            intensity: DVec3::splat(intensity),
+            range: None,
+        };
+        let (picture, camera) = lit_ground(rho, &[Light::Point(point.clone())], 16);
+        let ground = |x: f32, y: f32| {
+            let ray = camera.ray(Vec2::new(x, y), 24, 24);
+            let t = -(ray.origin.z as f64) / ray.dir.z as f64;
+            (ray.origin.as_dvec3() + ray.dir.as_dvec3() * t).truncate()
+        };
+        let shown = |g: glam::DVec2| {
+            let d = position.as_dvec3().truncate() - g;
+            let r2 = d.length_squared() + h * h;
+            f64::from(rho) * intensity * h / (std::f64::consts::PI * r2 * r2.sqrt())
+        };
+        for y in 0..24 {
+            for x in 0..24 {
+                let mut exact = 0.0;
+                for k in 0..64 {
+                    let (u, v) = ((k % 8) as f32 + 0.5, (k / 8) as f32 + 0.5);
+                    exact += shown(ground(x as f32 + u / 8.0, y as f32 + v / 8.0)) / 64.0;
+                }
+                let p = (y * 24 + x) as usize;
+                let l = f64::from(picture.radiance.pixels[p].x);
+                let se = f64::from(picture.standard_error.pixels[p].x);
+                assert!(
+                    (l - exact).abs() < 4.0 * se + 1e-4 * exact,
+                    "pixel {x},{y}: {l} vs {exact} (se {se})"
+                );
+            }
+        }
+        let at = |x: u32, y: u32| ground(x as f32 + 0.5, y as f32 + 0.5);
+        // The same light as a spot pointing down and a little along +x, outer cone 10°: the
+        // ground beyond the cone's footprint is black (a pixel's box spans under 1.5°).
+        let axis = Vec3::new(0.1, 0.0, -1.0).normalize();
+        let spot = SpotLight {
+            point,
+            direction: axis,
+            inner: 5f64.to_radians(),
+            outer: 10f64.to_radians(),
+        };
+        let (picture, _) = lit_ground(rho, &[Light::Spot(spot)], 4);
+        let (mut dark, mut lit) = (0, 0);
+        for y in 0..24 {
+            for x in 0..24 {
+                let g = at(x, y).extend(0.0);
+                let to = (g - position.as_dvec3()).normalize();
+                let angle = to.dot(axis.as_dvec3()).clamp(-1.0, 1.0).acos();
+                let l = picture.radiance.pixels[(y * 24 + x) as usize].x;
+                if angle > 12f64.to_radians() {
+                    assert_eq!(l, 0.0, "pixel {x},{y} beyond the cone");
+                    dark += 1;
+                } else if angle < 4f64.to_radians() {
+                    assert!(l > 0.0, "pixel {x},{y} inside the cone");
+                    lit += 1;
+                }
+            }
+        }
+        assert!(
+            dark > 100 && lit > 10,
+            "{dark} dark, {lit} lit pixels tested"
+        );
+    }
+
     #[test]
     fn same_seed_same_picture_and_two_seeds_differ_within_their_errors() {
         let mesh = furnace(0.5, 1.0);
@@ -426,14 +612,14 @@ mod tests {
             seed: 0,
         };
         assert_eq!(
-            path_trace(&mesh, &bvh, &camera, &options(0, 4, 4)),
+            path_trace(&mesh, &[], &bvh, &camera, &options(0, 4, 4)),
             Err(PathTraceError::EmptyImage {
                 width: 0,
                 height: 4
             })
         );
         assert_eq!(
-            path_trace(&mesh, &bvh, &camera, &options(4, 4, 1)),
+            path_trace(&mesh, &[], &bvh, &camera, &options(4, 4, 1)),
             Err(PathTraceError::TooFewSamples(1))
         );
     }

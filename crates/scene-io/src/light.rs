@@ -93,6 +93,47 @@ impl PointLight {
     }
 }
 
+impl std::str::FromStr for Sun {
+    type Err = String;
+
+    /// `X,Y,Z,E[,DIAM]`: the direction towards the sun (any non-zero length), the irradiance
+    /// `E >= 0` (W/m², all channels) on a surface facing it, and the angular diameter in
+    /// degrees in `[0, 90)` (0.53 by default; 0 is a single direction). The error says which
+    /// part is wrong.
+    fn from_str(s: &str) -> Result<Sun, String> {
+        let usage = || format!("'{s}' is not X,Y,Z,E[,DIAM] (direction, W/m², degrees)");
+        let parts: Vec<f64> = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| usage())?;
+        if !(parts.len() == 4 || parts.len() == 5) || parts.iter().any(|x| !x.is_finite()) {
+            return Err(usage());
+        }
+        let direction = DVec3::new(parts[0], parts[1], parts[2]);
+        if direction.length() == 0.0 {
+            return Err(format!("'{s}': the direction towards the sun is zero"));
+        }
+        if parts[3] < 0.0 {
+            return Err(format!(
+                "'{s}': the irradiance {} W/m² is negative",
+                parts[3]
+            ));
+        }
+        let degrees = parts.get(4).copied().unwrap_or(0.53);
+        if !(0.0..90.0).contains(&degrees) {
+            return Err(format!(
+                "'{s}': the angular diameter {degrees} degrees is not in [0, 90)"
+            ));
+        }
+        Ok(Sun {
+            direction: direction.normalize().as_vec3(),
+            irradiance: DVec3::splat(parts[3]),
+            diameter: degrees.to_radians(),
+        })
+    }
+}
+
 impl SpotLight {
     /// The angular falloff `f(cos theta)` (see [`SpotLight`]), in `[0, 1]`.
     pub fn falloff(&self, cos_theta: f64) -> f64 {
