@@ -22,6 +22,7 @@ const PILOT_TAG: u64 = 0xada0_0000;
 const GATHER_TAG: u64 = 0xada1_0000;
 const SHADOW_TAG: u64 = 0xada2_0000;
 const PROXIMITY_TAG: u64 = 0xada3_0000;
+const LIGHT_TAG: u64 = 0xada4_0000;
 
 /// Settings of [`refine`].
 #[derive(Debug, Clone, PartialEq)]
@@ -52,6 +53,10 @@ pub struct AdaptiveConfig {
     pub seed: u64,
     /// The pilot shooting's unshot threshold (fraction of the emitted power).
     pub unshot_threshold: f64,
+    /// Lights without a surface (the scene's frame), as in [`ScheduleConfig::lights`]: the
+    /// pilot and every round solve with their direct light, and an element across which their
+    /// shadows change is marked as for an emitting face's.
+    pub lights: Vec<mcrad_scene_io::Light>,
 }
 
 impl Default for AdaptiveConfig {
@@ -69,6 +74,7 @@ impl Default for AdaptiveConfig {
             tolerance: 0.02,
             seed: 0,
             unshot_threshold: 1e-3,
+            lights: Vec::new(),
         }
     }
 }
@@ -153,7 +159,9 @@ impl Refined {
 ///   to points on the emitters (drawn by power), some reach the emitter and some are blocked,
 ///   and the direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
 ///   irradiance estimate, `f` its visible share), is more than `tolerance` of the element's
-///   luminance: shadow boundaries and the contact lines of objects resting on a surface; or
+///   luminance: shadow boundaries and the contact lines of objects resting on a surface
+///   (lights without a surface, [`AdaptiveConfig::lights`]: the same contrast from the shadow
+///   rays that estimate their direct light, which the pilot and every round solve with); or
 /// - **light reflected from close by**: of `proximity_rays` cosine-distributed rays from
 ///   uniform points of the element, those that hit a surface nearer than the element's size
 ///   `h = sqrt(A)` (a share `q` of them) bring the reflected irradiance `H_near`, all of them
@@ -198,9 +206,10 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     };
     let pilot_seconds = config.seconds.map(|s| s / 3.0);
     let mut rays = 0;
+    let bvh = caster(mesh.mesh())?;
+    let mut lit = light(mesh.mesh(), &bvh, config, pilot_rays, 0)?;
     let mut estimate = {
-        let bvh = caster(mesh.mesh())?;
-        let ctx = Context::new(mesh.mesh(), &bvh);
+        let ctx = Context::new(lit.as_ref().map_or(mesh.mesh(), |l| &l.mesh), &bvh);
         let s = shoot(
             &ctx,
             &ShootConfig {
@@ -221,8 +230,15 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             },
         )?;
         rays += s.stats.rays;
-        s.estimate
+        match &lit {
+            Some(l) => {
+                rays += l.rays;
+                l.include(s.estimate)?
+            }
+            None => s.estimate,
+        }
     };
+    drop(bvh);
     let mut pooled = estimate.clone();
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
@@ -249,7 +265,8 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         let bvh = caster(mesh.mesh())?;
         let ctx = Context::new(mesh.mesh(), &bvh);
         let key = StreamKey::new(derive_seed(config.seed, SHADOW_TAG)).pass(u64::from(round));
-        let marks = marks(&ctx, &estimate, config, key);
+        let penumbra = lit.as_ref().map(|l| l.penumbra.as_slice());
+        let marks = marks(&ctx, &estimate, config, key, penumbra);
         let mut order: Vec<(f64, u32)> = marks
             .iter()
             .enumerate()
@@ -296,7 +313,8 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         )
         .map_err(Error::from)?;
         let bvh = caster(mesh.mesh())?;
-        let ctx = Context::new(mesh.mesh(), &bvh);
+        lit = light(mesh.mesh(), &bvh, config, round_rays, u64::from(round) + 1)?;
+        let ctx = Context::new(lit.as_ref().map_or(mesh.mesh(), |l| &l.mesh), &bvh);
         // Half the round's rays gather the indirect light, half sample the emitters (two rays a
         // sample).
         let per_patch = (round_rays / 2 / mesh.len() as u64).clamp(8, 1024) as u32;
@@ -306,7 +324,12 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             samples_per_patch: (per_patch / 2).max(2),
             sampling: DirectSampling::EmittersAndCosine,
         };
-        let gathered = two_pass_split(&ctx, &inherited, &split, key)?;
+        let mut gathered = two_pass_split(&ctx, &inherited, &split, key)?;
+        if let Some(l) = &lit {
+            rays += l.rays;
+            stats.rays += l.rays;
+            gathered = l.include(gathered)?;
+        }
         stats.rays += gathered.rays();
         rays += gathered.rays();
         // A leaf kept as it was pools this round's estimate with its earlier ones; a child
@@ -466,12 +489,35 @@ fn luminance_sigma(v: DVec3) -> f64 {
         .sum()
 }
 
-/// The marks of every element of `ctx`'s mesh for the solution `estimate`.
+/// `mesh` lit by `config.lights` ([`crate::lights::light_mesh`] with a budget of `rays`, its
+/// streams keyed by the seed and `stage`); `None` without lights.
+fn light<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &AdaptiveConfig,
+    rays: u64,
+    stage: u64,
+) -> Result<Option<crate::lights::Lit>, Error> {
+    if config.lights.is_empty() {
+        return Ok(None);
+    }
+    let schedule = crate::schedule::ScheduleConfig {
+        rays,
+        seed: derive_seed(config.seed, LIGHT_TAG + stage),
+        lights: config.lights.clone(),
+        ..Default::default()
+    };
+    crate::lights::light_mesh(mesh, caster, &schedule, None).map(Some)
+}
+
+/// The marks of every element of `ctx`'s mesh for the solution `estimate` (`penumbra`: the
+/// lights' shadow contrast per element, [`crate::lights::Lit::penumbra`]).
 fn marks<C: RayCaster>(
     ctx: &Context<C>,
     estimate: &Estimate,
     config: &AdaptiveConfig,
     key: StreamKey,
+    penumbra: Option<&[f64]>,
 ) -> Vec<Mark> {
     let mesh = ctx.mesh();
     let patches = mesh.patches();
@@ -515,6 +561,20 @@ fn marks<C: RayCaster>(
                 let mut stream = key.item(i as u64).stream();
                 visibility_contrast(ctx, &lights, i, lum[i], config.shadow_rays, &mut stream)
             })
+            .collect();
+        mark_contrasts(&mut marks, &contrast, &size, config.tolerance, |m| {
+            m.visibility = true
+        });
+    }
+    // Visibility changes of the lights without a surface, from the shadow rays that lit the
+    // mesh.
+    if config.shadow_rays > 0
+        && let Some(penumbra) = penumbra
+    {
+        let contrast: Vec<f64> = penumbra
+            .iter()
+            .zip(&lum)
+            .map(|(p, l)| p / l.max(1e-300))
             .collect();
         mark_contrasts(&mut marks, &contrast, &size, config.tolerance, |m| {
             m.visibility = true

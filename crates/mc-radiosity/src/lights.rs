@@ -40,6 +40,11 @@ pub(crate) struct Lit {
     pub(crate) variance: Vec<DVec3>,
     /// Shadow rays cast.
     pub(crate) rays: u64,
+    /// Per patch, how much of the lights' direct light its shadows vary across it, as
+    /// luminance of reflected light (W/m²): `rho D min(f, 1 - f)` with `D` the unoccluded mean
+    /// irradiance and `f` its visible share, 0 where every point agrees (what the adaptive
+    /// refinement's visibility test measures for emitting faces).
+    pub(crate) penumbra: Vec<f64>,
 }
 
 /// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches lights)))` in `[2, 16]`
@@ -74,11 +79,11 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let far = far_distance(mesh);
     let seed = config.seed;
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
-    let moments: Vec<(DVec3, DVec3)> = (0..patches.len())
+    let moments: Vec<Moments> = (0..patches.len())
         .into_par_iter()
         .map(|i| {
             if cancelled() {
-                return (DVec3::ZERO, DVec3::ZERO);
+                return Moments::default();
             }
             let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, 0);
             let normal = patches[i].normal;
@@ -90,16 +95,24 @@ pub(crate) fn light_mesh<C: RayCaster>(
     }
     let mut lit = mesh.clone();
     let mut variance = Vec::with_capacity(patches.len());
-    for (i, (mean, var)) in moments.into_iter().enumerate() {
+    let mut penumbra = Vec::with_capacity(patches.len());
+    for (i, m) in moments.into_iter().enumerate() {
         let rho = patches[i].reflectance.as_dvec3();
-        let emission = patches[i].emission.as_dvec3() + rho * mean;
+        let emission = patches[i].emission.as_dvec3() + rho * m.mean;
         lit.set_emission(i, emission.as_vec3());
-        variance.push(rho * rho * var);
+        variance.push(rho * rho * m.variance);
+        let f = if m.unoccluded > 0.0 {
+            m.visible / m.unoccluded
+        } else {
+            1.0
+        };
+        penumbra.push(LUMINANCE.dot(rho) * m.unoccluded * f.min(1.0 - f));
     }
     Ok(Lit {
         mesh: lit,
         variance,
         rays: u64::from(n) * patches.len() as u64 * lights.len() as u64,
+        penumbra,
     })
 }
 
@@ -126,11 +139,28 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
         mesh: lit,
         variance: vec![DVec3::ZERO; mesh.patches().len()],
         rays: direct.rays,
+        penumbra: vec![0.0; mesh.patches().len()],
     }
 }
 
+/// Luminance weights of linear RGB (Rec. 709).
+const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
+
+/// What the points of one patch saw of the lights.
+#[derive(Debug, Clone, Copy, Default)]
+struct Moments {
+    /// Mean irradiance, W/m² per channel.
+    mean: DVec3,
+    /// Variance of that mean, (W/m²)² per channel.
+    variance: DVec3,
+    /// Mean luminance of the irradiance the points would receive unoccluded, W/m².
+    unoccluded: f64,
+    /// Mean luminance of the irradiance they receive, W/m².
+    visible: f64,
+}
+
 /// The mean irradiance of `n` stratified points of `patch` and the variance of that mean
-/// (`s² / n`), W/m² and (W/m²)² per channel.
+/// (`s² / n`), W/m² and (W/m²)² per channel, with the luminance it would have unoccluded.
 #[allow(clippy::too_many_arguments)]
 fn irradiance_moments<C: RayCaster>(
     patch: usize,
@@ -141,9 +171,10 @@ fn irradiance_moments<C: RayCaster>(
     caster: &C,
     far: f64,
     rng: &mut Stream,
-) -> (DVec3, DVec3) {
+) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
     let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
+    let mut unoccluded = 0.0;
     let nd = normal.as_dvec3();
     for a in 0..m {
         for b in 0..m {
@@ -166,6 +197,7 @@ fn irradiance_moments<C: RayCaster>(
                 } else {
                     far
                 };
+                unoccluded += LUMINANCE.dot(s.irradiance * cos);
                 let target = (x.as_dvec3() + s.direction * reach).as_vec3();
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
@@ -183,7 +215,12 @@ fn irradiance_moments<C: RayCaster>(
     } else {
         DVec3::ZERO
     };
-    (mean, var)
+    Moments {
+        mean,
+        variance: var,
+        unoccluded: unoccluded / count,
+        visible: LUMINANCE.dot(mean),
+    }
 }
 
 /// A distance that leaves the mesh's bounding box from any point in it: twice its diagonal
@@ -218,6 +255,16 @@ impl Lit {
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         Ok(solution)
+    }
+
+    /// `estimate` (of the lit mesh) with the light's variance and rays included.
+    pub(crate) fn include(&self, estimate: Estimate) -> Result<Estimate, Error> {
+        let variance = estimate.variance().map(|v| self.add_variance(v));
+        Ok(Estimate::new(
+            estimate.radiosity().to_vec(),
+            variance,
+            estimate.rays() + self.rays,
+        )?)
     }
 
     fn add_variance(&self, v: &[DVec3]) -> Vec<DVec3> {

@@ -203,24 +203,6 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
             return Err(Error::StateMesh { saved, now: 0 });
         }
-        (Input::Scene(scene), MeshPlan::Adaptive { .. }, None)
-            if !deterministic && !scene.lights().is_empty() && problem.resume.is_none() =>
-        {
-            // Adaptive refinement does not see lights without a surface yet: the uniform
-            // starting mesh instead, said once.
-            warnings.push(
-                "the scene has lights without a surface (point, spot, sun): adaptive meshing \
-                 does not refine for them yet, the uniform mesh is used"
-                    .to_string(),
-            );
-            let mesh = Mesh::build(scene, Subdivision::default_for(scene)).map_err(|source| {
-                Error::Mesh {
-                    source,
-                    max_edge: None,
-                }
-            })?;
-            (mesh, None, None)
-        }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
             let (mesh, refined, history) =
                 adaptive_mesh(scene, settings, &budget, config.rays, &mut warnings)?;
@@ -526,6 +508,7 @@ fn adaptive_mesh(
         },
         seconds: budget.seconds.map(|t| t / 4.0),
         seed: settings.seed,
+        lights: scene.lights().to_vec(),
         ..Default::default()
     };
     let refined = refine(&mut mesh, &config)?;

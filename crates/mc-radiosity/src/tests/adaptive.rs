@@ -404,3 +404,71 @@ fn pooling_the_refinement_with_a_solve_is_unbiased_and_less_noisy() {
         "squared error pooled {error_pool}, shooting alone {error_fresh}"
     );
 }
+
+#[test]
+fn a_suns_shadow_edge_is_refined_and_its_even_dark_is_not() {
+    // The floor and blocker of `shadow_scene` without the area light, lit by a sun straight
+    // above (0.53°): the blocker's shadow edge on the floor is x = 2.15 (blurred by 0.014).
+    // The elements the edge crosses are refined to the finest size; the dark floor far from
+    // it (x < 1.5) is not. Three seeds, each must pass.
+    use mcrad_scene_io::{Light, Sun};
+    let base = shadow_scene();
+    let sun = Light::Sun(Sun {
+        direction: Vec3::Z,
+        irradiance: glam::DVec3::splat(500.0),
+        diameter: 0.53f64.to_radians(),
+    });
+    let faces: Vec<_> = base
+        .faces()
+        .iter()
+        .filter(|f| f.material == 0)
+        .cloned()
+        .collect();
+    let scene = Scene::new_lit(
+        base.positions().to_vec(),
+        faces,
+        vec![material("white", 0.5, 0.0)],
+        vec![sun.clone()],
+    )
+    .unwrap()
+    .0;
+    for seed in 1..=3 {
+        let bounds = AdaptiveBounds {
+            min_edge: 0.05,
+            max_patches: 100_000,
+        };
+        let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
+        let config = AdaptiveConfig {
+            lights: vec![sun.clone()],
+            ..config(seed)
+        };
+        let r = refine(&mut mesh, &config).unwrap();
+        assert!(r.rounds[0].visibility > 0, "seed {seed}: {:?}", r.rounds);
+        let floor: Vec<_> = mesh
+            .mesh()
+            .patches()
+            .iter()
+            .filter(|p| p.face == 0)
+            .collect();
+        let across: Vec<_> = floor
+            .iter()
+            .filter(|p| f64::from((p.centroid.x - 2.15).abs()) < 0.5 * p.area.sqrt())
+            .collect();
+        assert!(!across.is_empty());
+        for p in &across {
+            assert!(
+                p.area <= 0.0625 * 0.0625 * 1.001,
+                "seed {seed}: an element of area {} at {} across the sun's shadow edge",
+                p.area,
+                p.centroid
+            );
+        }
+        for p in floor.iter().filter(|p| p.centroid.x < 1.5) {
+            assert_eq!(
+                p.area, 0.25,
+                "seed {seed}: split in the dark at {}",
+                p.centroid
+            );
+        }
+    }
+}
