@@ -5,11 +5,18 @@
 //! the answer's radiosity (W/m²) and `rho_i` the reflectance of patch `i`:
 //!
 //! ```text
-//! emitted   = sum_i A_i E_i                                               (exact)
+//! emitted   = sum_i A_i E_i  +  sum_{i: rho_i > 0} A_i D_i                (exact, estimated)
 //! absorbed  = sum_{i: rho_i > 0} A_i (1 - rho_i) / rho_i (B_i - E_i)  +  sum_i A_i B_i g_i
 //! escaped   = sum_i A_i B_i e_i
 //! balance   = emitted - absorbed - escaped                                (0 in expectation)
 //! ```
+//!
+//! `D_i` is the mean irradiance that lights without a surface (point, spot, sun) give patch
+//! `i` directly: their power enters the scene where it lands (light that misses the scene is
+//! not counted, and light landing on a patch that reflects nothing in a channel enters and is
+//! absorbed there at once, so it is left out of both). The probe estimates it with its own
+//! shadow rays (one per probe ray of the patch and light, from uniform points), independent of
+//! the answer; its variance adds to the balance's.
 //!
 //! The first term of `absorbed` is the light absorbed on the front of the patches that reflect:
 //! `B_i - E_i = rho_i H_i` is the reflected part of the radiosity, `H_i` the incident
@@ -66,7 +73,8 @@ use mcrad_combine::Estimate;
 use mcrad_mc_radiosity::{RayFates, ray_fates};
 use mcrad_meshing::Mesh;
 use mcrad_random::derive_seed;
-use mcrad_raycast::RayCaster;
+use mcrad_raycast::{RayCaster, SurfacePoint};
+use mcrad_scene_io::Light;
 use serde::Serialize;
 
 /// Standard errors of the balance beyond which a run warns.
@@ -75,6 +83,8 @@ pub const CLOSURE_SIGMAS: f64 = 4.0;
 /// The tag of the probe's random streams (derived from the run's seed: see
 /// [`mcrad_random::derive_seed`]), distinct from every method's.
 const PROBE_TAG: u64 = 0x0063_6c6f_7375_7265; // "closure" in ASCII
+/// The tag of the probe's shadow-ray streams towards the lights.
+const LIGHT_TAG: u64 = 0x0063_6c6f_7375_7266;
 
 /// Where a run's emitted power went, per RGB channel (W), and whether it balances (see the
 /// module's maths in the crate source, `closure.rs`). Written under `"closure"` in `--stats`.
@@ -195,9 +205,102 @@ pub(crate) fn probe<C: RayCaster>(mesh: &Mesh, caster: &C, rays: Vec<u32>, seed:
     ray_fates(mesh, caster, rays, derive_seed(seed, PROBE_TAG))
 }
 
+/// Per patch, the mean direct irradiance `D_i` from `lights` (the scene's frame) and the
+/// variance of that mean (W/m² and (W/m²)² per channel): `rays[i]` uniform points of patch
+/// `i`, one shadow ray each per light, on the closure's own streams (from `seed`).
+pub(crate) fn light_delivery<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    lights: &[Light],
+    rays: &[u32],
+    seed: u64,
+) -> Vec<(DVec3, DVec3)> {
+    use rayon::prelude::*;
+    if lights.is_empty() {
+        return vec![(DVec3::ZERO, DVec3::ZERO); mesh.patches().len()];
+    }
+    let lights: Vec<Light> = lights
+        .iter()
+        .map(|l| l.translated(-mesh.origin()))
+        .collect();
+    let positions = mesh.positions();
+    let (lo, hi) = positions.iter().fold(
+        (glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let far = (2.0 * f64::from((hi - lo).length())).max(1.0);
+    let seed = derive_seed(seed, LIGHT_TAG);
+    (0..mesh.patches().len())
+        .into_par_iter()
+        .map(|i| {
+            let patch = &mesh.patches()[i];
+            let triangles: Vec<[glam::DVec3; 3]> = mesh
+                .patch_triangles(patch)
+                .iter()
+                .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
+                .collect();
+            let areas: Vec<f64> = triangles
+                .iter()
+                .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+                .collect();
+            let total: f64 = areas.iter().sum();
+            let n = rays[i].max(2);
+            let mut rng = mcrad_random::Stream::new(seed, 0, i as u64, 0);
+            let normal = patch.normal.as_dvec3();
+            let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
+            for _ in 0..n {
+                let mut pick = rng.uniform_f64() * total;
+                let t = areas
+                    .iter()
+                    .position(|&a| {
+                        pick -= a;
+                        pick < 0.0
+                    })
+                    .unwrap_or(areas.len() - 1);
+                let (r1, r2) = (rng.uniform_f64().sqrt(), rng.uniform_f64());
+                let [a, b, c] = triangles[t];
+                let x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2);
+                let mut h = DVec3::ZERO;
+                for light in &lights {
+                    let u = [rng.uniform_f64(), rng.uniform_f64()];
+                    let Some(s) = light.sample(x.as_vec3(), u) else {
+                        continue;
+                    };
+                    let cos = normal.dot(s.direction);
+                    if cos <= 0.0 {
+                        continue;
+                    }
+                    let reach = if s.distance.is_finite() {
+                        s.distance
+                    } else {
+                        far
+                    };
+                    let to = (x + s.direction * reach).as_vec3();
+                    let from = SurfacePoint::new(x.as_vec3(), patch.normal, i as u32);
+                    if !caster.occluded(&from, &SurfacePoint::free(to)) {
+                        h += s.irradiance * cos;
+                    }
+                }
+                sum += h;
+                sum2 += h * h;
+            }
+            let k = f64::from(n);
+            let mean = sum / k;
+            let var = ((sum2 - sum * mean) / (k - 1.0)).max(DVec3::ZERO) / k;
+            (mean, var)
+        })
+        .collect()
+}
+
 /// The closure of `estimate` (radiosity W/m² and variance per patch of `mesh`) with what the
-/// probe saw (the maths in the module documentation).
-pub(crate) fn closure(mesh: &Mesh, estimate: &Estimate, probe: &Probe) -> Closure {
+/// probe saw and the lights' direct irradiance per patch (`light`: mean and its variance,
+/// [`light_delivery`]; the maths in the module documentation).
+pub(crate) fn closure(
+    mesh: &Mesh,
+    estimate: &Estimate,
+    probe: &Probe,
+    light: &[(DVec3, DVec3)],
+) -> Closure {
     let variance = estimate.variance();
     let (mut emitted, mut absorbed, mut escaped, mut var) =
         (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
@@ -213,7 +316,11 @@ pub(crate) fn closure(mesh: &Mesh, estimate: &Estimate, probe: &Probe) -> Closur
             rho.to_array()
                 .map(|r| if r > 0.0 { (1.0 - r) / r } else { 0.0 }),
         );
-        emitted += area * e;
+        // the lights' power enters where a channel reflects
+        let reflects = DVec3::from(rho.to_array().map(|r| f64::from(u8::from(r > 0.0))));
+        let (d, d_var) = light.get(i).copied().unwrap_or_default();
+        emitted += area * (e + reflects * d);
+        var += area * area * reflects * d_var;
         absorbed += area * (a * (b - e) + b * sunk);
         escaped += area * b * esc;
         if let Some(v) = variance {
@@ -260,7 +367,7 @@ mod tests {
         );
         let seen = probe(&answer.mesh, &answer.bvh, rays, 11);
         assert!(seen.escaped.iter().all(|&e| e == 0), "a closed furnace");
-        let honest = closure(&answer.mesh, &answer.estimate, &seen);
+        let honest = closure(&answer.mesh, &answer.estimate, &seen, &[]);
         assert_eq!(honest.warning(), None, "{honest:?}");
         let e = &answer.estimate;
         let high = Estimate::new(
@@ -269,7 +376,7 @@ mod tests {
             e.rays(),
         )
         .unwrap();
-        let biased = closure(&answer.mesh, &high, &seen);
+        let biased = closure(&answer.mesh, &high, &seen, &[]);
         // B 10% high: absorbed = sum A (1 - rho) / rho (1.1 B - E) = 1.2 emitted
         let expected = -0.2 * biased.emitted[0];
         assert!((biased.balance[0] - expected).abs() < 0.02 * expected.abs());

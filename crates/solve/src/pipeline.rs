@@ -364,8 +364,10 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             estimate.radiosity(),
             crate::closure::probe_budget(piece_rays, mesh.patches().len()),
         );
+        let light =
+            crate::closure::light_delivery(&mesh, &bvh, &config.lights, &probe_rays, config.seed);
         let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
-        crate::closure::closure(&mesh, &estimate, &probe)
+        crate::closure::closure(&mesh, &estimate, &probe, &light)
     });
     if let Some(c) = &closure {
         warnings.extend(c.warning());
