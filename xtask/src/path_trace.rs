@@ -62,6 +62,7 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
         height,
         samples_per_pixel: spp,
         seed,
+        sky: loaded.scene.sky().cloned(),
     };
     let start = Instant::now();
     let picture = path_trace(&mesh, &bvh, &camera, &options)?;

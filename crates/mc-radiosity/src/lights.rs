@@ -12,10 +12,15 @@
 //! emitters. The estimate's variance `rho_i² s_i² / n` (`s_i²` the sample variance of the
 //! points' irradiance, conservative for stratified points) adds to every reported variance of
 //! `B_i`; the noise it carries on to other patches through reflection, averaged over many
-//! points, is not counted. Rays escaping the scene see nothing (where an environment light
-//! would be read).
+//! points, is not counted.
+//!
+//! The sky ([`mcrad_scene_io::Sky`]) joins the same pass: at each point its own rays
+//! (`crate::sky`: cosine for a uniform sky, cosine and the map's luminance by the balance
+//! heuristic for a map) add their estimate of `H_sky` to the point's irradiance, so its
+//! variance is in `s_i²` with the lights'.
 
 use crate::error::Error;
+use crate::method::StopReason;
 use crate::schedule::{Observer, ScheduleConfig, Solution, Step};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
@@ -42,14 +47,15 @@ pub(crate) struct Lit {
     pub(crate) rays: u64,
 }
 
-/// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches lights)))` in `[2, 16]`
-/// (a quarter of the budget at most, unless the mesh is too large for 4 points a patch); 64
+/// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches rays)))` in `[2, 16]`,
+/// `rays` the shadow rays per point (one per light, and the sky's own: a uniform sky 4, a map
+/// 8); a quarter of the budget at most, unless the mesh is too large for 4 points a patch; 64
 /// without a budget.
-pub(crate) fn points_per_patch(budget: u64, patches: usize, lights: usize) -> u32 {
+pub(crate) fn points_per_patch(budget: u64, patches: usize, rays: usize) -> u32 {
     if budget == u64::MAX {
         return 64;
     }
-    let per = budget as f64 / (4.0 * patches.max(1) as f64 * lights.max(1) as f64);
+    let per = budget as f64 / (4.0 * patches.max(1) as f64 * rays.max(1) as f64);
     let m = per.sqrt().floor().clamp(2.0, 16.0) as u32;
     m * m
 }
@@ -68,8 +74,10 @@ pub(crate) fn light_mesh<C: RayCaster>(
         .iter()
         .map(|l| l.translated(-mesh.origin()))
         .collect();
+    let sky = config.sky.as_ref().filter(|s| !s.is_dark());
+    let sky_rays = crate::sky::rays_per_point(sky) as usize;
     let patches = mesh.patches();
-    let n = points_per_patch(config.rays, patches.len(), lights.len());
+    let n = points_per_patch(config.rays, patches.len(), lights.len() + sky_rays);
     let sampler = SurfaceSampler::new(mesh);
     let far = far_distance(mesh);
     let seed = config.seed;
@@ -82,7 +90,11 @@ pub(crate) fn light_mesh<C: RayCaster>(
             }
             let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, 0);
             let normal = patches[i].normal;
-            irradiance_moments(i, normal, n, &lights, &sampler, caster, far, &mut rng)
+            let sources = Sources {
+                lights: &lights,
+                sky,
+            };
+            irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
         })
         .collect();
     if cancelled() {
@@ -99,8 +111,14 @@ pub(crate) fn light_mesh<C: RayCaster>(
     Ok(Lit {
         mesh: lit,
         variance,
-        rays: u64::from(n) * patches.len() as u64 * lights.len() as u64,
+        rays: u64::from(n) * patches.len() as u64 * (lights.len() + sky_rays) as u64,
     })
+}
+
+/// What lights the patches directly: the lights (in the mesh's frame) and the sky.
+struct Sources<'a> {
+    lights: &'a [Light],
+    sky: Option<&'a mcrad_scene_io::Sky>,
 }
 
 /// The mean irradiance of `n` stratified points of `patch` and the variance of that mean
@@ -110,7 +128,7 @@ fn irradiance_moments<C: RayCaster>(
     patch: usize,
     normal: Vec3,
     n: u32,
-    lights: &[Light],
+    sources: &Sources,
     sampler: &SurfaceSampler,
     caster: &C,
     far: f64,
@@ -127,7 +145,10 @@ fn irradiance_moments<C: RayCaster>(
             ];
             let x = sampler.point2(patch, u);
             let mut h = DVec3::ZERO;
-            for light in lights {
+            if let Some(sky) = sources.sky {
+                h += crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
+            }
+            for light in sources.lights {
                 let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
                     continue;
                 };
@@ -192,6 +213,38 @@ impl Lit {
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         Ok(solution)
+    }
+
+    /// When nothing emits after the lights (no emitting patch, and no light or sky reached
+    /// any patch, e.g. a closed room under the sky), the exact answer `B = 0` as one step shown
+    /// to `observer` (the lights' rays counted, variance 0); `None` otherwise.
+    pub(crate) fn dark(&self, observer: &mut Observer) -> Option<Result<Solution, Error>> {
+        let patches = self.mesh.patches();
+        if patches.iter().any(|p| p.emission.max_element() > 0.0) {
+            return None;
+        }
+        let zero = vec![DVec3::ZERO; patches.len()];
+        let limit = crate::schedule::no_limit();
+        let step = Step {
+            index: 1,
+            rays: self.rays,
+            next_rays: 0,
+            radiosity: &zero,
+            variance: Some(&zero),
+            limit: &limit,
+        };
+        let stop = match observer(&step) {
+            ControlFlow::Continue(()) => StopReason::Converged,
+            ControlFlow::Break(()) => StopReason::Stopped,
+        };
+        let estimate = Estimate::new(zero.clone(), Some(zero), self.rays);
+        Some(estimate.map_err(Error::from).map(|estimate| Solution {
+            estimate,
+            steps: 1,
+            escaped_rays: 0,
+            unshot_fraction: 0.0,
+            stop,
+        }))
     }
 
     fn add_variance(&self, v: &[DVec3]) -> Vec<DVec3> {

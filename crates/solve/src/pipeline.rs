@@ -110,6 +110,7 @@ struct Run<'a> {
     patch: &'a [u32],
     refinement: Option<&'a Refined>,
     resumed: Option<&'a RunState>,
+    lighting: u64,
 }
 
 impl Run<'_> {
@@ -146,6 +147,7 @@ impl Run<'_> {
                     history: self.history,
                     settings: self.settings,
                     patch: self.patch,
+                    lighting: self.lighting,
                 };
                 let answer = self.answer(estimate)?;
                 let state = RunState::new(&id, &answer, 1, steps, escaped_rays);
@@ -187,7 +189,9 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let mut config = schedule_config(settings, &budget);
     if let Input::Scene(scene) = problem.input {
         config.lights = scene.lights().to_vec();
+        config.sky = scene.sky().cloned();
     }
+    let lighting = crate::state::lighting_fingerprint(&config.lights, config.sky.as_ref());
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
@@ -198,19 +202,14 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
                 .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
-        (Input::Scene(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
-            // a state saved from a caller's mesh: its mesh is not the scene's to refine
-            let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
-            return Err(Error::StateMesh { saved, now: 0 });
-        }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None)
-            if !deterministic && !scene.lights().is_empty() && problem.resume.is_none() =>
+            if !deterministic && (!scene.lights().is_empty() || scene.sky().is_some()) =>
         {
             // Adaptive refinement does not see lights without a surface yet: the uniform
-            // starting mesh instead, said once.
+            // starting mesh instead, said once (and again on resuming: the saved run had it).
             warnings.push(
-                "the scene has lights without a surface (point, spot, sun): adaptive meshing \
-                 does not refine for them yet, the uniform mesh is used"
+                "the scene has lights without a surface (point, spot, sun) or a sky: adaptive \
+                 meshing does not refine for them yet, the uniform mesh is used"
                     .to_string(),
             );
             let mesh = Mesh::build(scene, Subdivision::default_for(scene)).map_err(|source| {
@@ -220,6 +219,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
                 }
             })?;
             (mesh, None, None)
+        }
+        (Input::Scene(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
+            // a state saved from a caller's mesh: its mesh is not the scene's to refine
+            let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
+            return Err(Error::StateMesh { saved, now: 0 });
         }
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
             let (mesh, refined, history) =
@@ -272,7 +276,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         })
         .collect();
     if let Some(state) = problem.resume {
-        state.check_continues(&mesh)?;
+        state.check_continues(&mesh, lighting)?;
     }
     let setup_seconds = clock.elapsed().as_secs_f64();
 
@@ -287,6 +291,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         patch: &patch,
         refinement: refinement.as_ref(),
         resumed: problem.resume,
+        lighting,
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deadline = if deterministic { None } else { budget.seconds };
@@ -446,6 +451,7 @@ fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
             ..Default::default()
         },
         lights: Vec::new(),
+        sky: None,
     }
 }
 
