@@ -750,7 +750,8 @@ fn a_sky_map_lights_the_face_that_looks_at_its_bright_pixel() {
 }
 
 /// A Radiance HDR map of radiance 1 everywhere is a uniform sky: an open upward plane of
-/// reflectance 0.5 gets `rho pi` (loose here: the statistics are tested in mc-radiosity).
+/// reflectance 0.5 gets `rho pi` on average (loose here: the statistics are tested in
+/// mc-radiosity), and through `--sky 1,1,1` exactly.
 /// Bad maps are refused with the file and the reason.
 #[test]
 fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
@@ -781,10 +782,12 @@ fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
         &csv,
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for row in read_csv(&csv) {
-        let exact = 0.5 * std::f64::consts::PI;
-        assert!((row.radiosity.x - exact).abs() < 0.03 * exact, "{row:?}");
-    }
+    // the area mean (225 patches of about 4 % standard error each: 0.3 %) within 1 %
+    let rows = read_csv(&csv);
+    let mean = rows.iter().map(|r| r.radiosity.x * r.area).sum::<f64>()
+        / rows.iter().map(|r| r.area).sum::<f64>();
+    let exact = 0.5 * std::f64::consts::PI;
+    assert!((mean - exact).abs() < 0.01 * exact, "{mean} vs {exact}");
     // a uniform sky through --sky: exact
     let o = mcrad(&["solve", plane, "-q", "--rays", "2e4", "--sky", "1,1,1", "--patches", &csv]);
     assert!(o.status.success(), "{}", stderr(&o));
