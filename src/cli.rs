@@ -214,6 +214,19 @@ pub struct Solve {
     /// direction). Added to the scene's own lights.
     #[arg(long, value_name = "X,Y,Z,E[,DIAM]", allow_negative_numbers = true, value_parser = parse_sun)]
     pub sun: Option<mcrad_scene_io::Light>,
+    /// A uniform sky: radiance R,G,B in W/(m² sr) arriving from every direction in which a
+    /// ray leaves the scene (a surface open to the whole upper sky receives pi L W/m²).
+    #[arg(long, value_name = "R,G,B", value_parser = parse_sky, conflicts_with = "sky_map")]
+    pub sky: Option<glam::DVec3>,
+    /// A sky from an equirectangular map (.exr or .hdr, twice as wide as high) of radiance in
+    /// W/(m² sr): +Y up, the top row the zenith, the centre column looking along -Z, three
+    /// quarters across along +X.
+    #[arg(long, value_name = "F")]
+    pub sky_map: Option<PathBuf>,
+    /// Turn the --sky-map about +Y by DEG degrees, counter-clockwise seen from above (at 90
+    /// the map's centre looks along -X).
+    #[arg(long, value_name = "DEG", default_value_t = 0.0, allow_negative_numbers = true, value_parser = parse_degrees, requires = "sky_map")]
+    pub sky_rotate: f64,
     /// The luminous efficacy K (lm/W) that turns glTF lights' photometric intensities into
     /// radiometric ones: I cd radiates I/K W/sr, E_v lux gives E_v/K W/m². 683 round-trips
     /// Blender's exporter; 1 reads the intensities as radiometric.
@@ -233,6 +246,17 @@ pub struct Solve {
 pub const MAX_THREADS: i64 = 256;
 
 impl Solve {
+    /// The sky the flags ask for: `--sky`, or `--sky-map` read and turned by `--sky-rotate`.
+    pub fn sky(&self) -> Result<Option<mcrad_scene_io::Sky>, mcrad_scene_io::SceneError> {
+        match (&self.sky_map, self.sky) {
+            (Some(path), _) => {
+                mcrad_scene_io::Sky::load_map(path, self.sky_rotate.to_radians()).map(Some)
+            }
+            (None, Some(l)) => Ok(Some(mcrad_scene_io::Sky::Uniform(l))),
+            (None, None) => Ok(None),
+        }
+    }
+
     /// The method to run: `--method`, with `--split` turning `two-pass` into `two-pass-split`
     /// (other methods ignore `--split`).
     pub fn method(&self) -> Method {
@@ -584,6 +608,31 @@ fn parse_fraction(s: &str) -> Result<f64, String> {
 /// Parses `--sun X,Y,Z,E[,DIAM]` ([`mcrad_scene_io::Sun`]'s `FromStr`).
 fn parse_sun(s: &str) -> Result<mcrad_scene_io::Light, String> {
     s.parse().map(mcrad_scene_io::Light::Sun)
+}
+
+/// Parses `--sky R,G,B`: a radiance per channel, each finite and `>= 0` W/(m² sr).
+fn parse_sky(s: &str) -> Result<glam::DVec3, String> {
+    let parts: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not R,G,B (radiance in W/(m² sr))"))?;
+    match parts[..] {
+        [r, g, b] if [r, g, b].iter().all(|x| x.is_finite() && *x >= 0.0) => {
+            Ok(glam::DVec3::new(r, g, b))
+        }
+        _ => Err(format!(
+            "'{s}' is not R,G,B: three finite radiances >= 0 in W/(m² sr)"
+        )),
+    }
+}
+
+/// Parses a finite angle in degrees (`--sky-rotate`).
+fn parse_degrees(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        _ => Err(format!("'{s}' is not a finite angle in degrees")),
+    }
 }
 
 /// Parses a positive finite length (`--max-edge`, `--min-edge`).

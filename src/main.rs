@@ -60,7 +60,7 @@ fn main() -> ExitCode {
                 )
             });
             if unlit {
-                eprintln!("error: {err:#}; or give --sun X,Y,Z,E");
+                eprintln!("error: {err:#}; or give --sun X,Y,Z,E, --sky R,G,B or --sky-map F");
             } else {
                 eprintln!("error: {err:#}");
             }

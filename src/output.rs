@@ -101,6 +101,7 @@ pub fn bake(
     let load_options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
         lights: args.sun.iter().cloned().collect(),
+        sky: args.sky()?,
         light_efficacy: args.light_efficacy,
         ..Default::default()
     };
@@ -217,12 +218,14 @@ fn camera(
     camera.context("--camera")
 }
 
-/// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²).
+/// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image's
+/// rays that leave the scene see `sky`.
 pub fn write(
     args: &Solve,
     mesh: &Mesh,
     bvh: &Bvh,
     radiosity: &[DVec3],
+    sky: Option<mcrad_scene_io::Sky>,
     file_camera: Option<mcrad_scene_io::Camera>,
     bar: &ProgressBar,
 ) -> Result<()> {
@@ -240,6 +243,7 @@ pub fn write(
             width: args.size.0,
             height: args.size.1,
             samples_per_pixel: args.spp,
+            sky,
         };
         bar.reset();
         bar.set_length(u64::from(settings.height));

@@ -77,6 +77,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     let options = mcrad_scene_io::LoadOptions {
         allow_outside_paths: args.allow_outside_paths,
         lights: args.sun.iter().cloned().collect(),
+        sky: args.sky()?,
         light_efficacy: args.light_efficacy,
         ..Default::default()
     };
@@ -292,6 +293,7 @@ fn finish(
         mesh,
         &answer.bvh,
         estimate.radiosity(),
+        loaded.scene.sky().cloned(),
         loaded.camera,
         bar,
     )?;

@@ -171,6 +171,7 @@ fn an_unlit_scene_is_refused_and_the_sun_lights_it() {
     );
     let plane = plane.to_str().unwrap();
     assert_clean_failure(&["solve", plane, "-q"], "--sun X,Y,Z,E");
+    assert_clean_failure(&["solve", plane, "-q"], "--sky R,G,B or --sky-map F");
     let csv = path(dir.path(), "p.csv");
     let sun = format!("{},0,{},1000,0", 30f64.to_radians().cos(), 0.5);
     let o = mcrad(&[
@@ -685,4 +686,134 @@ fn cheap_adaptive(extra: &[&str]) -> Output {
     ];
     args.extend_from_slice(extra);
     mcrad(&args)
+}
+
+/// A convex cube (faces outward: +X, -X, +Y, -Y, +Z, -Z, reflectance 0.5) under a 102 x 51
+/// map black but for one pixel of radiance 1000 W/(m² sr) centred on +X (column 76, row 25:
+/// within 1.8 degrees of it). The +X face gets `rho L Omega` (`Omega` the pixel's solid angle;
+/// cos within 5e-4 of 1), the -X face exactly nothing, the others under 2 % of +X (grazing
+/// light from the pixel's rim). Turned by 90 degrees (counter-clockwise from above), the
+/// pixel looks along -Z: the -Z face takes the light.
+#[test]
+fn a_sky_map_lights_the_face_that_looks_at_its_bright_pixel() {
+    use std::f64::consts::PI;
+    let dir = tempfile::tempdir().unwrap();
+    let cube = write(
+        dir.path(),
+        "cube.obj",
+        "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
+         f 2 4 8 6\nf 1 5 7 3\nf 3 7 8 4\nf 1 2 6 5\nf 5 6 8 7\nf 1 3 4 2\n",
+    );
+    let (w, h) = (102u32, 51u32);
+    let mut pixels = vec![glam::Vec3::ZERO; (w * h) as usize];
+    pixels[(25 * w + 76) as usize] = glam::Vec3::splat(1000.0);
+    let map = dir.path().join("sky.exr");
+    let image = mcrad_render::Image {
+        width: w,
+        height: h,
+        pixels,
+    };
+    mcrad_render::write_exr(&image, &map).unwrap();
+    let omega = 2.0 * PI / f64::from(w)
+        * ((25.0 * PI / f64::from(h)).cos() - (26.0 * PI / f64::from(h)).cos());
+    let lit = 0.5 * 1000.0 * omega;
+    for (rotate, face) in [("0", 0usize), ("90", 5)] {
+        let csv = path(dir.path(), "p.csv");
+        let o = mcrad(&[
+            "solve",
+            cube.to_str().unwrap(),
+            "-q",
+            "--no-subdivide",
+            "--rays",
+            "2e4",
+            "--sky-map",
+            map.to_str().unwrap(),
+            "--sky-rotate",
+            rotate,
+            "--patches",
+            &csv,
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let rows = read_csv(&csv);
+        assert_eq!(rows.len(), 6);
+        for row in &rows {
+            let b = row.radiosity.x;
+            if row.patch as usize == face {
+                assert!((b - lit).abs() < 0.01 * lit, "rotate {rotate}: {row:?} vs {lit}");
+            } else {
+                assert!(b < 0.02 * lit, "rotate {rotate}: {row:?}");
+            }
+        }
+        let opposite = if face == 0 { 1 } else { 4 };
+        assert_eq!(rows[opposite].radiosity.x, 0.0, "rotate {rotate}");
+    }
+}
+
+/// A Radiance HDR map of radiance 1 everywhere is a uniform sky: an open upward plane of
+/// reflectance 0.5 gets `rho pi` on average (loose here: the statistics are tested in
+/// mc-radiosity), and through `--sky 1,1,1` exactly.
+/// Bad maps are refused with the file and the reason.
+#[test]
+fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let plane = write(
+        dir.path(),
+        "plane.obj",
+        "v 0 0 0\nv 0 0 1\nv 1 0 1\nv 1 0 0\nf 1 2 3 4\n",
+    );
+    let plane = plane.to_str().unwrap();
+    // RGBE 1.0 = mantissa 128, exponent 129; 4 x 2 pixels, flat (no run-length encoding)
+    let mut hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n".to_vec();
+    for _ in 0..8 {
+        hdr.extend([128u8, 128, 128, 129]);
+    }
+    let map = dir.path().join("sky.hdr");
+    std::fs::write(&map, &hdr).unwrap();
+    let csv = path(dir.path(), "p.csv");
+    let o = mcrad(&[
+        "solve",
+        plane,
+        "-q",
+        "--rays",
+        "2e4",
+        "--sky-map",
+        map.to_str().unwrap(),
+        "--patches",
+        &csv,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // the area mean (225 patches of about 4 % standard error each: 0.3 %) within 1 %
+    let rows = read_csv(&csv);
+    let mean = rows.iter().map(|r| r.radiosity.x * r.area).sum::<f64>()
+        / rows.iter().map(|r| r.area).sum::<f64>();
+    let exact = 0.5 * std::f64::consts::PI;
+    assert!((mean - exact).abs() < 0.01 * exact, "{mean} vs {exact}");
+    // a uniform sky through --sky: exact
+    let o = mcrad(&["solve", plane, "-q", "--rays", "2e4", "--sky", "1,1,1", "--patches", &csv]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for row in read_csv(&csv) {
+        // exact up to the f32 of the mesh's emission
+        assert!((row.radiosity.x - 0.5 * std::f64::consts::PI).abs() < 1e-6, "{row:?}");
+    }
+    let square = dir.path().join("square.exr");
+    let image = mcrad_render::Image {
+        width: 4,
+        height: 4,
+        pixels: vec![glam::Vec3::ONE; 16],
+    };
+    mcrad_render::write_exr(&image, &square).unwrap();
+    assert_clean_failure(
+        &["solve", plane, "--sky-map", square.to_str().unwrap()],
+        "twice as wide as high",
+    );
+    let missing = dir.path().join("missing.exr");
+    assert_clean_failure(
+        &["solve", plane, "--sky-map", missing.to_str().unwrap()],
+        "missing.exr",
+    );
+    assert_clean_failure(&["solve", plane, "--sky", "1,-1,0"], "--sky");
+    assert_clean_failure(
+        &["solve", plane, "--sky", "1,1,1", "--sky-map", square.to_str().unwrap()],
+        "cannot be used with",
+    );
 }

@@ -70,6 +70,7 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
         height,
         samples_per_pixel: spp,
         seed,
+        sky: loaded.scene.sky().cloned(),
     };
     let start = Instant::now();
     let lights: Vec<_> = loaded

@@ -44,7 +44,7 @@ const PATH_TAG: u64 = 0x7061_7468;
 const ROULETTE_AFTER: u32 = 3;
 
 /// Settings of [`path_trace`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct PathTraceOptions {
     /// Image width, pixels (`> 0`).
     pub width: u32,
@@ -54,6 +54,10 @@ pub struct PathTraceOptions {
     pub samples_per_pixel: u32,
     /// The seed of every random stream.
     pub seed: u64,
+    /// The sky: a path that leaves the scene gains its throughput times the sky's radiance
+    /// along its last direction (W/(m² sr); the sky is found by the bounces only, so that term
+    /// has weight 1). `None`: escaping paths gain nothing.
+    pub sky: Option<mcrad_scene_io::Sky>,
 }
 
 /// What [`path_trace`] returns.
@@ -95,6 +99,8 @@ struct Scene<'a> {
     triangles: Vec<[Vec3; 3]>,
     /// `sum_k |E_k| A_k` over the emitters, W/m² · units² (channel sums).
     power: f64,
+    /// What an escaping path sees.
+    sky: Option<&'a mcrad_scene_io::Sky>,
 }
 
 impl<'a> Scene<'a> {
@@ -125,6 +131,7 @@ impl<'a> Scene<'a> {
             emitters,
             triangles,
             power,
+            sky: None,
         }
     }
 
@@ -203,7 +210,10 @@ pub fn path_trace<C: RayCaster + Sync>(
     if options.samples_per_pixel < 2 {
         return Err(PathTraceError::TooFewSamples(options.samples_per_pixel));
     }
-    let scene = Scene::new(mesh, lights);
+    let scene = Scene {
+        sky: options.sky.as_ref(),
+        ..Scene::new(mesh, lights)
+    };
     let n = options.samples_per_pixel as f64;
     let pixels: Vec<(Vec3, Vec3, u64)> = (0..u64::from(w) * u64::from(h))
         .into_par_iter()
@@ -250,6 +260,9 @@ fn radiance<C: RayCaster>(
     for vertex in 0.. {
         *rays += 1;
         let Some(hit) = caster.closest_hit(&ray) else {
+            if let Some(sky) = scene.sky {
+                radiance += throughput * sky.radiance(ray.dir.as_dvec3().normalize());
+            }
             break;
         };
         if !hit.front {
@@ -398,6 +411,7 @@ mod tests {
             height: 12,
             samples_per_pixel: spp,
             seed,
+            sky: None,
         };
         path_trace(mesh, &[], &bvh, &camera, &options).unwrap()
     }
@@ -610,6 +624,7 @@ mod tests {
             height,
             samples_per_pixel,
             seed: 0,
+            sky: None,
         };
         assert_eq!(
             path_trace(&mesh, &[], &bvh, &camera, &options(0, 4, 4)),

@@ -49,6 +49,7 @@ mod replicates;
 mod sampling;
 mod schedule;
 mod shoot;
+mod sky;
 mod surface;
 #[cfg(test)]
 mod tests;

@@ -12,10 +12,15 @@
 //! emitters. The estimate's variance `rho_i² s_i² / n` (`s_i²` the sample variance of the
 //! points' irradiance, conservative for stratified points) adds to every reported variance of
 //! `B_i`; the noise it carries on to other patches through reflection, averaged over many
-//! points, is not counted. Rays escaping the scene see nothing (where an environment light
-//! would be read).
+//! points, is not counted.
+//!
+//! The sky ([`mcrad_scene_io::Sky`]) joins the same pass: at each point its own rays
+//! (`crate::sky`: cosine for a uniform sky, cosine and the map's luminance by the balance
+//! heuristic for a map) add their estimate of `H_sky` to the point's irradiance, so its
+//! variance is in `s_i²` with the lights'.
 
 use crate::error::Error;
+use crate::method::StopReason;
 use crate::schedule::{Observer, ScheduleConfig, Solution, Step};
 use crate::surface::SurfaceSampler;
 use glam::{DVec3, Vec3};
@@ -42,19 +47,21 @@ pub(crate) struct Lit {
     pub(crate) rays: u64,
     /// Per patch, how much of the lights' direct light its shadows vary across it, as
     /// luminance of reflected light (W/m²): `rho D min(f, 1 - f)` with `D` the unoccluded mean
-    /// irradiance and `f` its visible share, 0 where every point agrees (what the adaptive
-    /// refinement's visibility test measures for emitting faces).
+    /// irradiance of the lights (the sky's not included) and `f` its visible share, 0 where
+    /// every point agrees (what the adaptive refinement's visibility test measures for
+    /// emitting faces).
     pub(crate) penumbra: Vec<f64>,
 }
 
-/// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches lights)))` in `[2, 16]`
-/// (a quarter of the budget at most, unless the mesh is too large for 4 points a patch); 64
+/// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches rays)))` in `[2, 16]`,
+/// `rays` the shadow rays per point (one per light, and the sky's own: a uniform sky 4, a map
+/// 8); a quarter of the budget at most, unless the mesh is too large for 4 points a patch; 64
 /// without a budget.
-pub(crate) fn points_per_patch(budget: u64, patches: usize, lights: usize) -> u32 {
+pub(crate) fn points_per_patch(budget: u64, patches: usize, rays: usize) -> u32 {
     if budget == u64::MAX {
         return 64;
     }
-    let per = budget as f64 / (4.0 * patches.max(1) as f64 * lights.max(1) as f64);
+    let per = budget as f64 / (4.0 * patches.max(1) as f64 * rays.max(1) as f64);
     let m = per.sqrt().floor().clamp(2.0, 16.0) as u32;
     m * m
 }
@@ -73,8 +80,10 @@ pub(crate) fn light_mesh<C: RayCaster>(
         .iter()
         .map(|l| l.translated(-mesh.origin()))
         .collect();
+    let sky = config.sky.as_ref().filter(|s| !s.is_dark());
+    let sky_rays = crate::sky::rays_per_point(sky) as usize;
     let patches = mesh.patches();
-    let n = points_per_patch(config.rays, patches.len(), lights.len());
+    let n = points_per_patch(config.rays, patches.len(), lights.len() + sky_rays);
     let sampler = SurfaceSampler::new(mesh);
     let far = far_distance(mesh);
     let seed = config.seed;
@@ -87,7 +96,11 @@ pub(crate) fn light_mesh<C: RayCaster>(
             }
             let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, 0);
             let normal = patches[i].normal;
-            irradiance_moments(i, normal, n, &lights, &sampler, caster, far, &mut rng)
+            let sources = Sources {
+                lights: &lights,
+                sky,
+            };
+            irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
         })
         .collect();
     if cancelled() {
@@ -111,14 +124,14 @@ pub(crate) fn light_mesh<C: RayCaster>(
     Ok(Lit {
         mesh: lit,
         variance,
-        rays: u64::from(n) * patches.len() as u64 * lights.len() as u64,
+        rays: u64::from(n) * patches.len() as u64 * (lights.len() + sky_rays) as u64,
         penumbra,
     })
 }
 
 /// The direct light of `config.lights` on `mesh` computed deterministically by the reference
 /// solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is wholly lit,
-/// fine quadrature where it is partly shadowed): no variance.
+/// fine quadrature where it is partly shadowed): no variance. Not for a sky.
 pub(crate) fn exact_light_mesh<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
@@ -146,27 +159,34 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
 /// Luminance weights of linear RGB (Rec. 709).
 const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 
-/// What the points of one patch saw of the lights.
+/// What the points of one patch saw of the lights and the sky.
 #[derive(Debug, Clone, Copy, Default)]
 struct Moments {
     /// Mean irradiance, W/m² per channel.
     mean: DVec3,
     /// Variance of that mean, (W/m²)² per channel.
     variance: DVec3,
-    /// Mean luminance of the irradiance the points would receive unoccluded, W/m².
+    /// Mean luminance of the irradiance the lights would give the points unoccluded, W/m².
     unoccluded: f64,
-    /// Mean luminance of the irradiance they receive, W/m².
+    /// Mean luminance of the irradiance the lights give them, W/m².
     visible: f64,
 }
 
+/// What lights the patches directly: the lights (in the mesh's frame) and the sky.
+struct Sources<'a> {
+    lights: &'a [Light],
+    sky: Option<&'a mcrad_scene_io::Sky>,
+}
+
 /// The mean irradiance of `n` stratified points of `patch` and the variance of that mean
-/// (`s² / n`), W/m² and (W/m²)² per channel, with the luminance it would have unoccluded.
+/// (`s² / n`), W/m² and (W/m²)² per channel, with the luminance the lights would give
+/// unoccluded.
 #[allow(clippy::too_many_arguments)]
 fn irradiance_moments<C: RayCaster>(
     patch: usize,
     normal: Vec3,
     n: u32,
-    lights: &[Light],
+    sources: &Sources,
     sampler: &SurfaceSampler,
     caster: &C,
     far: f64,
@@ -174,7 +194,7 @@ fn irradiance_moments<C: RayCaster>(
 ) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
     let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
-    let mut unoccluded = 0.0;
+    let (mut unoccluded, mut visible) = (0.0, 0.0);
     let nd = normal.as_dvec3();
     for a in 0..m {
         for b in 0..m {
@@ -184,7 +204,10 @@ fn irradiance_moments<C: RayCaster>(
             ];
             let x = sampler.point2(patch, u);
             let mut h = DVec3::ZERO;
-            for light in lights {
+            if let Some(sky) = sources.sky {
+                h += crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
+            }
+            for light in sources.lights {
                 let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
                     continue;
                 };
@@ -202,6 +225,7 @@ fn irradiance_moments<C: RayCaster>(
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
                     h += s.irradiance * cos;
+                    visible += LUMINANCE.dot(s.irradiance * cos);
                 }
             }
             sum += h;
@@ -219,7 +243,7 @@ fn irradiance_moments<C: RayCaster>(
         mean,
         variance: var,
         unoccluded: unoccluded / count,
-        visible: LUMINANCE.dot(mean),
+        visible: visible / count,
     }
 }
 
@@ -255,6 +279,38 @@ impl Lit {
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         Ok(solution)
+    }
+
+    /// When nothing emits after the lights (no emitting patch, and no light or sky reached
+    /// any patch, e.g. a closed room under the sky), the exact answer `B = 0` as one step shown
+    /// to `observer` (the lights' rays counted, variance 0); `None` otherwise.
+    pub(crate) fn dark(&self, observer: &mut Observer) -> Option<Result<Solution, Error>> {
+        let patches = self.mesh.patches();
+        if patches.iter().any(|p| p.emission.max_element() > 0.0) {
+            return None;
+        }
+        let zero = vec![DVec3::ZERO; patches.len()];
+        let limit = crate::schedule::no_limit();
+        let step = Step {
+            index: 1,
+            rays: self.rays,
+            next_rays: 0,
+            radiosity: &zero,
+            variance: Some(&zero),
+            limit: &limit,
+        };
+        let stop = match observer(&step) {
+            ControlFlow::Continue(()) => StopReason::Converged,
+            ControlFlow::Break(()) => StopReason::Stopped,
+        };
+        let estimate = Estimate::new(zero.clone(), Some(zero), self.rays);
+        Some(estimate.map_err(Error::from).map(|estimate| Solution {
+            estimate,
+            steps: 1,
+            escaped_rays: 0,
+            unshot_fraction: 0.0,
+            stop,
+        }))
     }
 
     /// `estimate` (of the lit mesh) with the light's variance and rays included.

@@ -171,16 +171,21 @@ macro_rules! methods {
                 cancel: Option<&std::sync::atomic::AtomicBool>,
                 observer: &mut Observer,
             ) -> Result<Solution, Error> {
-                if !config.lights.is_empty() {
+                if !config.lights.is_empty() || config.sky.is_some() {
                     // Lights without a surface: their direct light becomes emission
                     // (`crate::lights`), then the method runs without them.
-                    let lit = if matches!(self, Method::Reference) {
+                    let lit = if matches!(self, Method::Reference) && config.sky.is_none() {
                         crate::lights::exact_light_mesh(mesh, caster, config)
                     } else {
                         crate::lights::light_mesh(mesh, caster, config, cancel)?
                     };
+                    if let Some(dark) = lit.dark(observer) {
+                        // nothing reached a surface (a closed room under the sky): B = 0
+                        return dark;
+                    }
                     let mut rest = config.clone();
                     rest.lights = Vec::new();
+                    rest.sky = None;
                     if rest.rays != u64::MAX {
                         rest.rays = rest.rays.saturating_sub(lit.rays).max(1);
                     }

@@ -68,6 +68,11 @@ pub struct ScheduleConfig {
     /// the emission `rho H` of the lit patches before the method runs (a quarter of the
     /// budget at most), and its variance adds to the reported ones.
     pub lights: Vec<mcrad_scene_io::Light>,
+    /// The sky (radiance in W/(m² sr) from the directions in which rays leave the scene);
+    /// none by default. Handled like the lights: its direct light `H_sky`, sampled with rays
+    /// of its own from the same points (cosine for a uniform sky; cosine and the map's
+    /// luminance combined by the balance heuristic for a map), joins their `rho H`.
+    pub sky: Option<mcrad_scene_io::Sky>,
 }
 
 impl Default for ScheduleConfig {
@@ -85,6 +90,7 @@ impl Default for ScheduleConfig {
             sampler: crate::Sampler::default(),
             control_variate: crate::ControlVariate::default(),
             lights: Vec::new(),
+            sky: None,
         }
     }
 }

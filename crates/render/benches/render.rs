@@ -39,6 +39,7 @@ fn bench(c: &mut Criterion) {
             width: 512,
             height: 512,
             samples_per_pixel: spp,
+            sky: None,
         };
         group.bench_function(format!("flat_{spp}spp"), |bench| {
             bench.iter(|| {

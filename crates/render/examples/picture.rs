@@ -33,6 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         width: 64,
         height: 64,
         samples_per_pixel: 4,
+        sky: None,
     };
     let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_| {})?;
     println!(

@@ -5,8 +5,9 @@
 //!
 //! Radiosity renders without lighting computations: a diffuse surface of radiosity `B`
 //! (W/m²) has radiance `L = B / π` (W/(m² sr)) in every direction, so a pixel averages `B / π`
-//! of the front faces its sample rays hit first. A miss or a back face is black (patches
-//! reflect and emit on their front only).
+//! of the front faces its sample rays hit first. A back face is black (patches reflect and
+//! emit on their front only); a miss sees the sky's radiance along the ray
+//! ([`RenderSettings::sky`]), black without a sky.
 //!
 //! The render is deterministic: each pixel depends only on its own samples, whose positions
 //! are a hash of (pixel, sample), and rows are written in place, so it is the same on any
@@ -63,8 +64,9 @@ pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_
 /// The largest image side [`render`] accepts, pixels.
 pub const MAX_SIDE: u32 = 16384;
 
-/// How big a picture to render and how many rays per pixel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How big a picture to render, how many rays per pixel, and what a ray that leaves the
+/// scene sees.
+#[derive(Debug, Clone, PartialEq)]
 pub struct RenderSettings {
     /// Width, pixels, `1..=MAX_SIDE`.
     pub width: u32,
@@ -74,6 +76,9 @@ pub struct RenderSettings {
     /// stratified on an `m × m` grid (jittered within each cell); other counts are jittered
     /// over the whole pixel.
     pub samples_per_pixel: u32,
+    /// The sky a ray that leaves the scene sees: its radiance (W/(m² sr)) along the ray's
+    /// direction; `None`: black.
+    pub sky: Option<mcrad_scene_io::Sky>,
 }
 
 impl Default for RenderSettings {
@@ -83,6 +88,7 @@ impl Default for RenderSettings {
             width: 512,
             height: 512,
             samples_per_pixel: 16,
+            sky: None,
         }
     }
 }
@@ -138,11 +144,7 @@ pub fn render<C: RayCaster + ?Sized>(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Image, RenderError> {
-    let RenderSettings {
-        width,
-        height,
-        samples_per_pixel: spp,
-    } = *settings;
+    let (width, height, spp) = (settings.width, settings.height, settings.samples_per_pixel);
     if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
         return Err(RenderError::BadSize { width, height });
     }
@@ -163,7 +165,10 @@ pub fn render<C: RayCaster + ?Sized>(
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
                     let ray = camera.ray(pixel, width, height);
-                    sum += shader.radiance(mesh, caster.closest_hit(&ray)).as_dvec3();
+                    sum += match (caster.closest_hit(&ray), &settings.sky) {
+                        (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
+                        (hit, _) => shader.radiance(mesh, hit).as_dvec3(),
+                    };
                 }
                 *out = (sum / f64::from(spp)).as_vec3();
             }

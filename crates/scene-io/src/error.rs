@@ -325,6 +325,22 @@ pub enum SceneError {
         /// What is wrong, with the value.
         reason: String,
     },
+    /// A sky map that cannot be used. Example: `sky map 'sky.exr': 100 x 40 pixels: an
+    /// equirectangular map is twice as wide as high, at most 32768 x 16384`.
+    #[error("sky map {}: {reason}", crate::quote(&path.display().to_string()))]
+    BadSky {
+        /// The map's file.
+        path: std::path::PathBuf,
+        /// What is wrong, with the value.
+        reason: String,
+    },
+    /// A uniform sky with a radiance out of range. Example: `sky: radiance [1, -1, 0]
+    /// W/(m² sr) is negative or not finite`.
+    #[error("sky: {reason}")]
+    BadSkyRadiance {
+        /// What is wrong, with the value.
+        reason: String,
+    },
 }
 
 fn obj_index_message(index: i64, available: usize) -> String {

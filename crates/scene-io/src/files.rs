@@ -29,6 +29,9 @@ pub struct LoadOptions {
     /// Lights added to the scene's own (a sun the caller sets), in the scene's frame and
     /// radiometric units; none by default.
     pub lights: Vec<crate::Light>,
+    /// The sky ([`Sky`](crate::Sky): radiance from the directions in which rays leave the
+    /// scene); none by default.
+    pub sky: Option<crate::Sky>,
     /// The luminous efficacy `K` (lm/W) that converts glTF lights' photometric intensities
     /// to radiometric ones: a point or spot light of `I` cd radiates `I / K` W/sr, a
     /// directional light of `E_v` lux gives `E_v / K` W/m². Default
@@ -43,6 +46,7 @@ impl Default for LoadOptions {
             allow_outside_paths: false,
             max_file_bytes: DEFAULT_MAX_FILE_BYTES,
             lights: Vec::new(),
+            sky: None,
             light_efficacy: crate::DEFAULT_LIGHT_EFFICACY,
         }
     }

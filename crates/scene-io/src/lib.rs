@@ -58,6 +58,7 @@ mod obj;
 mod obj_text;
 mod polygon;
 mod scene;
+mod sky;
 mod texture;
 
 pub use alpha::{AlphaMode, FaceAlpha};
@@ -70,6 +71,7 @@ pub use light::{
     DEFAULT_LIGHT_EFFICACY, DEFAULT_SUN_DIAMETER, Light, LightSample, PointLight, SpotLight, Sun,
 };
 pub use scene::{Bounds, Face, Material, Scene};
+pub use sky::{MAX_SKY_EDGE, Sky, SkyMap, SkySample};
 pub use texture::{FaceMapping, SceneTextures, Texture, Wrap, srgb_to_linear};
 
 use glam::Vec3;

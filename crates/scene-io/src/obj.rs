@@ -87,7 +87,13 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         warnings.push(Warning::DefaultMaterial { faces: defaulted });
     }
 
-    let (scene, more) = Scene::new_lit(positions, faces, materials, options.lights.clone())
+    let (scene, more) = Scene::new_lit_sky(
+        positions,
+        faces,
+        materials,
+        options.lights.clone(),
+        options.sky.clone(),
+    )
         .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
     warnings.extend(more);
     Ok(Loaded {

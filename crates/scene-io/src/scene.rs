@@ -80,6 +80,7 @@ pub struct Scene {
     materials: Vec<Material>,
     textures: Option<std::sync::Arc<crate::SceneTextures>>,
     lights: Vec<crate::Light>,
+    sky: Option<crate::Sky>,
 }
 
 impl Scene {
@@ -131,6 +132,23 @@ impl Scene {
         materials: Vec<Material>,
         lights: Vec<crate::Light>,
     ) -> Result<(Scene, Vec<Warning>), SceneError> {
+        Scene::new_lit_sky(positions, faces, materials, lights, None)
+    }
+
+    /// [`Scene::new_lit`] under a `sky` too: a scene with a sky needs no emitting face nor
+    /// light. Errors as [`Scene::new_lit`]'s, plus [`SceneError::BadSkyRadiance`] for a
+    /// uniform sky out of range ([`Sky::check`](crate::Sky::check)).
+    pub fn new_lit_sky(
+        positions: Vec<Vec3>,
+        faces: Vec<Face>,
+        materials: Vec<Material>,
+        lights: Vec<crate::Light>,
+        sky: Option<crate::Sky>,
+    ) -> Result<(Scene, Vec<Warning>), SceneError> {
+        if let Some(sky) = &sky {
+            sky.check()
+                .map_err(|reason| SceneError::BadSkyRadiance { reason })?;
+        }
         for (index, light) in lights.iter().enumerate() {
             light.check().map_err(|reason| SceneError::BadLight {
                 index,
@@ -219,6 +237,7 @@ impl Scene {
             });
         }
         if lights.is_empty()
+            && sky.is_none()
             && !kept
                 .iter()
                 .any(|f| materials[f.material as usize].is_emitter())
@@ -256,6 +275,7 @@ impl Scene {
             materials,
             textures: None,
             lights,
+            sky,
         };
         Ok((scene, warnings))
     }
@@ -264,6 +284,11 @@ impl Scene {
     /// units; the emitting faces are the other light sources.
     pub fn lights(&self) -> &[crate::Light] {
         &self.lights
+    }
+
+    /// The sky (radiance from the directions in which rays leave the scene), if any.
+    pub fn sky(&self) -> Option<&crate::Sky> {
+        self.sky.as_ref()
     }
 
     /// The scene with textured albedo and emission: the faces `textures` maps take their

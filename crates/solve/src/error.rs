@@ -66,6 +66,13 @@ pub enum Error {
         /// Patches of this run.
         now: usize,
     },
+    /// A continued run is lit by other lights without a surface (point, spot, sun) or another
+    /// sky than the saved run.
+    #[error(
+        "the saved run was lit by other lights (point, spot, sun) or another sky than this run: \
+         continue it with the saved run's lights and sky"
+    )]
+    StateLighting,
     /// A continued run's scene cannot make the saved run's adaptive mesh.
     #[error(
         "the saved run was solved on another scene or mesh: its adaptive mesh cannot be made \

@@ -110,6 +110,7 @@ struct Run<'a> {
     patch: &'a [u32],
     refinement: Option<&'a Refined>,
     resumed: Option<&'a RunState>,
+    lighting: u64,
 }
 
 impl Run<'_> {
@@ -146,6 +147,7 @@ impl Run<'_> {
                     history: self.history,
                     settings: self.settings,
                     patch: self.patch,
+                    lighting: self.lighting,
                 };
                 let answer = self.answer(estimate)?;
                 let state = RunState::new(&id, &answer, 1, steps, escaped_rays);
@@ -187,7 +189,9 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let mut config = schedule_config(settings, &budget);
     if let Input::Scene(scene) = problem.input {
         config.lights = scene.lights().to_vec();
+        config.sky = scene.sky().cloned();
     }
+    let lighting = crate::state::lighting_fingerprint(&config.lights, config.sky.as_ref());
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
@@ -254,7 +258,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         })
         .collect();
     if let Some(state) = problem.resume {
-        state.check_continues(&mesh)?;
+        state.check_continues(&mesh, lighting)?;
     }
     let setup_seconds = clock.elapsed().as_secs_f64();
 
@@ -269,6 +273,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         patch: &patch,
         refinement: refinement.as_ref(),
         resumed: problem.resume,
+        lighting,
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deadline = if deterministic { None } else { budget.seconds };
@@ -430,6 +435,7 @@ fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
             ..Default::default()
         },
         lights: Vec::new(),
+        sky: None,
     }
 }
 

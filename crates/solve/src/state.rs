@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use std::io::{Read, Write};
 
 /// The version of the state's layout; a state of another layout is refused.
-const FORMAT: u32 = 2;
+const FORMAT: u32 = 3;
 
 /// Seed tag of the pieces of a resumed run (see [`piece_seed`]).
 const PIECE_TAG: u64 = 0x7069_6563_6500_0000; // "piece"
@@ -51,6 +51,8 @@ pub struct RunState {
     version: String,
     /// [`fingerprint`] of the mesh solved.
     fingerprint: u64,
+    /// [`lighting_fingerprint`] of the lights and sky the run was lit by.
+    lighting: u64,
     /// The settings of the run.
     settings: SavedSettings,
     /// How the adaptive mesh was made (`None` for the other plans).
@@ -134,6 +136,8 @@ pub(crate) struct Identity<'a> {
     pub history: Option<&'a History>,
     pub settings: &'a Settings,
     pub patch: &'a [u32],
+    /// [`lighting_fingerprint`] of the run's lights and sky.
+    pub lighting: u64,
 }
 
 impl RunState {
@@ -150,6 +154,7 @@ impl RunState {
             format: FORMAT,
             version: env!("CARGO_PKG_VERSION").to_string(),
             fingerprint: fingerprint(id.mesh),
+            lighting: id.lighting,
             settings: id.settings.into(),
             history: id.history.map(|h| SavedHistory {
                 start: h.start,
@@ -247,8 +252,9 @@ impl RunState {
         })
     }
 
-    /// Checks that the run on `mesh` continues this state: same mcrad version and mesh.
-    pub(crate) fn check_continues(&self, mesh: &Mesh) -> Result<(), Error> {
+    /// Checks that the run on `mesh` lit as `lighting` ([`lighting_fingerprint`]) continues
+    /// this state: same mcrad version, mesh, lights and sky.
+    pub(crate) fn check_continues(&self, mesh: &Mesh, lighting: u64) -> Result<(), Error> {
         let version = env!("CARGO_PKG_VERSION");
         if self.version != version {
             return Err(Error::StateVersion {
@@ -261,6 +267,9 @@ impl RunState {
                 saved: self.patch.len(),
                 now: mesh.patches().len(),
             });
+        }
+        if self.lighting != lighting {
+            return Err(Error::StateLighting);
         }
         Ok(())
     }
@@ -288,6 +297,48 @@ impl RunState {
 
 fn arrays(v: &[DVec3]) -> Vec<[f64; 3]> {
     v.iter().map(|x| x.to_array()).collect()
+}
+
+/// A 64-bit FNV-1a hash of bytes.
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+    fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
+/// A 64-bit FNV-1a hash of the lights without a surface and the sky a run is lit by: every
+/// light's values (their shortest exact decimal forms), the sky's uniform radiance or its
+/// map's size, rotation and pixels as bit patterns. Equal for equal lighting; a different
+/// sun or sky changes it (up to a 2^-64 collision).
+pub(crate) fn lighting_fingerprint(
+    lights: &[mcrad_scene_io::Light],
+    sky: Option<&mcrad_scene_io::Sky>,
+) -> u64 {
+    let mut h = Fnv::new();
+    h.eat(format!("{lights:?}").as_bytes());
+    match sky {
+        None => h.eat(b"no sky"),
+        Some(mcrad_scene_io::Sky::Uniform(l)) => h.eat(format!("uniform {l:?}").as_bytes()),
+        Some(mcrad_scene_io::Sky::Map(map)) => {
+            h.eat(b"map");
+            h.eat(&map.width().to_le_bytes());
+            h.eat(&map.height().to_le_bytes());
+            h.eat(&map.rotation().to_le_bytes());
+            for t in map.texels() {
+                for c in t {
+                    h.eat(&c.to_le_bytes());
+                }
+            }
+        }
+    }
+    h.0
 }
 
 /// A 64-bit FNV-1a hash of what a solution depends on in the mesh: every patch's area,

@@ -157,3 +157,53 @@ fn an_error_target_ends_a_progressive_run_early() {
         answer.stats.rays
     );
 }
+
+/// The furnace loaded with `sky` and `sun` added.
+fn furnace_lit(sky: Option<mcrad_scene_io::Sky>, sun: Option<mcrad_scene_io::Light>) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/furnace.obj");
+    let options = mcrad_scene_io::LoadOptions {
+        sky,
+        lights: sun.into_iter().collect(),
+        ..Default::default()
+    };
+    mcrad_scene_io::load_with(&path, &options).unwrap().scene
+}
+
+#[test]
+fn a_continued_run_refuses_another_sky_or_sun() {
+    use glam::{DVec3, Vec3};
+    use mcrad_scene_io::{Light, Sky, Sun};
+    let sky = |l: f64| Some(Sky::Uniform(DVec3::splat(l)));
+    let sun = Light::Sun(Sun {
+        direction: Vec3::Y,
+        irradiance: DVec3::splat(100.0),
+        diameter: 0.0,
+    });
+    let scene = furnace_lit(sky(1.0), None);
+    let mut problem = Problem::new(&scene);
+    problem.budget.rays = Some(20_000);
+    let first = solve(&problem, &mut go).unwrap();
+    let state = first.state.clone().expect("a state");
+    let resume = |scene: &Scene| {
+        let mut next = Problem::new(scene);
+        next.settings = state.settings();
+        next.budget.rays = Some(20_000);
+        next.resume = Some(&state);
+        solve(&next, &mut go).map(|a| a.estimate.rays())
+    };
+    // the same sky continues (the uniform mesh made again: no adaptive history)
+    let same = furnace_lit(sky(1.0), None);
+    assert!(resume(&same).unwrap() > first.estimate.rays());
+    for other in [
+        furnace_lit(sky(2.0), None),
+        furnace_lit(None, Some(sun.clone())),
+        furnace_lit(sky(1.0), Some(sun)),
+    ] {
+        match resume(&other) {
+            Err(e @ Error::StateLighting) => {
+                assert!(e.to_string().contains("another sky"), "{e}")
+            }
+            r => panic!("not refused: {r:?}"),
+        }
+    }
+}
