@@ -493,6 +493,7 @@ mod tests {
             height: 24,
             samples_per_pixel: spp,
             seed: 7,
+            sky: None,
         };
         (
             path_trace(&mesh, &lights, &bvh, &camera, &options).unwrap(),

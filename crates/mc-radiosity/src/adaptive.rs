@@ -57,6 +57,10 @@ pub struct AdaptiveConfig {
     /// pilot and every round solve with their direct light, and an element across which their
     /// shadows change is marked as for an emitting face's.
     pub lights: Vec<mcrad_scene_io::Light>,
+    /// The sky, as in [`ScheduleConfig::sky`](crate::ScheduleConfig::sky): solved with like
+    /// the lights (its shadows are not marked by the visibility test; the gradient test sees
+    /// them).
+    pub sky: Option<mcrad_scene_io::Sky>,
 }
 
 impl Default for AdaptiveConfig {
@@ -75,6 +79,7 @@ impl Default for AdaptiveConfig {
             seed: 0,
             unshot_threshold: 1e-3,
             lights: Vec::new(),
+            sky: None,
         }
     }
 }
@@ -208,6 +213,22 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     let mut rays = 0;
     let bvh = caster(mesh.mesh())?;
     let mut lit = light(mesh.mesh(), &bvh, config, pilot_rays, 0)?;
+    if let Some(l) = &lit
+        && l.mesh
+            .patches()
+            .iter()
+            .all(|p| p.emission.max_element() <= 0.0)
+    {
+        // Nothing lit (a closed room under the sky): B = 0 exactly, nothing to refine.
+        let zero = vec![DVec3::ZERO; l.mesh.patches().len()];
+        let estimate = Estimate::new(zero.clone(), Some(zero), l.rays).map_err(Error::from)?;
+        return Ok(Refined {
+            pooled: estimate.clone(),
+            estimate,
+            rays: l.rays,
+            rounds: Vec::new(),
+        });
+    }
     let mut estimate = {
         let ctx = Context::new(lit.as_ref().map_or(mesh.mesh(), |l| &l.mesh), &bvh);
         let s = shoot(
@@ -498,13 +519,14 @@ fn light<C: RayCaster>(
     rays: u64,
     stage: u64,
 ) -> Result<Option<crate::lights::Lit>, Error> {
-    if config.lights.is_empty() {
+    if config.lights.is_empty() && config.sky.is_none() {
         return Ok(None);
     }
     let schedule = crate::schedule::ScheduleConfig {
         rays,
         seed: derive_seed(config.seed, LIGHT_TAG + stage),
         lights: config.lights.clone(),
+        sky: config.sky.clone(),
         ..Default::default()
     };
     crate::lights::light_mesh(mesh, caster, &schedule, None).map(Some)

@@ -11,8 +11,9 @@
 //! balance   = emitted - absorbed - escaped                                (0 in expectation)
 //! ```
 //!
-//! `D_i` is the mean irradiance that lights without a surface (point, spot, sun) give patch
-//! `i` directly: their power enters the scene where it lands (light that misses the scene is
+//! `D_i` is the mean irradiance that lights without a surface (point, spot, sun) and the sky
+//! give patch `i` directly (the sky's by one cosine-distributed ray per point: `pi L(w)` where
+//! it leaves the scene): their power enters the scene where it lands (light that misses the scene is
 //! not counted, and light landing on a patch that reflects nothing in a channel enters and is
 //! absorbed there at once, so it is left out of both). The probe estimates it with its own
 //! shadow rays (one per probe ray of the patch and light, from uniform points), independent of
@@ -205,18 +206,20 @@ pub(crate) fn probe<C: RayCaster>(mesh: &Mesh, caster: &C, rays: Vec<u32>, seed:
     ray_fates(mesh, caster, rays, derive_seed(seed, PROBE_TAG))
 }
 
-/// Per patch, the mean direct irradiance `D_i` from `lights` (the scene's frame) and the
-/// variance of that mean (W/m² and (W/m²)² per channel): `rays[i]` uniform points of patch
-/// `i`, one shadow ray each per light, on the closure's own streams (from `seed`).
+/// Per patch, the mean direct irradiance `D_i` from `lights` (the scene's frame) and `sky`, and
+/// the variance of that mean (W/m² and (W/m²)² per channel): `rays[i]` uniform points of patch
+/// `i`, one shadow ray each per light and one cosine ray for the sky, on the closure's own
+/// streams (from `seed`).
 pub(crate) fn light_delivery<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     lights: &[Light],
+    sky: Option<&mcrad_scene_io::Sky>,
     rays: &[u32],
     seed: u64,
 ) -> Vec<(DVec3, DVec3)> {
     use rayon::prelude::*;
-    if lights.is_empty() {
+    if lights.is_empty() && sky.is_none() {
         return vec![(DVec3::ZERO, DVec3::ZERO); mesh.patches().len()];
     }
     let lights: Vec<Light> = lights
@@ -261,6 +264,18 @@ pub(crate) fn light_delivery<C: RayCaster>(
                 let [a, b, c] = triangles[t];
                 let x = a * (1.0 - r1) + b * (r1 * (1.0 - r2)) + c * (r1 * r2);
                 let mut h = DVec3::ZERO;
+                if let Some(sky) = sky {
+                    let w = cosine_direction(normal, [rng.uniform_f64(), rng.uniform_f64()]);
+                    let ray = mcrad_raycast::Ray::from_surface(
+                        x.as_vec3(),
+                        patch.normal,
+                        w.as_vec3(),
+                        i as u32,
+                    );
+                    if caster.closest_hit(&ray).is_none() {
+                        h += sky.radiance(w) * std::f64::consts::PI;
+                    }
+                }
                 for light in &lights {
                     let u = [rng.uniform_f64(), rng.uniform_f64()];
                     let Some(s) = light.sample(x.as_vec3(), u) else {
@@ -290,6 +305,14 @@ pub(crate) fn light_delivery<C: RayCaster>(
             (mean, var)
         })
         .collect()
+}
+
+/// A cosine-distributed unit direction about the unit `n` from `u` in `[0, 1)²`.
+fn cosine_direction(n: DVec3, u: [f64; 2]) -> DVec3 {
+    let r = u[0].sqrt();
+    let phi = std::f64::consts::TAU * u[1];
+    let (t, b) = n.any_orthonormal_pair();
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u[0]).max(0.0).sqrt()).normalize()
 }
 
 /// The closure of `estimate` (radiosity W/m² and variance per patch of `mesh`) with what the

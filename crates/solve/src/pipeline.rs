@@ -369,8 +369,14 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             estimate.radiosity(),
             crate::closure::probe_budget(piece_rays, mesh.patches().len()),
         );
-        let light =
-            crate::closure::light_delivery(&mesh, &bvh, &config.lights, &probe_rays, config.seed);
+        let light = crate::closure::light_delivery(
+            &mesh,
+            &bvh,
+            &config.lights,
+            config.sky.as_ref(),
+            &probe_rays,
+            config.seed,
+        );
         let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
         crate::closure::closure(&mesh, &estimate, &probe, &light)
     });
@@ -517,6 +523,7 @@ fn adaptive_mesh(
         seconds: budget.seconds.map(|t| t / 4.0),
         seed: settings.seed,
         lights: scene.lights().to_vec(),
+        sky: scene.sky().cloned(),
         ..Default::default()
     };
     let refined = refine(&mut mesh, &config)?;
