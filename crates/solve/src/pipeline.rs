@@ -194,7 +194,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let (mesh, refinement, history) = match (problem.input, settings.mesh, history) {
         (Input::Mesh(mesh), _, _) => (mesh.clone(), None, None),
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
-            let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
+            // the bounds the recorded refinement kept: those for its start's size
+            let bounds = adaptive_bounds(scene, settings);
+            let start = history
+                .start
+                .map_or(Subdivision::None, Subdivision::MaxEdge);
+            let size = AdaptiveMesh::new(scene, start, bounds)
+                .map_err(Error::StateReplay)?
+                .len();
+            let mesh = AdaptiveMesh::replay(scene, &history, bounds.for_start(size))
                 .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
@@ -258,6 +266,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             (mesh, None, None)
         }
     };
+    warnings.extend(sliver_warning(&mesh));
     let bvh = mesh.caster()?;
     let patch: Vec<u32> = mesh
         .patches()
@@ -465,6 +474,22 @@ fn error_p95(mesh: &Mesh, answer: &Estimate) -> f64 {
     weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)
 }
 
+/// One warning for the slivers of `mesh` too thin for `f32` coordinates at the scene's size:
+/// faces kept whole rather than cut ([`Mesh::kept_whole`]) and patches smaller than the
+/// coordinates resolve ([`Mesh::unresolved_patches`]); `None` without any.
+fn sliver_warning(mesh: &Mesh) -> Option<String> {
+    let kept = mesh.kept_whole();
+    let (small, _) = mesh.unresolved_patches();
+    (kept > 0 || small > 0).then(|| {
+        format!(
+            "{kept} faces were kept whole, too thin to cut at the scene's size in f32 \
+             coordinates (slivers), and {small} patches are smaller than f32 resolves here \
+             ({:.1e} scene units across): their own radiosity is approximate",
+            mesh.resolved_size()
+        )
+    })
+}
+
 /// The adaptive plan's bounds on `scene`.
 fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     let mut bounds = AdaptiveBounds::default_for(scene);
@@ -481,11 +506,13 @@ fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     bounds
 }
 
-/// The adaptive mesh: the scene cut to the diagonal / 40 when that takes at most
-/// 1 / [`START_SHARE`] of the patch budget (the rest is the refinement's), else to the
-/// uniform default when that fits the budget, else one element per face (every start within
-/// the elements the ray budget pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of
-/// the ray budget and of the time.
+/// The adaptive mesh: the scene cut to the diagonal / 40 when the cut adds at most
+/// 1 / [`START_SHARE`] of the patch budget to one element per face (small faces stay whole:
+/// only faces larger than the cut are split), else to the uniform default when that adds at
+/// most the budget, else one element per face (every start within the elements the ray budget
+/// pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the
+/// time, within the budget raised to the start plus half of it
+/// ([`AdaptiveBounds::for_start`]): no count of input faces switches the refinement off.
 fn adaptive_mesh(
     scene: &Scene,
     settings: &Settings,
@@ -495,8 +522,9 @@ fn adaptive_mesh(
 ) -> Result<(Mesh, Refined, History), Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
+    let faces = scene.faces().len();
     let fits = |mesh: &AdaptiveMesh, share: usize| {
-        mesh.len() <= (bounds.max_patches / share).min(affordable)
+        mesh.len().saturating_sub(faces) <= bounds.max_patches / share && mesh.len() <= affordable
     };
     let mesh_error = |start: Subdivision| {
         move |source| Error::Mesh {
@@ -518,6 +546,8 @@ fn adaptive_mesh(
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
             .map_err(mesh_error(Subdivision::None))?;
     }
+    mesh.set_bounds(bounds.for_start(mesh.len()))
+        .map_err(mesh_error(Subdivision::None))?;
     let config = AdaptiveConfig {
         rays: if rays == u64::MAX {
             u64::MAX
