@@ -223,7 +223,8 @@ impl AdaptiveMesh {
         }
         let textures = scene.textures().cloned();
         // the leaves hold all of the start mesh: drop it before building the leaves' own
-        let (origin, resolved, kept) = (coarse.origin(), coarse.resolved_size(), coarse.kept_whole());
+        let (origin, resolved, kept) =
+            (coarse.origin(), coarse.resolved_size(), coarse.kept_whole());
         drop(coarse);
         let mut mesh = build_mesh(origin, &templates, &leaves, textures.clone());
         mesh.set_kept_whole(kept);

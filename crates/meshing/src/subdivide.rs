@@ -148,7 +148,8 @@ impl Cutter {
         let p = v.map(|i| mesh.position(i).as_dvec3());
         let nu = pieces(p[0].distance(p[1]).max(p[3].distance(p[2])), max_edge);
         let nv = pieces(p[0].distance(p[3]).max(p[1].distance(p[2])), max_edge);
-        let area = ((p[1] - p[0]).cross(p[2] - p[0]) + (p[2] - p[0]).cross(p[3] - p[0])).length() / 2.0;
+        let area =
+            ((p[1] - p[0]).cross(p[2] - p[0]) + (p[2] - p[0]).cross(p[3] - p[0])).length() / 2.0;
         if self.keep_whole(area, nu * nv) {
             mesh.push_patch(&v, t);
             return;

@@ -80,7 +80,10 @@ fn many_small_faces_do_not_switch_off_the_refinement_of_the_huge_ones() {
             b.face(&[p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)], 0);
         }
     }
-    let scene = b.scene(vec![material("grey", 0.5, 0.0), material("panel", 0.0, 10.0)]);
+    let scene = b.scene(vec![
+        material("grey", 0.5, 0.0),
+        material("panel", 0.0, 10.0),
+    ]);
     assert!(scene.faces().len() > AdaptiveBounds::default_for(&scene).max_patches);
     let diagonal = scene.bounds().diagonal() as f32;
     let start = Mesh::build(
@@ -88,12 +91,7 @@ fn many_small_faces_do_not_switch_off_the_refinement_of_the_huge_ones() {
         Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
     )
     .unwrap();
-    let on_floor = |mesh: &Mesh| {
-        mesh.patches()
-            .iter()
-            .filter(|p| p.face == floor)
-            .count()
-    };
+    let on_floor = |mesh: &Mesh| mesh.patches().iter().filter(|p| p.face == floor).count();
     let mut problem = Problem::new(&scene);
     // The default settings (adaptive mesh, its budget and minimum edge, combined) with rays
     // enough for a round of marks over every element (48 rays each) after the pilot.
@@ -147,7 +145,10 @@ fn a_sliver_too_thin_for_f32_at_the_scene_size_is_kept_whole_with_one_warning() 
         ],
         0,
     );
-    let scene = b.scene(vec![material("wall", 0.5, 0.0), material("light", 0.5, 1.0)]);
+    let scene = b.scene(vec![
+        material("wall", 0.5, 0.0),
+        material("light", 0.5, 1.0),
+    ]);
     let mut problem = Problem::new(&scene);
     problem.settings.mesh = MeshPlan::Uniform {
         max_edge: Some(0.5),
@@ -161,7 +162,11 @@ fn a_sliver_too_thin_for_f32_at_the_scene_size_is_kept_whole_with_one_warning() 
         .filter(|p| p.face == sliver)
         .collect();
     assert_eq!(slivers.len(), 1, "the sliver is one patch");
-    assert!((slivers[0].area - 0.005).abs() < 1e-6, "{}", slivers[0].area);
+    assert!(
+        (slivers[0].area - 0.005).abs() < 1e-6,
+        "{}",
+        slivers[0].area
+    );
     assert_eq!(answer.mesh.kept_whole(), 1);
     let said: Vec<_> = answer
         .warnings
