@@ -101,16 +101,16 @@ pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 640.0;
 pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {
-    /// These bounds for refining a start mesh of `start` elements: the patch budget raised to
-    /// `start + max_patches / 2` when that is more, so that the refinement may always add at
-    /// least half of `max_patches` elements however many the start holds (a scene of many
-    /// small faces, each kept whole, still has its large faces refined). A start of at most
-    /// half the budget keeps the budget as it is.
-    pub fn for_start(self, start: usize) -> AdaptiveBounds {
+    /// These bounds for a scene of `faces` input faces: the patch budget raised to
+    /// `faces + max_patches / 2` when that is more, so that a mesh may always hold at least
+    /// half of `max_patches` elements beyond one per face, however many faces there are (a
+    /// scene of many small faces, each kept whole, still has its large faces refined). A
+    /// scene of at most half as many faces as the budget keeps the budget as it is.
+    pub fn for_faces(self, faces: usize) -> AdaptiveBounds {
         AdaptiveBounds {
             max_patches: self
                 .max_patches
-                .max(start.saturating_add(self.max_patches / 2)),
+                .max(faces.saturating_add(self.max_patches / 2)),
             ..self
         }
     }
@@ -307,8 +307,7 @@ impl AdaptiveMesh {
         u32::from(self.leaves[i].depth)
     }
 
-    /// Sets the bounds the refinements from now on keep (e.g. [`AdaptiveBounds::for_start`] of
-    /// this mesh's size). Errors as [`AdaptiveMesh::new`]'s for bad bounds.
+    /// Sets the bounds the refinements from now on keep. Errors as [`AdaptiveMesh::new`]'s for bad bounds.
     pub fn set_bounds(&mut self, bounds: AdaptiveBounds) -> Result<(), MeshError> {
         bounds.check()?;
         self.bounds = bounds;

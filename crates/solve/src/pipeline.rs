@@ -194,15 +194,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let (mesh, refinement, history) = match (problem.input, settings.mesh, history) {
         (Input::Mesh(mesh), _, _) => (mesh.clone(), None, None),
         (Input::Scene(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
-            // the bounds the recorded refinement kept: those for its start's size
-            let bounds = adaptive_bounds(scene, settings);
-            let start = history
-                .start
-                .map_or(Subdivision::None, Subdivision::MaxEdge);
-            let size = AdaptiveMesh::new(scene, start, bounds)
-                .map_err(Error::StateReplay)?
-                .len();
-            let mesh = AdaptiveMesh::replay(scene, &history, bounds.for_start(size))
+            let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
                 .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
@@ -480,18 +472,34 @@ fn error_p95(mesh: &Mesh, answer: &Estimate) -> f64 {
 fn sliver_warning(mesh: &Mesh) -> Option<String> {
     let kept = mesh.kept_whole();
     let (small, _) = mesh.unresolved_patches();
-    (kept > 0 || small > 0).then(|| {
-        format!(
-            "{kept} faces were kept whole, too thin to cut at the scene's size in f32 \
-             coordinates (slivers), and {small} patches are smaller than f32 resolves here \
-             ({:.1e} scene units across): their own radiosity is approximate",
-            mesh.resolved_size()
-        )
-    })
+    let size = mesh.resolved_size();
+    let approximate = "their own radiosity is approximate";
+    match (kept, small) {
+        (0, 0) => None,
+        (0, _) => Some(format!(
+            "{small} patches are smaller than f32 coordinates resolve at the scene's size \
+             ({size:.1e} scene units across): {approximate}"
+        )),
+        (_, 0) => Some(format!(
+            "{kept} faces were kept whole: cut as asked, their pieces would be smaller than f32 \
+             coordinates resolve at the scene's size ({size:.1e} scene units across; slivers)"
+        )),
+        _ => Some(format!(
+            "{kept} faces were kept whole: cut as asked, their pieces would be smaller than f32 \
+             coordinates resolve at the scene's size ({size:.1e} scene units across; slivers), \
+             and {small} patches are that small whole: {approximate}"
+        )),
+    }
 }
 
-/// The adaptive plan's bounds on `scene`.
+/// The adaptive plan's bounds on `scene`: its settings' ([`plan_bounds`]) for the scene's
+/// face count ([`AdaptiveBounds::for_faces`]).
 fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
+    plan_bounds(scene, settings).for_faces(scene.faces().len())
+}
+
+/// The adaptive plan's bounds on `scene` as its settings give them.
+fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     let mut bounds = AdaptiveBounds::default_for(scene);
     if let MeshPlan::Adaptive {
         max_patches,
@@ -511,8 +519,8 @@ fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
 /// only faces larger than the cut are split), else to the uniform default when that adds at
 /// most the budget, else one element per face (every start within the elements the ray budget
 /// pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the
-/// time, within the budget raised to the start plus half of it
-/// ([`AdaptiveBounds::for_start`]): no count of input faces switches the refinement off.
+/// time, within the budget raised to one element per face plus half of it
+/// ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement off.
 fn adaptive_mesh(
     scene: &Scene,
     settings: &Settings,
@@ -522,9 +530,13 @@ fn adaptive_mesh(
 ) -> Result<(Mesh, Refined, History), Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
-    let faces = scene.faces().len();
+    let (faces, asked) = (
+        scene.faces().len(),
+        plan_bounds(scene, settings).max_patches,
+    );
     let fits = |mesh: &AdaptiveMesh, share: usize| {
-        mesh.len().saturating_sub(faces) <= bounds.max_patches / share && mesh.len() <= affordable
+        mesh.len().saturating_sub(faces) <= asked / share
+            && mesh.len() <= bounds.max_patches.min(affordable)
     };
     let mesh_error = |start: Subdivision| {
         move |source| Error::Mesh {
@@ -546,8 +558,6 @@ fn adaptive_mesh(
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
             .map_err(mesh_error(Subdivision::None))?;
     }
-    mesh.set_bounds(bounds.for_start(mesh.len()))
-        .map_err(mesh_error(Subdivision::None))?;
     let config = AdaptiveConfig {
         rays: if rays == u64::MAX {
             u64::MAX

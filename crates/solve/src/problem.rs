@@ -15,12 +15,12 @@ pub enum MeshPlan {
     /// Start coarse and split where the measured light asks for it (the default): the start is
     /// the faces cut to the bounding-box diagonal / 40 (faces smaller than that stay whole)
     /// when the cut adds at most half of `max_patches` elements to one per face, else the
-    /// uniform default when it adds at most `max_patches`, else one element per face; refined
-    /// with a quarter of the budget, within `max_patches` or the start plus half of it, which
-    /// ever is more.
+    /// uniform default when it adds at most `max_patches` and fits the budget, else one element
+    /// per face; refined with a quarter of the budget, within `max_patches` or one element per
+    /// face plus half of it, whichever is more.
     Adaptive {
-        /// The most elements (patches), `>= 1`, or the start plus half of it when that is
-        /// more (`AdaptiveBounds::for_start`).
+        /// The most elements (patches), `>= 1`, or one per input face plus half of it when
+        /// that is more (`AdaptiveBounds::for_faces`).
         max_patches: usize,
         /// The shortest edge a split may make (scene units, `> 0`); `None`: the diagonal / 640.
         min_edge: Option<f32>,
