@@ -22,15 +22,18 @@ pub enum Error {
     /// The convergence threshold of Jacobi gathering is negative or not finite.
     #[error("the gathering threshold must be finite and >= 0, got {0}")]
     BadGatherThreshold(f64),
-    /// The scene is so large relative to its smallest patch that `f32` coordinates cannot
-    /// place points on that patch: the answer would be silently wrong. Coordinates are those of
+    /// The scene is so large relative to its patches that `f32` coordinates cannot place
+    /// points on them: patches smaller than 1024 `f32` spacings (`Mesh::resolved_size`) hold
+    /// more than 1% of the area, so the answer would be silently wrong. Coordinates are those of
     /// the mesh's local frame (`Mesh::origin`, near the scene's centre), so where the scene lies
-    /// in the world does not matter, only its extent over its smallest patch (beyond about
-    /// `2^13`).
+    /// in the world does not matter, only its extent over its patches (beyond about `2^13`). A
+    /// few slivers below the limit are accepted.
     #[error(
         "coordinates reach {coordinate:e} scene units from the scene's centre, where f32 points \
-         are {spacing:e} apart, more than 1/1024 of the smallest patch (patch {patch}, {size:e} \
-         across): the scene is too large for its smallest patch (geometry is stored in f32)"
+         are {spacing:e} apart, more than 1/1024 of {unresolved} patches holding {:.1}% of the \
+         area (the smallest, patch {patch}, is {size:e} across): the scene is too large for \
+         its patches (geometry is stored in f32)",
+        100.0 * share
     )]
     FarFromOrigin {
         /// The largest coordinate magnitude in the mesh's local frame (scene units).
@@ -41,6 +44,10 @@ pub enum Error {
         patch: usize,
         /// Its size, the square root of its area (scene units).
         size: f64,
+        /// Patches smaller than 1024 spacings.
+        unresolved: usize,
+        /// Their share of the mesh's area (more than 0.01).
+        share: f64,
     },
     /// The mesh has more patches than ray ids or hit records can name.
     #[error("{patches} patches are more than the estimator can address ({limit})")]

@@ -159,7 +159,7 @@ pub struct Solution {
 pub type Observer<'o> = dyn FnMut(&Step) -> ControlFlow<()> + 'o;
 
 /// Runs `method` on `mesh`, casting rays through `caster`. Errors include
-/// [`Error::FarFromOrigin`]: a scene too large for its smallest patch in `f32` coordinates.
+/// [`Error::FarFromOrigin`]: a scene too large for its patches in `f32` coordinates (slivers aside).
 pub fn run<C: RayCaster>(
     method: Method,
     mesh: &Mesh,

@@ -101,6 +101,31 @@ pub const DEFAULT_MIN_EDGE_FRACTION: f32 = 1.0 / 640.0;
 pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {
+    /// These bounds for a scene of `faces` input faces: the patch budget raised to
+    /// `faces + max_patches / 2` when that is more, so that a mesh may always hold at least
+    /// half of `max_patches` elements beyond one per face, however many faces there are (a
+    /// scene of many small faces, each kept whole, still has its large faces refined). A
+    /// scene of at most half as many faces as the budget keeps the budget as it is.
+    pub fn for_faces(self, faces: usize) -> AdaptiveBounds {
+        AdaptiveBounds {
+            max_patches: self
+                .max_patches
+                .max(faces.saturating_add(self.max_patches / 2)),
+            ..self
+        }
+    }
+
+    /// Errors: a minimum edge that is not a positive length, a budget of 0.
+    fn check(&self) -> Result<(), MeshError> {
+        if !(self.min_edge.is_finite() && self.min_edge > 0.0) {
+            return Err(MeshError::BadMinEdge(self.min_edge));
+        }
+        if self.max_patches == 0 {
+            return Err(MeshError::BadMaxPatches);
+        }
+        Ok(())
+    }
+
     /// The defaults for `scene`: minimum edge [`DEFAULT_MIN_EDGE_FRACTION`] of the bounding-box
     /// diagonal, [`DEFAULT_MAX_PATCHES`] leaves.
     pub fn default_for(scene: &Scene) -> AdaptiveBounds {
@@ -137,6 +162,9 @@ pub struct AdaptiveMesh {
     leaves: Vec<Leaf>,
     mesh: Mesh,
     bounds: AdaptiveBounds,
+    /// The smallest element size (`sqrt(area)`) the start mesh's `f32` coordinates resolve
+    /// ([`Mesh::resolved_size`]): no split makes a child smaller.
+    resolved: f64,
     /// The start and every refinement so far (see [`AdaptiveMesh::history`]).
     history: History,
 }
@@ -162,12 +190,7 @@ impl AdaptiveMesh {
         start: Subdivision,
         bounds: AdaptiveBounds,
     ) -> Result<AdaptiveMesh, MeshError> {
-        if !(bounds.min_edge.is_finite() && bounds.min_edge > 0.0) {
-            return Err(MeshError::BadMinEdge(bounds.min_edge));
-        }
-        if bounds.max_patches == 0 {
-            return Err(MeshError::BadMaxPatches);
-        }
+        bounds.check()?;
         let coarse = Mesh::build(scene, start)?;
         let mut templates: Vec<PatchTemplate> = Vec::new();
         let mut index: HashMap<(u32, u32), u32> = HashMap::new();
@@ -199,7 +222,12 @@ impl AdaptiveMesh {
             });
         }
         let textures = scene.textures().cloned();
-        let mesh = build_mesh(coarse.origin(), &templates, &leaves, textures.clone());
+        // the leaves hold all of the start mesh: drop it before building the leaves' own
+        let (origin, resolved, kept) =
+            (coarse.origin(), coarse.resolved_size(), coarse.kept_whole());
+        drop(coarse);
+        let mut mesh = build_mesh(origin, &templates, &leaves, textures.clone());
+        mesh.set_kept_whole(kept);
         let start = match start {
             Subdivision::None => None,
             Subdivision::MaxEdge(l) => Some(l),
@@ -210,6 +238,7 @@ impl AdaptiveMesh {
             leaves,
             mesh,
             bounds,
+            resolved,
             history: History {
                 start,
                 splits: Vec::new(),
@@ -278,6 +307,13 @@ impl AdaptiveMesh {
         u32::from(self.leaves[i].depth)
     }
 
+    /// Sets the bounds the refinements from now on keep. Errors as [`AdaptiveMesh::new`]'s for bad bounds.
+    pub fn set_bounds(&mut self, bounds: AdaptiveBounds) -> Result<(), MeshError> {
+        bounds.check()?;
+        self.bounds = bounds;
+        Ok(())
+    }
+
     /// Whether leaf `i` is large enough to split: some edge it would halve stays at least the
     /// minimum edge (see [`AdaptiveMesh::refine`]).
     pub fn can_split(&self, i: usize) -> bool {
@@ -311,7 +347,7 @@ impl AdaptiveMesh {
                 held += 1;
                 continue;
             };
-            let Some(children) = split_leaf(&self.leaves[i], plan) else {
+            let Some(children) = split_leaf(&self.leaves[i], plan, self.resolved) else {
                 unrefinable += 1;
                 continue;
             };
@@ -340,12 +376,14 @@ impl AdaptiveMesh {
                 }
             }
         }
+        let kept = self.mesh.kept_whole();
         self.mesh = build_mesh(
             self.mesh.origin(),
             &self.templates,
             &leaves,
             self.textures.clone(),
         );
+        self.mesh.set_kept_whole(kept);
         self.leaves = leaves;
         self.history.splits.push(split_leaves);
         Refinement {
@@ -392,8 +430,9 @@ fn split_plan(leaf: &Leaf, min_edge: f32) -> Option<Plan> {
     (su || sv).then_some(Plan::Quad { u: su, v: sv })
 }
 
-/// The children of `leaf` split by `plan`, or `None` if they would not be valid elements.
-fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
+/// The children of `leaf` split by `plan`, or `None` if they would not be valid elements
+/// (among them: smaller than `min_size`, `sqrt(area)` in scene units).
+fn split_leaf(leaf: &Leaf, plan: Plan, min_size: f64) -> Option<Vec<Leaf>> {
     let c = leaf.corners();
     let child = |corners: &[Vec3]| {
         let mut out = [Vec3::ZERO; 4];
@@ -458,7 +497,10 @@ fn split_leaf(leaf: &Leaf, plan: Plan) -> Option<Vec<Leaf>> {
     let mut sum = 0.0;
     for ch in &children {
         let a = polygon_area(ch.corners());
-        if !(a.is_finite() && a > 0.0) || a < 1e-3 * parent_area / children.len() as f64 {
+        if !(a.is_finite() && a > 0.0)
+            || a < 1e-3 * parent_area / children.len() as f64
+            || a < min_size * min_size
+        {
             return None;
         }
         sum += a;
@@ -474,7 +516,10 @@ fn build_mesh(
     textures: Option<Arc<SceneTextures>>,
 ) -> Mesh {
     let mut mesh = Mesh::empty(origin, textures);
-    let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len() * 2);
+    // the arrays at their final size, so that no growth or shrinking copies them
+    let corner_count: usize = leaves.iter().map(|l| usize::from(l.count)).sum();
+    mesh.reserve_exact(leaves.len(), corner_count, corner_count - 2 * leaves.len());
+    let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len());
     let mut corners = Vec::with_capacity(4);
     for leaf in leaves {
         corners.clear();

@@ -74,6 +74,13 @@ pub enum MeshError {
     },
 }
 
+/// How many `f32` spacings a patch must span: a patch whose size (`sqrt(area)`) is below this
+/// many spacings of `f32` coordinates at the mesh's largest coordinate (its local frame, see
+/// [`Mesh::origin`]) is not resolved by its geometry ([`Mesh::resolved_size`]). Points drawn on it
+/// and ray origins lifted off it are off by a few spacings, a relative error of about
+/// `1 / F32_SPACINGS_PER_PATCH` of its size.
+pub const F32_SPACINGS_PER_PATCH: f64 = 1024.0;
+
 /// The most patches a mesh may have (indices stay below `2^31`, and memory in reach).
 pub const MAX_PATCHES: u64 = 1 << 28;
 
@@ -118,6 +125,9 @@ pub struct Mesh {
     triangles: Vec<[u32; 3]>,
     triangle_patch: Vec<u32>,
     patches: Vec<Patch>,
+    /// Faces (or fan triangles of polygons) kept whole because cutting them would have made
+    /// patches below [`Mesh::resolved_size`].
+    kept_whole: usize,
     /// The scene's textured faces: a patch of one takes its reflectance and emission from the
     /// texture over its own area.
     textures: Option<Arc<SceneTextures>>,
@@ -164,9 +174,10 @@ impl Mesh {
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
             patches: Vec::new(),
+            kept_whole: 0,
             textures: scene.textures().cloned(),
         };
-        let mut cutter = Cutter::default();
+        let mut cutter = Cutter::keeping_whole_below(mesh.resolved_size());
         for face in scene.faces() {
             let material = &scene.materials()[face.material as usize];
             let template = PatchTemplate {
@@ -191,6 +202,9 @@ impl Mesh {
                 return Err(MeshError::PatchLimit { limit: max_patches });
             }
         }
+        mesh.kept_whole = cutter.kept_whole();
+        // the arrays grew by doubling: up to half of each is spare
+        mesh.shrink_to_fit();
         Ok(mesh)
     }
 
@@ -204,8 +218,56 @@ impl Mesh {
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
             patches: Vec::new(),
+            kept_whole: 0,
             textures,
         }
+    }
+
+    /// The smallest patch size (`sqrt(area)`, scene units) that this mesh's `f32` coordinates
+    /// resolve: [`F32_SPACINGS_PER_PATCH`] spacings of `f32` at its largest coordinate in the
+    /// local frame (0 for a mesh without vertices). Uniform cuts keep a face whole rather than
+    /// cut it below this, adaptive splits refuse to go below it.
+    pub fn resolved_size(&self) -> f64 {
+        let coordinate = self
+            .positions
+            .iter()
+            .map(|p| f64::from(p.abs().max_element()))
+            .fold(0.0, f64::max);
+        coordinate * f64::from(f32::EPSILON) * F32_SPACINGS_PER_PATCH
+    }
+
+    /// The patches smaller than [`Mesh::resolved_size`] (whole slivers): their count and their
+    /// summed area (scene units², f64). Their own radiosity is approximate (see
+    /// [`F32_SPACINGS_PER_PATCH`]); the rest of the answer is not affected beyond their share
+    /// of the light.
+    pub fn unresolved_patches(&self) -> (usize, f64) {
+        let limit = self.resolved_size();
+        let limit2 = limit * limit;
+        self.patches
+            .iter()
+            .filter(|p| p.area < limit2)
+            .fold((0, 0.0), |(n, a), p| (n + 1, a + p.area))
+    }
+
+    /// Faces (or fan triangles of polygons) that a uniform cut kept whole because their pieces
+    /// would have been smaller than [`Mesh::resolved_size`] (slivers at the scene's size): such a
+    /// patch may have edges longer than the cut's maximum.
+    pub fn kept_whole(&self) -> usize {
+        self.kept_whole
+    }
+
+    /// Sets the count [`Mesh::kept_whole`] reports (an adaptive mesh carries its start's).
+    pub(crate) fn set_kept_whole(&mut self, n: usize) {
+        self.kept_whole = n;
+    }
+
+    /// Reserves room for exactly `patches` more patches of `corners` corners and `triangles`
+    /// triangles in all.
+    pub(crate) fn reserve_exact(&mut self, patches: usize, corners: usize, triangles: usize) {
+        self.patches.reserve_exact(patches);
+        self.corners.reserve_exact(corners);
+        self.triangles.reserve_exact(triangles);
+        self.triangle_patch.reserve_exact(triangles);
     }
 
     /// Releases the arrays' spare capacity.

@@ -26,7 +26,10 @@ pub use adaptive::{
     DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
 pub use alpha::AlphaTest;
-pub use build::{DEFAULT_MAX_EDGE_FRACTION, MIN_COVERAGE, Mesh, MeshError, Patch, Subdivision};
+pub use build::{
+    DEFAULT_MAX_EDGE_FRACTION, F32_SPACINGS_PER_PATCH, MIN_COVERAGE, Mesh, MeshError, Patch,
+    Subdivision,
+};
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 

@@ -10,6 +10,11 @@ use std::collections::HashMap;
 pub(crate) struct Cutter {
     /// `(lower vertex, higher vertex, step from the lower one, steps)` -> vertex index.
     edge_points: HashMap<(u32, u32, u32, u32), u32>,
+    /// A face (or fan triangle) whose pieces would be smaller than this (`sqrt(area)`, scene
+    /// units) is kept whole.
+    min_size: f64,
+    /// How many were kept whole.
+    kept_whole: usize,
 }
 
 /// Number of pieces an edge of `length` is cut into so no piece is longer than `max_edge`.
@@ -18,6 +23,28 @@ fn pieces(length: f64, max_edge: f32) -> u32 {
 }
 
 impl Cutter {
+    /// A cutter that keeps whole the faces (and fan triangles) whose pieces would be smaller
+    /// than `min_size` (`sqrt(area)`, scene units).
+    pub fn keeping_whole_below(min_size: f64) -> Cutter {
+        Cutter {
+            min_size,
+            ..Cutter::default()
+        }
+    }
+
+    /// How many faces (and fan triangles) were kept whole.
+    pub fn kept_whole(&self) -> usize {
+        self.kept_whole
+    }
+
+    /// Whether a polygon of `area` cut into `pieces` would have pieces below the minimum size;
+    /// counts it when it is to be kept whole.
+    fn keep_whole(&mut self, area: f64, pieces: u32) -> bool {
+        let keep = pieces > 1 && area / f64::from(pieces) < self.min_size * self.min_size;
+        self.kept_whole += usize::from(keep);
+        keep
+    }
+
     /// Cuts one face (corner indices counter-clockwise) into patches of `mesh`.
     pub fn cut_face(&mut self, mesh: &mut Mesh, corners: &[u32], max_edge: f32, t: &PatchTemplate) {
         let pos: Vec<DVec3> = corners
@@ -75,6 +102,10 @@ impl Cutter {
         );
         let longest = pa.distance(pb).max(pb.distance(pc)).max(pc.distance(pa));
         let n = pieces(longest, max_edge);
+        if self.keep_whole((pb - pa).cross(pc - pa).length() / 2.0, n * n) {
+            mesh.push_patch(&[a, b, c], t);
+            return;
+        }
         // Grid point (i, j) = a + (b - a) i/n + (c - a) j/n for i + j <= n, row-major in j.
         let mut grid = vec![0u32; ((n + 1) * (n + 2) / 2) as usize];
         // Rows j = 0..=n hold n+1, n, ..., 1 points.
@@ -117,6 +148,12 @@ impl Cutter {
         let p = v.map(|i| mesh.position(i).as_dvec3());
         let nu = pieces(p[0].distance(p[1]).max(p[3].distance(p[2])), max_edge);
         let nv = pieces(p[0].distance(p[3]).max(p[1].distance(p[2])), max_edge);
+        let area =
+            ((p[1] - p[0]).cross(p[2] - p[0]) + (p[2] - p[0]).cross(p[3] - p[0])).length() / 2.0;
+        if self.keep_whole(area, nu * nv) {
+            mesh.push_patch(&v, t);
+            return;
+        }
         let mut grid = vec![0u32; ((nu + 1) * (nv + 1)) as usize];
         for j in 0..=nv {
             for i in 0..=nu {

@@ -244,6 +244,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             (mesh, None, None)
         }
     };
+    warnings.extend(sliver_warning(&mesh));
     let bvh = mesh.caster()?;
     let patch: Vec<u32> = mesh
         .patches()
@@ -461,8 +462,40 @@ fn error_p95(mesh: &Mesh, answer: &Estimate) -> f64 {
     weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)
 }
 
-/// The adaptive plan's bounds on `scene`.
+/// One warning for the slivers of `mesh` too thin for `f32` coordinates at the scene's size:
+/// faces kept whole rather than cut ([`Mesh::kept_whole`]) and patches smaller than the
+/// coordinates resolve ([`Mesh::unresolved_patches`]); `None` without any.
+fn sliver_warning(mesh: &Mesh) -> Option<String> {
+    let kept = mesh.kept_whole();
+    let (small, _) = mesh.unresolved_patches();
+    let size = mesh.resolved_size();
+    let approximate = "their own radiosity is approximate";
+    match (kept, small) {
+        (0, 0) => None,
+        (0, _) => Some(format!(
+            "{small} patches are smaller than f32 coordinates resolve at the scene's size \
+             ({size:.1e} scene units across): {approximate}"
+        )),
+        (_, 0) => Some(format!(
+            "{kept} faces were kept whole: cut as asked, their pieces would be smaller than f32 \
+             coordinates resolve at the scene's size ({size:.1e} scene units across; slivers)"
+        )),
+        _ => Some(format!(
+            "{kept} faces were kept whole: cut as asked, their pieces would be smaller than f32 \
+             coordinates resolve at the scene's size ({size:.1e} scene units across; slivers), \
+             and {small} patches are that small whole: {approximate}"
+        )),
+    }
+}
+
+/// The adaptive plan's bounds on `scene`: its settings' ([`plan_bounds`]) for the scene's
+/// face count ([`AdaptiveBounds::for_faces`]).
 fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
+    plan_bounds(scene, settings).for_faces(scene.faces().len())
+}
+
+/// The adaptive plan's bounds on `scene` as its settings give them.
+fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     let mut bounds = AdaptiveBounds::default_for(scene);
     if let MeshPlan::Adaptive {
         max_patches,
@@ -477,11 +510,13 @@ fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     bounds
 }
 
-/// The adaptive mesh: the scene cut to the diagonal / 40 when that takes at most
-/// 1 / [`START_SHARE`] of the patch budget (the rest is the refinement's), else to the
-/// uniform default when that fits the budget, else one element per face (every start within
-/// the elements the ray budget pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of
-/// the ray budget and of the time.
+/// The adaptive mesh: the scene cut to the diagonal / 40 when the cut adds at most
+/// 1 / [`START_SHARE`] of the patch budget to one element per face (small faces stay whole:
+/// only faces larger than the cut are split), else to the uniform default when that adds at
+/// most the budget, else one element per face (every start within the elements the ray budget
+/// pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the
+/// time, within the budget raised to one element per face plus half of it
+/// ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement off.
 fn adaptive_mesh(
     scene: &Scene,
     settings: &Settings,
@@ -491,8 +526,13 @@ fn adaptive_mesh(
 ) -> Result<(Mesh, Refined, History), Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
+    let (faces, asked) = (
+        scene.faces().len(),
+        plan_bounds(scene, settings).max_patches,
+    );
     let fits = |mesh: &AdaptiveMesh, share: usize| {
-        mesh.len() <= (bounds.max_patches / share).min(affordable)
+        mesh.len().saturating_sub(faces) <= asked / share
+            && mesh.len() <= bounds.max_patches.min(affordable)
     };
     let mesh_error = |start: Subdivision| {
         move |source| Error::Mesh {
@@ -526,7 +566,12 @@ fn adaptive_mesh(
         sky: scene.sky().cloned(),
         ..Default::default()
     };
-    let refined = refine(&mut mesh, &config)?;
+    let mut refined = refine(&mut mesh, &config)?;
+    // The answer pools the refinement's `pooled` estimate only: its last estimate would hold
+    // 48 bytes per element through the whole run.
+    if let Ok(empty) = Estimate::new(Vec::new(), None, 0) {
+        refined.estimate = empty;
+    }
     let unrefinable = refined.unrefinable();
     if unrefinable > 0 {
         warnings.push(format!(

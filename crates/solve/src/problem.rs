@@ -13,11 +13,14 @@ use std::time::Instant;
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum MeshPlan {
     /// Start coarse and split where the measured light asks for it (the default): the start is
-    /// the faces cut to the bounding-box diagonal / 40 when that holds at most half of
-    /// `max_patches`, else the uniform default when that fits, else one element per face;
-    /// refined with a quarter of the budget.
+    /// the faces cut to the bounding-box diagonal / 40 (faces smaller than that stay whole)
+    /// when the cut adds at most half of `max_patches` elements to one per face, else the
+    /// uniform default when it adds at most `max_patches` and fits the budget, else one element
+    /// per face; refined with a quarter of the budget, within `max_patches` or one element per
+    /// face plus half of it, whichever is more.
     Adaptive {
-        /// The most elements (patches), `>= 1`.
+        /// The most elements (patches), `>= 1`, or one per input face plus half of it when
+        /// that is more (`AdaptiveBounds::for_faces`).
         max_patches: usize,
         /// The shortest edge a split may make (scene units, `> 0`); `None`: the diagonal / 640.
         min_edge: Option<f32>,
