@@ -739,7 +739,10 @@ fn a_sky_map_lights_the_face_that_looks_at_its_bright_pixel() {
         for row in &rows {
             let b = row.radiosity.x;
             if row.patch as usize == face {
-                assert!((b - lit).abs() < 0.01 * lit, "rotate {rotate}: {row:?} vs {lit}");
+                assert!(
+                    (b - lit).abs() < 0.01 * lit,
+                    "rotate {rotate}: {row:?} vs {lit}"
+                );
             } else {
                 assert!(b < 0.02 * lit, "rotate {rotate}: {row:?}");
             }
@@ -789,11 +792,24 @@ fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
     let exact = 0.5 * std::f64::consts::PI;
     assert!((mean - exact).abs() < 0.01 * exact, "{mean} vs {exact}");
     // a uniform sky through --sky: exact
-    let o = mcrad(&["solve", plane, "-q", "--rays", "2e4", "--sky", "1,1,1", "--patches", &csv]);
+    let o = mcrad(&[
+        "solve",
+        plane,
+        "-q",
+        "--rays",
+        "2e4",
+        "--sky",
+        "1,1,1",
+        "--patches",
+        &csv,
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     for row in read_csv(&csv) {
         // exact up to the f32 of the mesh's emission
-        assert!((row.radiosity.x - 0.5 * std::f64::consts::PI).abs() < 1e-6, "{row:?}");
+        assert!(
+            (row.radiosity.x - 0.5 * std::f64::consts::PI).abs() < 1e-6,
+            "{row:?}"
+        );
     }
     let square = dir.path().join("square.exr");
     let image = mcrad_render::Image {
@@ -813,7 +829,14 @@ fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
     );
     assert_clean_failure(&["solve", plane, "--sky", "1,-1,0"], "--sky");
     assert_clean_failure(
-        &["solve", plane, "--sky", "1,1,1", "--sky-map", square.to_str().unwrap()],
+        &[
+            "solve",
+            plane,
+            "--sky",
+            "1,1,1",
+            "--sky-map",
+            square.to_str().unwrap(),
+        ],
         "cannot be used with",
     );
 }

@@ -59,11 +59,32 @@ fn room(window: bool, sky: Sky) -> Scene {
     let inside = Vec3::new(1.0, 1.0, 0.5);
     let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
     let rect = |x: [f32; 2], y: [f32; 2], z: f32| {
-        [v(x[0], y[0], z), v(x[1], y[0], z), v(x[1], y[1], z), v(x[0], y[1], z)]
+        [
+            v(x[0], y[0], z),
+            v(x[1], y[0], z),
+            v(x[1], y[1], z),
+            v(x[0], y[1], z),
+        ]
     };
-    quad(&mut p, &mut faces, rect([0.0, 2.0], [0.0, 2.0], 0.0), 0, inside);
-    for (a, b) in [((0.0, 0.0), (2.0, 0.0)), ((2.0, 0.0), (2.0, 2.0)), ((2.0, 2.0), (0.0, 2.0)), ((0.0, 2.0), (0.0, 0.0))] {
-        let wall = [v(a.0, a.1, 0.0), v(b.0, b.1, 0.0), v(b.0, b.1, 1.0), v(a.0, a.1, 1.0)];
+    quad(
+        &mut p,
+        &mut faces,
+        rect([0.0, 2.0], [0.0, 2.0], 0.0),
+        0,
+        inside,
+    );
+    for (a, b) in [
+        ((0.0, 0.0), (2.0, 0.0)),
+        ((2.0, 0.0), (2.0, 2.0)),
+        ((2.0, 2.0), (0.0, 2.0)),
+        ((0.0, 2.0), (0.0, 0.0)),
+    ] {
+        let wall = [
+            v(a.0, a.1, 0.0),
+            v(b.0, b.1, 0.0),
+            v(b.0, b.1, 1.0),
+            v(a.0, a.1, 1.0),
+        ];
         quad(&mut p, &mut faces, wall, 1, inside);
     }
     let [wx, wy] = WINDOW;
@@ -92,8 +113,10 @@ fn solve(method: Method, mesh: &Mesh, bvh: &Bvh, sky: &Sky, seed: u64) -> Soluti
         sky: Some(sky.clone()),
         ..Default::default()
     };
-    run(method, mesh, bvh, &config, &mut |_| ControlFlow::Continue(()))
-        .unwrap_or_else(|e| panic!("{method}: {e}"))
+    run(method, mesh, bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap_or_else(|e| panic!("{method}: {e}"))
 }
 
 fn mesh_of(scene: &Scene) -> (Mesh, Bvh) {
@@ -197,9 +220,15 @@ fn plane(sky: Sky) -> Scene {
         material: 0,
         source: 0,
     }];
-    let scene = Scene::new_lit_sky(p, faces, vec![material("ground", RHO)], Vec::new(), Some(sky))
-        .unwrap()
-        .0;
+    let scene = Scene::new_lit_sky(
+        p,
+        faces,
+        vec![material("ground", RHO)],
+        Vec::new(),
+        Some(sky),
+    )
+    .unwrap()
+    .0;
     assert!((scene.face_normal(&scene.faces()[0]) - Vec3::Y).length() < 1e-6);
     scene
 }

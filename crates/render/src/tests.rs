@@ -402,7 +402,11 @@ fn bad_settings_and_shading_are_typed_errors() {
 #[test]
 fn rays_that_leave_the_scene_see_the_sky() {
     let (mesh, bvh) = lamp(Subdivision::None);
-    let e: Vec<DVec3> = mesh.patches().iter().map(|p| p.emission.as_dvec3()).collect();
+    let e: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .map(|p| p.emission.as_dvec3())
+        .collect();
     // Looking at the lamp's middle with a wide view: the lamp in the centre, sky around it.
     let camera = Camera::look_at(
         Vec3::new(1.0, 0.5, 1.0),
@@ -414,19 +418,40 @@ fn rays_that_leave_the_scene_see_the_sky() {
     // a map bright above the horizon, dim below
     let (w, h) = (8u32, 4u32);
     let texels = (0..w * h)
-        .map(|k| if k / w < h / 2 { [4.0, 5.0, 6.0] } else { [0.5, 0.5, 0.5] })
+        .map(|k| {
+            if k / w < h / 2 {
+                [4.0, 5.0, 6.0]
+            } else {
+                [0.5, 0.5, 0.5]
+            }
+        })
         .collect();
     let map = mcrad_scene_io::SkyMap::new(w, h, texels, 0.0).unwrap();
     let mut with_sky = settings(9, 9, 1);
     with_sky.sky = Some(mcrad_scene_io::Sky::Map(std::sync::Arc::new(map)));
-    let image = render(&mesh, &bvh, &camera, Shading::Flat(&e), &with_sky, &no_progress).unwrap();
+    let image = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&e),
+        &with_sky,
+        &no_progress,
+    )
+    .unwrap();
     let lamp = Vec3::new(3.0, 2.0, 1.0) / std::f32::consts::PI;
     assert!((image.get(4, 4).unwrap() - lamp).abs().max_element() < 1e-6);
     // the top corner row looks up (+Y), the bottom one down
     assert_eq!(image.get(0, 0).unwrap(), Vec3::new(4.0, 5.0, 6.0));
     assert_eq!(image.get(8, 8).unwrap(), Vec3::splat(0.5));
     // without a sky a miss is black
-    let black = render(&mesh, &bvh, &camera, Shading::Flat(&e), &settings(9, 9, 1), &no_progress)
-        .unwrap();
+    let black = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&e),
+        &settings(9, 9, 1),
+        &no_progress,
+    )
+    .unwrap();
     assert_eq!(black.get(0, 0).unwrap(), Vec3::ZERO);
 }

@@ -146,7 +146,9 @@ pub(crate) fn load_gltf_bytes(
     } = geometry;
     warnings.extend(textures.warnings());
     lights.extend(options.lights.iter().cloned());
-    let (mut scene, more) = Scene::new_lit_sky(positions, faces, materials, lights, options.sky.clone()).map_err(in_file)?;
+    let (mut scene, more) =
+        Scene::new_lit_sky(positions, faces, materials, lights, options.sky.clone())
+            .map_err(in_file)?;
     warnings.extend(more);
     if textures.out.faces.iter().any(Option::is_some) {
         scene = scene.with_textures(textures.out);

@@ -94,7 +94,7 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         options.lights.clone(),
         options.sky.clone(),
     )
-        .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
+    .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
     warnings.extend(more);
     Ok(Loaded {
         scene,

@@ -90,9 +90,9 @@ impl Sky {
     /// when it is made).
     pub fn check(&self) -> Result<(), String> {
         match self {
-            Sky::Uniform(l) if !(l.is_finite() && l.min_element() >= 0.0) => Err(format!(
-                "radiance {l} W/(m² sr) is negative or not finite"
-            )),
+            Sky::Uniform(l) if !(l.is_finite() && l.min_element() >= 0.0) => {
+                Err(format!("radiance {l} W/(m² sr) is negative or not finite"))
+            }
             _ => Ok(()),
         }
     }
@@ -140,7 +140,14 @@ fn read_exr(path: &Path) -> Result<(u32, u32, Vec<[f32; 3]>), String> {
         |size, _| {
             let (w, h) = (size.width(), size.height());
             let fits = w <= 2 * MAX_SKY_EDGE as usize && h <= MAX_SKY_EDGE as usize;
-            (w, if fits { vec![[0.0; 3]; w * h] } else { Vec::new() })
+            (
+                w,
+                if fits {
+                    vec![[0.0; 3]; w * h]
+                } else {
+                    Vec::new()
+                },
+            )
         },
         |(width, texels): &mut (usize, Vec<[f32; 3]>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
             if let Some(t) = texels.get_mut(pos.y() * *width + pos.x()) {
@@ -201,10 +208,7 @@ impl SkyMap {
             ));
         }
         if texels.len() != width as usize * height as usize {
-            return Err(format!(
-                "{} pixels for {width} x {height}",
-                texels.len()
-            ));
+            return Err(format!("{} pixels for {width} x {height}", texels.len()));
         }
         if let Some(k) = texels
             .iter()
@@ -326,7 +330,11 @@ impl SkyMap {
         }
         let local = DVec3::new(st * phi.sin(), ct, -st * phi.cos());
         let (s, c) = self.rotation.sin_cos();
-        let direction = DVec3::new(c * local.x + s * local.z, local.y, -s * local.x + c * local.z);
+        let direction = DVec3::new(
+            c * local.x + s * local.z,
+            local.y,
+            -s * local.x + c * local.z,
+        );
         let pdf = self.pdf(direction);
         (pdf > 0.0).then_some(SkySample { direction, pdf })
     }
