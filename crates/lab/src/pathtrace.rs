@@ -639,4 +639,59 @@ mod tests {
             Err(PathTraceError::TooFewSamples(1))
         );
     }
+
+    /// An open upward plane (reflectance 0.4, no emitter) under a uniform sky `L`: a path
+    /// that hits the plane bounces once (throughput `rho`) and escapes, so each pixel on the
+    /// plane is `rho L` without noise, and a pixel that misses it is `L`.
+    #[test]
+    fn escaping_paths_see_the_sky() {
+        let l = DVec3::new(1.0, 2.0, 3.0);
+        let sky = mcrad_scene_io::Sky::Uniform(l);
+        let positions = vec![
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+        ];
+        let faces = vec![Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }];
+        let material = Material {
+            name: "ground".into(),
+            reflectance: Vec3::splat(0.4),
+            emission: Vec3::ZERO,
+        };
+        let scene = Input::new_lit_sky(positions, faces, vec![material], vec![], Some(sky.clone()))
+            .unwrap()
+            .0;
+        let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+        let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+        // looking straight down from above: the plane fills the centre
+        let camera = Camera::look_at(Vec3::new(0.0, 1.0, 0.0), Vec3::ZERO, Vec3::Z, 30.0).unwrap();
+        let options = PathTraceOptions {
+            width: 4,
+            height: 4,
+            samples_per_pixel: 4,
+            seed: 1,
+            sky: Some(sky),
+        };
+        let picture = path_trace(&mesh, &bvh, &camera, &options).unwrap();
+        for p in &picture.radiance.pixels {
+            assert!((p.as_dvec3() - l * 0.4).abs().max_element() < 1e-6, "{p}");
+        }
+        // looking up: the sky itself
+        let up = Camera::look_at(
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 2.0, 0.0),
+            Vec3::Z,
+            30.0,
+        )
+        .unwrap();
+        let picture = path_trace(&mesh, &bvh, &up, &options).unwrap();
+        for p in &picture.radiance.pixels {
+            assert!((p.as_dvec3() - l).abs().max_element() < 1e-6, "{p}");
+        }
+    }
 }
