@@ -677,7 +677,7 @@ mod tests {
             seed: 1,
             sky: Some(sky),
         };
-        let picture = path_trace(&mesh, &bvh, &camera, &options).unwrap();
+        let picture = path_trace(&mesh, &[], &bvh, &camera, &options).unwrap();
         for p in &picture.radiance.pixels {
             assert!((p.as_dvec3() - l * 0.4).abs().max_element() < 1e-6, "{p}");
         }
@@ -689,7 +689,7 @@ mod tests {
             30.0,
         )
         .unwrap();
-        let picture = path_trace(&mesh, &bvh, &up, &options).unwrap();
+        let picture = path_trace(&mesh, &[], &bvh, &up, &options).unwrap();
         for p in &picture.radiance.pixels {
             assert!((p.as_dvec3() - l).abs().max_element() < 1e-6, "{p}");
         }
