@@ -147,6 +147,8 @@ pub(crate) fn load_gltf_bytes(
     warnings.extend(textures.warnings());
     lights.extend(options.lights.iter().cloned());
     let (mut scene, more) = Scene::new_lit(positions, faces, materials, lights).map_err(in_file)?;
+    // the built-in default material (appended last, if any) is one-sided, as glTF's own
+    scene = scene.with_two_sided(document.materials().map(|m| m.double_sided()).collect());
     warnings.extend(more);
     if textures.out.faces.iter().any(Option::is_some) {
         scene = scene.with_textures(textures.out);

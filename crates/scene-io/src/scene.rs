@@ -80,6 +80,8 @@ pub struct Scene {
     materials: Vec<Material>,
     textures: Option<std::sync::Arc<crate::SceneTextures>>,
     lights: Vec<crate::Light>,
+    /// Per material: two-sided (empty when every face is one-sided).
+    two_sided: Vec<bool>,
 }
 
 impl Scene {
@@ -256,6 +258,7 @@ impl Scene {
             materials,
             textures: None,
             lights,
+            two_sided: Vec::new(),
         };
         Ok((scene, warnings))
     }
@@ -272,6 +275,29 @@ impl Scene {
     pub fn with_textures(mut self, textures: crate::SceneTextures) -> Scene {
         self.textures = Some(std::sync::Arc::new(textures));
         self
+    }
+
+    /// The scene with two-sided materials: `two_sided[m]` makes the faces of material `m`
+    /// two-sided (glTF `doubleSided`): each side of such a face reflects, and emits if the
+    /// material emits, with a radiosity of its own, and rays meet either side. Materials past
+    /// the end of `two_sided` stay one-sided (front side only).
+    pub fn with_two_sided(mut self, mut two_sided: Vec<bool>) -> Scene {
+        two_sided.truncate(self.materials.len());
+        if !two_sided.contains(&true) {
+            two_sided.clear();
+        }
+        self.two_sided = two_sided;
+        self
+    }
+
+    /// Whether the faces of material `material` are two-sided (see [`Scene::with_two_sided`]).
+    pub fn is_two_sided(&self, material: u32) -> bool {
+        self.two_sided.get(material as usize).copied().unwrap_or(false)
+    }
+
+    /// Whether some material is two-sided.
+    pub fn has_two_sided(&self) -> bool {
+        !self.two_sided.is_empty()
     }
 
     /// The textures and face mappings, when the scene has textured faces.
