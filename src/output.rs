@@ -102,6 +102,7 @@ pub fn bake(
         allow_outside_paths: args.allow_outside_paths,
         lights: args.sun.iter().cloned().collect(),
         light_efficacy: args.light_efficacy,
+        two_sided: args.two_sided,
         ..Default::default()
     };
     let input = mcrad_bake::BakeInput {

@@ -290,6 +290,17 @@ impl Mesh {
         }
     }
 
+    /// What a back side adds to its face number in outputs (per-face rows, the `face` column):
+    /// `N`, one more than the largest face number of the mesh (the input's face count unless
+    /// its last faces were dropped), so the back of face `f` is `f + N`. 0 for a mesh without
+    /// back sides. Computed over the patches (linear time).
+    pub fn back_face_offset(&self) -> u32 {
+        if !self.is_two_sided() {
+            return 0;
+        }
+        self.patches.iter().map(|p| p.face).max().map_or(0, |f| f.saturating_add(1))
+    }
+
     /// Whether some patch is the back side of a two-sided face.
     pub fn is_two_sided(&self) -> bool {
         self.patches.iter().any(|p| p.back)
