@@ -340,7 +340,7 @@ fn two_sided_faces_have_back_sides_that_split_with_their_fronts_and_are_traced()
     let mut m = AdaptiveMesh::new(&s, Subdivision::MaxEdge(1.5), b).unwrap();
     let before = m.len();
     let r = m.refine(&[1, 2, 5]);
-    assert_eq!(r.split, 4);
+    assert_eq!(r.split, 6);
     assert_eq!(m.len(), m.mesh().patches().len());
     assert!(m.len() > before);
     assert_paired(m.mesh());
