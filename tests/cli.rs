@@ -208,11 +208,22 @@ fn two_sided_faces_reflect_on_their_back_with_a_row_of_their_own() {
     );
     let plane = plane.to_str().unwrap();
     let sun = format!("{},0,{},1000,0", 30f64.to_radians().cos(), -0.5);
-    assert_clean_failure(&["solve", plane, "-q", "--sun", &sun], "no patch emits light");
+    assert_clean_failure(
+        &["solve", plane, "-q", "--sun", &sun],
+        "no patch emits light",
+    );
     for per_face in [true, false] {
         let csv = path(dir.path(), "p.csv");
         let mut args = vec![
-            "solve", plane, "-q", "--rays", "2e4", "--sun", &sun, "--two-sided", "--patches",
+            "solve",
+            plane,
+            "-q",
+            "--rays",
+            "2e4",
+            "--sun",
+            &sun,
+            "--two-sided",
+            "--patches",
             &csv,
         ];
         if per_face {
@@ -226,7 +237,11 @@ fn two_sided_faces_reflect_on_their_back_with_a_row_of_their_own() {
         }
         assert!(rows.iter().any(|r| r.face == Some(1)) || per_face);
         for row in rows {
-            let back = if per_face { row.patch == 1 } else { row.face == Some(1) };
+            let back = if per_face {
+                row.patch == 1
+            } else {
+                row.face == Some(1)
+            };
             let exact = if back { 250.0 } else { 0.0 };
             assert!((row.radiosity.x - exact).abs() < 1e-3, "{row:?}");
         }

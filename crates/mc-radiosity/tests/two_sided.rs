@@ -19,13 +19,9 @@ use std::ops::ControlFlow;
 
 fn solve(method: Method, mesh: &Mesh, config: &ScheduleConfig) -> Vec<DVec3> {
     let bvh = mesh.caster().unwrap();
-    run(
-        method,
-        mesh,
-        &bvh,
-        config,
-        &mut |_| ControlFlow::Continue(()),
-    )
+    run(method, mesh, &bvh, config, &mut |_| {
+        ControlFlow::Continue(())
+    })
     .unwrap_or_else(|e| panic!("{method}: {e}"))
     .estimate
     .radiosity()

@@ -334,12 +334,7 @@ impl AdaptiveMesh {
             }
             count += sides * (children.len() - 1);
             if sides == 2 {
-                split[i + 1] = Some(
-                    children
-                        .iter()
-                        .map(|c| Leaf { back: true, ..*c })
-                        .collect(),
-                );
+                split[i + 1] = Some(children.iter().map(|c| Leaf { back: true, ..*c }).collect());
             }
             split[i] = Some(children);
         }

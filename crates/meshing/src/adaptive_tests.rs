@@ -355,7 +355,12 @@ fn two_sided_faces_have_back_sides_that_split_with_their_fronts_and_are_traced()
     // the caster: one triangle set, the back side's id from below
     let mesh = m.mesh();
     let bvh = mesh.caster().unwrap();
-    let triangles = mesh.patches().iter().filter(|p| !p.back).map(|p| mesh.patch_triangles(p).len()).sum::<usize>();
+    let triangles = mesh
+        .patches()
+        .iter()
+        .filter(|p| !p.back)
+        .map(|p| mesh.patch_triangles(p).len())
+        .sum::<usize>();
     assert_eq!(bvh.triangle_count(), triangles);
     use mcrad_raycast::{Ray, RayCaster};
     for (i, p) in mesh.patches().iter().enumerate() {

@@ -298,7 +298,11 @@ impl Mesh {
         if !self.is_two_sided() {
             return 0;
         }
-        self.patches.iter().map(|p| p.face).max().map_or(0, |f| f.saturating_add(1))
+        self.patches
+            .iter()
+            .map(|p| p.face)
+            .max()
+            .map_or(0, |f| f.saturating_add(1))
     }
 
     /// Whether some patch is the back side of a two-sided face.

@@ -14,9 +14,9 @@ use obvhs::{
 };
 use rayon::prelude::*;
 
+use crate::NO_ID;
 #[cfg(target_arch = "x86_64")]
 use crate::traverse::{Avx2, Avx512};
-use crate::NO_ID;
 use crate::{
     AnyHit, BuildError, Hit, Ray, RayCaster, SurfacePoint, batch,
     frame::{self, CanonicalRay, CanonicalSegment, Frame},
@@ -811,11 +811,27 @@ mod tests {
         assert!(two.occluded(&floor, &above));
         assert!(!two.occluded(&SurfacePoint::new(p, Vec3::Y, 8), &above));
         // bad pairs are refused
-        let bad = |pairs: &[(u32, u32)]| Bvh::build(&tris, &[7, 7, 3]).unwrap().with_back_sides(pairs);
-        assert!(matches!(bad(&[(7, 7)]), Err(BuildError::BadBackSide { .. })));
-        assert!(matches!(bad(&[(7, 8), (3, 8)]), Err(BuildError::BadBackSide { .. })));
-        assert!(matches!(bad(&[(7, NO_ID)]), Err(BuildError::BadBackSide { .. })));
-        assert!(matches!(bad(&[(7, 1 << 20)]), Err(BuildError::BadBackSide { .. })));
+        let bad = |pairs: &[(u32, u32)]| {
+            Bvh::build(&tris, &[7, 7, 3])
+                .unwrap()
+                .with_back_sides(pairs)
+        };
+        assert!(matches!(
+            bad(&[(7, 7)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, 8), (3, 8)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, NO_ID)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, 1 << 20)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
     }
 
     #[test]

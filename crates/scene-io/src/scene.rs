@@ -292,7 +292,10 @@ impl Scene {
 
     /// Whether the faces of material `material` are two-sided (see [`Scene::with_two_sided`]).
     pub fn is_two_sided(&self, material: u32) -> bool {
-        self.two_sided.get(material as usize).copied().unwrap_or(false)
+        self.two_sided
+            .get(material as usize)
+            .copied()
+            .unwrap_or(false)
     }
 
     /// Whether some material is two-sided.
