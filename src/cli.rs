@@ -233,6 +233,11 @@ pub struct Solve {
     /// Blender's exporter; 1 reads the intensities as radiometric.
     #[arg(long, value_name = "K", default_value_t = mcrad_scene_io::DEFAULT_LIGHT_EFFICACY, value_parser = parse_fraction)]
     pub light_efficacy: f64,
+    /// Make every face of an OBJ scene two-sided: both sides reflect (and emit, if the
+    /// material emits), each with its own radiosity. glTF scenes refuse it: each material's
+    /// doubleSided decides.
+    #[arg(long)]
+    pub two_sided: bool,
     /// Set by `mcrad bake`: bake the solution into the scene's glTF.
     #[arg(skip)]
     pub bake: Option<BakeTarget>,

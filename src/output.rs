@@ -103,6 +103,7 @@ pub fn bake(
         lights: args.sun.iter().cloned().collect(),
         sky: args.sky()?,
         light_efficacy: args.light_efficacy,
+        two_sided: args.two_sided,
         ..Default::default()
     };
     let input = mcrad_bake::BakeInput {

@@ -79,8 +79,20 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         lights: args.sun.iter().cloned().collect(),
         sky: args.sky()?,
         light_efficacy: args.light_efficacy,
+        two_sided: args.two_sided,
         ..Default::default()
     };
+    if args.two_sided
+        && !args
+            .scene
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+    {
+        bail!(
+            "--two-sided applies to OBJ scenes: in glTF each material's doubleSided says which \
+             faces are two-sided"
+        );
+    }
     let mut loaded = mcrad_scene_io::load_with(&args.scene, &options)?;
     for warning in &loaded.warnings {
         eprintln!("warning: {}: {warning}", args.scene.display());

@@ -195,6 +195,64 @@ fn an_unlit_scene_is_refused_and_the_sun_lights_it() {
     );
 }
 
+/// `--two-sided` on an open plane (reflectance 0.5) lit from below by a delta sun at 30 degrees
+/// elevation with 1000 W/m²: the back side has `B = rho E sin(elevation) = 250` exactly and the
+/// front 0; `--per-face` writes face 0 (the front) and face 1 (its back, face + 1 face). One-
+/// sided, the plane is unlit and refused. A glTF scene refuses `--two-sided`.
+#[test]
+fn two_sided_faces_reflect_on_their_back_with_a_row_of_their_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let plane = write(
+        dir.path(),
+        "plane.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+    );
+    let plane = plane.to_str().unwrap();
+    let sun = format!("{},0,{},1000,0", 30f64.to_radians().cos(), -0.5);
+    assert_clean_failure(
+        &["solve", plane, "-q", "--sun", &sun],
+        "no patch emits light",
+    );
+    for per_face in [true, false] {
+        let csv = path(dir.path(), "p.csv");
+        let mut args = vec![
+            "solve",
+            plane,
+            "-q",
+            "--rays",
+            "2e4",
+            "--sun",
+            &sun,
+            "--two-sided",
+            "--patches",
+            &csv,
+        ];
+        if per_face {
+            args.push("--per-face");
+        }
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let rows = read_csv(&csv);
+        if per_face {
+            assert_eq!(rows.iter().map(|r| r.patch).collect::<Vec<_>>(), [0, 1]);
+        }
+        assert!(rows.iter().any(|r| r.face == Some(1)) || per_face);
+        for row in rows {
+            let back = if per_face {
+                row.patch == 1
+            } else {
+                row.face == Some(1)
+            };
+            let exact = if back { 250.0 } else { 0.0 };
+            assert!((row.radiosity.x - exact).abs() < 1e-3, "{row:?}");
+        }
+    }
+    assert_clean_failure(
+        &["solve", "scenes/any.gltf", "--two-sided"],
+        "--two-sided applies to OBJ scenes",
+    );
+}
+
 /// Runs a bad invocation and checks for one clear error line, a non-zero exit and no panic.
 fn assert_clean_failure(args: &[&str], expect: &str) {
     let o = mcrad(args);

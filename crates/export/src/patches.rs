@@ -87,13 +87,15 @@ impl From<PatchRow> for WriteRow {
 
 /// The rows of a solution on `mesh`: patch `i` numbered `patch[i]`, with its area, its
 /// radiosity `radiosity[i]` (W/m²), its variance `variance[i]` ((W/m²)², where known) and its
-/// input face. The slices have one entry per patch, in mesh order.
+/// input face; the back side of a two-sided face `f` has the face `f + N`
+/// ([`mcrad_meshing::Mesh::back_face_offset`]), so [`per_face`] gives each side its own row. The slices have one entry per patch, in mesh order.
 pub fn patch_rows<'a>(
     mesh: &'a mcrad_meshing::Mesh,
     patch: &'a [u32],
     radiosity: &'a [DVec3],
     variance: Option<&'a [DVec3]>,
 ) -> impl Iterator<Item = PatchRow> + 'a {
+    let back = mesh.back_face_offset();
     mesh.patches()
         .iter()
         .enumerate()
@@ -102,7 +104,7 @@ pub fn patch_rows<'a>(
             area: p.area,
             radiosity: radiosity[i],
             variance: variance.map(|v| v[i]),
-            face: Some(p.face),
+            face: Some(p.face + if p.back { back } else { 0 }),
         })
 }
 

@@ -40,6 +40,9 @@ struct Leaf {
     depth: u8,
     /// Index into [`AdaptiveMesh::templates`].
     template: u32,
+    /// The back side of the leaf before it (a two-sided face): it splits with its front, into
+    /// the same children, and its patch is the front's back side (its corners are unused).
+    back: bool,
 }
 
 impl Leaf {
@@ -206,6 +209,7 @@ impl AdaptiveMesh {
                         emission: material.emission,
                         face: patch.face,
                         material: patch.material,
+                        two_sided: scene.is_two_sided(patch.material),
                     });
                     (templates.len() - 1) as u32
                 });
@@ -219,6 +223,7 @@ impl AdaptiveMesh {
                 count: c.len() as u8,
                 depth: 0,
                 template,
+                back: patch.back,
             });
         }
         let textures = scene.textures().cloned();
@@ -339,42 +344,67 @@ impl AdaptiveMesh {
         let mut split = vec![None::<Vec<Leaf>>; self.leaves.len()];
         let (mut count, mut unrefinable, mut held) = (self.leaves.len(), 0, 0);
         for &i in order {
-            let i = i as usize;
-            if i >= self.leaves.len() || split[i].is_some() {
+            let mut i = i as usize;
+            if i >= self.leaves.len() {
+                continue;
+            }
+            // a back side splits with its front: the pair counts as two leaves throughout
+            if self.leaves[i].back {
+                i -= 1;
+            }
+            let sides = if self.is_paired(i) { 2 } else { 1 };
+            if split[i].is_some() {
                 continue;
             }
             let Some(plan) = split_plan(&self.leaves[i], self.bounds.min_edge) else {
-                held += 1;
+                held += sides;
                 continue;
             };
             let Some(children) = split_leaf(&self.leaves[i], plan, self.resolved) else {
-                unrefinable += 1;
+                unrefinable += sides;
                 continue;
             };
-            if count + children.len() - 1 > budget {
-                held += 1;
+            if count + sides * (children.len() - 1) > budget {
+                held += sides;
                 continue;
             }
-            count += children.len() - 1;
+            count += sides * (children.len() - 1);
+            if sides == 2 {
+                split[i + 1] = Some(children.iter().map(|c| Leaf { back: true, ..*c }).collect());
+            }
             split[i] = Some(children);
         }
         let mut leaves = Vec::with_capacity(count);
         let mut parent = Vec::with_capacity(count);
         let mut done = 0;
         let mut split_leaves = Vec::new();
-        for (i, (leaf, children)) in self.leaves.iter().zip(split).enumerate() {
-            match children {
+        let mut i = 0;
+        while i < self.leaves.len() {
+            match &split[i] {
+                Some(children) if self.is_paired(i) => {
+                    // fronts and backs alternate: each back right after its front
+                    let backs = split[i + 1].as_ref().expect("a pair splits whole");
+                    done += 2;
+                    split_leaves.extend([i as u32, i as u32 + 1]);
+                    for (f, b) in children.iter().zip(backs) {
+                        parent.extend([i as u32, i as u32 + 1]);
+                        leaves.extend([*f, *b]);
+                    }
+                    i += 2;
+                    continue;
+                }
                 Some(children) => {
                     done += 1;
                     split_leaves.push(i as u32);
                     parent.extend(std::iter::repeat_n(i as u32, children.len()));
-                    leaves.extend(children);
+                    leaves.extend(children.iter().copied());
                 }
                 None => {
                     parent.push(i as u32);
-                    leaves.push(*leaf);
+                    leaves.push(self.leaves[i]);
                 }
             }
+            i += 1;
         }
         let kept = self.mesh.kept_whole();
         self.mesh = build_mesh(
@@ -392,6 +422,11 @@ impl AdaptiveMesh {
             unrefinable,
             held,
         }
+    }
+
+    /// Whether leaf `i` is the front of a two-sided pair (the next leaf is its back).
+    fn is_paired(&self, i: usize) -> bool {
+        !self.leaves[i].back && self.leaves.get(i + 1).is_some_and(|l| l.back)
     }
 
     /// Bytes held per leaf element: the hierarchy's leaves and the mesh's patches, corners,
@@ -442,6 +477,7 @@ fn split_leaf(leaf: &Leaf, plan: Plan, min_size: f64) -> Option<Vec<Leaf>> {
             count: corners.len() as u8,
             depth: leaf.depth.saturating_add(1),
             template: leaf.template,
+            back: false,
         }
     };
     let children: Vec<Leaf> = match plan {
@@ -522,6 +558,10 @@ fn build_mesh(
     let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len());
     let mut corners = Vec::with_capacity(4);
     for leaf in leaves {
+        if leaf.back {
+            // pushed with its front (the template is two-sided)
+            continue;
+        }
         corners.clear();
         for &p in leaf.corners() {
             let key = p.to_array().map(|c| (c + 0.0).to_bits());

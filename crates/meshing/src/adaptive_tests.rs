@@ -289,3 +289,83 @@ fn vertex_radiosity_is_continuous_across_t_vertices() {
     let (_, coarse) = along(mesh, &corners, 0, 1, 0.5);
     assert_eq!(corners[mid], coarse);
 }
+
+/// Every back side right after its front: the same corners reversed (from the same first one),
+/// area, face and material, the opposite normal; no back side otherwise.
+fn assert_paired(mesh: &Mesh) {
+    let patches = mesh.patches();
+    assert!(!patches[0].back);
+    for (i, p) in patches.iter().enumerate() {
+        let Some(j) = mesh.twin(i) else {
+            continue;
+        };
+        assert_eq!(mesh.twin(j), Some(i));
+        if !p.back {
+            continue;
+        }
+        let f = &patches[j];
+        assert_eq!(j, i - 1);
+        assert!(!f.back);
+        let (fc, bc) = (mesh.corners(f), mesh.corners(p));
+        let reversed: Vec<u32> = std::iter::once(fc[0])
+            .chain(fc[1..].iter().rev().copied())
+            .collect();
+        assert_eq!(bc, &reversed[..], "patch {i}");
+        assert_eq!((p.area, p.face, p.material), (f.area, f.face, f.material));
+        assert_eq!(p.normal, -f.normal);
+    }
+}
+
+#[test]
+fn two_sided_faces_have_back_sides_that_split_with_their_fronts_and_are_traced() {
+    let s = shapes(Vec3::ZERO).with_two_sided(vec![true]);
+    let uniform = Mesh::build(&s, Subdivision::MaxEdge(1.5)).unwrap();
+    let one = Mesh::build(&shapes(Vec3::ZERO), Subdivision::MaxEdge(1.5)).unwrap();
+    assert_eq!(uniform.patches().len(), 2 * one.patches().len());
+    assert!(uniform.is_two_sided() && !one.is_two_sided());
+    assert_eq!(uniform.back_face_offset(), 3);
+    assert_paired(&uniform);
+    // corner groups never join a front with its back
+    let groups = uniform.corner_groups(DEFAULT_CREASE_ANGLE_DEGREES);
+    for g in 0..groups.len() {
+        let sides: Vec<bool> = groups
+            .patches(g)
+            .iter()
+            .map(|&p| uniform.patches()[p as usize].back)
+            .collect();
+        assert!(sides.iter().all(|&b| b == sides[0]), "group {g}");
+    }
+    // asking for a back side splits the pair; children alternate front, back
+    let b = bounds(0.01, 1000);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::MaxEdge(1.5), b).unwrap();
+    let before = m.len();
+    let r = m.refine(&[1, 2, 5]);
+    assert_eq!(r.split, 6);
+    assert_eq!(m.len(), m.mesh().patches().len());
+    assert!(m.len() > before);
+    assert_paired(m.mesh());
+    for (j, &p) in r.parent.iter().enumerate() {
+        assert_eq!(m.mesh().patches()[j].back, p % 2 == 1, "leaf {j}");
+    }
+    m.refine(&[7, 0]);
+    assert_paired(m.mesh());
+    let again = AdaptiveMesh::replay(&s, m.history(), b).unwrap();
+    assert_eq!(again.mesh().triangles(), m.mesh().triangles());
+    assert_eq!(again.history(), m.history());
+    // the caster: one triangle set, the back side's id from below
+    let mesh = m.mesh();
+    let bvh = mesh.caster().unwrap();
+    let triangles = mesh
+        .patches()
+        .iter()
+        .filter(|p| !p.back)
+        .map(|p| mesh.patch_triangles(p).len())
+        .sum::<usize>();
+    assert_eq!(bvh.triangle_count(), triangles);
+    use mcrad_raycast::{Ray, RayCaster};
+    for (i, p) in mesh.patches().iter().enumerate() {
+        let dir = if p.back { Vec3::Z } else { -Vec3::Z };
+        let hit = bvh.closest_hit(&Ray::new(p.centroid - dir, dir)).unwrap();
+        assert_eq!((hit.id, hit.front), (i as u32, true), "patch {i}");
+    }
+}

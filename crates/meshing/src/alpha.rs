@@ -76,9 +76,31 @@ fn mix(mut z: u64) -> u64 {
 impl Mesh {
     /// The ray caster of this mesh: a [`Bvh`] over its triangles tagged with their patch
     /// indices, with the [`AlphaTest`] of its alpha-tested patches if it has any (rays pass
-    /// their cut-out parts, for closest hits and occlusion alike).
+    /// their cut-out parts, for closest hits and occlusion alike). The back side of a
+    /// two-sided face ([`crate::Patch::back`]) adds no triangles: its front's are built once
+    /// and report the back's index where a ray meets them from behind
+    /// ([`Bvh::with_back_sides`]).
     pub fn caster(&self) -> Result<Bvh, BuildError> {
-        let bvh = Bvh::build(&self.triangle_positions(), self.triangle_patch())?;
+        if !self.is_two_sided() {
+            let bvh = Bvh::build(&self.triangle_positions(), self.triangle_patch())?;
+            return Ok(match AlphaTest::new(self) {
+                Some(test) => bvh.with_any_hit(Arc::new(test)),
+                None => bvh,
+            });
+        }
+        let patches = self.patches();
+        let (mut triangles, mut ids) = (Vec::new(), Vec::new());
+        for (t, &p) in self.triangles().iter().zip(self.triangle_patch()) {
+            if !patches[p as usize].back {
+                triangles.push(t.map(|i| self.positions()[i as usize]));
+                ids.push(p);
+            }
+        }
+        let pairs: Vec<(u32, u32)> = (1..patches.len())
+            .filter(|&i| patches[i].back)
+            .map(|i| (i as u32 - 1, i as u32))
+            .collect();
+        let bvh = Bvh::build(&triangles, &ids)?.with_back_sides(&pairs)?;
         Ok(match AlphaTest::new(self) {
             Some(test) => bvh.with_any_hit(Arc::new(test)),
             None => bvh,

@@ -8,7 +8,8 @@ use std::sync::Arc;
 /// How faces become patches.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Subdivision {
-    /// One patch per input face, in face order (patch `i` is face `faces()[i]`).
+    /// One patch per input face, in face order (patch `i` is face `faces()[i]` when every face
+    /// is one-sided; a two-sided face's back side follows its front).
     None,
     /// Cut every face uniformly until no patch edge is longer than this length (scene units,
     /// finite and `> 0`).
@@ -104,6 +105,12 @@ pub struct Patch {
     pub face: u32,
     /// The material index in the scene.
     pub material: u32,
+    /// The back side of a two-sided face ([`mcrad_scene_io::Scene::is_two_sided`]): the
+    /// patch right before it in mesh order is its front, with the same polygon (corners in
+    /// reverse order from the same first one), area, reflectance and emission, and the
+    /// opposite normal. Each side has a radiosity of its own. `false` for every patch of a
+    /// one-sided face and for fronts.
+    pub back: bool,
     first_corner: u32,
     corner_count: u32,
     first_triangle: u32,
@@ -185,6 +192,7 @@ impl Mesh {
                 emission: material.emission,
                 face: face.source,
                 material: face.material,
+                two_sided: scene.is_two_sided(face.material),
             };
             match max_edge {
                 None => mesh.push_patch(&face.vertices, &template),
@@ -299,8 +307,73 @@ impl Mesh {
         self.positions[i as usize]
     }
 
-    /// Appends a convex planar polygon patch with the given corner indices (counter-clockwise).
+    /// Appends a convex planar polygon patch with the given corner indices (counter-clockwise),
+    /// and right after it its back side when the template is two-sided.
     pub(crate) fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate) {
+        self.push_front(corners, t);
+        if t.two_sided {
+            self.push_back_side();
+        }
+    }
+
+    /// Appends the back side of the last patch (see [`Patch::back`]).
+    fn push_back_side(&mut self) {
+        let front = self.patches.len() - 1;
+        let f = self.patches[front].clone();
+        let id = self.patches.len() as u32;
+        let first_corner = self.corners.len() as u32;
+        let first_triangle = self.triangles.len() as u32;
+        let own = self.corners(&f).to_vec();
+        self.corners.push(own[0]);
+        self.corners.extend(own[1..].iter().rev());
+        for t in self.patch_triangles(&f).to_vec() {
+            self.triangles.push([t[0], t[2], t[1]]);
+            self.triangle_patch.push(id);
+        }
+        self.patches.push(Patch {
+            normal: -f.normal,
+            back: true,
+            first_corner,
+            first_triangle,
+            ..f
+        });
+    }
+
+    /// The other side of patch `i` when it belongs to a two-sided face (see [`Patch::back`]):
+    /// `i + 1` for a front, `i - 1` for a back; `None` for a one-sided patch.
+    ///
+    /// # Panics
+    /// If `i` is out of range.
+    pub fn twin(&self, i: usize) -> Option<usize> {
+        if self.patches[i].back {
+            Some(i - 1)
+        } else {
+            self.patches.get(i + 1).filter(|p| p.back).map(|_| i + 1)
+        }
+    }
+
+    /// What a back side adds to its face number in outputs (per-face rows, the `face` column):
+    /// `N`, one more than the largest face number of the mesh (the input's face count unless
+    /// its last faces were dropped), so the back of face `f` is `f + N`. 0 for a mesh without
+    /// back sides. Computed over the patches (linear time).
+    pub fn back_face_offset(&self) -> u32 {
+        if !self.is_two_sided() {
+            return 0;
+        }
+        self.patches
+            .iter()
+            .map(|p| p.face)
+            .max()
+            .map_or(0, |f| f.saturating_add(1))
+    }
+
+    /// Whether some patch is the back side of a two-sided face.
+    pub fn is_two_sided(&self) -> bool {
+        self.patches.iter().any(|p| p.back)
+    }
+
+    /// Appends one side of a patch.
+    fn push_front(&mut self, corners: &[u32], t: &PatchTemplate) {
         let id = self.patches.len() as u32;
         let first_corner = self.corners.len() as u32;
         let first_triangle = self.triangles.len() as u32;
@@ -349,6 +422,7 @@ impl Mesh {
             emission,
             face: t.face,
             material: t.material,
+            back: false,
             first_corner,
             corner_count: corners.len() as u32,
             first_triangle,
@@ -498,6 +572,8 @@ pub(crate) struct PatchTemplate {
     pub emission: Vec3,
     pub face: u32,
     pub material: u32,
+    /// Push each patch's back side right after it.
+    pub two_sided: bool,
 }
 
 /// The origin of the local frame of `scene`'s mesh (see [`Mesh::origin`]): the bounding box's

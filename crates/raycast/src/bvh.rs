@@ -14,6 +14,7 @@ use obvhs::{
 };
 use rayon::prelude::*;
 
+use crate::NO_ID;
 #[cfg(target_arch = "x86_64")]
 use crate::traverse::{Avx2, Avx512};
 use crate::{
@@ -117,6 +118,34 @@ pub struct Bvh {
     triangle_count: usize,
     /// The crossings that let rays pass, if any (see [`Bvh::with_any_hit`]).
     any_hit: Option<Arc<dyn AnyHit>>,
+    /// The back-side ids of two-sided triangles, if any (see [`Bvh::with_back_sides`]).
+    sides: Option<Arc<Sides>>,
+}
+
+/// The id tables of two-sided triangles (dense, indexed by id).
+#[derive(Debug)]
+struct Sides {
+    /// `back[id]`: the back-side id of the triangles tagged `id`, or `NO_ID`.
+    back: Vec<u32>,
+    /// `front[id]`: for a back-side id, the id of its triangles; `NO_ID` for other ids.
+    front: Vec<u32>,
+}
+
+impl Sides {
+    /// The id the triangles of `id` carry: `id` itself unless it is a back-side id.
+    #[inline]
+    fn triangle_of(&self, id: u32) -> u32 {
+        match self.front.get(id as usize) {
+            Some(&f) if f != NO_ID => f,
+            _ => id,
+        }
+    }
+
+    /// The back-side id of the triangles tagged `id`, if they are two-sided.
+    #[inline]
+    fn back_of(&self, id: u32) -> Option<u32> {
+        self.back.get(id as usize).copied().filter(|&b| b != NO_ID)
+    }
 }
 
 impl std::fmt::Debug for Bvh {
@@ -129,6 +158,7 @@ impl std::fmt::Debug for Bvh {
             .field("bounds", &self.bounds)
             .field("scale", &self.frame.scale())
             .field("any_hit", &self.any_hit.is_some())
+            .field("two_sided", &self.sides.is_some())
             .finish()
     }
 }
@@ -179,6 +209,7 @@ impl Bvh {
             bounds,
             triangle_count: triangles.len(),
             any_hit: None,
+            sides: None,
         })
     }
 
@@ -190,6 +221,72 @@ impl Bvh {
             any_hit: Some(test),
             ..self
         }
+    }
+
+    /// This BVH with two-sided triangles: each pair `(front, back)` makes the triangles tagged
+    /// `front` two-sided, their back side a surface of its own with id `back`. A ray that
+    /// arrives on the back of such a triangle reports [`Hit::id`] `back` and [`Hit::front`]
+    /// `true` (it meets the front of the back side); a ray or segment end that excludes either
+    /// id excludes both (a ray leaving one side never hits the other). The triangles stay one
+    /// per surface in the hierarchy, so the two sides never race for a hit. The any-hit test,
+    /// if any, is asked with the triangles' id (`front`). A BVH without pairs pays nothing;
+    /// with them, two table look-ups per query (8 bytes per id up to the largest).
+    ///
+    /// Errors ([`BuildError::BadBackSide`]): an id equal to [`NO_ID`](crate::NO_ID), a pair of
+    /// equal ids, an id in two pairs, an id beyond `4 * triangle_count + 1024`. An empty
+    /// list leaves the BVH one-sided.
+    pub fn with_back_sides(self, pairs: &[(u32, u32)]) -> Result<Bvh, BuildError> {
+        if pairs.is_empty() {
+            return Ok(Bvh {
+                sides: None,
+                ..self
+            });
+        }
+        let limit = 4 * self.triangle_count as u64 + 1024;
+        let mut len = 0usize;
+        for (pair, &(front, back)) in pairs.iter().enumerate() {
+            let bad = |reason| BuildError::BadBackSide {
+                pair,
+                front,
+                back,
+                reason,
+            };
+            if front == NO_ID || back == NO_ID {
+                return Err(bad("an id is NO_ID"));
+            }
+            if front == back {
+                return Err(bad("the two ids are equal"));
+            }
+            if u64::from(front.max(back)) >= limit {
+                return Err(bad("an id is beyond 4 * triangles + 1024"));
+            }
+            len = len.max(front.max(back) as usize + 1);
+        }
+        let mut sides = Sides {
+            back: vec![NO_ID; len],
+            front: vec![NO_ID; len],
+        };
+        for (pair, &(front, back)) in pairs.iter().enumerate() {
+            let (f, b) = (front as usize, back as usize);
+            if sides.back[f] != NO_ID
+                || sides.front[f] != NO_ID
+                || sides.back[b] != NO_ID
+                || sides.front[b] != NO_ID
+            {
+                return Err(BuildError::BadBackSide {
+                    pair,
+                    front,
+                    back,
+                    reason: "an id is in two pairs",
+                });
+            }
+            sides.back[f] = back;
+            sides.front[b] = front;
+        }
+        Ok(Bvh {
+            sides: Some(Arc::new(sides)),
+            ..self
+        })
     }
 
     /// This BVH with the portable node test (four children at a time, SSE on x86_64) even
@@ -255,6 +352,18 @@ impl Bvh {
     /// offset and window (about `1e-6` of the scene's largest extent).
     pub fn surface_epsilon(&self) -> f32 {
         self.frame.world_epsilon() as f32
+    }
+
+    /// The [`Hit`] of canonical ray `c` at canonical distance `t` from its lifted origin.
+    #[inline]
+    fn hit(&self, c: &CanonicalRay, t: f32, id: u32, front: bool) -> Hit {
+        let canonical_point = c.origin.as_dvec3() + c.dir.as_dvec3() * t as f64;
+        Hit {
+            id,
+            distance: ((c.skip + t as f64) * self.frame.inv_scale()) as f32,
+            point: self.frame.world(canonical_point),
+            front,
+        }
     }
 
     /// Closest hit in canonical units: (distance from the lifted origin, the triangle's id,
@@ -454,13 +563,14 @@ fn build_bvh2_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -
 impl RayCaster for Bvh {
     fn closest_hit(&self, ray: &Ray) -> Option<Hit> {
         let c = self.frame.canonical_ray(ray)?;
-        let (t, id, front) = self.trace(&c, ray.exclude)?;
-        let canonical_point = c.origin.as_dvec3() + c.dir.as_dvec3() * t as f64;
-        Some(Hit {
-            id,
-            distance: ((c.skip + t as f64) * self.frame.inv_scale()) as f32,
-            point: self.frame.world(canonical_point),
-            front,
+        let Some(sides) = &self.sides else {
+            let (t, id, front) = self.trace(&c, ray.exclude)?;
+            return Some(self.hit(&c, t, id, front));
+        };
+        let (t, id, front) = self.trace(&c, sides.triangle_of(ray.exclude))?;
+        Some(match sides.back_of(id) {
+            Some(back) if !front => self.hit(&c, t, back, true),
+            _ => self.hit(&c, t, id, front),
         })
     }
 
@@ -494,10 +604,14 @@ impl RayCaster for Bvh {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
+        let (ia, ib) = match &self.sides {
+            None => (a.id, b.id),
+            Some(sides) => (sides.triangle_of(a.id), sides.triangle_of(b.id)),
+        };
         self.run(Blocked {
             segment: &s,
-            ia: a.id,
-            ib: b.id,
+            ia,
+            ib,
         })
     }
 }
@@ -653,6 +767,71 @@ mod tests {
             })
             .collect();
         (bvh, rays)
+    }
+
+    #[test]
+    fn two_sided_triangles_report_their_back_id_and_exclude_both_sides() {
+        // a unit square at y = 0 (ids 7, back 8) over a floor at y = -1 (id 3, one-sided,
+        // facing up)
+        let (a, b) = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0));
+        let (c, d) = (Vec3::new(1.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0));
+        let down = Vec3::new(0.0, -1.0, 0.0);
+        let tris = [[a, d, c], [a, c, b], [a + down, d + down, c + down]];
+        let one = Bvh::build(&tris, &[7, 7, 3]).unwrap();
+        let two = Bvh::build(&tris, &[7, 7, 3])
+            .unwrap()
+            .with_back_sides(&[(7, 8)])
+            .unwrap();
+        let p = Vec3::new(0.3, 0.0, 0.6);
+        let from_below = Ray::new(p - Vec3::Y * 0.5, Vec3::Y);
+        let from_above = Ray::new(p + Vec3::Y * 0.5, -Vec3::Y);
+        let hit = |bvh: &Bvh, r: &Ray| bvh.closest_hit(r).map(|h| (h.id, h.front));
+        assert_eq!(hit(&one, &from_below), Some((7, false)));
+        assert_eq!(hit(&two, &from_below), Some((8, true)));
+        assert_eq!(hit(&one, &from_above), Some((7, true)));
+        assert_eq!(hit(&two, &from_above), Some((7, true)));
+        // leaving the back side downwards: the floor, never its own front
+        let leave_back = Ray::from_surface(p, -Vec3::Y, -Vec3::Y, 8);
+        assert_eq!(hit(&two, &leave_back), Some((3, true)));
+        let leave_front = Ray::from_surface(p, Vec3::Y, Vec3::Y, 7);
+        assert_eq!(hit(&two, &leave_front), None);
+        // grazing rays leaving either side at a slant
+        for k in 1..50 {
+            let dir = Vec3::new(1.0, -0.02 * k as f32, 0.3).normalize();
+            let h = two.closest_hit(&Ray::from_surface(p, -Vec3::Y, dir, 8));
+            assert!(h.is_none_or(|h| h.id == 3), "{dir}: {h:?}");
+        }
+        // occlusion: a back-side point to the floor below is clear, the plane blocks a free
+        // point below from one above, and the back id names the triangle as an end point
+        let floor = SurfacePoint::new(p + down, Vec3::Y, 3);
+        let back = SurfacePoint::new(p, -Vec3::Y, 8);
+        assert!(!two.occluded(&back, &floor));
+        assert!(!one.occluded(&SurfacePoint::new(p, -Vec3::Y, 7), &floor));
+        let above = SurfacePoint::free(p + Vec3::Y);
+        assert!(two.occluded(&floor, &above));
+        assert!(!two.occluded(&SurfacePoint::new(p, Vec3::Y, 8), &above));
+        // bad pairs are refused
+        let bad = |pairs: &[(u32, u32)]| {
+            Bvh::build(&tris, &[7, 7, 3])
+                .unwrap()
+                .with_back_sides(pairs)
+        };
+        assert!(matches!(
+            bad(&[(7, 7)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, 8), (3, 8)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, NO_ID)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
+        assert!(matches!(
+            bad(&[(7, 1 << 20)]),
+            Err(BuildError::BadBackSide { .. })
+        ));
     }
 
     #[test]

@@ -54,6 +54,20 @@ pub enum BuildError {
         /// The spacing of `f32` values at `magnitude` (scene units).
         spacing: f32,
     },
+    /// A pair of [`Bvh::with_back_sides`](crate::Bvh::with_back_sides) is refused: an id is
+    /// [`NO_ID`](crate::NO_ID), both ids are equal, an id appears in two pairs, or an id is
+    /// beyond `4 * triangles + 1024` (the id tables are dense, 8 bytes per id up to the largest).
+    #[error("back side pair {pair} ({front}, {back}) is invalid: {reason}")]
+    BadBackSide {
+        /// Index of the pair in the input list.
+        pair: usize,
+        /// The pair's front (triangle) id.
+        front: u32,
+        /// The pair's back id.
+        back: u32,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
     /// The hierarchy would hold more triangle slots than the traversal can address
     /// (`2^29` packets of 4, counting triangles that spatial splits put in several leaves and
     /// the unused lanes of packets).

@@ -331,6 +331,66 @@ fn back_faces_are_black() {
     );
 }
 
+/// A two-sided quad seen from behind shows its back side's radiosity (flat and smooth: front
+/// and back never share a vertex value), from the front its front's.
+#[test]
+fn a_camera_behind_a_two_sided_face_sees_its_back_side() {
+    let scene = mcrad_scene_io::Scene::new(
+        vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ],
+        vec![mcrad_scene_io::Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }],
+        vec![mcrad_scene_io::Material {
+            name: "sheet".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ONE,
+        }],
+    )
+    .unwrap()
+    .0
+    .with_two_sided(vec![true]);
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.3)).unwrap();
+    let bvh = mesh.caster().unwrap();
+    let (front, back) = (DVec3::new(3.0, 2.0, 1.0), DVec3::new(0.5, 1.0, 4.0));
+    let b: Vec<DVec3> = mesh
+        .patches()
+        .iter()
+        .map(|p| if p.back { back } else { front })
+        .collect();
+    let corners = mesh.corner_radiosity(&b, mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES);
+    for (z, expected) in [(3.0, front), (-3.0, back)] {
+        let camera = Camera::look_at(
+            Vec3::new(1.0, 0.5, z),
+            Vec3::new(1.0, 0.5, 0.0),
+            Vec3::Y,
+            15.0,
+        )
+        .unwrap();
+        let expected = (expected / PI).as_vec3();
+        for shading in [Shading::Flat(&b), Shading::Smooth(&corners)] {
+            let image = render(
+                &mesh,
+                &bvh,
+                &camera,
+                shading,
+                &settings(16, 16, 9),
+                &no_progress,
+            )
+            .unwrap();
+            for p in &image.pixels {
+                assert!((*p - expected).abs().max_element() < 1e-5, "z {z}: {p}");
+            }
+        }
+    }
+}
+
 #[test]
 fn progress_counts_every_row_up_to_the_height() {
     let (mesh, bvh) = lamp(Subdivision::None);

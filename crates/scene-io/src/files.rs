@@ -38,6 +38,9 @@ pub struct LoadOptions {
     /// [`DEFAULT_LIGHT_EFFICACY`](crate::DEFAULT_LIGHT_EFFICACY) (683, Blender's exporter's
     /// factor); 1 reads the intensities as radiometric. Must be positive and finite.
     pub light_efficacy: f64,
+    /// Make every face of an OBJ scene two-sided ([`Scene::with_two_sided`](crate::Scene::with_two_sided)).
+    /// Off by default. glTF scenes ignore it: each material's `doubleSided` decides.
+    pub two_sided: bool,
 }
 
 impl Default for LoadOptions {
@@ -48,6 +51,7 @@ impl Default for LoadOptions {
             lights: Vec::new(),
             sky: None,
             light_efficacy: crate::DEFAULT_LIGHT_EFFICACY,
+            two_sided: false,
         }
     }
 }

@@ -149,6 +149,8 @@ pub(crate) fn load_gltf_bytes(
     let (mut scene, more) =
         Scene::new_lit_sky(positions, faces, materials, lights, options.sky.clone())
             .map_err(in_file)?;
+    // the built-in default material (appended last, if any) is one-sided, as glTF's own
+    scene = scene.with_two_sided(document.materials().map(|m| m.double_sided()).collect());
     warnings.extend(more);
     if textures.out.faces.iter().any(Option::is_some) {
         scene = scene.with_textures(textures.out);

@@ -87,6 +87,7 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         warnings.push(Warning::DefaultMaterial { faces: defaulted });
     }
 
+    let two_sided = vec![options.two_sided; materials.len()];
     let (scene, more) = Scene::new_lit_sky(
         positions,
         faces,
@@ -95,6 +96,7 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         options.sky.clone(),
     )
     .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
+    let scene = scene.with_two_sided(two_sided);
     warnings.extend(more);
     Ok(Loaded {
         scene,

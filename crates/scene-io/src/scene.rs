@@ -81,6 +81,8 @@ pub struct Scene {
     textures: Option<std::sync::Arc<crate::SceneTextures>>,
     lights: Vec<crate::Light>,
     sky: Option<crate::Sky>,
+    /// Per material: two-sided (empty when every face is one-sided).
+    two_sided: Vec<bool>,
 }
 
 impl Scene {
@@ -276,6 +278,7 @@ impl Scene {
             textures: None,
             lights,
             sky,
+            two_sided: Vec::new(),
         };
         Ok((scene, warnings))
     }
@@ -297,6 +300,32 @@ impl Scene {
     pub fn with_textures(mut self, textures: crate::SceneTextures) -> Scene {
         self.textures = Some(std::sync::Arc::new(textures));
         self
+    }
+
+    /// The scene with two-sided materials: `two_sided[m]` makes the faces of material `m`
+    /// two-sided (glTF `doubleSided`): each side of such a face reflects, and emits if the
+    /// material emits, with a radiosity of its own, and rays meet either side. Materials past
+    /// the end of `two_sided` stay one-sided (front side only).
+    pub fn with_two_sided(mut self, mut two_sided: Vec<bool>) -> Scene {
+        two_sided.truncate(self.materials.len());
+        if !two_sided.contains(&true) {
+            two_sided.clear();
+        }
+        self.two_sided = two_sided;
+        self
+    }
+
+    /// Whether the faces of material `material` are two-sided (see [`Scene::with_two_sided`]).
+    pub fn is_two_sided(&self, material: u32) -> bool {
+        self.two_sided
+            .get(material as usize)
+            .copied()
+            .unwrap_or(false)
+    }
+
+    /// Whether some material is two-sided.
+    pub fn has_two_sided(&self) -> bool {
+        !self.two_sided.is_empty()
     }
 
     /// The textures and face mappings, when the scene has textured faces.

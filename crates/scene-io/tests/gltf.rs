@@ -240,6 +240,43 @@ fn gltf_with_embedded_buffer_and_node_transforms() {
     check_two_quads(&load_ok("scene.gltf", json.as_bytes()));
 }
 
+/// `doubleSided` makes a material's faces two-sided; the built-in default material (faces
+/// without one) stays one-sided, as glTF's; `LoadOptions::two_sided` is for OBJ and changes
+/// nothing here.
+#[test]
+fn double_sided_materials_are_two_sided() {
+    let mut doc = two_quads();
+    let other = doc.indices(&QUAD_TRIANGLES);
+    let rest = format!(
+        r#""nodes":[{{"mesh":0}}],
+      "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"material":0}},
+                               {{"attributes":{{"POSITION":0}},"indices":1,"material":1}},
+                               {{"attributes":{{"POSITION":0}},"indices":{other}}}]}}],
+      "materials":[{{"name":"leaf","doubleSided":true}},
+                   {{"name":"lamp","emissiveFactor":[1,1,1]}}]"#
+    );
+    let json = doc.gltf(&rest);
+    let (_dir, path) = write("leaf.gltf", json.as_bytes());
+    for two_sided in [false, true] {
+        let options = mcrad_scene_io::LoadOptions {
+            two_sided,
+            ..Default::default()
+        };
+        let scene = mcrad_scene_io::load_with(&path, &options).unwrap().scene;
+        let names: Vec<&str> = scene.materials().iter().map(|m| m.name.as_str()).collect();
+        assert_eq!(names, ["leaf", "lamp", "default"]);
+        assert!(scene.has_two_sided());
+        assert_eq!(
+            (0..3).map(|m| scene.is_two_sided(m)).collect::<Vec<_>>(),
+            [true, false, false]
+        );
+    }
+    // without doubleSided: one-sided throughout
+    let json = json.replace(r#","doubleSided":true"#, "");
+    let scene = load_ok("one.gltf", json.as_bytes()).scene;
+    assert!(!scene.has_two_sided() && !scene.is_two_sided(0));
+}
+
 #[test]
 fn glb_with_binary_chunk() {
     let doc = two_quads();

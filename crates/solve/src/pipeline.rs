@@ -34,7 +34,7 @@ pub struct Answer {
     /// pieces merged.
     pub estimate: Estimate,
     /// Each patch's number in outputs (mesh order): its input face with
-    /// [`MeshPlan::PerFace`], else its index.
+    /// [`MeshPlan::PerFace`] (a back side's plus [`Mesh::back_face_offset`]), else its index.
     pub patch: Vec<u32>,
     /// What the run reports of itself.
     pub stats: RunStats,
@@ -246,13 +246,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     warnings.extend(sliver_warning(&mesh));
     let bvh = mesh.caster()?;
+    let back = mesh.back_face_offset();
     let patch: Vec<u32> = mesh
         .patches()
         .iter()
         .enumerate()
         .map(|(i, p)| {
             if settings.mesh == MeshPlan::PerFace {
-                p.face
+                // a back side: its face number plus the offset (see `Mesh::back_face_offset`)
+                p.face + if p.back { back } else { 0 }
             } else {
                 i as u32
             }
