@@ -30,7 +30,7 @@
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
 //! let camera = Camera::look_at(Vec3::new(0.5, 0.5, 2.0), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 20.0)?;
 //! let b = [DVec3::splat(std::f64::consts::PI)]; // B = π W/m², so L = 1 W/(m² sr)
-//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4 };
+//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None };
 //! let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_rows| {})?;
 //! assert!((image.get(4, 4).unwrap() - Vec3::ONE).length() < 1e-6);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
