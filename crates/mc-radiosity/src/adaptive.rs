@@ -53,7 +53,7 @@ pub struct AdaptiveConfig {
     pub seed: u64,
     /// The pilot shooting's unshot threshold (fraction of the emitted power).
     pub unshot_threshold: f64,
-    /// Lights without a surface (the scene's frame), as in [`ScheduleConfig::lights`]: the
+    /// Lights without a surface (the scene's frame), as in [`ScheduleConfig::lights`](crate::ScheduleConfig::lights): the
     /// pilot and every round solve with their direct light, and an element across which their
     /// shadows change is marked as for an emitting face's.
     pub lights: Vec<mcrad_scene_io::Light>,
