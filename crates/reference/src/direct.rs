@@ -41,13 +41,19 @@ pub struct Direct {
     pub rays: u64,
     /// Patch-light pairs integrated in closed form (wholly lit, no spot cone or range).
     pub exact: u64,
-    /// Patch-light pairs integrated by the centroid rule ([`FINE`]² sub-triangles each).
+    /// Patch-light pairs integrated by the equal-weight rule ([`FINE`] points per triangle).
     pub quadrature: u64,
 }
 
-/// The mean direct irradiance of each patch of `mesh` from `lights` (in the mesh's frame:
-/// translated by `-mesh.origin()`), with visibility from `caster` (ids = patch indices); see
-/// the [module documentation](self).
+/// The mean direct irradiance `H_i = (1/A_i) ∫ E(x) max(0, n_i · w(x)) V(x) dA` (W/m²) of each
+/// patch of `mesh` from `lights` (in the mesh's frame: translated by `-mesh.origin()`), with
+/// visibility from `caster` (ids = patch indices). [`PROBE`] low-discrepancy points per
+/// triangle test the visibility: a patch they find wholly lit gets the closed form where one
+/// exists (a point light without a range: `I Ω_i / A_i`, `Ω_i` the solid angle the patch
+/// subtends; a sun: `E n_i · w`); a partly shadowed one, or a spot or ranged light, the
+/// equal-weight rule on [`FINE`] points per triangle with shadow rays (about `2e-4` of the
+/// patch's irradiance across a straight shadow edge). A shadow falling between every probe
+/// point is missed. Deterministic.
 pub fn direct_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, lights: &[Light]) -> Direct {
     let positions = mesh.positions();
     let far = far_distance(positions);
