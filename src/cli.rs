@@ -618,18 +618,9 @@ fn parse_sun(s: &str) -> Result<mcrad_scene_io::Light, String> {
 
 /// Parses `--sky R,G,B`: a radiance per channel, each finite and `>= 0` W/(m² sr).
 fn parse_sky(s: &str) -> Result<glam::DVec3, String> {
-    let parts: Vec<f64> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("'{s}' is not R,G,B (radiance in W/(m² sr))"))?;
-    match parts[..] {
-        [r, g, b] if [r, g, b].iter().all(|x| x.is_finite() && *x >= 0.0) => {
-            Ok(glam::DVec3::new(r, g, b))
-        }
-        _ => Err(format!(
-            "'{s}' is not R,G,B: three finite radiances >= 0 in W/(m² sr)"
-        )),
+    match s.parse::<mcrad_scene_io::Sky>()? {
+        mcrad_scene_io::Sky::Uniform(radiance) => Ok(radiance),
+        mcrad_scene_io::Sky::Map(_) => Err(format!("'{s}' is not R,G,B")),
     }
 }
 

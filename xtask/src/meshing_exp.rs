@@ -321,6 +321,7 @@ fn ground_truth(
             out: picture.clone(),
             error: Some(error.clone()),
             sun: None,
+            sky: None,
         })?;
     }
     Ok((

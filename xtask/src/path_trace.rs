@@ -33,6 +33,9 @@ pub struct PathTraceArgs {
     /// The sun, as `mcrad solve --sun` takes it (added to the scene's own lights)
     #[arg(long, value_name = "X,Y,Z,E[,DIAM]", allow_negative_numbers = true)]
     pub sun: Option<mcrad_scene_io::Sun>,
+    /// A uniform sky, as `mcrad solve --sky` takes it (R,G,B radiance in W/(m² sr))
+    #[arg(long, value_name = "R,G,B")]
+    pub sky: Option<mcrad_scene_io::Sky>,
 }
 
 /// `WxH`, e.g. `256x256`.
@@ -54,10 +57,12 @@ pub fn run_path_trace(args: &PathTraceArgs) -> Result<()> {
         out,
         error,
         sun,
+        sky,
     } = args.clone();
     let error = error.unwrap_or_else(|| out.with_extension("error.exr"));
     let options = mcrad_scene_io::LoadOptions {
         lights: sun.into_iter().map(mcrad_scene_io::Light::Sun).collect(),
+        sky,
         ..Default::default()
     };
     let loaded = mcrad_scene_io::load_with(&scene, &options)

@@ -76,6 +76,27 @@ fn luminance(c: [f32; 3]) -> f64 {
     0.2126 * f64::from(c[0]) + 0.7152 * f64::from(c[1]) + 0.0722 * f64::from(c[2])
 }
 
+impl std::str::FromStr for Sky {
+    type Err = String;
+
+    /// `R,G,B`: a uniform sky of radiance R, G, B W/(m² sr), each finite and `>= 0`.
+    fn from_str(s: &str) -> Result<Sky, String> {
+        let parts: Vec<f64> = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| format!("'{s}' is not R,G,B (radiance in W/(m² sr))"))?;
+        match parts[..] {
+            [r, g, b] if [r, g, b].iter().all(|x| x.is_finite() && *x >= 0.0) => {
+                Ok(Sky::Uniform(DVec3::new(r, g, b)))
+            }
+            _ => Err(format!(
+                "'{s}' is not R,G,B: three finite radiances >= 0 in W/(m² sr)"
+            )),
+        }
+    }
+}
+
 impl Sky {
     /// The radiance arriving along unit direction `direction` (pointing away from the
     /// scene, towards the sky), W/(m² sr) per channel.
