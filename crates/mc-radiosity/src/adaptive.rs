@@ -128,6 +128,9 @@ pub struct Refined {
     /// split starts from the gathering that followed it (its parent's estimates are of the
     /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance.
     pub pooled: Estimate,
+    /// Whether `pooled` may be pooled into the answer: false when it holds only a pilot that
+    /// the clock stopped before it shipped all its power (short of light).
+    pub pooled_valid: bool,
     /// Rays cast by the refinement (pilot, shadow and proximity rays, gathering rounds).
     pub rays: u64,
     /// Each round's counts.
@@ -224,11 +227,15 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         let estimate = Estimate::new(zero.clone(), Some(zero), l.rays).map_err(Error::from)?;
         return Ok(Refined {
             pooled: estimate.clone(),
+            pooled_valid: true,
             estimate,
             rays: l.rays,
             rounds: Vec::new(),
         });
     }
+    // A pilot stopped by the clock before it shipped all its power is short of light: its
+    // estimate places the marks but is not pooled into the answer.
+    let pilot_complete: bool;
     let mut estimate = {
         let ctx = Context::new(lit.as_ref().map_or(mesh.mesh(), |l| &l.mesh), &bvh);
         let s = shoot(
@@ -251,6 +258,8 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             },
         )?;
         rays += s.stats.rays;
+        pilot_complete = s.stats.unshot.element_sum()
+            <= 1e-9 * s.stats.emitted.element_sum().max(f64::MIN_POSITIVE);
         match &lit {
             Some(l) => {
                 rays += l.rays;
@@ -362,7 +371,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         let kept: Vec<bool> = r
             .parent
             .iter()
-            .map(|&p| children[p as usize] == 1)
+            .map(|&p| children[p as usize] == 1 && (pilot_complete || !rounds.is_empty()))
             .collect();
         let carried = Estimate::new(
             inherit(pooled.radiosity()),
@@ -374,9 +383,12 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         estimate = gathered;
         rounds.push(stats);
     }
+    // Without a gathering round the pool holds the pilot alone.
+    let pooled_valid = pilot_complete || rounds.iter().any(|r| r.split > 0);
     Ok(Refined {
         estimate,
         pooled,
+        pooled_valid,
         rays,
         rounds,
     })

@@ -121,7 +121,7 @@ impl Run<'_> {
         }
         match self.refinement {
             Some(r) => {
-                let all = vec![true; self.mesh.patches().len()];
+                let all = vec![r.pooled_valid; self.mesh.patches().len()];
                 Ok(pool(self.mesh, estimate, &r.pooled, &all)?)
             }
             None => Ok(estimate.clone()),
