@@ -472,3 +472,25 @@ fn a_suns_shadow_edge_is_refined_and_its_even_dark_is_not() {
         }
     }
 }
+
+#[test]
+fn a_pilot_stopped_by_the_clock_is_not_pooled_into_the_answer() {
+    // A furnace's pilot given no time stops before it has shipped its power: short of light,
+    // it may place marks but must not be pooled (the sun- and sky-lit atrium's answer was
+    // 0.36% dark at `--time 30`). With a ray budget it completes and is pooled.
+    let scene = furnace(0.5);
+    let bounds = AdaptiveBounds {
+        min_edge: 0.01,
+        max_patches: 100_000,
+    };
+    let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.25), bounds).unwrap();
+    let stopped = AdaptiveConfig {
+        seconds: Some(1e-9),
+        ..config(1)
+    };
+    let r = refine(&mut mesh, &stopped).unwrap();
+    assert!(!r.pooled_valid, "{:?}", r.rounds);
+    let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.25), bounds).unwrap();
+    let r = refine(&mut mesh, &config(1)).unwrap();
+    assert!(r.pooled_valid, "{:?}", r.rounds);
+}
