@@ -120,14 +120,10 @@ impl<'a> Scene<'a> {
         for e in &mut emitters {
             e.1 /= power;
         }
-        let (lo, hi) = mesh.positions().iter().fold(
-            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-        );
         Scene {
             mesh,
             lights,
-            far: (2.0 * f64::from((hi - lo).length())).max(1.0),
+            far: mesh.escape_distance(),
             emitters,
             triangles,
             power,

@@ -85,7 +85,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let patches = mesh.patches();
     let n = points_per_patch(config.rays, patches.len(), lights.len() + sky_rays);
     let sampler = SurfaceSampler::new(mesh);
-    let far = far_distance(mesh);
+    let far = mesh.escape_distance();
     let seed = config.seed;
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
     let moments: Vec<Moments> = (0..patches.len())
@@ -245,16 +245,6 @@ fn irradiance_moments<C: RayCaster>(
         unoccluded: unoccluded / count,
         visible: visible / count,
     }
-}
-
-/// A distance that leaves the mesh's bounding box from any point in it: twice its diagonal
-/// (scene units; 1 for a mesh of one point).
-fn far_distance(mesh: &Mesh) -> f64 {
-    let (lo, hi) = mesh.positions().iter().fold(
-        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
-    (2.0 * f64::from((hi - lo).length())).max(1.0)
 }
 
 impl Lit {

@@ -527,6 +527,17 @@ impl Mesh {
             .collect()
     }
 
+    /// A distance that leaves the mesh's bounding box from any point in it: twice the box's
+    /// diagonal (scene units, in the mesh's frame; at least 1, e.g. for a mesh of one point).
+    /// Where a shadow ray towards a light at infinity (a sun) may end.
+    pub fn escape_distance(&self) -> f64 {
+        let (lo, hi) = self.positions().iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        (2.0 * f64::from((hi - lo).length())).max(1.0)
+    }
+
     /// Total area of all patches (scene units²), summed in f64.
     pub fn total_area(&self) -> f64 {
         self.patches.iter().map(|p| p.area).sum()

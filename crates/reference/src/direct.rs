@@ -56,7 +56,7 @@ pub struct Direct {
 /// point is missed. Deterministic.
 pub fn direct_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, lights: &[Light]) -> Direct {
     let positions = mesh.positions();
-    let far = far_distance(positions);
+    let far = mesh.escape_distance();
     let per_patch: Vec<(DVec3, u64, u64, u64)> = (0..mesh.patches().len())
         .into_par_iter()
         .map(|i| {
@@ -259,16 +259,6 @@ fn solid_angle(r: [DVec3; 3]) -> f64 {
 
 fn triangle_area(t: &[DVec3; 3]) -> f64 {
     0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
-}
-
-/// A distance that leaves the mesh's bounding box from any point in it: twice its diagonal
-/// (at least 1 scene unit).
-fn far_distance(positions: &[Vec3]) -> f64 {
-    let (lo, hi) = positions.iter().fold(
-        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
-    (2.0 * f64::from((hi - lo).length())).max(1.0)
 }
 
 #[cfg(test)]

@@ -227,11 +227,7 @@ pub(crate) fn light_delivery<C: RayCaster>(
         .map(|l| l.translated(-mesh.origin()))
         .collect();
     let positions = mesh.positions();
-    let (lo, hi) = positions.iter().fold(
-        (glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
-    let far = (2.0 * f64::from((hi - lo).length())).max(1.0);
+    let far = mesh.escape_distance();
     let seed = derive_seed(seed, LIGHT_TAG);
     (0..mesh.patches().len())
         .into_par_iter()
