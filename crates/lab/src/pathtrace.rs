@@ -312,22 +312,13 @@ fn radiance<C: RayCaster>(
         }
         // Lights without a surface: one shadow ray each.
         for light in scene.lights {
-            let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
+            let u = [rng.uniform_f64(), rng.uniform_f64()];
+            let Some((e, to)) = light.arrival(x, nx, u, scene.far) else {
                 continue;
             };
-            let cos = nx.as_dvec3().dot(s.direction);
-            if cos <= 0.0 {
-                continue;
-            }
             *rays += 1;
-            let reach = if s.distance.is_finite() {
-                s.distance
-            } else {
-                scene.far
-            };
-            let to = (x.as_dvec3() + s.direction * reach).as_vec3();
             if !caster.occluded(&SurfacePoint::new(x, nx, i as u32), &SurfacePoint::free(to)) {
-                radiance += throughput * rho * s.irradiance * (cos * FRAC_1_PI);
+                radiance += throughput * rho * e * FRAC_1_PI;
             }
         }
         // The bounce: BRDF rho/π times cos over the cosine density cos/π is rho.

@@ -195,7 +195,6 @@ fn irradiance_moments<C: RayCaster>(
     let m = (f64::from(n).sqrt().round() as u32).max(1);
     let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
     let (mut unoccluded, mut visible) = (0.0, 0.0);
-    let nd = normal.as_dvec3();
     for a in 0..m {
         for b in 0..m {
             let u = [
@@ -208,24 +207,15 @@ fn irradiance_moments<C: RayCaster>(
                 h += crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
             }
             for light in sources.lights {
-                let Some(s) = light.sample(x, [rng.uniform_f64(), rng.uniform_f64()]) else {
+                let u = [rng.uniform_f64(), rng.uniform_f64()];
+                let Some((e, target)) = light.arrival(x, normal, u, far) else {
                     continue;
                 };
-                let cos = nd.dot(s.direction);
-                if cos <= 0.0 {
-                    continue;
-                }
-                let reach = if s.distance.is_finite() {
-                    s.distance
-                } else {
-                    far
-                };
-                unoccluded += LUMINANCE.dot(s.irradiance * cos);
-                let target = (x.as_dvec3() + s.direction * reach).as_vec3();
+                unoccluded += LUMINANCE.dot(e);
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
-                    h += s.irradiance * cos;
-                    visible += LUMINANCE.dot(s.irradiance * cos);
+                    h += e;
+                    visible += LUMINANCE.dot(e);
                 }
             }
             sum += h;

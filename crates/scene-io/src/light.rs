@@ -191,6 +191,28 @@ impl Light {
         }
     }
 
+    /// The irradiance `E max(0, n · w)` (W/m² per channel) the light gives a point `x` with unit
+    /// normal `n` when nothing blocks it, drawn with `u` as [`Light::sample`] draws, and where
+    /// that point's shadow ray ends: at the light, or for a sun `far` scene units away towards
+    /// it. `None` where the light gives nothing there (behind the surface, beyond its range or
+    /// cone).
+    pub fn arrival(&self, x: Vec3, n: Vec3, u: [f64; 2], far: f64) -> Option<(DVec3, Vec3)> {
+        let s = self.sample(x, u)?;
+        let cos = n.as_dvec3().dot(s.direction);
+        if cos <= 0.0 {
+            return None;
+        }
+        let reach = if s.distance.is_finite() {
+            s.distance
+        } else {
+            far
+        };
+        Some((
+            s.irradiance * cos,
+            (x.as_dvec3() + s.direction * reach).as_vec3(),
+        ))
+    }
+
     /// The radiant power the light emits (W per channel): `4 pi I` for a point light (its
     /// range window ignored), `2 pi I ((1 - cos inner) + (cos inner - cos outer) / 3)` for a
     /// spot light; `None` for a sun (its power depends on the area it falls on).

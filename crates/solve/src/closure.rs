@@ -274,22 +274,12 @@ pub(crate) fn light_delivery<C: RayCaster>(
                 }
                 for light in &lights {
                     let u = [rng.uniform_f64(), rng.uniform_f64()];
-                    let Some(s) = light.sample(x.as_vec3(), u) else {
+                    let Some((e, to)) = light.arrival(x.as_vec3(), patch.normal, u, far) else {
                         continue;
                     };
-                    let cos = normal.dot(s.direction);
-                    if cos <= 0.0 {
-                        continue;
-                    }
-                    let reach = if s.distance.is_finite() {
-                        s.distance
-                    } else {
-                        far
-                    };
-                    let to = (x + s.direction * reach).as_vec3();
                     let from = SurfacePoint::new(x.as_vec3(), patch.normal, i as u32);
                     if !caster.occluded(&from, &SurfacePoint::free(to)) {
-                        h += s.irradiance * cos;
+                        h += e;
                     }
                 }
                 sum += h;
