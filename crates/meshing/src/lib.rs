@@ -16,6 +16,7 @@
 mod adaptive;
 mod alpha;
 mod build;
+mod cluster;
 mod reconstruct;
 mod seams;
 mod smooth;
@@ -26,6 +27,7 @@ pub use adaptive::{
     DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
 pub use alpha::AlphaTest;
+pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
 pub use build::{
     DEFAULT_MAX_EDGE_FRACTION, F32_SPACINGS_PER_PATCH, MIN_COVERAGE, Mesh, MeshError, Patch,
     Subdivision,
