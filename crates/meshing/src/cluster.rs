@@ -63,7 +63,11 @@ impl Clusters {
             return clusters;
         }
         // Patches per face and side: only a face's single patch may join a cluster.
-        let faces = patches.iter().map(|p| p.face as usize + 1).max().unwrap_or(0);
+        let faces = patches
+            .iter()
+            .map(|p| p.face as usize + 1)
+            .max()
+            .unwrap_or(0);
         let mut per_face = vec![0u8; faces * 2];
         for p in patches {
             let k = p.face as usize * 2 + usize::from(p.back);
@@ -72,8 +76,7 @@ impl Clusters {
         let eligible: Vec<bool> = patches
             .iter()
             .map(|p| {
-                per_face[p.face as usize * 2 + usize::from(p.back)] == 1
-                    && p.emission == Vec3::ZERO
+                per_face[p.face as usize * 2 + usize::from(p.back)] == 1 && p.emission == Vec3::ZERO
             })
             .collect();
         // The eligible patches at each vertex (compressed rows).
@@ -268,7 +271,12 @@ mod tests {
         let scene = scene(&tiles);
         let (mesh, clusters) = clusters_of(&scene);
         // the floor is cut (several patches): never in a cluster
-        assert!(clusters.iter().flatten().all(|&i| mesh.patches()[i as usize].face != 0));
+        assert!(
+            clusters
+                .iter()
+                .flatten()
+                .all(|&i| mesh.patches()[i as usize].face != 0)
+        );
         // every tile in a cluster, clusters of several tiles, few of them
         assert_eq!(clusters.patches(), 1600);
         assert!(

@@ -27,11 +27,11 @@ pub use adaptive::{
     DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
 pub use alpha::AlphaTest;
-pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
 pub use build::{
     DEFAULT_MAX_EDGE_FRACTION, F32_SPACINGS_PER_PATCH, MIN_COVERAGE, Mesh, MeshError, Patch,
     Subdivision,
 };
+pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 

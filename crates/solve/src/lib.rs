@@ -40,6 +40,7 @@
 //! The crate does no I/O and never prints: warnings are returned in [`Answer::warnings`].
 
 mod closure;
+mod clusters;
 mod error;
 mod pipeline;
 mod problem;
@@ -52,4 +53,4 @@ pub use mcrad_mc_radiosity::DEFAULT_RAYS;
 pub use pipeline::{Answer, Observer, Progress, solve};
 pub use problem::{Budget, Input, MeshPlan, Problem, Settings};
 pub use state::{RunState, piece_seed};
-pub use stats::{RefinementRound, RunStats};
+pub use stats::{ClusterStats, RefinementRound, RunStats};

@@ -1,7 +1,9 @@
 //! [`solve`]: mesh, refine, run, pool, under one budget.
 
+use crate::clusters::{PoolCounts, pool_clusters};
 use crate::problem::Input;
 use crate::state::Identity;
+use crate::stats::ClusterStats;
 use crate::stats::RefinementRound;
 use crate::{Budget, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed};
 use glam::DVec3;
@@ -11,7 +13,8 @@ use mcrad_mc_radiosity::{
     pool, refine, run_cancellable,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
+    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES,
+    DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
@@ -111,21 +114,40 @@ struct Run<'a> {
     refinement: Option<&'a Refined>,
     resumed: Option<&'a RunState>,
     lighting: u64,
+    /// Small faces that share one estimate of irradiance where the light allows
+    /// ([`crate::clusters`]); empty but on the adaptive plan.
+    clusters: &'a Clusters,
+    /// What the last pooling over `clusters` did.
+    pooled: std::sync::Mutex<PoolCounts>,
 }
 
 impl Run<'_> {
     /// The answer from this piece's `estimate` (see [`Progress::answer`]).
     fn answer(&self, estimate: &Estimate) -> Result<Estimate, Error> {
         if let Some(state) = self.resumed {
-            return state.continued(estimate, 0, 0)?.estimate();
+            return state
+                .continued(&self.clustered(estimate)?, 0, 0)?
+                .estimate();
         }
         match self.refinement {
             Some(r) => {
                 let all = vec![r.pooled_valid; self.mesh.patches().len()];
-                Ok(pool(self.mesh, estimate, &r.pooled, &all)?)
+                self.clustered(&pool(self.mesh, estimate, &r.pooled, &all)?)
             }
-            None => Ok(estimate.clone()),
+            None => self.clustered(estimate),
         }
+    }
+
+    /// `estimate` pooled over the run's clusters (itself without clusters).
+    fn clustered(&self, estimate: &Estimate) -> Result<Estimate, Error> {
+        if self.clusters.is_empty() {
+            return Ok(estimate.clone());
+        }
+        let (pooled, counts) = pool_clusters(self.mesh, self.clusters, estimate)?;
+        if let Ok(mut last) = self.pooled.lock() {
+            *last = counts;
+        }
+        Ok(pooled)
     }
 
     /// The answer and the state after this piece's `estimate` (`steps` steps, `escaped_rays`
@@ -138,7 +160,7 @@ impl Run<'_> {
     ) -> Result<(Estimate, RunState), Error> {
         match self.resumed {
             Some(saved) => {
-                let state = saved.continued(estimate, steps, escaped_rays)?;
+                let state = saved.continued(&self.clustered(estimate)?, steps, escaped_rays)?;
                 Ok((state.estimate()?, state))
             }
             None => {
@@ -263,6 +285,18 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     if let Some(state) = problem.resume {
         state.check_continues(&mesh, lighting)?;
     }
+    // Small neighbouring faces share one estimate of irradiance (the adaptive plan only: a
+    // fixed mesh is solved as given).
+    let clusters = match (problem.input, settings.mesh) {
+        (Input::Scene(scene), MeshPlan::Adaptive { .. }) if !deterministic => Clusters::build(
+            &mesh,
+            ClusterBounds {
+                max_size: scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION,
+                cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
+            },
+        ),
+        _ => Clusters::default(),
+    };
     let setup_seconds = clock.elapsed().as_secs_f64();
 
     // A continuation is an independent run with its own streams (piece number > 0).
@@ -277,6 +311,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         refinement: refinement.as_ref(),
         resumed: problem.resume,
         lighting,
+        clusters: &clusters,
+        pooled: std::sync::Mutex::new(PoolCounts::default()),
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deadline = if deterministic { None } else { budget.seconds };
@@ -405,6 +441,17 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             .as_ref()
             .map(|r| r.rounds.iter().map(RefinementRound::from).collect()),
         closure,
+        clusters: (!clusters.is_empty()).then(|| {
+            let pooled = run.pooled.lock().map(|c| *c).unwrap_or_default();
+            ClusterStats {
+                clusters: clusters.len(),
+                faces: clusters.patches(),
+                groups: pooled.groups,
+                pooled_faces: pooled.faces,
+                splits: pooled.splits,
+                elements: mesh.patches().len() - pooled.faces + pooled.groups,
+            }
+        }),
     };
     Ok(Answer {
         mesh,

@@ -53,6 +53,31 @@ pub struct RunStats {
     /// [`Problem::closure`]: crate::Problem::closure
     #[serde(skip_serializing_if = "Option::is_none")]
     pub closure: Option<Closure>,
+    /// Clusters of small faces that share one estimate of irradiance, and what the answer's
+    /// pooling over them did; absent where none formed (every mesh but an adaptive one's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clusters: Option<ClusterStats>,
+}
+
+/// Clusters of small faces ([`mcrad_meshing::Clusters`]) and the answer's pooling over them:
+/// each group shares one incident irradiance, each face keeps its own reflectance and
+/// emission. Counts of patches (here, whole input faces).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct ClusterStats {
+    /// Clusters formed from the geometry (at least two faces each).
+    pub clusters: usize,
+    /// Faces in them.
+    pub faces: usize,
+    /// Groups that share one estimate after the test of the light across them (a cluster
+    /// the light varies across is split in two, again and again, down to single faces).
+    pub groups: usize,
+    /// Faces in those groups.
+    pub pooled_faces: usize,
+    /// Splits made by that test.
+    pub splits: usize,
+    /// Independent estimates in the answer: the patches less the pooled faces plus the
+    /// groups.
+    pub elements: usize,
 }
 
 /// What one round of an adaptive mesh's refinement did (counts of elements, and rays).
@@ -139,6 +164,7 @@ mod tests {
             setup_seconds: 0.1,
             sampler: Sampler::Qmc,
             refinement: None,
+            clusters: None,
             closure: Some(Closure {
                 emitted: [1.0, 2.0, 3.0],
                 absorbed: [0.5, 1.0, 1.5],
@@ -181,6 +207,7 @@ mod tests {
         };
         let refined = RunStats {
             refinement: Some(vec![round]),
+            clusters: None,
             ..s
         };
         let v = serde_json::to_value(&refined).unwrap();

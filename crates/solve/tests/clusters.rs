@@ -1,0 +1,252 @@
+//! Clusters of small faces through the library's default solve: many tiny coplanar faces share
+//! a few estimates of irradiance, each face keeps its own reflectance, and a cluster across a
+//! shadow is split.
+
+use glam::{DVec3, Vec3};
+use mcrad_meshing::{
+    ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION,
+};
+use mcrad_scene_io::{Face, Material, Scene};
+use mcrad_solve::{Answer, Problem, solve};
+use std::f64::consts::PI;
+use std::ops::ControlFlow;
+
+fn go(_: &mcrad_solve::Progress) -> ControlFlow<()> {
+    ControlFlow::Continue(())
+}
+
+fn material(name: &str, reflectance: f32, emission: f32) -> Material {
+    Material {
+        name: name.to_string(),
+        reflectance: Vec3::splat(reflectance),
+        emission: Vec3::splat(emission),
+    }
+}
+
+/// Emitted radiosity of the panel (W/m²), its half width (m) and height (m).
+const PANEL: (f64, f64, f64) = (10.0, 5.0, 1.0);
+/// Tiles: `N x N` squares of 2 cm (each two triangles) on `y = 0` around the origin.
+const N: usize = 30;
+const TILE: f32 = 0.02;
+
+/// A black 10 m x 10 m panel 1 m above the floor, emitting [`PANEL`] downwards (material 0),
+/// the floor's tiles of material `tile(i, j)` facing up, and, with `shadow`, a black plate 2 cm
+/// above the tiles over `x < 0` facing up (its back absorbs what comes from below).
+fn scene(tile: impl Fn(usize, usize) -> u32, shadow: bool) -> Scene {
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    let mut face = |corners: &[Vec3], material: u32, positions: &mut Vec<Vec3>| {
+        let first = positions.len() as u32;
+        positions.extend_from_slice(corners);
+        let source = faces.len() as u32;
+        faces.push(Face {
+            vertices: (first..first + corners.len() as u32).collect(),
+            material,
+            source,
+        });
+    };
+    let (_, w, h) = PANEL;
+    let (w, h) = (w as f32, h as f32);
+    face(
+        &[
+            Vec3::new(-w, h, -w),
+            Vec3::new(w, h, -w),
+            Vec3::new(w, h, w),
+            Vec3::new(-w, h, w),
+        ],
+        0,
+        &mut positions,
+    );
+    if shadow {
+        let y = 0.02;
+        face(
+            &[
+                Vec3::new(-w, y, -w),
+                Vec3::new(-w, y, w),
+                Vec3::new(0.0, y, w),
+                Vec3::new(0.0, y, -w),
+            ],
+            1,
+            &mut positions,
+        );
+    }
+    // tile corners shared by index, as an OBJ's are
+    let first = positions.len() as u32;
+    let x0 = -(N as f32) * TILE / 2.0;
+    for j in 0..=N {
+        for i in 0..=N {
+            positions.push(Vec3::new(x0 + i as f32 * TILE, 0.0, x0 + j as f32 * TILE));
+        }
+    }
+    let v = |i: usize, j: usize| first + (j * (N + 1) + i) as u32;
+    for j in 0..N {
+        for i in 0..N {
+            let m = tile(i, j);
+            // counter-clockwise seen from above (+y)
+            for t in [
+                [v(i, j), v(i, j + 1), v(i + 1, j + 1)],
+                [v(i, j), v(i + 1, j + 1), v(i + 1, j)],
+            ] {
+                let source = faces.len() as u32;
+                faces.push(Face {
+                    vertices: t.to_vec(),
+                    material: m,
+                    source,
+                });
+            }
+        }
+    }
+    let materials = vec![
+        material("panel", 0.0, PANEL.0 as f32),
+        material("black", 0.0, 0.0),
+        material("dark", 0.3, 0.0),
+        material("light", 0.6, 0.0),
+    ];
+    Scene::new(positions, faces, materials).unwrap().0
+}
+
+/// Irradiance (W/m²) at the point `(x, 0, z)` facing up from the panel: its exitance times the
+/// form factor of a point to a parallel rectangle, summed over the rectangle's corners.
+fn irradiance(x: f64, z: f64) -> f64 {
+    let (e, w, h) = PANEL;
+    let corner = |a: f64, b: f64| {
+        let (a, b) = (a / h, b / h);
+        let (ra, rb) = ((1.0 + a * a).sqrt(), (1.0 + b * b).sqrt());
+        (a / ra * (b / ra).atan() + b / rb * (a / rb).atan()) / (2.0 * PI)
+    };
+    let f = corner(w - x, w - z) - corner(-w - x, w - z) - corner(w - x, -w - z)
+        + corner(-w - x, -w - z);
+    e * f
+}
+
+fn run(scene: &Scene, seed: u64, threads: usize) -> Answer {
+    let mut problem = Problem::new(scene);
+    problem.settings.seed = seed;
+    problem.budget.rays = Some(2_000_000);
+    problem.threads = Some(threads);
+    solve(&problem, &mut go).unwrap()
+}
+
+/// The tiles' patches of `answer` (material 2 or 3).
+fn tiles(answer: &Answer) -> Vec<usize> {
+    let p = answer.mesh.patches();
+    (0..p.len()).filter(|&i| p[i].material >= 2).collect()
+}
+
+#[test]
+fn tiny_coplanar_faces_share_few_estimates_each_with_its_own_reflectance() {
+    // 1,800 triangles of 2 cm in a checkerboard of reflectances 0.3 and 0.6 under the panel:
+    // their irradiance is the panel's direct light alone (nothing else reflects), known in
+    // closed form, and varies by 0.3% across them.
+    let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, false);
+    let cut = scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION;
+    for seed in 0..3 {
+        let answer = run(&scene, seed, 2);
+        let stats = answer.stats.clusters.expect("clusters formed");
+        let tiles = tiles(&answer);
+        assert_eq!(tiles.len(), 2 * N * N);
+        // few elements for the tiles: every tile pooled, in groups of many
+        assert_eq!(stats.pooled_faces, tiles.len(), "{stats:?}");
+        assert!(stats.groups * 20 <= tiles.len(), "{stats:?}");
+        assert_eq!(
+            (stats.splits, stats.groups),
+            (0, stats.clusters),
+            "{stats:?}"
+        );
+        // the groups are the geometry's clusters
+        let clusters = Clusters::build(
+            &answer.mesh,
+            ClusterBounds {
+                max_size: cut,
+                cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
+            },
+        );
+        assert_eq!(clusters.len(), stats.groups);
+        let (b, var) = (
+            answer.estimate.radiosity(),
+            answer.estimate.variance().unwrap(),
+        );
+        let p = answer.mesh.patches();
+        for c in clusters.iter() {
+            let (mut weight, mut exact) = (0.0, 0.0);
+            let mut reflectances = [false; 2];
+            for &i in c {
+                let q = &p[i as usize];
+                let rho = f64::from(q.reflectance.x);
+                reflectances[usize::from(rho > 0.5)] = true;
+                weight += rho * q.area;
+                let o = q.centroid.as_dvec3() + answer.mesh.origin().as_dvec3();
+                exact += rho * q.area * irradiance(o.x, o.z);
+            }
+            exact /= weight;
+            assert!(reflectances[0] && reflectances[1], "one reflectance only");
+            let i0 = c[0] as usize;
+            let rho0 = p[i0].reflectance.as_dvec3();
+            let h = b[i0] / rho0;
+            for &i in c {
+                let i = i as usize;
+                let rho = p[i].reflectance.as_dvec3();
+                // each face's radiosity is its reflectance times the shared irradiance: the
+                // ratio of two faces' radiosities is that of their reflectances, exactly
+                let r = b[i] / rho;
+                assert!(
+                    (r - h).abs().max_element() <= 1e-12 * h.max_element(),
+                    "{r} {h}"
+                );
+                // and its variance its reflectance squared times the shared one's
+                let vr = var[i] / (rho * rho);
+                let vh = var[i0] / (rho0 * rho0);
+                assert!((vr - vh).abs().max_element() <= 1e-9 * vh.max_element());
+            }
+            // the shared irradiance within 4.5 of its standard errors of the exact one
+            // (3 seeds x about 30 clusters x 3 channels)
+            let se = (var[i0] / (rho0 * rho0)).powf(0.5);
+            let z = (h - DVec3::splat(exact)).abs() / se;
+            assert!(
+                z.max_element() < 4.5,
+                "seed {seed}: H {h} exact {exact} se {se}"
+            );
+        }
+    }
+}
+
+#[test]
+fn pooling_is_the_same_on_any_thread_count() {
+    let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, true);
+    let (a, b) = (run(&scene, 7, 1), run(&scene, 7, 2));
+    assert!(a.stats.clusters.is_some());
+    assert_eq!(a.estimate, b.estimate);
+    assert_eq!(a.stats.clusters, b.stats.clusters);
+}
+
+#[test]
+fn a_cluster_across_a_shadow_is_split() {
+    // The tiles of reflectance 0.6 with a black plate 2 cm above those at x < 0: a sharp
+    // shadow across the clusters that straddle x = 0. Pooled whole, such a cluster would give
+    // its shadowed tiles about half the light of the lit ones.
+    let scene = scene(|_, _| 3, true);
+    for seed in 0..2 {
+        let answer = run(&scene, seed, 2);
+        let stats = answer.stats.clusters.expect("clusters formed");
+        let (b, p) = (answer.estimate.radiosity(), answer.mesh.patches());
+        let x = |i: usize| f64::from(p[i].centroid.x + answer.mesh.origin().x);
+        let tiles = tiles(&answer);
+        let lit: Vec<f64> = tiles
+            .iter()
+            .filter(|&&i| x(i) > 0.1)
+            .map(|&i| b[i].y)
+            .collect();
+        let lit = lit.iter().sum::<f64>() / lit.len() as f64;
+        assert!(lit > 0.5 * 0.6 * PANEL.0, "lit tiles {lit}");
+        for &i in tiles.iter().filter(|&&i| x(i) < -0.1) {
+            assert!(
+                b[i].y < 0.05 * lit,
+                "seed {seed}: tile {i} at x {:.3} in the shadow has {} of the lit {lit}",
+                x(i),
+                b[i].y
+            );
+        }
+        assert!(stats.splits > 0, "{stats:?}");
+        assert!(stats.groups > 0, "{stats:?}");
+    }
+}
