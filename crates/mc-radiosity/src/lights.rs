@@ -51,6 +51,9 @@ pub(crate) struct Lit {
     /// every point agrees (what the adaptive refinement's visibility test measures for
     /// emitting faces).
     pub(crate) penumbra: Vec<f64>,
+    /// The punctual lights' part of `H_i` per patch (W/m², the sky's not included): what a
+    /// renderer replaces with per-pixel shadow rays ([`Solution::direct`]).
+    pub(crate) direct: Vec<DVec3>,
 }
 
 /// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches rays)))` in `[2, 16]`,
@@ -109,7 +112,9 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let mut lit = mesh.clone();
     let mut variance = Vec::with_capacity(patches.len());
     let mut penumbra = Vec::with_capacity(patches.len());
+    let mut direct = Vec::with_capacity(patches.len());
     for (i, m) in moments.into_iter().enumerate() {
+        direct.push(m.lights);
         let rho = patches[i].reflectance.as_dvec3();
         let emission = patches[i].emission.as_dvec3() + rho * m.mean;
         lit.set_emission(i, emission.as_vec3());
@@ -126,6 +131,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
         variance,
         rays: u64::from(n) * patches.len() as u64 * (lights.len() + sky_rays) as u64,
         penumbra,
+        direct,
     })
 }
 
@@ -153,6 +159,7 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
         variance: vec![DVec3::ZERO; mesh.patches().len()],
         rays: direct.rays,
         penumbra: vec![0.0; mesh.patches().len()],
+        direct: direct.irradiance,
     }
 }
 
@@ -164,6 +171,8 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 struct Moments {
     /// Mean irradiance, W/m² per channel.
     mean: DVec3,
+    /// The punctual lights' part of `mean` (the sky's not included), W/m² per channel.
+    lights: DVec3,
     /// Variance of that mean, (W/m²)² per channel.
     variance: DVec3,
     /// Mean luminance of the irradiance the lights would give the points unoccluded, W/m².
@@ -193,7 +202,7 @@ fn irradiance_moments<C: RayCaster>(
     rng: &mut Stream,
 ) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
-    let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
+    let (mut sum, mut sum2, mut from_lights) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
     let (mut unoccluded, mut visible) = (0.0, 0.0);
     for a in 0..m {
         for b in 0..m {
@@ -215,6 +224,7 @@ fn irradiance_moments<C: RayCaster>(
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
                     h += e;
+                    from_lights += e;
                     visible += LUMINANCE.dot(e);
                 }
             }
@@ -231,6 +241,7 @@ fn irradiance_moments<C: RayCaster>(
     };
     Moments {
         mean,
+        lights: from_lights / count,
         variance: var,
         unoccluded: unoccluded / count,
         visible: visible / count,
@@ -258,6 +269,7 @@ impl Lit {
         let e = &solution.estimate;
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
+        solution.direct = Some(self.direct.clone());
         Ok(solution)
     }
 
@@ -290,6 +302,7 @@ impl Lit {
             escaped_rays: 0,
             unshot_fraction: 0.0,
             stop,
+            direct: Some(self.direct.clone()),
         }))
     }
 
