@@ -70,7 +70,8 @@ pub fn check(args: &Solve) -> Result<()> {
 }
 
 /// Bakes the solution `radiosity` (W/m² per patch) into the scene's glTF (`mcrad bake`):
-/// writes the GLB and, beside it, the linear lightmap as EXR.
+/// writes the GLB and, beside it, the linear lightmap as EXR. With `direct` (the scene's
+/// lights' direct irradiance per patch in the solution), that light is drawn per texel.
 pub fn bake(
     args: &Solve,
     target: &crate::cli::BakeTarget,
@@ -78,6 +79,7 @@ pub fn bake(
     mesh: &Mesh,
     bvh: &Bvh,
     estimate: &mcrad_combine::Estimate,
+    direct: Option<&[DVec3]>,
     bar: &ProgressBar,
 ) -> Result<serde_json::Value> {
     let radiosity = estimate.radiosity();
@@ -116,6 +118,10 @@ pub fn bake(
         radiosity,
         variance: estimate.variance(),
         progress: Some(&progress),
+        direct: direct.map(|irradiance| mcrad_bake::DirectLight {
+            lights: loaded.scene.lights(),
+            irradiance,
+        }),
     };
     let options = mcrad_bake::BakeOptions {
         texel: target.texel,

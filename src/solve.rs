@@ -323,6 +323,7 @@ fn finish(
             mesh,
             &answer.bvh,
             estimate,
+            direct,
             bar,
         )?),
         None => None,

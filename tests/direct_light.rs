@@ -152,3 +152,67 @@ fn emitting_faces_render_as_before() {
     let without = render("b.exr", &["--no-direct-rays"]);
     assert_eq!(with.pixels, without.pixels);
 }
+
+/// The floor and wall baked under the sun: the lightmap holds the incident irradiance `H`,
+/// `E sin(45°) = 707.1 W/m²` where the sun reaches a texel's point (the black wall's front
+/// too: the solution says nothing of a black surface's light, so only the direct light shows
+/// there) and 0 in the shadow, nothing else since no light is reflected onto the floor. With
+/// the direct light per texel (the default) every texel is one or the other within 0.1%
+/// (but for the padding's averages where the edge meets a chart's border); interpolated
+/// (`--no-direct-rays`) the texels along the shadow's edge take values between.
+#[test]
+fn a_sun_shadow_edge_is_sharp_in_bakes() {
+    let texels = |extra: &[&str]| -> Vec<f32> {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("s.obj"), FLOOR_WALL_OBJ).unwrap();
+        std::fs::write(dir.path().join("s.mtl"), FLOOR_WALL_MTL).unwrap();
+        let out = path(dir.path(), "o.glb");
+        let mut args = vec![
+            "bake",
+            &*path(dir.path(), "s.obj"),
+            "--out",
+            &out,
+            "--texel",
+            "0.05",
+            "-q",
+            "--rays",
+            "2e5",
+            "--mesh",
+            "uniform",
+            "--max-edge",
+            "0.5",
+            "--sun=-1,1,0,1000,0",
+        ]
+        .into_iter()
+        .map(str::to_string)
+        .collect::<Vec<_>>();
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let exr = read_exr(&dir.path().join("o.lightmap.exr")).unwrap();
+        exr.pixels.iter().map(|h| h.y).collect()
+    };
+    let lit = (1000.0 * std::f64::consts::FRAC_1_SQRT_2) as f32;
+    let between = |h: &[f32]| {
+        h.iter()
+            .filter(|&&h| h > 1e-3 * lit && (h - lit).abs() > 1e-3 * lit)
+            .count()
+    };
+    let sharp = texels(&[]);
+    let lit_texels = sharp
+        .iter()
+        .filter(|&&h| (h - lit).abs() <= 1e-3 * lit)
+        .count();
+    // 100 m² of floor less 10 of shadow, and 10 m² of wall, at 0.05 m a texel
+    assert!(lit_texels > 40_000, "{lit_texels} lit texels");
+    // only padding texels where the shadow's edge meets a chart's border: the dilation
+    // averages lit and dark neighbours there (28 of them)
+    assert!(between(&sharp) <= 40, "{} texels between", between(&sharp));
+    let smeared = texels(&["--no-direct-rays"]);
+    assert!(
+        between(&smeared) > 1000,
+        "{} texels between",
+        between(&smeared)
+    );
+}
