@@ -135,9 +135,10 @@ pub(crate) fn light_mesh<C: RayCaster>(
     })
 }
 
-/// The direct light of `config.lights` on `mesh` computed deterministically by the reference
-/// solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is wholly lit,
-/// fine quadrature where it is partly shadowed): no variance. Not for a sky.
+/// The direct light of `config.lights` and `config.sky` on `mesh` computed deterministically by
+/// the reference solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is
+/// wholly lit, fine quadrature where it is partly shadowed; the sky through each patch's
+/// visible part of it by [`mcrad_reference::sky_irradiance`]): no variance.
 pub(crate) fn exact_light_mesh<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
@@ -149,15 +150,21 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
         .map(|l| l.translated(-mesh.origin()))
         .collect();
     let direct = mcrad_reference::direct_irradiance(mesh, caster, &lights);
+    let sky = config
+        .sky
+        .as_ref()
+        .filter(|s| !s.is_dark())
+        .map(|sky| mcrad_reference::sky_irradiance(mesh, caster, sky));
     let mut lit = mesh.clone();
     for (i, (patch, h)) in mesh.patches().iter().zip(&direct.irradiance).enumerate() {
-        let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * *h;
+        let h = *h + sky.as_ref().map_or(DVec3::ZERO, |s| s.irradiance[i]);
+        let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * h;
         lit.set_emission(i, emission.as_vec3());
     }
     Lit {
         mesh: lit,
         variance: vec![DVec3::ZERO; mesh.patches().len()],
-        rays: direct.rays,
+        rays: direct.rays + sky.as_ref().map_or(0, |s| s.rays),
         penumbra: vec![0.0; mesh.patches().len()],
         direct: direct.irradiance,
     }
