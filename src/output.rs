@@ -70,18 +70,18 @@ pub fn check(args: &Solve) -> Result<()> {
 }
 
 /// Bakes the solution `radiosity` (W/m² per patch) into the scene's glTF (`mcrad bake`):
-/// writes the GLB and, beside it, the linear lightmap as EXR. With `direct` (the scene's
-/// lights' direct irradiance per patch in the solution), that light is drawn per texel.
+/// writes the GLB and, beside it, the linear lightmap as EXR. With the answer's `direct` (the
+/// scene's lights' direct irradiance per patch) and no `--no-direct-rays`, that light is drawn
+/// per texel.
 pub fn bake(
     args: &Solve,
     target: &crate::cli::BakeTarget,
     loaded: &mcrad_scene_io::Loaded,
-    mesh: &Mesh,
-    bvh: &Bvh,
-    estimate: &mcrad_combine::Estimate,
-    direct: Option<&[DVec3]>,
+    answer: &mcrad_solve::Answer,
     bar: &ProgressBar,
 ) -> Result<serde_json::Value> {
+    let (mesh, bvh, estimate) = (&answer.mesh, &answer.bvh, &answer.estimate);
+    let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
     let radiosity = estimate.radiosity();
     let gltf = loaded
         .gltf

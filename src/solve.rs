@@ -316,16 +316,7 @@ fn finish(
         bar,
     )?;
     let baked = match &args.bake {
-        Some(target) => Some(crate::output::bake(
-            args,
-            target,
-            loaded,
-            mesh,
-            &answer.bvh,
-            estimate,
-            direct,
-            bar,
-        )?),
+        Some(target) => Some(crate::output::bake(args, target, loaded, answer, bar)?),
         None => None,
     };
     if let Some(path) = &args.stats {

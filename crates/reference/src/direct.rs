@@ -162,7 +162,7 @@ fn sky_of_patch<C: RayCaster>(
     // sequence, so that points and shifts are spread jointly, not in step
     const R4: [f64; 4] = [
         0.856_674_883_854_502_9,
-        0.733_891_856_627_126_0,
+        0.733_891_856_627_126,
         0.628_706_721_037_808_6,
         0.538_597_257_223_610_1,
     ];
