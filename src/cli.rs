@@ -189,6 +189,11 @@ pub struct Solve {
     /// (one colour per patch).
     #[arg(long, value_enum, default_value_t = ShadingArg::Smooth)]
     pub shading: ShadingArg,
+    /// Draw punctual lights' and the sun's direct light in renders and bakes from the solved
+    /// mesh (interpolated over its vertices) instead of with shadow rays per pixel sample and
+    /// lightmap texel (the default with such lights: sharp shadows at any mesh size).
+    #[arg(long)]
+    pub no_direct_rays: bool,
     /// Vertex radiosity averages only across patches whose normals differ by less than this
     /// (degrees), and never across materials.
     #[arg(long, value_name = "DEGREES", default_value_t = mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)]

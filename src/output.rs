@@ -70,16 +70,18 @@ pub fn check(args: &Solve) -> Result<()> {
 }
 
 /// Bakes the solution `radiosity` (W/m² per patch) into the scene's glTF (`mcrad bake`):
-/// writes the GLB and, beside it, the linear lightmap as EXR.
+/// writes the GLB and, beside it, the linear lightmap as EXR. With the answer's `direct` (the
+/// scene's lights' direct irradiance per patch) and no `--no-direct-rays`, that light is drawn
+/// per texel.
 pub fn bake(
     args: &Solve,
     target: &crate::cli::BakeTarget,
     loaded: &mcrad_scene_io::Loaded,
-    mesh: &Mesh,
-    bvh: &Bvh,
-    estimate: &mcrad_combine::Estimate,
+    answer: &mcrad_solve::Answer,
     bar: &ProgressBar,
 ) -> Result<serde_json::Value> {
+    let (mesh, bvh, estimate) = (&answer.mesh, &answer.bvh, &answer.estimate);
+    let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
     let radiosity = estimate.radiosity();
     let gltf = loaded
         .gltf
@@ -116,6 +118,10 @@ pub fn bake(
         radiosity,
         variance: estimate.variance(),
         progress: Some(&progress),
+        direct: direct.map(|irradiance| mcrad_bake::DirectLight {
+            lights: loaded.scene.lights(),
+            irradiance,
+        }),
     };
     let options = mcrad_bake::BakeOptions {
         texel: target.texel,
@@ -219,14 +225,42 @@ fn camera(
     camera.context("--camera")
 }
 
-/// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image's
-/// rays that leave the scene see `sky`.
+/// `B_i - rho_i H_d,i` per patch (W/m², clamped at 0): the radiosity without the punctual
+/// lights' direct light `direct` (`H_d` per patch, W/m²) that renders and bakes then draw per
+/// sample; `radiosity` itself without `direct`.
+pub fn without_direct(mesh: &Mesh, radiosity: &[DVec3], direct: Option<&[DVec3]>) -> Vec<DVec3> {
+    match direct {
+        Some(h) => mesh
+            .patches()
+            .iter()
+            .zip(radiosity.iter().zip(h))
+            .map(|(p, (&b, &h))| (b - p.reflectance.as_dvec3() * h).max(DVec3::ZERO))
+            .collect(),
+        None => radiosity.to_vec(),
+    }
+}
+
+/// What lights a render besides the radiosity: the sky rays that leave the scene see, and
+/// the lights whose direct light is drawn per sample.
+pub struct Lighting<'a> {
+    /// The sky, or `None` (black).
+    pub sky: Option<mcrad_scene_io::Sky>,
+    /// Punctual lights and the sun, in the scene's frame.
+    pub lights: &'a [mcrad_scene_io::Light],
+    /// Their direct irradiance `H_d` per patch in the solution (W/m²): `Some` draws it per
+    /// sample with shadow rays instead of from the solution; `None` draws the solution only.
+    pub direct: Option<&'a [DVec3]>,
+}
+
+/// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image
+/// with `lighting`'s sky and, where `lighting.direct` is given, its lights' direct light drawn
+/// per sample in place of the solution's (the GLB's vertex colours keep the solution's).
 pub fn write(
     args: &Solve,
     mesh: &Mesh,
     bvh: &Bvh,
     radiosity: &[DVec3],
-    sky: Option<mcrad_scene_io::Sky>,
+    lighting: Lighting<'_>,
     file_camera: Option<mcrad_scene_io::Camera>,
     bar: &ProgressBar,
 ) -> Result<()> {
@@ -234,9 +268,22 @@ pub fn write(
         args.gltf.is_some() || (args.image.is_some() && args.shading == ShadingArg::Smooth);
     let corners = needs_corners.then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
     if let Some(path) = &args.image {
+        let (drawn, lights) = match lighting.direct {
+            Some(direct) => (
+                without_direct(mesh, radiosity, Some(direct)),
+                lighting.lights.to_vec(),
+            ),
+            None => (radiosity.to_vec(), Vec::new()),
+        };
+        let drawn_corners = match (&corners, lighting.direct) {
+            (Some(_), Some(_)) => Some(mesh.seamless_corner_radiosity(&drawn, args.crease)),
+            _ => None,
+        };
+        let corners = drawn_corners.as_ref().or(corners.as_ref());
+        let radiosity: &[DVec3] = &drawn;
         let format = image_format(path)?;
         let camera = camera(args, file_camera, mesh, bvh)?;
-        let shading = match (&corners, args.shading) {
+        let shading = match (corners, args.shading) {
             (Some(c), ShadingArg::Smooth) => Shading::Smooth(c),
             _ => Shading::Flat(radiosity),
         };
@@ -244,7 +291,8 @@ pub fn write(
             width: args.size.0,
             height: args.size.1,
             samples_per_pixel: args.spp,
-            sky,
+            sky: lighting.sky,
+            lights,
         };
         bar.reset();
         bar.set_length(u64::from(settings.height));

@@ -300,25 +300,23 @@ fn finish(
             write_patch_csv(create(path)?, rows)?;
         }
     }
+    // With per-pixel direct light, the solution's own direct part is taken out of it.
+    let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
     crate::output::write(
         args,
         mesh,
         &answer.bvh,
         estimate.radiosity(),
-        loaded.scene.sky().cloned(),
+        crate::output::Lighting {
+            sky: loaded.scene.sky().cloned(),
+            lights: loaded.scene.lights(),
+            direct,
+        },
         loaded.camera,
         bar,
     )?;
     let baked = match &args.bake {
-        Some(target) => Some(crate::output::bake(
-            args,
-            target,
-            loaded,
-            mesh,
-            &answer.bvh,
-            estimate,
-            bar,
-        )?),
+        Some(target) => Some(crate::output::bake(args, target, loaded, answer, bar)?),
         None => None,
     };
     if let Some(path) = &args.stats {

@@ -520,3 +520,65 @@ fn a_scene_far_from_the_origin_bakes_as_at_the_origin() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_exact_lightmap(dir.path(), "far.lightmap.exr", 2 * 6 * 2500);
 }
+
+/// A two-sided plane (`--two-sided`, reflectance 0.5) under a delta sun at 30 degrees
+/// elevation, 1000 W/m²: glTF has one texel for both sides, and the lightmap holds the
+/// **front** side's incident irradiance, as documented. Sun above: every texel the front's
+/// `E sin(30°) = 500 W/m²`. Sun below: every texel 0 (the front is dark), while the patch
+/// CSV's back rows (face `f + 2`: the quad is two triangles in glTF) have
+/// `B = rho E sin(30°) = 250`.
+#[test]
+fn a_two_sided_face_bakes_its_front_side() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("plane.obj"),
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+    )
+    .unwrap();
+    let x = 30f64.to_radians().cos();
+    for (z, front) in [(0.5, 500.0f32), (-0.5, 0.0)] {
+        let sun = format!("--sun={x},0,{z},1000,0");
+        let o = mcrad(
+            dir.path(),
+            &[
+                "bake",
+                "plane.obj",
+                "--out",
+                "o.glb",
+                "--two-sided",
+                "--no-subdivide",
+                "--texel",
+                "0.05",
+                "--rays",
+                "2e4",
+                "--patches",
+                "p.csv",
+                "-q",
+                &sun,
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let exr = mcrad_render::read_exr(&dir.path().join("o.lightmap.exr")).unwrap();
+        let used = exr.pixels.iter().filter(|h| h.max_element() > 0.0).count();
+        if front > 0.0 {
+            assert!(used >= 400, "{used} texels used");
+        } else {
+            assert_eq!(used, 0);
+        }
+        for h in &exr.pixels {
+            if h.max_element() > 0.0 {
+                assert!((h.y - front).abs() < 1e-3 * front, "{h}");
+            }
+        }
+        // the bake's scene is the glTF of the OBJ, the quad two triangles: faces 0 and 1 the
+        // fronts, 2 and 3 (face + 2 faces) their backs
+        let rows = mcrad_export::read_patch_csv(&dir.path().join("p.csv")).unwrap();
+        assert_eq!(rows.len(), 4);
+        for row in rows {
+            let is_back = row.face.expect("a face number") >= 2;
+            let lit = (front > 0.0) != is_back;
+            let expect = if lit { 250.0 } else { 0.0 };
+            assert!((row.radiosity.x - expect).abs() < 1e-3, "{row:?}");
+        }
+    }
+}

@@ -159,6 +159,7 @@ pub fn run(root: &Path, args: &BakeCheckArgs) -> Result<()> {
             radiosity,
             variance,
             progress: None,
+            direct: None,
         };
         let baked = mcrad_bake::bake(
             &input,

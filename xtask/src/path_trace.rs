@@ -120,6 +120,11 @@ pub struct ImageErrorArgs {
     /// The reference's standard error per pixel (its noise is subtracted)
     #[arg(long, value_name = "ERROR.exr")]
     pub reference_error: Option<String>,
+    /// Pixels at least this fraction of the reference's brightest luminance (and their
+    /// neighbours) count as emitters and are left out; above 1 every pixel is scored (a
+    /// sun-lit floor can be that bright)
+    #[arg(long, value_name = "F", default_value_t = mcrad_lab::compare::EMITTER_FRACTION)]
+    pub emitter_fraction: f32,
 }
 
 /// `image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png] [--reference-error E.exr]`.
@@ -137,13 +142,13 @@ pub fn run_image_error(args: &ImageErrorArgs) -> Result<()> {
         &image,
         &reference,
         noise.as_ref(),
-        mcrad_lab::compare::EMITTER_FRACTION,
+        args.emitter_fraction,
     )?;
     if let Some(d) = diff {
         let d_img = mcrad_lab::compare::signed_difference_image(
             &image,
             &reference,
-            mcrad_lab::compare::EMITTER_FRACTION,
+            args.emitter_fraction,
             0.1,
         )?;
         mcrad_render::write_png(&d_img, Path::new(d), mcrad_render::Exposure::Stops(0.0))?;

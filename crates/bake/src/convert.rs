@@ -87,7 +87,7 @@ fn document(scene: &Scene, camera: Option<&Camera>) -> (json::Root, Vec<u8>) {
             targets: None,
         });
     }
-    for m in scene.materials() {
+    for (index, m) in scene.materials().iter().enumerate() {
         // glTF's emissive factor is radiance and at most 1: the rest in emissive strength
         let l = m.emission / std::f32::consts::PI;
         let strength = l.max_element().max(1.0);
@@ -111,6 +111,8 @@ fn document(scene: &Scene, camera: Option<&Camera>) -> (json::Root, Vec<u8>) {
             },
             emissive_factor: json::material::EmissiveFactor((l / strength).to_array()),
             extensions: Some(extensions),
+            // an OBJ made two-sided (`LoadOptions::two_sided`) stays two-sided
+            double_sided: scene.is_two_sided(index as u32),
             ..Default::default()
         });
     }
@@ -172,7 +174,8 @@ fn document(scene: &Scene, camera: Option<&Camera>) -> (json::Root, Vec<u8>) {
 /// file order within it); materials become `baseColorFactor = rho`, `metallicFactor = 0`,
 /// `roughnessFactor = 1` and emission `E / pi` as `emissiveFactor` (scaled into `[0, 1]` with
 /// `KHR_materials_emissive_strength`), so reading it back gives the same reflectance and
-/// emission. `camera` (if any) becomes the first camera, aspect 1.
+/// emission; a two-sided material is `doubleSided`. `camera` (if any) becomes the first
+/// camera, aspect 1.
 pub fn gltf_from_scene(
     scene: &Scene,
     camera: Option<&Camera>,

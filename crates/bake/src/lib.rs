@@ -204,6 +204,63 @@ pub struct BakeInput<'a, C: RayCaster> {
     pub variance: Option<&'a [DVec3]>,
     /// Told `(charts sampled, charts)` as the texels are sampled (from any thread).
     pub progress: Option<&'a (dyn Fn(u64, u64) + Sync)>,
+    /// The direct light drawn per texel (and per vertex) with shadow rays instead of taken
+    /// from the solution; `None`: the solution's alone (interpolated).
+    pub direct: Option<DirectLight<'a>>,
+}
+
+/// Lights without a surface whose direct irradiance a bake computes at each texel's point
+/// with its own shadow rays ([`DIRECT_SAMPLES`] per light, a sun's direction stratified over
+/// its disc, streams keyed by the texel), adding it to the solution's irradiance without it.
+#[derive(Debug, Clone, Copy)]
+pub struct DirectLight<'a> {
+    /// The lights (point, spot, sun), in the scene's frame.
+    pub lights: &'a [mcrad_scene_io::Light],
+    /// Their direct irradiance `H_d` per patch in the solution (W/m² per channel, mesh
+    /// order): the solution's `rho H_d` is taken out of `radiosity` before it is interpolated.
+    pub irradiance: &'a [DVec3],
+}
+
+/// Shadow rays per light and texel (a 4 x 4 stratified grid over the light's sample domain)
+/// of [`DirectLight`].
+pub const DIRECT_SAMPLES: u32 = 16;
+
+/// The pass number of the bake's direct-light streams.
+const DIRECT_PASS: u64 = 0x4241_4b45_4449_5200;
+
+/// The mean direct irradiance (W/m² per channel) of `lights` (in the mesh's frame) at `point`
+/// of `patch` (normal `normal`), [`DIRECT_SAMPLES`] shadow rays per light stratified over the
+/// light's sample domain, random numbers from the stream of `key`.
+fn direct_at<C: RayCaster>(
+    caster: &C,
+    lights: &[mcrad_scene_io::Light],
+    far: f64,
+    point: Vec3,
+    normal: Vec3,
+    patch: u32,
+    key: u64,
+) -> DVec3 {
+    let mut rng = mcrad_random::Stream::new(0, DIRECT_PASS, key, 0);
+    let m = DIRECT_SAMPLES.isqrt();
+    let from = mcrad_raycast::SurfacePoint::new(point, normal, patch);
+    let mut h = DVec3::ZERO;
+    for light in lights {
+        for a in 0..m {
+            for b in 0..m {
+                let u = [
+                    (f64::from(a) + rng.uniform_f64()) / f64::from(m),
+                    (f64::from(b) + rng.uniform_f64()) / f64::from(m),
+                ];
+                let Some((e, target)) = light.arrival(point, normal, u, far) else {
+                    continue;
+                };
+                if !caster.occluded(&from, &mcrad_raycast::SurfacePoint::free(target)) {
+                    h += e;
+                }
+            }
+        }
+    }
+    h / f64::from(m * m)
 }
 
 /// How uncertain the baked texels are: over the covered texels, the relative standard error of
@@ -278,7 +335,11 @@ pub fn bake<C: RayCaster>(
         scene, gltf, mesh, ..
     } = *input;
     let patches = mesh.patches();
-    let lengths = [Some(input.radiosity.len()), input.variance.map(<[_]>::len)];
+    let lengths = [
+        Some(input.radiosity.len()),
+        input.variance.map(<[_]>::len),
+        input.direct.map(|d| d.irradiance.len()),
+    ];
     if let Some(got) = lengths.into_iter().flatten().find(|&n| n != patches.len()) {
         return Err(BakeError::SolutionLength {
             expected: patches.len(),
@@ -335,11 +396,29 @@ pub fn bake<C: RayCaster>(
     let padding = options.padding.max(1);
 
     // irradiance per patch, then per mesh corner, interpolated as renders do
+    // (without the lights' direct light where it is drawn per texel)
     let h: Vec<DVec3> = patches
         .iter()
         .zip(input.radiosity)
-        .map(|(p, &b)| incident(b, p.emission.as_dvec3(), p.reflectance.as_dvec3()))
+        .enumerate()
+        .map(|(i, (p, &b))| {
+            let h = incident(b, p.emission.as_dvec3(), p.reflectance.as_dvec3());
+            match input.direct {
+                Some(d) => (h - d.irradiance[i]).max(DVec3::ZERO),
+                None => h,
+            }
+        })
         .collect();
+    let lights: Vec<mcrad_scene_io::Light> = input
+        .direct
+        .map(|d| {
+            d.lights
+                .iter()
+                .map(|l| l.translated(-mesh.origin()))
+                .collect()
+        })
+        .unwrap_or_default();
+    let far = mesh.escape_distance();
     let corner_h: Vec<Vec3> = mesh
         .seamless_corner_radiosity(&h, mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)
         .iter()
@@ -357,7 +436,8 @@ pub fn bake<C: RayCaster>(
     let lift = (0.05 * texel).max(1e-5 * diagonal);
     // the scene's (world) points in the mesh's local frame, where its caster works
     let mesh_origin = mesh.origin().as_dvec3();
-    let value_at = |point: DVec3, normal: Vec3| -> Option<(Vec3, u32)> {
+    // `key`: the texel's (or vertex's) own random stream for the direct light
+    let value_at = |point: DVec3, normal: Vec3, key: u64| -> Option<(Vec3, u32)> {
         let point = point - mesh_origin;
         for side in [1.0f32, -1.0] {
             let n = normal * side;
@@ -370,7 +450,19 @@ pub fn bake<C: RayCaster>(
             let offset = mesh.corner_offset(hit.id as usize);
             let corners = mesh.corners(patch);
             let values = &corner_h[offset..offset + corners.len()];
-            let h = mcrad_render::interpolate(mesh.positions(), corners, values, hit.point);
+            let mut h = mcrad_render::interpolate(mesh.positions(), corners, values, hit.point);
+            if !lights.is_empty() {
+                let d = direct_at(
+                    input.caster,
+                    &lights,
+                    far,
+                    hit.point,
+                    patch.normal,
+                    hit.id,
+                    key,
+                );
+                h += d.as_vec3();
+            }
             return Some((h, hit.id));
         }
         None
@@ -421,7 +513,8 @@ pub fn bake<C: RayCaster>(
                         .get((inst.first_face as usize) + k)
                         .copied()
                         .flatten()?;
-                    value_at(at + (centroid - at) * 1e-4, normal)
+                    let key = (1 << 63) | ((i as u64) << 32) | p.colors.len() as u64;
+                    value_at(at + (centroid - at) * 1e-4, normal, key)
                 });
                 if let Some((_, patch)) = value {
                     seen.push(patch);
@@ -472,7 +565,8 @@ pub fn bake<C: RayCaster>(
                 .collect();
             atlas::samples(chart, &world, packing.rects[c], padding, texel)
                 .into_iter()
-                .map(|s| {
+                .enumerate()
+                .map(|(t, s)| {
                     let s = s?;
                     let k = chart.triangles[s.triangle as usize];
                     let source = (inst.first_face + k) as usize;
@@ -481,7 +575,8 @@ pub fn bake<C: RayCaster>(
                         .copied()
                         .flatten()
                         .unwrap_or(chart.axes[2].as_vec3());
-                    value_at(s.point, normal).map(|(h, patch)| (h, patch, source as u32))
+                    let key = ((c as u64) << 32) | t as u64;
+                    value_at(s.point, normal, key).map(|(h, patch)| (h, patch, source as u32))
                 })
                 .collect()
         })

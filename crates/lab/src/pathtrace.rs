@@ -2,8 +2,10 @@
 //!
 //! It shares nothing with the radiosity solver but the scene's data (the mesh's patches, their
 //! reflectance `rho` and emission `E`, W/m²) and the ray caster: no form factor, no radiosity
-//! estimate, no mesh resolution. Every surface is one-sided and Lambertian: its front emits
-//! radiance `E / π` (W/(m² sr)) and reflects with the BRDF `rho / π`; a back face absorbs.
+//! estimate, no mesh resolution. Every surface is Lambertian: its front emits radiance `E / π`
+//! (W/(m² sr)) and reflects with the BRDF `rho / π`; a back face absorbs, unless the face is
+//! two-sided and the caster is the mesh's ([`Mesh::caster`]: a ray from behind meets the back
+//! side's own patch, which emits and reflects likewise).
 //!
 //! Pixel `(x, y)` of a `width × height` image is the mean over its box (uniform points of the
 //! pixel's square) of the radiance `L` arriving at the eye, estimated by paths: at each vertex
@@ -625,6 +627,76 @@ mod tests {
             path_trace(&mesh, &[], &bvh, &camera, &options(4, 4, 1)),
             Err(PathTraceError::TooFewSamples(1))
         );
+    }
+
+    /// A two-sided plane (reflectance 0.5, `y = 0`, front up) lit from below by a delta sun at
+    /// 30 degrees elevation, 1000 W/m², with the mesh's caster (back sides report their own
+    /// patch): seen from below, every pixel on the plane shows its back side,
+    /// `rho E sin(30°) / π` exactly (one bounce, then the path escapes); seen from above, the
+    /// front is dark. One-sided (the same plane without its back side), it is dark from below.
+    #[test]
+    fn a_two_sided_plane_shows_its_lit_back() {
+        let positions = vec![
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+        ];
+        let faces = vec![Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }];
+        let material = Material {
+            name: "sheet".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ZERO,
+        };
+        let el = 30f32.to_radians();
+        let sun = Light::Sun(mcrad_scene_io::Sun {
+            direction: Vec3::new(el.cos(), -el.sin(), 0.0),
+            irradiance: DVec3::splat(1000.0),
+            diameter: 0.0,
+        });
+        let exact = 0.5 * 1000.0 * f64::from(el.sin()) * FRAC_1_PI;
+        let options = PathTraceOptions {
+            width: 8,
+            height: 8,
+            samples_per_pixel: 4,
+            seed: 1,
+            sky: None,
+        };
+        let below = Camera::look_at(Vec3::new(0.0, -1.0, 0.0), Vec3::ZERO, Vec3::Z, 30.0).unwrap();
+        let above = Camera::look_at(Vec3::new(0.0, 1.0, 0.0), Vec3::ZERO, Vec3::Z, 30.0).unwrap();
+        for two_sided in [true, false] {
+            let scene = Input::new_lit(
+                positions.clone(),
+                faces.clone(),
+                vec![material.clone()],
+                vec![sun.clone()],
+            )
+            .unwrap()
+            .0
+            .with_two_sided(vec![two_sided]);
+            let mesh = Mesh::build(&scene, Subdivision::None).unwrap();
+            let bvh = mesh.caster().unwrap();
+            let lights = [sun.translated(-mesh.origin())];
+            let from_below = path_trace(&mesh, &lights, &bvh, &below, &options).unwrap();
+            let from_above = path_trace(&mesh, &lights, &bvh, &above, &options).unwrap();
+            for (b, a) in from_below
+                .radiance
+                .pixels
+                .iter()
+                .zip(&from_above.radiance.pixels)
+            {
+                let expect = if two_sided { exact } else { 0.0 };
+                assert!(
+                    (f64::from(b.x) - expect).abs() < 1e-4 * exact,
+                    "{b} vs {expect}"
+                );
+                assert_eq!(*a, Vec3::ZERO);
+            }
+        }
     }
 
     /// An open upward plane (reflectance 0.4, no emitter) under a uniform sky `L`: a path

@@ -51,6 +51,9 @@ pub(crate) struct Lit {
     /// every point agrees (what the adaptive refinement's visibility test measures for
     /// emitting faces).
     pub(crate) penumbra: Vec<f64>,
+    /// The punctual lights' part of `H_i` per patch (W/m², the sky's not included): what a
+    /// renderer replaces with per-pixel shadow rays ([`Solution::direct`]).
+    pub(crate) direct: Vec<DVec3>,
 }
 
 /// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches rays)))` in `[2, 16]`,
@@ -109,7 +112,9 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let mut lit = mesh.clone();
     let mut variance = Vec::with_capacity(patches.len());
     let mut penumbra = Vec::with_capacity(patches.len());
+    let mut direct = Vec::with_capacity(patches.len());
     for (i, m) in moments.into_iter().enumerate() {
+        direct.push(m.lights);
         let rho = patches[i].reflectance.as_dvec3();
         let emission = patches[i].emission.as_dvec3() + rho * m.mean;
         lit.set_emission(i, emission.as_vec3());
@@ -126,12 +131,14 @@ pub(crate) fn light_mesh<C: RayCaster>(
         variance,
         rays: u64::from(n) * patches.len() as u64 * (lights.len() + sky_rays) as u64,
         penumbra,
+        direct,
     })
 }
 
-/// The direct light of `config.lights` on `mesh` computed deterministically by the reference
-/// solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is wholly lit,
-/// fine quadrature where it is partly shadowed): no variance. Not for a sky.
+/// The direct light of `config.lights` and `config.sky` on `mesh` computed deterministically by
+/// the reference solver ([`mcrad_reference::direct_irradiance`]: closed forms where a patch is
+/// wholly lit, fine quadrature where it is partly shadowed; the sky through each patch's
+/// visible part of it by [`mcrad_reference::sky_irradiance`]): no variance.
 pub(crate) fn exact_light_mesh<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
@@ -143,16 +150,23 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
         .map(|l| l.translated(-mesh.origin()))
         .collect();
     let direct = mcrad_reference::direct_irradiance(mesh, caster, &lights);
+    let sky = config
+        .sky
+        .as_ref()
+        .filter(|s| !s.is_dark())
+        .map(|sky| mcrad_reference::sky_irradiance(mesh, caster, sky));
     let mut lit = mesh.clone();
     for (i, (patch, h)) in mesh.patches().iter().zip(&direct.irradiance).enumerate() {
-        let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * *h;
+        let h = *h + sky.as_ref().map_or(DVec3::ZERO, |s| s.irradiance[i]);
+        let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * h;
         lit.set_emission(i, emission.as_vec3());
     }
     Lit {
         mesh: lit,
         variance: vec![DVec3::ZERO; mesh.patches().len()],
-        rays: direct.rays,
+        rays: direct.rays + sky.as_ref().map_or(0, |s| s.rays),
         penumbra: vec![0.0; mesh.patches().len()],
+        direct: direct.irradiance,
     }
 }
 
@@ -164,6 +178,8 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 struct Moments {
     /// Mean irradiance, W/m² per channel.
     mean: DVec3,
+    /// The punctual lights' part of `mean` (the sky's not included), W/m² per channel.
+    lights: DVec3,
     /// Variance of that mean, (W/m²)² per channel.
     variance: DVec3,
     /// Mean luminance of the irradiance the lights would give the points unoccluded, W/m².
@@ -193,7 +209,7 @@ fn irradiance_moments<C: RayCaster>(
     rng: &mut Stream,
 ) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
-    let (mut sum, mut sum2) = (DVec3::ZERO, DVec3::ZERO);
+    let (mut sum, mut sum2, mut from_lights) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
     let (mut unoccluded, mut visible) = (0.0, 0.0);
     for a in 0..m {
         for b in 0..m {
@@ -215,6 +231,7 @@ fn irradiance_moments<C: RayCaster>(
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
                     h += e;
+                    from_lights += e;
                     visible += LUMINANCE.dot(e);
                 }
             }
@@ -231,6 +248,7 @@ fn irradiance_moments<C: RayCaster>(
     };
     Moments {
         mean,
+        lights: from_lights / count,
         variance: var,
         unoccluded: unoccluded / count,
         visible: visible / count,
@@ -258,6 +276,7 @@ impl Lit {
         let e = &solution.estimate;
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
+        solution.direct = Some(self.direct.clone());
         Ok(solution)
     }
 
@@ -290,6 +309,7 @@ impl Lit {
             escaped_rays: 0,
             unshot_fraction: 0.0,
             stop,
+            direct: Some(self.direct.clone()),
         }))
     }
 

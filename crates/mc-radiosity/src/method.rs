@@ -174,7 +174,7 @@ macro_rules! methods {
                 if !config.lights.is_empty() || config.sky.is_some() {
                     // Lights without a surface: their direct light becomes emission
                     // (`crate::lights`), then the method runs without them.
-                    let lit = if matches!(self, Method::Reference) && config.sky.is_none() {
+                    let lit = if matches!(self, Method::Reference) {
                         crate::lights::exact_light_mesh(mesh, caster, config)
                     } else {
                         crate::lights::light_mesh(mesh, caster, config, cancel)?

@@ -153,6 +153,13 @@ pub struct Solution {
     pub unshot_fraction: f64,
     /// Why the run ended.
     pub stop: StopReason,
+    /// With lights without a surface (`ScheduleConfig::lights`): their direct irradiance
+    /// `H_d,i` per patch (W/m² per channel, mesh order; the sky's not included) as the
+    /// lights' pre-pass estimated it, so the solution's radiosity holds `rho_i H_d,i` of
+    /// direct light and `B_i - rho_i H_d,i` is the rest (emission and reflected light): what a
+    /// renderer or baker keeps when it draws the lights' direct light per pixel with its own
+    /// shadow rays. `None` without lights (or sky).
+    pub direct: Option<Vec<DVec3>>,
 }
 
 /// The observer of a schedule.
@@ -628,6 +635,7 @@ impl Progressive {
             escaped_rays: self.escaped_rays,
             unshot_fraction: self.unshot_fraction,
             stop: budget_or_stopped(self.stopped),
+            direct: None,
         })
     }
 }

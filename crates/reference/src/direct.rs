@@ -24,7 +24,7 @@
 use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::{RayCaster, SurfacePoint};
-use mcrad_scene_io::Light;
+use mcrad_scene_io::{Light, Sky};
 use rayon::prelude::*;
 
 /// Points per triangle that probe the visibility.
@@ -92,6 +92,136 @@ pub fn direct_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, lights: &[Light]
         exact: per_patch.iter().map(|p| p.2).sum(),
         quadrature: per_patch.iter().map(|p| p.3).sum(),
     }
+}
+
+/// Points per triangle of the sky's quadrature ([`sky_irradiance`]).
+pub const SKY_POINTS: u32 = 256;
+/// Directions per point of the sky's quadrature: a 16 x 16 grid over the cosine-weighted
+/// hemisphere, shifted per point.
+pub const SKY_DIRECTIONS: u32 = 256;
+
+/// The mean direct irradiance `H_i = (1/A_i) ∫_{P_i} ∫ L_sky(w) max(0, n_i · w) V(x, w) dw dA`
+/// (W/m² per channel) that `sky` gives each patch of `mesh` through the part of the sky it
+/// sees, `V` = 1 where a ray from `x` along `w` leaves the scene (`caster`, ids = patch
+/// indices: cut-outs and two-sided faces as the caster says). Deterministic quadrature: on
+/// [`SKY_POINTS`] points per triangle, an equal-weight rule of [`SKY_DIRECTIONS`]
+/// cosine-distributed directions (a 16 x 16 grid mapped to the hemisphere), `π/D` each; point
+/// `j` and its grid's shift within a cell are the `j`-th point of the four-dimensional
+/// Kronecker (R4) sequence.
+/// A patch none of whose first 64 probe rays escapes, at each of its points, gets 0 without the
+/// rest (a closed room stays dark exactly). Error: `+2.5e-3` of the irradiance of a floor
+/// that sees the sky through a window (one patch; measured against its form factor). `rays` counts
+/// the rays cast; `exact` the patches found wholly closed, `quadrature` the others.
+pub fn sky_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, sky: &Sky) -> Direct {
+    let positions = mesh.positions();
+    let far = mesh.escape_distance();
+    let per_patch: Vec<(DVec3, u64, bool)> = (0..mesh.patches().len())
+        .into_par_iter()
+        .map(|i| {
+            let patch = &mesh.patches()[i];
+            let triangles: Vec<[DVec3; 3]> = mesh
+                .patch_triangles(patch)
+                .iter()
+                .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
+                .collect();
+            sky_of_patch(i as u32, patch.normal, &triangles, far, sky, caster)
+        })
+        .collect();
+    Direct {
+        irradiance: per_patch.iter().map(|p| p.0).collect(),
+        rays: per_patch.iter().map(|p| p.1).sum(),
+        exact: per_patch.iter().filter(|p| p.2).count() as u64,
+        quadrature: per_patch.iter().filter(|p| !p.2).count() as u64,
+    }
+}
+
+/// `(H, rays, closed?)` of one patch under the sky (see [`sky_irradiance`]).
+fn sky_of_patch<C: RayCaster>(
+    id: u32,
+    normal: Vec3,
+    triangles: &[[DVec3; 3]],
+    far: f64,
+    sky: &Sky,
+    caster: &C,
+) -> (DVec3, u64, bool) {
+    let area: f64 = triangles.iter().map(triangle_area).sum();
+    if area <= 0.0 {
+        return (DVec3::ZERO, 0, true);
+    }
+    let n = normal.as_dvec3();
+    let (t, b) = n.any_orthonormal_pair();
+    let m = SKY_DIRECTIONS.isqrt();
+    let direction = |a: u32, c: u32, shift: [f64; 2]| {
+        let u = (f64::from(a) + shift[0]) / f64::from(m);
+        let v = (f64::from(c) + shift[1]) / f64::from(m);
+        let r = u.sqrt();
+        let phi = std::f64::consts::TAU * v;
+        (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u).max(0.0).sqrt()).normalize()
+    };
+    // point j and its grid's shift: the j-th point of the 4-dimensional Kronecker (R4)
+    // sequence, so that points and shifts are spread jointly, not in step
+    const R4: [f64; 4] = [
+        0.856_674_883_854_502_9,
+        0.733_891_856_627_126,
+        0.628_706_721_037_808_6,
+        0.538_597_257_223_610_1,
+    ];
+    let r4 = |j: usize| R4.map(|a| ((j as f64 + 0.5) * a).fract().clamp(0.0, 1.0 - 1e-12));
+    let point = |tri: &[DVec3; 3], j: usize| {
+        let [mut u, mut v, _, _] = r4(j);
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        tri[0] + (tri[1] - tri[0]) * u + (tri[2] - tri[0]) * v
+    };
+    let shift = |j: usize| {
+        let [_, _, s, t] = r4(j);
+        [s, t]
+    };
+    let mut rays = 0u64;
+    let mut escapes = |x: DVec3, w: DVec3| {
+        rays += 1;
+        let from = SurfacePoint::new(x.as_vec3(), normal, id);
+        let to = SurfacePoint::free((x + w * far).as_vec3());
+        !caster.occluded(&from, &to)
+    };
+    // the probe: every other row and column of the grid (64 directions), at every 16th point
+    let mut open = false;
+    'probe: for tri in triangles {
+        for j in (0..SKY_POINTS as usize).step_by(16) {
+            let x = point(tri, j);
+            for a in (0..m).step_by(2) {
+                for c in (0..m).step_by(2) {
+                    if escapes(x, direction(a, c, shift(j))) {
+                        open = true;
+                        break 'probe;
+                    }
+                }
+            }
+        }
+    }
+    if !open {
+        return (DVec3::ZERO, rays, true);
+    }
+    let mut sum = DVec3::ZERO;
+    let weight = std::f64::consts::PI / f64::from(m * m);
+    for tri in triangles {
+        let a_x = triangle_area(tri) / f64::from(SKY_POINTS);
+        for j in 0..SKY_POINTS as usize {
+            let x = point(tri, j);
+            let mut h = DVec3::ZERO;
+            for a in 0..m {
+                for c in 0..m {
+                    let w = direction(a, c, shift(j));
+                    if escapes(x, w) {
+                        h += sky.radiance(w);
+                    }
+                }
+            }
+            sum += h * weight * a_x;
+        }
+    }
+    (sum / area, rays, false)
 }
 
 /// One patch as a receiver: its triangles in f64, normal and id.

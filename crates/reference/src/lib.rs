@@ -101,7 +101,9 @@ mod shaft;
 mod solve;
 mod visibility;
 
-pub use direct::{Direct, FINE, PROBE, direct_irradiance};
+pub use direct::{
+    Direct, FINE, PROBE, SKY_DIRECTIONS, SKY_POINTS, direct_irradiance, sky_irradiance,
+};
 pub use form_factor::point_polygon_form_factor;
 pub use matrix::{FormFactorStats, FormFactors, form_factors};
 pub use solve::{Solution, solve};

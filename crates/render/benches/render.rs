@@ -40,6 +40,7 @@ fn bench(c: &mut Criterion) {
             height: 512,
             samples_per_pixel: spp,
             sky: None,
+            lights: Vec::new(),
         };
         group.bench_function(format!("flat_{spp}spp"), |bench| {
             bench.iter(|| {

@@ -34,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         height: 64,
         samples_per_pixel: 4,
         sky: None,
+        lights: Vec::new(),
     };
     let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_| {})?;
     println!(

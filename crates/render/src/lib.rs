@@ -30,7 +30,7 @@
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
 //! let camera = Camera::look_at(Vec3::new(0.5, 0.5, 2.0), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 20.0)?;
 //! let b = [DVec3::splat(std::f64::consts::PI)]; // B = π W/m², so L = 1 W/(m² sr)
-//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None };
+//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None, lights: vec![] };
 //! let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_rows| {})?;
 //! assert!((image.get(4, 4).unwrap() - Vec3::ONE).length() < 1e-6);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
@@ -51,6 +51,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{DVec3, Vec2, Vec3};
 use mcrad_meshing::Mesh;
+use mcrad_random::Stream;
 use mcrad_raycast::RayCaster;
 use rayon::prelude::*;
 
@@ -60,6 +61,9 @@ pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
 pub use self::image::{Image, ImageError, ImageReadError, read_exr, write_exr, write_png};
 pub use self::shade::{Shading, interpolate};
 pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_encode};
+
+/// The pass number of the per-pixel direct light's streams.
+const DIRECT_PASS: u64 = 0x5245_4e44_4449_5200;
 
 /// The largest image side [`render`] accepts, pixels.
 pub const MAX_SIDE: u32 = 16384;
@@ -79,6 +83,15 @@ pub struct RenderSettings {
     /// The sky a ray that leaves the scene sees: its radiance (W/(m² sr)) along the ray's
     /// direction; `None`: black.
     pub sky: Option<mcrad_scene_io::Sky>,
+    /// Lights without a surface (point, spot, sun; in the scene's frame, as loaded) whose
+    /// direct light is drawn per sample: at each front hit `x` of a patch of reflectance
+    /// `rho` and normal `n`, one shadow ray per light ([`Light::arrival`](mcrad_scene_io::Light::arrival),
+    /// a sun's direction drawn in its disc) adds radiance `rho E_l(x) max(0, n · w_l) V / π`
+    /// (W/(m² sr)) to the shading's. The shading must then hold the radiosity without that
+    /// direct light (`B - rho H_d` per patch, W/m²), or it is counted twice. Empty (the
+    /// default): the shading alone. Shadow rays pass alpha cut-outs as the caster's any-hit
+    /// filter says; their random numbers come from a stream keyed by the pixel.
+    pub lights: Vec<mcrad_scene_io::Light>,
 }
 
 impl Default for RenderSettings {
@@ -89,6 +102,7 @@ impl Default for RenderSettings {
             height: 512,
             samples_per_pixel: 16,
             sky: None,
+            lights: Vec::new(),
         }
     }
 }
@@ -152,6 +166,7 @@ pub fn render<C: RayCaster + ?Sized>(
         return Err(RenderError::NoSamples);
     }
     let shader = shade::Shader::new(mesh, shading)?;
+    let direct = shade::Direct::new(mesh, &settings.lights);
     let mut pixels = vec![Vec3::ZERO; width as usize * height as usize];
     let rows_done = AtomicUsize::new(0);
     pixels
@@ -161,13 +176,18 @@ pub fn render<C: RayCaster + ?Sized>(
             let y = y as u32;
             for (x, out) in (0u32..).zip(row.iter_mut()) {
                 let mut sum = DVec3::ZERO;
+                let pixel_index = u64::from(y) * u64::from(width) + u64::from(x);
+                let mut rng = Stream::new(0, DIRECT_PASS, pixel_index, 0);
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
                     let ray = camera.ray(pixel, width, height);
                     sum += match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
-                        (hit, _) => shader.radiance(mesh, hit).as_dvec3(),
+                        (hit, _) => {
+                            shader.radiance(mesh, hit).as_dvec3()
+                                + direct.radiance(mesh, caster, hit, &mut rng)
+                        }
                     };
                 }
                 *out = (sum / f64::from(spp)).as_vec3();

@@ -4,7 +4,9 @@ use std::f64::consts::PI;
 
 use glam::{DVec3, Vec3};
 use mcrad_meshing::Mesh;
-use mcrad_raycast::Hit;
+use mcrad_random::Stream;
+use mcrad_raycast::{Hit, RayCaster, SurfacePoint};
+use mcrad_scene_io::Light;
 
 use crate::RenderError;
 
@@ -105,6 +107,60 @@ impl Shader {
                 interpolate(mesh.positions(), corners, values, hit.point)
             }
         }
+    }
+}
+
+/// The direct light of lights without a surface, drawn per sample with shadow rays.
+pub(crate) struct Direct {
+    /// The lights in the mesh's frame.
+    lights: Vec<Light>,
+    /// How far a sun's shadow ray reaches (beyond the scene).
+    far: f64,
+}
+
+impl Direct {
+    /// `lights` (in the scene's frame) moved into `mesh`'s frame.
+    pub(crate) fn new(mesh: &Mesh, lights: &[Light]) -> Direct {
+        Direct {
+            lights: lights
+                .iter()
+                .map(|l| l.translated(-mesh.origin()))
+                .collect(),
+            far: mesh.escape_distance(),
+        }
+    }
+
+    /// The reflected radiance `rho E(x) max(0, n · w) V / π` (W/(m² sr)) of the lights' direct
+    /// light at the front hit `hit`, one shadow ray per light drawn from `rng`; 0 for a miss, a
+    /// back face or no lights.
+    pub(crate) fn radiance<C: RayCaster + ?Sized>(
+        &self,
+        mesh: &Mesh,
+        caster: &C,
+        hit: Option<Hit>,
+        rng: &mut Stream,
+    ) -> DVec3 {
+        if self.lights.is_empty() {
+            return DVec3::ZERO;
+        }
+        let Some(hit) = hit.filter(|h| h.front) else {
+            return DVec3::ZERO;
+        };
+        let Some(patch) = mesh.patches().get(hit.id as usize) else {
+            return DVec3::ZERO;
+        };
+        let mut h = DVec3::ZERO;
+        for light in &self.lights {
+            let u = [rng.uniform_f64(), rng.uniform_f64()];
+            let Some((e, target)) = light.arrival(hit.point, patch.normal, u, self.far) else {
+                continue;
+            };
+            let from = SurfacePoint::new(hit.point, patch.normal, hit.id);
+            if !caster.occluded(&from, &SurfacePoint::free(target)) {
+                h += e;
+            }
+        }
+        patch.reflectance.as_dvec3() * h / PI
     }
 }
 

@@ -61,6 +61,7 @@ fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
         height,
         samples_per_pixel,
         sky: None,
+        lights: Vec::new(),
     }
 }
 

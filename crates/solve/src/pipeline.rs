@@ -55,6 +55,14 @@ pub struct Answer {
     pub complete_steps: bool,
     /// What the caller should be told (a repair, a setting without effect), one line each.
     pub warnings: Vec<String>,
+    /// With punctual lights (point, spot, sun; the sky's light not included): their direct
+    /// irradiance `H_d,i` per patch (W/m² per channel, mesh order) as this piece's lights'
+    /// pre-pass estimated it, the part of `estimate` that is direct light being `rho_i H_d,i`.
+    /// A renderer or baker that draws `rho(x) H_d(x)` per pixel with its own shadow rays takes
+    /// the rest, `B_i - rho_i H_d,i` (clamped at 0), from the solution. For a continued or
+    /// pooled answer the pieces' own estimates of `H_d` differ by their noise. `None` without
+    /// punctual lights, or when the run was cancelled within a step.
+    pub direct: Option<Vec<DVec3>>,
 }
 
 /// A complete step of the run, as the observer of [`solve`] sees it.
@@ -359,6 +367,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             escaped_rays: 0,
             unshot_fraction: f64::NAN,
             stop: StopReason::Stopped,
+            direct: None,
         });
         if flow.is_break() {
             return ControlFlow::Break(());
@@ -390,6 +399,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
+    let direct = solution.direct.clone();
     let (estimate, state) =
         run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
     // a run stopped in a step that is not an answer lacks part of its light
@@ -464,6 +474,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         cancelled,
         complete_steps,
         warnings,
+        direct: if config.lights.is_empty() {
+            None
+        } else {
+            direct
+        },
     })
 }
 

@@ -63,6 +63,7 @@ pub(crate) fn run<C: RayCaster>(
         escaped_rays: g.stats.escaped_rays,
         unshot_fraction: series_remainder(mesh, g.rounds),
         stop: g.stats.stop,
+        direct: None,
     })
 }
 

@@ -39,5 +39,6 @@ pub(crate) fn run<C: RayCaster>(
         } else {
             StopReason::Converged
         },
+        direct: None,
     })
 }

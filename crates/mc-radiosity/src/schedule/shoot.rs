@@ -41,5 +41,6 @@ pub(crate) fn run<C: RayCaster>(
         escaped_rays,
         unshot_fraction,
         stop,
+        direct: None,
     })
 }

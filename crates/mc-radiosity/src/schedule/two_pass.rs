@@ -55,6 +55,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
             escaped_rays,
             unshot_fraction: unshot,
             stop: StopReason::Stopped,
+            direct: None,
         });
     }
     gather_budget = gather_budget.min(limit.get());
@@ -127,6 +128,7 @@ fn unbounded<C: RayCaster>(
             escaped_rays,
             unshot_fraction: unshot,
             stop: StopReason::Stopped,
+            direct: None,
         });
     }
     let shot = Shot {
@@ -201,6 +203,7 @@ fn finish<C: RayCaster>(
         escaped_rays,
         unshot_fraction: unshot,
         stop: budget_or_stopped(stopped),
+        direct: None,
     })
 }
 
