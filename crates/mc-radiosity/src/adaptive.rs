@@ -539,6 +539,8 @@ fn light<C: RayCaster>(
         seed: derive_seed(config.seed, LIGHT_TAG + stage),
         lights: config.lights.clone(),
         sky: config.sky.clone(),
+        // without a ray budget: a quarter of the pilot's third of the time
+        lights_seconds: config.seconds.map(|s| s / 12.0),
         ..Default::default()
     };
     crate::lights::light_mesh(mesh, caster, &schedule, None).map(Some)

@@ -69,8 +69,21 @@ pub(crate) fn points_per_patch(budget: u64, patches: usize, rays: usize) -> u32 
     m * m
 }
 
+/// Points a patch of a time-budgeted pass's first round ([`ScheduleConfig::lights_seconds`]).
+const FIRST_POINTS: u32 = 4;
+
+/// Points a patch of a time-budgeted pass's second round: `m²` (`m >= 2`) with the first
+/// round's `4` at most 64 in all, as many as fit in `allowed` seconds at the first round's speed
+/// (`took` seconds for 4 points); 0 when fewer than 4 fit.
+fn more_points(allowed: f64, took: f64) -> u32 {
+    let fit = (allowed - took) / took * f64::from(FIRST_POINTS);
+    let m = fit.max(0.0).sqrt().floor().min(7.0) as u32;
+    if m < 2 { 0 } else { m * m }
+}
+
 /// The direct light of `config.lights` (in the scene's frame) on `mesh`, with `n` points per
-/// patch ([`points_per_patch`] of the budget), the streams keyed by `(config.seed,
+/// patch ([`points_per_patch`] of the budget, or as many as fit in
+/// [`ScheduleConfig::lights_seconds`] without one), the streams keyed by `(config.seed,
 /// LIGHT_PASS, patch)`. [`Error::Cancelled`] once `cancel` is set.
 pub(crate) fn light_mesh<C: RayCaster>(
     mesh: &Mesh,
@@ -86,29 +99,57 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let sky = config.sky.as_ref().filter(|s| !s.is_dark());
     let sky_rays = crate::sky::rays_per_point(sky) as usize;
     let patches = mesh.patches();
-    let n = points_per_patch(config.rays, patches.len(), lights.len() + sky_rays);
+    let per_point = lights.len() + sky_rays;
     let sampler = SurfaceSampler::new(mesh);
     let far = mesh.escape_distance();
     let seed = config.seed;
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
-    let moments: Vec<Moments> = (0..patches.len())
-        .into_par_iter()
-        .map(|i| {
-            if cancelled() {
-                return Moments::default();
+    // `n` stratified points a patch from sub-stream `sub`.
+    let round = |n: u32, sub: u64| -> Result<Vec<Moments>, Error> {
+        let moments: Vec<Moments> = (0..patches.len())
+            .into_par_iter()
+            .map(|i| {
+                if cancelled() {
+                    return Moments::default();
+                }
+                let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, sub);
+                let normal = patches[i].normal;
+                let sources = Sources {
+                    lights: &lights,
+                    sky,
+                };
+                irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
+            })
+            .collect();
+        if cancelled() {
+            return Err(Error::Cancelled);
+        }
+        Ok(moments)
+    };
+    let (n, moments) = match config.lights_seconds {
+        Some(allowed) if config.rays == u64::MAX => {
+            // A time budget: 4 points a patch, then the most that fit in what is left.
+            let clock = std::time::Instant::now();
+            let first = round(FIRST_POINTS, 0)?;
+            let took = clock.elapsed().as_secs_f64().max(1e-9);
+            let more = more_points(allowed, took);
+            if more == 0 {
+                (FIRST_POINTS, first)
+            } else {
+                let second = round(more, 1)?;
+                let merged = first
+                    .iter()
+                    .zip(&second)
+                    .map(|(a, b)| a.merge(FIRST_POINTS, b, more))
+                    .collect();
+                (FIRST_POINTS + more, merged)
             }
-            let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, 0);
-            let normal = patches[i].normal;
-            let sources = Sources {
-                lights: &lights,
-                sky,
-            };
-            irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
-        })
-        .collect();
-    if cancelled() {
-        return Err(Error::Cancelled);
-    }
+        }
+        _ => {
+            let n = points_per_patch(config.rays, patches.len(), per_point);
+            (n, round(n, 0)?)
+        }
+    };
     let mut lit = mesh.clone();
     let mut variance = Vec::with_capacity(patches.len());
     let mut penumbra = Vec::with_capacity(patches.len());
@@ -129,7 +170,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
     Ok(Lit {
         mesh: lit,
         variance,
-        rays: u64::from(n) * patches.len() as u64 * (lights.len() + sky_rays) as u64,
+        rays: u64::from(n) * patches.len() as u64 * per_point as u64,
         penumbra,
         direct,
     })
@@ -186,6 +227,23 @@ struct Moments {
     unoccluded: f64,
     /// Mean luminance of the irradiance the lights give them, W/m².
     visible: f64,
+}
+
+impl Moments {
+    /// The moments of `na` points (`self`) and `nb` independent others (`b`) together: means
+    /// weighted by their counts, the variance of the pooled mean `(na² Va + nb² Vb) / n²`.
+    fn merge(&self, na: u32, b: &Moments, nb: u32) -> Moments {
+        let (wa, wb) = (f64::from(na), f64::from(nb));
+        let n = wa + wb;
+        let (fa, fb) = (wa / n, wb / n);
+        Moments {
+            mean: self.mean * fa + b.mean * fb,
+            lights: self.lights * fa + b.lights * fb,
+            variance: self.variance * (fa * fa) + b.variance * (fb * fb),
+            unoccluded: self.unoccluded * fa + b.unoccluded * fb,
+            visible: self.visible * fa + b.visible * fb,
+        }
+    }
 }
 
 /// What lights the patches directly: the lights (in the mesh's frame) and the sky.
@@ -325,5 +383,44 @@ impl Lit {
 
     fn add_variance(&self, v: &[DVec3]) -> Vec<DVec3> {
         v.iter().zip(&self.variance).map(|(a, b)| *a + *b).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_second_round_takes_what_the_first_rounds_speed_fits() {
+        // 4 points took 0.1 s of 1 s: 36 more fit (6²); of 10 s, capped at 49 (7², 53 in all).
+        assert_eq!(more_points(1.0, 0.1), 36);
+        assert_eq!(more_points(10.0, 0.1), 49);
+        // fewer than 4 more fit, or the time is gone: none
+        assert_eq!(more_points(0.15, 0.1), 0);
+        assert_eq!(more_points(0.0, 0.1), 0);
+    }
+
+    #[test]
+    fn merged_moments_are_those_of_all_the_points() {
+        let a = Moments {
+            mean: DVec3::splat(2.0),
+            lights: DVec3::splat(1.0),
+            variance: DVec3::splat(0.5),
+            unoccluded: 3.0,
+            visible: 1.0,
+        };
+        let b = Moments {
+            mean: DVec3::splat(5.0),
+            lights: DVec3::splat(4.0),
+            variance: DVec3::splat(0.1),
+            unoccluded: 6.0,
+            visible: 4.0,
+        };
+        let m = a.merge(4, &b, 12);
+        assert!((m.mean.x - (4.0 * 2.0 + 12.0 * 5.0) / 16.0).abs() < 1e-12);
+        assert!((m.lights.x - (4.0 + 48.0) / 16.0).abs() < 1e-12);
+        assert!((m.variance.x - (16.0 * 0.5 + 144.0 * 0.1) / 256.0).abs() < 1e-12);
+        assert!((m.unoccluded - (12.0 + 72.0) / 16.0).abs() < 1e-12);
+        assert!((m.visible - (4.0 + 48.0) / 16.0).abs() < 1e-12);
     }
 }

@@ -306,6 +306,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         _ => Clusters::default(),
     };
     let setup_seconds = clock.elapsed().as_secs_f64();
+    // Under a time budget the lights' direct-light pass takes a quarter of the time left at
+    // most (64 points a patch of a large mesh could take it all).
+    if let Some(seconds) = budget.seconds.filter(|_| !deterministic) {
+        config.lights_seconds = Some(((seconds - setup_seconds) / 4.0).max(0.0));
+    }
 
     // A continuation is an independent run with its own streams (piece number > 0).
     let piece = problem.resume.map_or(0, RunState::pieces);
@@ -507,6 +512,7 @@ fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
         },
         lights: Vec::new(),
         sky: None,
+        lights_seconds: None,
     }
 }
 
