@@ -237,7 +237,11 @@ fn a_time_budget_sizes_the_lights_pass_to_its_time() {
     );
     let means: Vec<DVec3> = (0..4).map(|seed| first_step(seed, Some(0.0)).1).collect();
     let mean = means.iter().sum::<DVec3>() / 4.0;
-    let var = means.iter().map(|m| (*m - mean) * (*m - mean)).sum::<DVec3>() / 3.0;
+    let var = means
+        .iter()
+        .map(|m| (*m - mean) * (*m - mean))
+        .sum::<DVec3>()
+        / 3.0;
     for c in 0..3 {
         let tolerance = 4.0 * (var[c] / 4.0).sqrt() + 2e-3 * exact[c];
         assert!(
