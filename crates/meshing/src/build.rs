@@ -514,6 +514,12 @@ impl Mesh {
         &self.triangles[s..s + patch.triangle_count as usize]
     }
 
+    /// The index in [`Mesh::triangles`] of the first triangle of `patch` (its triangles are
+    /// [`Mesh::patch_triangles`], contiguous from there).
+    pub fn first_triangle(&self, patch: &Patch) -> usize {
+        patch.first_triangle as usize
+    }
+
     /// For each triangle of [`Mesh::triangles`], the index of its patch.
     pub fn triangle_patch(&self) -> &[u32] {
         &self.triangle_patch

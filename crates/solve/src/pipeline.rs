@@ -290,6 +290,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let result = run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         complete_steps = step.variance.is_some();
+        // the last step's copy goes before this one's is made (one copy at a time)
+        last_step = None;
         let estimate = match step_estimate(step) {
             Ok(e) => e,
             Err(e) => {
