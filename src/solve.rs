@@ -268,6 +268,15 @@ fn solve_error(e: SolveError, args: &Solve, settings: &Settings) -> anyhow::Erro
                 e => anyhow!("{scene}: {e}; {advice}"),
             }
         }
+        SolveError::Memory { .. } => anyhow!(
+            "{scene}: {e} (--max-memory {}{})",
+            problem_limit(args),
+            if args.max_memory.is_none() {
+                ", the default: the machine's RAM less a tenth"
+            } else {
+                ""
+            }
+        ),
         SolveError::Disagree { .. }
         | SolveError::StateMesh { .. }
         | SolveError::StateReplay(_)
@@ -276,6 +285,14 @@ fn solve_error(e: SolveError, args: &Solve, settings: &Settings) -> anyhow::Erro
             anyhow!("--resume {}: {e}", state.display())
         }
         e => anyhow::Error::new(e).context(scene.to_string()),
+    }
+}
+
+/// The memory limit of `args` as given (or the default's bytes).
+fn problem_limit(args: &Solve) -> String {
+    match args.budget(Instant::now()).memory {
+        Some(bytes) => bytes.to_string(),
+        None => "none".to_string(),
     }
 }
 

@@ -611,6 +611,20 @@ fn local_origin(scene: &Scene) -> Vec3 {
     }
 }
 
+impl Mesh {
+    /// An upper estimate of the patches [`Mesh::build`] makes of `scene` with `subdivision`
+    /// (front sides; a two-sided face's back side doubles its pieces), without building it: a
+    /// face whose longest edge is `n` times the maximum edge gives at most `n²` pieces per fan
+    /// triangle. Linear in the faces.
+    pub fn estimate_patches(scene: &Scene, subdivision: Subdivision) -> u64 {
+        match subdivision {
+            Subdivision::None => scene.faces().len() as u64,
+            Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => estimate_patches(scene, l),
+            Subdivision::MaxEdge(_) => scene.faces().len() as u64,
+        }
+    }
+}
+
 /// An upper estimate of the patch count a subdivision makes (to refuse absurd requests early).
 fn estimate_patches(scene: &Scene, max_edge: f32) -> u64 {
     let l = max_edge as f64;

@@ -186,6 +186,17 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         state.settings().agree(settings)?;
     }
     let budget = problem.budget;
+    if let Some(limit) = budget.memory {
+        let estimate = problem.memory_estimate();
+        if estimate.bytes > limit {
+            return Err(Error::Memory {
+                estimate: estimate.bytes,
+                elements: estimate.elements,
+                scene_bytes: estimate.scene_bytes,
+                limit,
+            });
+        }
+    }
     let mut config = schedule_config(settings, &budget);
     if let Input::Scene(scene) = problem.input {
         config.lights = scene.lights().to_vec();
