@@ -109,6 +109,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 .with_context(|| format!("{} as glTF", args.scene.display()))?;
     }
 
+    let load_seconds = clock.elapsed().as_secs_f64();
     let save = args.save.as_ref().filter(|_| !settings.deterministic());
     let problem = Problem {
         input: Input::Scene(&loaded.scene),
@@ -167,7 +168,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             ),
         }
     }
-    finish(args, &loaded, &answer, &bar)?;
+    finish(args, &loaded, &answer, &bar, load_seconds)?;
     if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
@@ -302,6 +303,7 @@ fn finish(
     loaded: &mcrad_scene_io::Loaded,
     answer: &Answer,
     bar: &ProgressBar,
+    load_seconds: f64,
 ) -> Result<()> {
     let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     if let Some(path) = &args.patches {
@@ -317,6 +319,7 @@ fn finish(
             write_patch_csv(create(path)?, rows)?;
         }
     }
+    let render = Instant::now();
     crate::output::write(
         args,
         mesh,
@@ -326,6 +329,7 @@ fn finish(
         loaded.camera,
         bar,
     )?;
+    let render_seconds = render.elapsed().as_secs_f64();
     let baked = match &args.bake {
         Some(target) => Some(crate::output::bake(
             args,
@@ -340,16 +344,18 @@ fn finish(
     };
     if let Some(path) = &args.stats {
         let mut out = create(path)?;
-        match &baked {
-            // the run's statistics and, under "bake", what the bake wrote
-            Some(summary) => {
-                let mut json = serde_json::to_value(run).context("the run statistics")?;
-                json["bake"] = summary.clone();
-                serde_json::to_writer_pretty(&mut out, &json)
-            }
-            None => serde_json::to_writer_pretty(&mut out, run),
+        // the run's statistics, the process's (load and render times, peak memory) and, under
+        // "bake", what the bake wrote
+        let mut json = serde_json::to_value(run).context("the run statistics")?;
+        json["load_seconds"] = load_seconds.into();
+        json["render_seconds"] = render_seconds.into();
+        if let Some(bytes) = peak_resident_bytes() {
+            json["peak_rss_bytes"] = bytes.into();
         }
-        .context("the run statistics")?;
+        if let Some(summary) = &baked {
+            json["bake"] = summary.clone();
+        }
+        serde_json::to_writer_pretty(&mut out, &json).context("the run statistics")?;
         std::io::Write::write_all(&mut out, b"\n")
             .and_then(|()| std::io::Write::flush(&mut out))
             .with_context(|| format!("could not write {}", path.display()))?;
@@ -377,6 +383,21 @@ fn finish(
         }
     }
     Ok(())
+}
+
+/// The process's peak resident memory so far (bytes): `VmHWM` of `/proc/self/status`; `None`
+/// where it cannot be read.
+fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib * 1024)
 }
 
 pub fn create(path: &Path) -> Result<BufWriter<File>> {
