@@ -226,7 +226,7 @@ impl Bvh {
         frame.check_lift(bounds.0, bounds.1)?;
         let canonical: Vec<Triangle> = (0..count)
             .into_par_iter()
-            .map(|i| triangle(i))
+            .map(&triangle)
             .map(|t| Triangle {
                 v0: frame.canonical(t[0]).into(),
                 v1: frame.canonical(t[1]).into(),

@@ -94,7 +94,7 @@ fn scene_bytes(scene: &Scene) -> u64 {
         .iter()
         .map(|f| (size_of::<mcrad_scene_io::Face>() + 4 * f.vertices.len()) as u64)
         .sum();
-    let positions = (scene.positions().len() * size_of::<glam::Vec3>()) as u64;
+    let positions = size_of_val(scene.positions()) as u64;
     let textures = scene.textures().map_or(0, |t| t.heap_bytes() as u64);
     faces + positions + textures
 }

@@ -561,11 +561,14 @@ fn adaptive_mesh(
     let diagonal = scene.bounds().diagonal() as f32;
     let coarse = Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION);
     let mut mesh = AdaptiveMesh::new(scene, coarse, bounds).map_err(mesh_error(coarse))?;
+    // a start that does not fit goes before the next is built (never two at once)
     if !fits(&mesh, START_SHARE) {
+        drop(mesh);
         let uniform = Subdivision::default_for(scene);
         mesh = AdaptiveMesh::new(scene, uniform, bounds).map_err(mesh_error(uniform))?;
     }
     if !fits(&mesh, 1) {
+        drop(mesh);
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
             .map_err(mesh_error(Subdivision::None))?;
     }
