@@ -21,7 +21,8 @@ pub const BYTES_FIXED: u64 = 64 << 20;
 pub struct MemoryEstimate {
     /// The most elements (patches) the plan can make: the adaptive budget (one per input face
     /// plus half of `max_patches` when that is more, back sides included), an upper estimate of
-    /// a uniform cut, or one per face and side.
+    /// a uniform cut, or one per face and side; for the reference solver at most one past its
+    /// patch limit (it refuses a larger mesh itself, as it builds it).
     pub elements: u64,
     /// The scene's own arrays (faces, vertex indices, positions, texture pixels), in bytes.
     pub scene_bytes: u64,
@@ -61,7 +62,7 @@ fn plan_elements(scene: &Scene, problem: &Problem) -> u64 {
         .filter(|f| scene.is_two_sided(f.material))
         .count() as u64;
     let per_face = faces + two_sided;
-    match problem.settings.mesh {
+    let elements = match problem.settings.mesh {
         MeshPlan::PerFace => per_face,
         MeshPlan::Uniform { max_edge } => {
             let subdivision = match max_edge {
@@ -84,6 +85,13 @@ fn plan_elements(scene: &Scene, problem: &Problem) -> u64 {
             let budget = (max_patches as u64).max(faces.saturating_add(max_patches as u64 / 2));
             budget.max(per_face)
         }
+    };
+    if problem.settings.deterministic() {
+        // the reference solver refuses a larger mesh while it is built, with its own message
+        let limit = mcrad_reference::ReferenceConfig::default().max_patches as u64;
+        elements.min(limit.saturating_add(1))
+    } else {
+        elements
     }
 }
 
