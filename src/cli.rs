@@ -87,6 +87,12 @@ pub struct Solve {
     /// shorter last pass), and a step that cannot finish in time is not started.
     #[arg(long, value_name = "S", value_parser = parse_seconds)]
     pub time: Option<f64>,
+    /// The most memory the solve may take at its peak, in bytes (accepts 4000000000, 4e9 and
+    /// the binary suffixes K, M, G, T: 4G is 4 GiB). A scene whose estimated peak (from its
+    /// face count and the mesh plan, before any meshing) exceeds it is refused with the
+    /// estimate. Default: the machine's RAM less a tenth (at least 256 MiB less).
+    #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Add the ambient term (paper, section 3.1) to shooting solutions.
     #[arg(long)]
     pub ambient: bool,
@@ -393,6 +399,7 @@ impl Solve {
             seconds: self.time,
             since: Some(since),
             target_error: self.bake.as_ref().and_then(|b| b.target_error),
+            memory: self.max_memory.or_else(default_max_memory),
         }
     }
 }
@@ -649,6 +656,51 @@ fn parse_length(s: &str) -> Result<f32, String> {
 
 /// Parses a count written as an integer (`2000000`) or in float notation (`2e6`), at least 1
 /// and at most `u64::MAX`; each way to miss says which.
+/// A byte count: a whole number (`4000000000`, `4e9`) or one with a binary suffix `K`, `M`,
+/// `G` or `T` (`4G` = 4 GiB, `1.5G`), at least 1.
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (number, scale) = match t.char_indices().last() {
+        Some((i, c)) if c.is_ascii_alphabetic() && !t.ends_with(['e', 'E']) => {
+            let scale: u64 = match c.to_ascii_uppercase() {
+                'K' => 1 << 10,
+                'M' => 1 << 20,
+                'G' => 1 << 30,
+                'T' => 1 << 40,
+                _ => return Err(format!("'{s}': the suffix may be K, M, G or T (binary)")),
+            };
+            (&t[..i], scale)
+        }
+        _ => (t, 1),
+    };
+    let x: f64 = number
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number of bytes"))?;
+    let bytes = x * scale as f64;
+    if !bytes.is_finite() || bytes < 1.0 || bytes >= u64::MAX as f64 {
+        return Err(format!(
+            "'{s}' is not a number of bytes from 1 to about 1.8e19"
+        ));
+    }
+    Ok(bytes.round() as u64)
+}
+
+/// The default of `--max-memory`: the machine's RAM (`MemTotal` of `/proc/meminfo`) less a
+/// tenth, and at least 256 MiB less; `None` (no limit) where it cannot be read.
+fn default_max_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let total_kib: u64 = info
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    let total = total_kib.saturating_mul(1024);
+    Some(total.saturating_sub((total / 10).max(256 << 20)).max(1))
+}
+
 fn parse_count(s: &str) -> Result<u64, String> {
     if let Ok(n) = s.parse::<u64>() {
         return if n >= 1 {

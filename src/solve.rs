@@ -109,6 +109,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
                 .with_context(|| format!("{} as glTF", args.scene.display()))?;
     }
 
+    let load_seconds = clock.elapsed().as_secs_f64();
     let save = args.save.as_ref().filter(|_| !settings.deterministic());
     let problem = Problem {
         input: Input::Scene(&loaded.scene),
@@ -167,7 +168,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             ),
         }
     }
-    finish(args, &loaded, &answer, &bar)?;
+    finish(args, &loaded, &answer, &bar, load_seconds)?;
     if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
@@ -268,6 +269,15 @@ fn solve_error(e: SolveError, args: &Solve, settings: &Settings) -> anyhow::Erro
                 e => anyhow!("{scene}: {e}; {advice}"),
             }
         }
+        SolveError::Memory { .. } => anyhow!(
+            "{scene}: {e} (--max-memory {}{})",
+            problem_limit(args),
+            if args.max_memory.is_none() {
+                ", the default: the machine's RAM less a tenth"
+            } else {
+                ""
+            }
+        ),
         SolveError::Disagree { .. }
         | SolveError::StateMesh { .. }
         | SolveError::StateReplay(_)
@@ -279,12 +289,21 @@ fn solve_error(e: SolveError, args: &Solve, settings: &Settings) -> anyhow::Erro
     }
 }
 
+/// The memory limit of `args` as given (or the default's bytes).
+fn problem_limit(args: &Solve) -> String {
+    match args.budget(Instant::now()).memory {
+        Some(bytes) => bytes.to_string(),
+        None => "none".to_string(),
+    }
+}
+
 /// Writes the outputs of a finished solve and prints the summary.
 fn finish(
     args: &Solve,
     loaded: &mcrad_scene_io::Loaded,
     answer: &Answer,
     bar: &ProgressBar,
+    load_seconds: f64,
 ) -> Result<()> {
     let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     if let Some(path) = &args.patches {
@@ -302,6 +321,7 @@ fn finish(
     }
     // With per-pixel direct light, the solution's own direct part is taken out of it.
     let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
+    let render = Instant::now();
     crate::output::write(
         args,
         mesh,
@@ -315,22 +335,25 @@ fn finish(
         loaded.camera,
         bar,
     )?;
+    let render_seconds = render.elapsed().as_secs_f64();
     let baked = match &args.bake {
         Some(target) => Some(crate::output::bake(args, target, loaded, answer, bar)?),
         None => None,
     };
     if let Some(path) = &args.stats {
         let mut out = create(path)?;
-        match &baked {
-            // the run's statistics and, under "bake", what the bake wrote
-            Some(summary) => {
-                let mut json = serde_json::to_value(run).context("the run statistics")?;
-                json["bake"] = summary.clone();
-                serde_json::to_writer_pretty(&mut out, &json)
-            }
-            None => serde_json::to_writer_pretty(&mut out, run),
+        // the run's statistics, the process's (load and render times, peak memory) and, under
+        // "bake", what the bake wrote
+        let mut json = serde_json::to_value(run).context("the run statistics")?;
+        json["load_seconds"] = load_seconds.into();
+        json["render_seconds"] = render_seconds.into();
+        if let Some(bytes) = peak_resident_bytes() {
+            json["peak_rss_bytes"] = bytes.into();
         }
-        .context("the run statistics")?;
+        if let Some(summary) = &baked {
+            json["bake"] = summary.clone();
+        }
+        serde_json::to_writer_pretty(&mut out, &json).context("the run statistics")?;
         std::io::Write::write_all(&mut out, b"\n")
             .and_then(|()| std::io::Write::flush(&mut out))
             .with_context(|| format!("could not write {}", path.display()))?;
@@ -358,6 +381,21 @@ fn finish(
         }
     }
     Ok(())
+}
+
+/// The process's peak resident memory so far (bytes): `VmHWM` of `/proc/self/status`; `None`
+/// where it cannot be read.
+fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib * 1024)
 }
 
 pub fn create(path: &Path) -> Result<BufWriter<File>> {

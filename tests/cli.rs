@@ -903,3 +903,36 @@ fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
         "cannot be used with",
     );
 }
+
+/// A scene whose estimated peak memory exceeds `--max-memory` is refused before any work, with
+/// the estimate and the limit in one error line (exit 1); a bad value is a usage error.
+#[test]
+fn max_memory_refuses_a_scene_that_would_not_fit() {
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--rays",
+        "1e5",
+        "--max-memory",
+        "10M",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("would need about") && err.contains("more than the 10.0 MiB"),
+        "{err}"
+    );
+    assert!(err.contains("--max-memory 10485760"), "{err}");
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--rays",
+        "1e5",
+        "--max-memory",
+        "2G",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = mcrad(&["solve", "scenes/cornell-box.obj", "--max-memory", "3X"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}

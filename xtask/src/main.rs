@@ -9,6 +9,7 @@ mod gen_scenes;
 mod meshing_exp;
 mod path_trace;
 mod regress;
+mod scale_bench;
 mod speed;
 mod viewer;
 
@@ -60,6 +61,14 @@ enum Task {
     /// (+ .mtl), and scenes/cornell-box.gltf (+ .bin) from the OBJ; and the atrium (about 100k
     /// triangles, or --triangles N) into target/scenes/
     GenScenes(gen_scenes::GenScenesArgs),
+    /// The generated atrium at several sizes (--triangles 1e5,1e6,...), one mcrad solve each:
+    /// load, mesh and BVH, solve and render times and peak memory; writes docs/scale-bench.csv
+    /// and .png
+    ScaleBench(scale_bench::ScaleBenchArgs),
+    /// Runs a command and writes its peak resident memory and wall-clock time (scale-bench's
+    /// measurement of one run)
+    #[command(hide = true)]
+    PeakRss(scale_bench::PeakRssArgs),
     /// A textured Cornell-style room baked from K seeds of a method and from the reference
     /// solver: per face, the baked texels' error against the variance the bake reports
     BakeCheck(bake_check::BakeCheckArgs),
@@ -162,6 +171,8 @@ fn run(cli: Cli) -> Result<()> {
             }
         },
         Task::Calibrate(args) => calibrate::run(&root(), &args),
+        Task::ScaleBench(args) => scale_bench::run(&root(), &args),
+        Task::PeakRss(args) => scale_bench::peak_rss(&args),
         Task::GenScenes(args) => {
             if !args.atrium_only {
                 gen_scenes::run(&root())?;
@@ -434,6 +445,10 @@ mod tests {
              --limit 20 --sampler qmc --out docs/calibration.md",
             "gen-scenes",
             "gen-scenes --atrium-only --triangles 1e6 --glb --no-sky-panel --out somewhere",
+            "scale-bench",
+            "scale-bench --triangles 1e5,1e6 --rays 2e6 --threads 2 --size none --mcrad old/mcrad \
+             --out somewhere",
+            "peak-rss --out p.json -- true",
             "bake-check",
             "bake-check --seeds 8 --rays 2e6 --method combined",
             "viewer-check",

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 pub struct Context<'a, C: RayCaster> {
     mesh: &'a Mesh,
     caster: &'a C,
-    sampler: SurfaceSampler,
+    sampler: SurfaceSampler<'a>,
     choice: Sampler,
     emitters: Option<Discrete>,
     cancel: Option<&'a AtomicBool>,
@@ -108,7 +108,7 @@ impl<'a, C: RayCaster> Context<'a, C> {
     }
 
     /// Uniform points and cosine rays on the patches.
-    pub(crate) fn sampler(&self) -> &SurfaceSampler {
+    pub(crate) fn sampler(&self) -> &SurfaceSampler<'a> {
         &self.sampler
     }
 

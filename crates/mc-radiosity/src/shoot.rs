@@ -284,8 +284,8 @@ pub fn shoot<C: RayCaster>(
             limit: BACK as u64,
         });
     }
-    let area: Vec<f64> = patches.iter().map(|p| p.area).collect();
-    let rho: Vec<DVec3> = patches.iter().map(|p| p.reflectance.as_dvec3()).collect();
+    // Areas and reflectances are read from the patches (`f64` copies would hold 32 bytes per
+    // patch through the run).
     let mut unshot: Vec<DVec3> = patches
         .iter()
         .map(|p| p.emission.as_dvec3() * p.area)
@@ -294,11 +294,10 @@ pub fn shoot<C: RayCaster>(
     if total(emitted) <= 0.0 {
         return Err(Error::NoEmission);
     }
-    let total_area: f64 = area.iter().sum();
-    let rho_avg = (rho
+    let total_area: f64 = patches.iter().map(|p| p.area).sum();
+    let rho_avg = (patches
         .iter()
-        .zip(&area)
-        .map(|(r, a)| total(*r) / 3.0 * a)
+        .map(|p| total(p.reflectance.as_dvec3()) / 3.0 * p.area)
         .sum::<f64>()
         / total_area)
         .min(0.999);
@@ -413,7 +412,7 @@ pub fn shoot<C: RayCaster>(
                         stats.back_face_hits += 1;
                     } else {
                         let j = h as usize;
-                        let kept = rho[j] * p;
+                        let kept = patches[j].reflectance.as_dvec3() * p;
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
@@ -454,7 +453,10 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
-    if let Some(waves) = &waves {
+    // What the waves needed goes before the replicates' gains are measured (the run's peak).
+    drop(per_ray);
+    drop(cast);
+    if let Some(waves) = waves.take() {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure, wave by wave (crate::replicates).
         let gains = waves.gains(patches.iter().map(|p| p.face));
@@ -480,8 +482,8 @@ pub fn shoot<C: RayCaster>(
     radiosity_so_far(patches, &reflected, &mut radiosity);
     let variance = squares
         .iter()
-        .zip(&area)
-        .map(|(s, a)| *s / (a * a))
+        .zip(patches)
+        .map(|(s, p)| *s / (p.area * p.area))
         .collect();
     let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {

@@ -10,45 +10,32 @@ use mcrad_meshing::Mesh;
 use mcrad_random::{Sobol, Stream, StreamKey};
 use mcrad_raycast::Ray;
 
-/// Per-patch tables for drawing uniform points (density `1/A_i` per unit area) and rays leaving
-/// patches with the cosine density `cos(theta)/pi` per steradian.
+/// Draws uniform points (density `1/A_i` per unit area) and rays leaving patches with the
+/// cosine density `cos(theta)/pi` per steradian.
+///
+/// It reads the triangles, positions and normals from the mesh it borrows and keeps one `f32`
+/// per triangle of its own (4 bytes per triangle): a triangle's first vertex and edges, and a
+/// patch's tangent frame, are computed where a point or ray needs them, by the same `f32`
+/// operations a stored copy was made with, so the points and rays are the same bit for bit.
 #[derive(Debug, Clone)]
-pub struct SurfaceSampler {
-    /// Per triangle: first vertex, and the two edges from it (scene units).
-    v0: Vec<Vec3>,
-    e1: Vec<Vec3>,
-    e2: Vec<Vec3>,
-    /// Per triangle: the cumulative area fraction within its patch up to and including it.
+pub struct SurfaceSampler<'m> {
+    mesh: &'m Mesh,
+    /// Per triangle of [`Mesh::triangles`]: the cumulative area fraction within its patch up
+    /// to and including it (1 for a patch's last triangle).
     cdf: Vec<f32>,
-    /// Per patch: first triangle and count.
-    first: Vec<u32>,
-    count: Vec<u32>,
-    /// Per patch: the tangent frame about its normal.
-    frames: Vec<Frame>,
 }
 
-impl SurfaceSampler {
-    /// Precomputes the tables for `mesh`.
-    pub fn new(mesh: &Mesh) -> SurfaceSampler {
-        let n = mesh.triangles().len();
-        let mut s = SurfaceSampler {
-            v0: Vec::with_capacity(n),
-            e1: Vec::with_capacity(n),
-            e2: Vec::with_capacity(n),
-            cdf: Vec::with_capacity(n),
-            first: Vec::with_capacity(mesh.patches().len()),
-            count: Vec::with_capacity(mesh.patches().len()),
-            frames: mesh
-                .patches()
-                .iter()
-                .map(|p| Frame::from_normal(p.normal))
-                .collect(),
-        };
+impl<'m> SurfaceSampler<'m> {
+    /// The sampler of `mesh`'s patches.
+    pub fn new(mesh: &'m Mesh) -> SurfaceSampler<'m> {
+        let mut cdf = Vec::with_capacity(mesh.triangles().len());
         let pos = mesh.positions();
         for patch in mesh.patches() {
             let tris = mesh.patch_triangles(patch);
-            s.first.push(s.v0.len() as u32);
-            s.count.push(tris.len() as u32);
+            if let [_] = tris {
+                cdf.push(1.0);
+                continue;
+            }
             let areas: Vec<f64> = tris
                 .iter()
                 .map(|t| {
@@ -58,32 +45,50 @@ impl SurfaceSampler {
                 .collect();
             let total: f64 = areas.iter().sum();
             let mut acc = 0.0;
-            for (t, area) in tris.iter().zip(&areas) {
-                let [a, b, c] = t.map(|i| pos[i as usize]);
-                s.v0.push(a);
-                s.e1.push(b - a);
-                s.e2.push(c - a);
+            for area in &areas {
                 acc += area;
-                s.cdf.push((acc / total) as f32);
+                cdf.push((acc / total) as f32);
             }
             // Rounding must not leave a gap at the top.
-            *s.cdf.last_mut().expect("a patch has a triangle") = 1.0;
+            *cdf.last_mut().expect("a patch has a triangle") = 1.0;
         }
-        s
+        SurfaceSampler { mesh, cdf }
+    }
+
+    /// The first triangle of `patch` and its triangle count.
+    #[inline]
+    fn triangles(&self, patch: usize) -> (usize, usize) {
+        let p = &self.mesh.patches()[patch];
+        (
+            self.mesh.first_triangle(p),
+            self.mesh.patch_triangles(p).len(),
+        )
+    }
+
+    /// The point of triangle `t` at barycentric `b` (weights of its second and third vertex).
+    #[inline]
+    fn on_triangle(&self, t: usize, b: Vec2) -> Vec3 {
+        let pos = self.mesh.positions();
+        let [a, v1, v2] = self.mesh.triangles()[t].map(|i| pos[i as usize]);
+        a + (v1 - a) * b.x + (v2 - a) * b.y
+    }
+
+    /// The tangent frame about `patch`'s normal.
+    #[inline]
+    fn frame(&self, patch: usize) -> Frame {
+        Frame::from_normal(self.mesh.patches()[patch].normal)
     }
 
     /// A uniform point of `patch` from three uniforms in `[0, 1)`: the first picks a triangle by
     /// area, the other two a point in it.
     #[inline]
     pub fn point(&self, patch: usize, u: [f32; 3]) -> Vec3 {
-        let first = self.first[patch] as usize;
-        let count = self.count[patch] as usize;
+        let (first, count) = self.triangles(patch);
         let mut t = first;
         while t + 1 < first + count && u[0] >= self.cdf[t] {
             t += 1;
         }
-        let b = uniform_triangle(Vec2::new(u[1], u[2]));
-        self.v0[t] + self.e1[t] * b.x + self.e2[t] * b.y
+        self.on_triangle(t, uniform_triangle(Vec2::new(u[1], u[2])))
     }
 
     /// A uniform point of `patch` from two uniforms in `[0, 1)`: the first picks a triangle by
@@ -91,8 +96,7 @@ impl SurfaceSampler {
     /// the triangle with the second (so stratified pairs give stratified points).
     #[inline]
     pub fn point2(&self, patch: usize, u: [f32; 2]) -> Vec3 {
-        let first = self.first[patch] as usize;
-        let count = self.count[patch] as usize;
+        let (first, count) = self.triangles(patch);
         let mut t = first;
         while t + 1 < first + count && u[0] >= self.cdf[t] {
             t += 1;
@@ -104,8 +108,7 @@ impl SurfaceSampler {
         } else {
             0.0
         };
-        let b = uniform_triangle(Vec2::new(v, u[1]));
-        self.v0[t] + self.e1[t] * b.x + self.e2[t] * b.y
+        self.on_triangle(t, uniform_triangle(Vec2::new(v, u[1])))
     }
 
     /// The ray of `patch` from a point `u` of the unit 4-cube: a cosine-distributed direction
@@ -115,7 +118,7 @@ impl SurfaceSampler {
     #[inline]
     pub fn ray_at(&self, patch: usize, u: [f32; 4]) -> Ray {
         let p = self.point2(patch, [u[2], u[3]]);
-        let frame = &self.frames[patch];
+        let frame = self.frame(patch);
         let d = frame.to_world(cosine_hemisphere_concentric(Vec2::new(u[0], u[1])));
         Ray::from_surface(p, frame.normal, d, patch as u32)
     }
@@ -125,7 +128,7 @@ impl SurfaceSampler {
     #[inline]
     pub fn ray(&self, patch: usize, rng: &mut Stream) -> Ray {
         let p = self.point(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
-        let frame = &self.frames[patch];
+        let frame = self.frame(patch);
         // Unit to rounding: a unit local direction in an orthonormal frame.
         let d = frame.to_world(cosine_hemisphere_rejection(|| rng.uniform()));
         Ray::from_surface(p, frame.normal, d, patch as u32)
@@ -177,7 +180,7 @@ impl Rays {
 
     /// The next ray of `patch`.
     #[inline]
-    pub fn ray(&mut self, sampler: &SurfaceSampler, patch: usize) -> Ray {
+    pub fn ray(&mut self, sampler: &SurfaceSampler<'_>, patch: usize) -> Ray {
         match self {
             Rays::Random(rng) => sampler.ray(patch, rng),
             Rays::Qmc { .. } => sampler.ray_at(patch, self.next_point()),

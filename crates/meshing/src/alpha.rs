@@ -82,7 +82,8 @@ impl Mesh {
     /// ([`Bvh::with_back_sides`]).
     pub fn caster(&self) -> Result<Bvh, BuildError> {
         if !self.is_two_sided() {
-            let bvh = Bvh::build(&self.triangle_positions(), self.triangle_patch())?;
+            let bvh =
+                Bvh::build_indexed(self.positions(), self.triangles(), self.triangle_patch())?;
             return Ok(match AlphaTest::new(self) {
                 Some(test) => bvh.with_any_hit(Arc::new(test)),
                 None => bvh,

@@ -514,6 +514,12 @@ impl Mesh {
         &self.triangles[s..s + patch.triangle_count as usize]
     }
 
+    /// The index in [`Mesh::triangles`] of the first triangle of `patch` (its triangles are
+    /// [`Mesh::patch_triangles`], contiguous from there).
+    pub fn first_triangle(&self, patch: &Patch) -> usize {
+        patch.first_triangle as usize
+    }
+
     /// For each triangle of [`Mesh::triangles`], the index of its patch.
     pub fn triangle_patch(&self) -> &[u32] {
         &self.triangle_patch
@@ -602,6 +608,20 @@ fn local_origin(scene: &Scene) -> Vec3 {
         origin
     } else {
         Vec3::ZERO
+    }
+}
+
+impl Mesh {
+    /// An upper estimate of the patches [`Mesh::build`] makes of `scene` with `subdivision`
+    /// (front sides; a two-sided face's back side doubles its pieces), without building it: a
+    /// face whose longest edge is `n` times the maximum edge gives at most `n²` pieces per fan
+    /// triangle. Linear in the faces.
+    pub fn estimate_patches(scene: &Scene, subdivision: Subdivision) -> u64 {
+        match subdivision {
+            Subdivision::None => scene.faces().len() as u64,
+            Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => estimate_patches(scene, l),
+            Subdivision::MaxEdge(_) => scene.faces().len() as u64,
+        }
     }
 }
 

@@ -182,11 +182,51 @@ impl Bvh {
         ids: &[u32],
         preset: BvhPreset,
     ) -> Result<Bvh, BuildError> {
-        let bounds = frame::validate(triangles, ids)?;
+        Bvh::build_from(triangles.len(), |i| triangles[i], ids, preset)
+    }
+
+    /// [`Bvh::build`] over indexed triangles: triangle `i` has the vertices
+    /// `positions[triangles[i][k]]` (scene units) and the id `ids[i]`. The same BVH as
+    /// [`Bvh::build`] of those vertices, built without a copy of them (36 bytes per triangle
+    /// less at the build's peak).
+    ///
+    /// Errors: those of [`Bvh::build`], and a vertex index past `positions`
+    /// ([`BuildError::VertexIndex`]).
+    pub fn build_indexed(
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        ids: &[u32],
+    ) -> Result<Bvh, BuildError> {
+        for (triangle, t) in triangles.iter().enumerate() {
+            if let Some(&index) = t.iter().find(|&&v| v as usize >= positions.len()) {
+                return Err(BuildError::VertexIndex {
+                    triangle,
+                    index,
+                    positions: positions.len(),
+                });
+            }
+        }
+        Bvh::build_from(
+            triangles.len(),
+            |i| triangles[i].map(|v| positions[v as usize]),
+            ids,
+            BvhPreset::default(),
+        )
+    }
+
+    /// [`Bvh::build_with`] of the `count` triangles `triangle(i)`.
+    fn build_from(
+        count: usize,
+        triangle: impl Fn(usize) -> [Vec3; 3] + Sync,
+        ids: &[u32],
+        preset: BvhPreset,
+    ) -> Result<Bvh, BuildError> {
+        let bounds = frame::validate_with(count, &triangle, ids)?;
         let frame = Frame::new(bounds.0, bounds.1);
         frame.check_lift(bounds.0, bounds.1)?;
-        let canonical: Vec<Triangle> = triangles
-            .par_iter()
+        let canonical: Vec<Triangle> = (0..count)
+            .into_par_iter()
+            .map(&triangle)
             .map(|t| Triangle {
                 v0: frame.canonical(t[0]).into(),
                 v1: frame.canonical(t[1]).into(),
@@ -207,7 +247,7 @@ impl Bvh {
             node_test: NodeTestChoice::fastest(Simd::Avx512),
             frame,
             bounds,
-            triangle_count: triangles.len(),
+            triangle_count: count,
             any_hit: None,
             sides: None,
         })

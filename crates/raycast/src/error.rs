@@ -29,6 +29,17 @@ pub enum BuildError {
         /// The offending position (scene units).
         value: Vec3,
     },
+    /// An indexed triangle ([`Bvh::build_indexed`](crate::Bvh::build_indexed)) names a vertex
+    /// past the positions.
+    #[error("triangle {triangle} names vertex {index}, but there are {positions} positions")]
+    VertexIndex {
+        /// Index of the triangle in the input list.
+        triangle: usize,
+        /// The vertex index it names.
+        index: u32,
+        /// Number of positions passed.
+        positions: usize,
+    },
     /// A triangle carries the reserved id [`NO_ID`](crate::NO_ID), which means "no primitive"
     /// in rays and surface points.
     #[error("triangle {triangle} has the reserved id NO_ID (u32::MAX)")]

@@ -39,18 +39,27 @@ const LIFT_PER_MAGNITUDE: f64 = 1.0 / (1u64 << 21) as f64;
 
 /// Checks the input of a build and returns the bounds (min, max) of all vertices.
 pub(crate) fn validate(triangles: &[[Vec3; 3]], ids: &[u32]) -> Result<(Vec3, Vec3), BuildError> {
-    if triangles.len() != ids.len() {
+    validate_with(triangles.len(), |i| triangles[i], ids)
+}
+
+/// [`validate`] of the `count` triangles that `triangle(i)` gives.
+pub(crate) fn validate_with(
+    count: usize,
+    triangle: impl Fn(usize) -> [Vec3; 3],
+    ids: &[u32],
+) -> Result<(Vec3, Vec3), BuildError> {
+    if count != ids.len() {
         return Err(BuildError::LengthMismatch {
-            triangles: triangles.len(),
+            triangles: count,
             ids: ids.len(),
         });
     }
-    if triangles.is_empty() {
+    if count == 0 {
         return Err(BuildError::Empty);
     }
     let mut min = Vec3::INFINITY;
     let mut max = Vec3::NEG_INFINITY;
-    for (triangle, (tri, &id)) in triangles.iter().zip(ids).enumerate() {
+    for (triangle, (tri, &id)) in (0..count).map(&triangle).zip(ids).enumerate() {
         for (vertex, &value) in tri.iter().enumerate() {
             if !value.is_finite() {
                 return Err(BuildError::NonFiniteVertex {

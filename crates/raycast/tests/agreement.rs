@@ -203,3 +203,50 @@ fn the_build_does_not_depend_on_the_thread_count() {
         assert_eq!(one.closest_hit(&r), three.closest_hit(&r), "{r:?}");
     }
 }
+
+/// [`Bvh::build_indexed`] (vertices shared through indices, no copy) builds the BVH that
+/// [`Bvh::build`] builds of the same triangles: same layout, same hits; an index past the
+/// positions is an error that names it.
+#[test]
+fn the_indexed_build_is_the_build_of_the_same_triangles() {
+    let s = room_with_boxes(8, 60);
+    // each distinct vertex once, the triangles as indices into them
+    let mut positions: Vec<glam::Vec3> = Vec::new();
+    let mut index = std::collections::HashMap::new();
+    let triangles: Vec<[u32; 3]> = s
+        .tris
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                *index
+                    .entry(v.to_array().map(f32::to_bits))
+                    .or_insert_with(|| {
+                        positions.push(v);
+                        (positions.len() - 1) as u32
+                    })
+            })
+        })
+        .collect();
+    assert!(positions.len() < 3 * s.tris.len(), "vertices are shared");
+    let (copied, indexed) = (
+        Bvh::build(&s.tris, &s.ids).unwrap(),
+        Bvh::build_indexed(&positions, &triangles, &s.ids).unwrap(),
+    );
+    assert_eq!(copied.node_count(), indexed.node_count());
+    assert_eq!(copied.memory_bytes(), indexed.memory_bytes());
+    let mut rng = Rng::new(23);
+    for _ in 0..RAYS {
+        let r = surface_ray(&s, Spot::Uniform, false, &mut rng);
+        assert_eq!(copied.closest_hit(&r), indexed.closest_hit(&r), "{r:?}");
+    }
+    let mut bad = triangles.clone();
+    bad[5][2] = positions.len() as u32;
+    let e = Bvh::build_indexed(&positions, &bad, &s.ids).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "triangle 5 names vertex {0}, but there are {0} positions",
+            positions.len()
+        )
+    );
+}

@@ -248,6 +248,23 @@ impl FaceMapping {
 }
 
 impl SceneTextures {
+    /// Bytes of the decoded texels (every mip level, and the alpha kept for alpha tests) and
+    /// of the faces' mappings: what the textures hold in memory, allocator overhead not counted.
+    pub fn heap_bytes(&self) -> usize {
+        let texels: usize = self
+            .textures
+            .iter()
+            .map(|t| {
+                t.levels
+                    .iter()
+                    .map(|l| l.texels.len() * size_of::<Vec3>())
+                    .sum::<usize>()
+                    + t.alpha.as_ref().map_or(0, |a| a.len() * size_of::<f32>())
+            })
+            .sum();
+        texels + self.faces.len() * size_of::<Option<FaceMapping>>()
+    }
+
     /// The factors a polygon lying in face `source` applies to its material: `(albedo,
     /// emission)`, each the mean over the polygon's area of `COLOR_0 × baseColorTexture` and of
     /// `emissiveTexture` (1 where the face has none). `points` are the polygon's corners in scene

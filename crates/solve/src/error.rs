@@ -37,6 +37,27 @@ pub enum Error {
         /// Why not.
         source: rayon::ThreadPoolBuildError,
     },
+    /// The solve's estimated peak memory ([`crate::Problem::memory_estimate`]) exceeds the
+    /// budget's [`crate::Budget::memory`]: refused before any work.
+    #[error(
+        "the solve would need about {} of memory at its peak ({elements} elements of about \
+         {per_element} bytes, and the scene's {}), more than the {} it may use: give it more \
+         memory, or a coarser mesh or fewer patches",
+        crate::memory::show_bytes(*estimate),
+        crate::memory::show_bytes(*scene_bytes),
+        crate::memory::show_bytes(*limit),
+        per_element = crate::memory::BYTES_PER_ELEMENT
+    )]
+    Memory {
+        /// The estimated peak (bytes).
+        estimate: u64,
+        /// The most elements the plan makes.
+        elements: u64,
+        /// The scene's own bytes.
+        scene_bytes: u64,
+        /// The memory allowed (bytes).
+        limit: u64,
+    },
     /// The run was cancelled before its first complete step: there is no answer.
     #[error("cancelled before the first step completed: there is no answer")]
     CancelledEarly,

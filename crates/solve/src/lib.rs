@@ -24,6 +24,10 @@
 //! (loading included, when the caller started the clock there); after each step the rays that
 //! fit in the time left at the speed measured so far cap the rest of the run.
 //!
+//! **Memory** is bounded before the work: [`Problem::memory_estimate`] bounds the peak from the
+//! face count and the mesh plan, and a problem whose estimate exceeds [`Budget::memory`] is
+//! refused ([`Error::Memory`]) before anything is meshed.
+//!
 //! **A continued run** ([`Problem::resume`]) is an independent piece with its own random
 //! streams ([`piece_seed`]), merged with the saved solution by rays: weights fixed by the work,
 //! not by the values, so the merge stays unbiased. The state ([`RunState`]) records the
@@ -42,6 +46,7 @@
 mod closure;
 mod clusters;
 mod error;
+mod memory;
 mod pipeline;
 mod problem;
 mod state;
@@ -50,6 +55,7 @@ mod stats;
 pub use closure::{CLOSURE_SIGMAS, Closure};
 pub use error::Error;
 pub use mcrad_mc_radiosity::DEFAULT_RAYS;
+pub use memory::{BYTES_FIXED, BYTES_PER_ELEMENT, MemoryEstimate};
 pub use pipeline::{Answer, Observer, Progress, solve};
 pub use problem::{Budget, Input, MeshPlan, Problem, Settings};
 pub use state::{RunState, piece_seed};

@@ -216,6 +216,17 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         state.settings().agree(settings)?;
     }
     let budget = problem.budget;
+    if let Some(limit) = budget.memory {
+        let estimate = problem.memory_estimate();
+        if estimate.bytes > limit {
+            return Err(Error::Memory {
+                estimate: estimate.bytes,
+                elements: estimate.elements,
+                scene_bytes: estimate.scene_bytes,
+                limit,
+            });
+        }
+    }
     let mut config = schedule_config(settings, &budget);
     if let Input::Scene(scene) = problem.input {
         config.lights = scene.lights().to_vec();
@@ -339,6 +350,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let result = run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         complete_steps = step.variance.is_some();
+        // the last step's copy goes before this one's is made (one copy at a time)
+        last_step = None;
         let estimate = match step_estimate(step) {
             Ok(e) => e,
             Err(e) => {
@@ -616,11 +629,14 @@ fn adaptive_mesh(
     let diagonal = scene.bounds().diagonal() as f32;
     let coarse = Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION);
     let mut mesh = AdaptiveMesh::new(scene, coarse, bounds).map_err(mesh_error(coarse))?;
+    // a start that does not fit goes before the next is built (never two at once)
     if !fits(&mesh, START_SHARE) {
+        drop(mesh);
         let uniform = Subdivision::default_for(scene);
         mesh = AdaptiveMesh::new(scene, uniform, bounds).map_err(mesh_error(uniform))?;
     }
     if !fits(&mesh, 1) {
+        drop(mesh);
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
             .map_err(mesh_error(Subdivision::None))?;
     }

@@ -157,6 +157,10 @@ pub struct Budget {
     /// Stop once the 95th percentile by area of the patches' relative standard error of
     /// incident irradiance is at most this (a fraction, `> 0`); progressive methods only.
     pub target_error: Option<f64>,
+    /// The most memory the solve may take at its peak (bytes, the whole process's); `None`: no
+    /// limit. A problem whose estimate ([`Problem::memory_estimate`]) exceeds it is refused
+    /// before any work ([`Error::Memory`]).
+    pub memory: Option<u64>,
 }
 
 impl Budget {

@@ -1,0 +1,103 @@
+//! Memory bounded before the work: [`Problem::memory_estimate`] bounds the elements every mesh
+//! plan makes on the bundled scenes, and a budget below the estimate refuses the problem
+//! before anything is meshed ([`Error::Memory`]), with the estimate in the message.
+
+use mcrad_scene_io::Scene;
+use mcrad_solve::{BYTES_PER_ELEMENT, Budget, Error, MeshPlan, Problem, Settings, solve};
+use std::ops::ControlFlow;
+
+fn scene(name: &str) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name);
+    mcrad_scene_io::load(&path).unwrap().scene
+}
+
+fn go(_: &mcrad_solve::Progress) -> ControlFlow<()> {
+    ControlFlow::Continue(())
+}
+
+const SCENES: [&str; 5] = [
+    "cornell-box.obj",
+    "cornell-small-light.obj",
+    "furnace.obj",
+    "table-room.obj",
+    "boxes-room.obj",
+];
+
+/// Every plan's mesh has at most the elements its estimate counts, and its mesh arrays hold
+/// well under [`BYTES_PER_ELEMENT`] per element (the rest is the run's state and the BVH).
+#[test]
+fn the_estimate_bounds_every_plans_elements() {
+    for name in SCENES {
+        let scene = scene(name);
+        for plan in [
+            MeshPlan::default(),
+            MeshPlan::Uniform { max_edge: None },
+            MeshPlan::PerFace,
+        ] {
+            let mut problem = Problem::new(&scene);
+            problem.settings = Settings {
+                mesh: plan,
+                ..Settings::default()
+            };
+            problem.budget.rays = Some(200_000);
+            problem.threads = Some(2);
+            let estimate = problem.memory_estimate();
+            let answer = solve(&problem, &mut go).unwrap();
+            let elements = answer.mesh.patches().len() as u64;
+            assert!(
+                elements <= estimate.elements,
+                "{name} {plan:?}: {elements} elements, estimated at most {}",
+                estimate.elements
+            );
+            let mesh_bytes = answer.mesh.heap_bytes() as u64;
+            assert!(
+                mesh_bytes <= elements * BYTES_PER_ELEMENT / 2,
+                "{name} {plan:?}: the mesh alone holds {mesh_bytes} bytes for {elements} elements"
+            );
+            assert!(estimate.bytes > estimate.scene_bytes + elements * BYTES_PER_ELEMENT / 2);
+        }
+    }
+}
+
+/// A budget one byte below the estimate refuses the problem, before any work, and says the
+/// estimate and the limit; the estimate itself is enough.
+#[test]
+fn a_budget_below_the_estimate_refuses_the_problem() {
+    let scene = scene("cornell-box.obj");
+    let mut problem = Problem::new(&scene);
+    problem.budget = Budget {
+        rays: Some(100_000),
+        ..Budget::default()
+    };
+    let estimate = problem.memory_estimate();
+    // the default plan: at most the adaptive budget of 40,000 elements
+    assert_eq!(estimate.elements, 40_000);
+    problem.budget.memory = Some(estimate.bytes - 1);
+    match solve(&problem, &mut go) {
+        Err(e @ Error::Memory { .. }) => {
+            let message = e.to_string();
+            assert!(
+                message.contains("40000 elements") && message.contains("MiB"),
+                "{message}"
+            );
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    problem.budget.memory = Some(estimate.bytes);
+    assert!(solve(&problem, &mut go).is_ok());
+    // a uniform cut finer than the budget allows is refused too; a coarser one fits
+    problem.settings.mesh = MeshPlan::Uniform {
+        max_edge: Some(0.005),
+    };
+    assert!(matches!(
+        solve(&problem, &mut go),
+        Err(Error::Memory { .. })
+    ));
+    problem.settings.mesh = MeshPlan::Uniform {
+        max_edge: Some(0.1),
+    };
+    assert!(problem.memory_estimate().bytes <= estimate.bytes);
+    assert!(solve(&problem, &mut go).is_ok());
+}
