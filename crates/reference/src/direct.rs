@@ -55,17 +55,12 @@ pub struct Direct {
 /// patch's irradiance across a straight shadow edge). A shadow falling between every probe
 /// point is missed. Deterministic.
 pub fn direct_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, lights: &[Light]) -> Direct {
-    let positions = mesh.positions();
     let far = mesh.escape_distance();
     let per_patch: Vec<(DVec3, u64, u64, u64)> = (0..mesh.patches().len())
         .into_par_iter()
         .map(|i| {
             let patch = &mesh.patches()[i];
-            let triangles: Vec<[DVec3; 3]> = mesh
-                .patch_triangles(patch)
-                .iter()
-                .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
-                .collect();
+            let triangles = triangles_f64(mesh, patch);
             let target = Target {
                 id: i as u32,
                 normal: patch.normal,
@@ -113,17 +108,12 @@ pub const SKY_DIRECTIONS: u32 = 256;
 /// that sees the sky through a window (one patch; measured against its form factor). `rays` counts
 /// the rays cast; `exact` the patches found wholly closed, `quadrature` the others.
 pub fn sky_irradiance<C: RayCaster>(mesh: &Mesh, caster: &C, sky: &Sky) -> Direct {
-    let positions = mesh.positions();
     let far = mesh.escape_distance();
     let per_patch: Vec<(DVec3, u64, bool)> = (0..mesh.patches().len())
         .into_par_iter()
         .map(|i| {
             let patch = &mesh.patches()[i];
-            let triangles: Vec<[DVec3; 3]> = mesh
-                .patch_triangles(patch)
-                .iter()
-                .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
-                .collect();
+            let triangles = triangles_f64(mesh, patch);
             sky_of_patch(i as u32, patch.normal, &triangles, far, sky, caster)
         })
         .collect();
@@ -389,6 +379,15 @@ fn solid_angle(r: [DVec3; 3]) -> f64 {
 
 fn triangle_area(t: &[DVec3; 3]) -> f64 {
     0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
+}
+
+/// The triangles of `patch` (its fan, in the mesh's local frame) with `f64` corners.
+fn triangles_f64(mesh: &Mesh, patch: &mcrad_meshing::Patch) -> Vec<[DVec3; 3]> {
+    let positions = mesh.positions();
+    mesh.patch_triangles(patch)
+        .iter()
+        .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
+        .collect()
 }
 
 #[cfg(test)]
