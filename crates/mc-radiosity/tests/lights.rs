@@ -161,12 +161,9 @@ fn sun_on_a_plane(diameter: f64, tolerance: f64) {
     }
 }
 
-#[test]
-fn the_reference_solver_lights_the_closed_cube_deterministically() {
-    // The reference's direct light is a closed form here (every wall patch wholly lit), its
-    // closed cube conserving power exactly: the closed-room answer within 1e-6 (2.9e-8 seen), where a
-    // Monte Carlo direct light of this budget would be off by its noise, and the same answer
-    // for every seed.
+/// The closed cube of side 4 and reflectance 0.5 with a point light near its centre, meshed in
+/// 1-unit patches, and its exact area-mean radiosity `rho Phi / (S (1 - rho))`.
+fn point_lit_cube() -> (Scene, Mesh, Bvh, DVec3) {
     let (side, rho) = (4.0f32, 0.5f64);
     let light = Light::Point(PointLight {
         position: Vec3::new(0.1, -0.05, 0.02),
@@ -177,6 +174,16 @@ fn the_reference_solver_lights_the_closed_cube_deterministically() {
     let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
     let exact = light.power().unwrap() * rho / (6.0 * f64::from(side * side) * (1.0 - rho));
+    (scene, mesh, bvh, exact)
+}
+
+#[test]
+fn the_reference_solver_lights_the_closed_cube_deterministically() {
+    // The reference's direct light is a closed form here (every wall patch wholly lit), its
+    // closed cube conserving power exactly: the closed-room answer within 1e-6 (2.9e-8 seen), where a
+    // Monte Carlo direct light of this budget would be off by its noise, and the same answer
+    // for every seed.
+    let (scene, mesh, bvh, exact) = point_lit_cube();
     let means: Vec<DVec3> = (0..2)
         .map(|seed| {
             let config = ScheduleConfig {
@@ -199,16 +206,7 @@ fn the_reference_solver_lights_the_closed_cube_deterministically() {
 /// seeds still gives the closed cube's answer within 4 standard errors (+2e-3).
 #[test]
 fn a_time_budget_sizes_the_lights_pass_to_its_time() {
-    let (side, rho) = (4.0f32, 0.5f64);
-    let light = Light::Point(PointLight {
-        position: Vec3::new(0.1, -0.05, 0.02),
-        intensity: DVec3::new(10.0, 20.0, 5.0),
-        range: None,
-    });
-    let scene = cube(side, rho as f32, vec![light.clone()]);
-    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let exact = light.power().unwrap() * rho / (6.0 * f64::from(side * side) * (1.0 - rho));
+    let (scene, mesh, bvh, exact) = point_lit_cube();
     let first_step = |seed: u64, lights_seconds: Option<f64>| {
         let config = ScheduleConfig {
             rays: u64::MAX,
