@@ -200,6 +200,13 @@ pub struct Solve {
     /// lightmap texel (the default with such lights: sharp shadows at any mesh size).
     #[arg(long)]
     pub no_direct_rays: bool,
+    /// Draw the sky's direct light in renders with N rays towards the sky per pixel sample
+    /// (stratified over the pixel's samples together; 16 is a good choice) and in bakes with
+    /// 64 per texel, instead of from the solved mesh (0, the default: interpolated with the
+    /// indirect light). Costs N rays per sample; fewer than 16 may add more noise than the
+    /// interpolation's error it removes.
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=256))]
+    pub sky_rays: u32,
     /// Vertex radiosity averages only across patches whose normals differ by less than this
     /// (degrees), and never across materials.
     #[arg(long, value_name = "DEGREES", default_value_t = mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)]

@@ -12,6 +12,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
 
 /// Image formats `--image` writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -71,8 +72,8 @@ pub fn check(args: &Solve) -> Result<()> {
 
 /// Bakes the solution `radiosity` (W/m² per patch) into the scene's glTF (`mcrad bake`):
 /// writes the GLB and, beside it, the linear lightmap as EXR. With the answer's `direct` (the
-/// scene's lights' direct irradiance per patch) and no `--no-direct-rays`, that light is drawn
-/// per texel.
+/// scene's lights' and sky's direct irradiance per patch) and no `--no-direct-rays`, that
+/// light is drawn per texel.
 pub fn bake(
     args: &Solve,
     target: &crate::cli::BakeTarget,
@@ -81,7 +82,8 @@ pub fn bake(
     bar: &ProgressBar,
 ) -> Result<serde_json::Value> {
     let (mesh, bvh, estimate) = (&answer.mesh, &answer.bvh, &answer.estimate);
-    let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
+    let direct = drawn_direct(args, answer);
+    let direct = direct.as_deref();
     let radiosity = estimate.radiosity();
     let gltf = loaded
         .gltf
@@ -120,6 +122,7 @@ pub fn bake(
         progress: Some(&progress),
         direct: direct.map(|irradiance| mcrad_bake::DirectLight {
             lights: loaded.scene.lights(),
+            sky: loaded.scene.sky().filter(|_| args.sky_rays > 0),
             irradiance,
         }),
     };
@@ -225,9 +228,20 @@ fn camera(
     camera.context("--camera")
 }
 
+/// The direct irradiance per patch (W/m²) that renders and bakes draw with their own rays and
+/// so take out of the solution: the lights' and, unless `--sky-rays 0`, the sky's; `None` with
+/// `--no-direct-rays` or without lights and sky.
+pub fn drawn_direct(args: &Solve, answer: &mcrad_solve::Answer) -> Option<Vec<DVec3>> {
+    let direct = answer.direct.as_ref().filter(|_| !args.no_direct_rays)?;
+    match (&answer.sky_direct, args.sky_rays) {
+        (Some(sky), 0) => Some(direct.iter().zip(sky).map(|(&d, &s)| d - s).collect()),
+        _ => Some(direct.clone()),
+    }
+}
+
 /// `B_i - rho_i H_d,i` per patch (W/m², clamped at 0): the radiosity without the punctual
-/// lights' direct light `direct` (`H_d` per patch, W/m²) that renders and bakes then draw per
-/// sample; `radiosity` itself without `direct`.
+/// lights' and the sky's direct light `direct` (`H_d` per patch, W/m²) that renders and bakes
+/// then draw per sample; `radiosity` itself without `direct`.
 pub fn without_direct(mesh: &Mesh, radiosity: &[DVec3], direct: Option<&[DVec3]>) -> Vec<DVec3> {
     match direct {
         Some(h) => mesh
@@ -240,6 +254,16 @@ pub fn without_direct(mesh: &Mesh, radiosity: &[DVec3], direct: Option<&[DVec3]>
     }
 }
 
+/// What the outputs need of the scene after the solve (which may have dropped it).
+pub struct Scenery {
+    /// The sky, or `None`.
+    pub sky: Option<mcrad_scene_io::Sky>,
+    /// Punctual lights and the sun, in the scene's frame.
+    pub lights: Vec<mcrad_scene_io::Light>,
+    /// The scene file's camera, if it has one.
+    pub camera: Option<mcrad_scene_io::Camera>,
+}
+
 /// What lights a render besides the radiosity: the sky rays that leave the scene see, and
 /// the lights whose direct light is drawn per sample.
 pub struct Lighting<'a> {
@@ -247,9 +271,60 @@ pub struct Lighting<'a> {
     pub sky: Option<mcrad_scene_io::Sky>,
     /// Punctual lights and the sun, in the scene's frame.
     pub lights: &'a [mcrad_scene_io::Light],
-    /// Their direct irradiance `H_d` per patch in the solution (W/m²): `Some` draws it per
-    /// sample with shadow rays instead of from the solution; `None` draws the solution only.
+    /// Their and the sky's direct irradiance `H_d` per patch in the solution (W/m²): `Some`
+    /// draws it per sample with shadow rays instead of from the solution; `None` draws the
+    /// solution only.
     pub direct: Option<&'a [DVec3]>,
+}
+
+/// The seconds `--image` will take (0 without one): the render of an image an eighth of the
+/// size each way (at least 16 pixels a side) at the same samples per pixel, of a dark
+/// solution with the sky and the lights drawn as they will be, timed and scaled by the
+/// pixels; plus the reconstruction at the corners, timed once and counted as often as
+/// [`write()`] makes it.
+pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) -> f64 {
+    if args.image.is_none() {
+        return 0.0;
+    }
+    let (w, h) = args.size;
+    let small = ((w / 8).max(16).min(w), (h / 8).max(16).min(h));
+    // as `drawn_direct`: the lights' and the sky's direct light drawn per sample
+    let per_sample = !args.no_direct_rays && (!scenery.lights.is_empty() || scenery.sky.is_some());
+    let zeros = vec![DVec3::ZERO; mesh.patches().len()];
+    let smooth = args.shading == ShadingArg::Smooth;
+    let clock = Instant::now();
+    let corners = (smooth || args.gltf.is_some())
+        .then(|| mesh.seamless_corner_radiosity(&zeros, args.crease));
+    let corner_seconds = clock.elapsed().as_secs_f64();
+    // as `write`: for the GLB or smooth shading, and again for the drawn part
+    let corner_passes = u32::from(corners.is_some()) + u32::from(smooth && per_sample);
+    let Ok(camera) = camera(args, scenery.camera, mesh, bvh) else {
+        // the render proper will say what is wrong
+        return 0.0;
+    };
+    let shading = match &corners {
+        Some(c) if smooth => Shading::Smooth(c),
+        _ => Shading::Flat(&zeros),
+    };
+    let settings = RenderSettings {
+        width: small.0,
+        height: small.1,
+        samples_per_pixel: args.spp,
+        sky: scenery.sky.clone(),
+        lights: if per_sample {
+            scenery.lights.clone()
+        } else {
+            Vec::new()
+        },
+        sky_rays: if per_sample { args.sky_rays } else { 0 },
+    };
+    let clock = Instant::now();
+    if render(mesh, bvh, &camera, shading, &settings, &|_| {}).is_err() {
+        return 0.0;
+    }
+    let pixels = |(w, h): (u32, u32)| f64::from(w) * f64::from(h);
+    f64::from(corner_passes) * corner_seconds
+        + clock.elapsed().as_secs_f64() * pixels(args.size) / pixels(small)
 }
 
 /// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image
@@ -287,12 +362,19 @@ pub fn write(
             (Some(c), ShadingArg::Smooth) => Shading::Smooth(c),
             _ => Shading::Flat(radiosity),
         };
+        // the sky's direct light (in `direct` with the lights') drawn per sample as well
+        let sky_rays = if lighting.direct.is_some() {
+            args.sky_rays
+        } else {
+            0
+        };
         let settings = RenderSettings {
             width: args.size.0,
             height: args.size.1,
             samples_per_pixel: args.spp,
             sky: lighting.sky,
             lights,
+            sky_rays,
         };
         bar.reset();
         bar.set_length(u64::from(settings.height));

@@ -3,6 +3,7 @@
 
 use crate::cli::Solve;
 use crate::interrupt;
+use crate::output::Scenery;
 use crate::state;
 use crate::trace::Tracer;
 use anyhow::{Context, Result, anyhow, bail};
@@ -14,6 +15,7 @@ use std::fs::File;
 use std::io::{BufWriter, IsTerminal};
 use std::ops::ControlFlow;
 use std::path::Path;
+use std::sync::Mutex;
 use std::time::Instant;
 
 /// How a solve ended, when it did not fail.
@@ -111,8 +113,24 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
 
     let load_seconds = clock.elapsed().as_secs_f64();
     let save = args.save.as_ref().filter(|_| !settings.deterministic());
+    let scenery = Scenery {
+        sky: loaded.scene.sky().cloned(),
+        lights: loaded.scene.lights().to_vec(),
+        camera: loaded.camera,
+    };
+    let image_seconds = |mesh: &mcrad_meshing::Mesh, bvh: &mcrad_raycast::Bvh| {
+        crate::output::image_seconds(args, &scenery, mesh, bvh)
+    };
+    // A solve hands the scene over, to be dropped once meshed; a bake keeps it to write into.
+    let (handed, kept) = match args.bake {
+        None => (Mutex::new(Some(loaded.scene)), None),
+        Some(_) => (Mutex::new(None), Some(loaded)),
+    };
     let problem = Problem {
-        input: Input::Scene(&loaded.scene),
+        input: match &kept {
+            Some(loaded) => Input::Scene(&loaded.scene),
+            None => Input::SceneOnce(&handed),
+        },
         settings,
         budget: args.budget(clock),
         threads: Some(threads),
@@ -120,6 +138,8 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         cancel: Some(interrupt::cancel_flag()),
         // the closure report is part of the statistics
         closure: args.stats.is_some(),
+        // the render, after the solve, is on the same clock
+        after: Some(mcrad_solve::AfterSolve(&image_seconds)),
     };
     let bar = progress_bar(args.quiet);
     let mut tracer: Option<Tracer> = None;
@@ -168,7 +188,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             ),
         }
     }
-    finish(args, &loaded, &answer, &bar, load_seconds)?;
+    finish(args, &scenery, kept.as_ref(), &answer, &bar, load_seconds)?;
     if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
@@ -297,10 +317,12 @@ fn problem_limit(args: &Solve) -> String {
     }
 }
 
-/// Writes the outputs of a finished solve and prints the summary.
+/// Writes the outputs of a finished solve and prints the summary (`kept`: the loaded scene, for
+/// a bake).
 fn finish(
     args: &Solve,
-    loaded: &mcrad_scene_io::Loaded,
+    scenery: &Scenery,
+    kept: Option<&mcrad_scene_io::Loaded>,
     answer: &Answer,
     bar: &ProgressBar,
     load_seconds: f64,
@@ -320,7 +342,7 @@ fn finish(
         }
     }
     // With per-pixel direct light, the solution's own direct part is taken out of it.
-    let direct = answer.direct.as_deref().filter(|_| !args.no_direct_rays);
+    let direct = crate::output::drawn_direct(args, answer);
     let render = Instant::now();
     crate::output::write(
         args,
@@ -328,17 +350,19 @@ fn finish(
         &answer.bvh,
         estimate.radiosity(),
         crate::output::Lighting {
-            sky: loaded.scene.sky().cloned(),
-            lights: loaded.scene.lights(),
-            direct,
+            sky: scenery.sky.clone(),
+            lights: &scenery.lights,
+            direct: direct.as_deref(),
         },
-        loaded.camera,
+        scenery.camera,
         bar,
     )?;
     let render_seconds = render.elapsed().as_secs_f64();
-    let baked = match &args.bake {
-        Some(target) => Some(crate::output::bake(args, target, loaded, answer, bar)?),
-        None => None,
+    let baked = match (&args.bake, kept) {
+        (Some(target), Some(loaded)) => {
+            Some(crate::output::bake(args, target, loaded, answer, bar)?)
+        }
+        _ => None,
     };
     if let Some(path) = &args.stats {
         let mut out = create(path)?;

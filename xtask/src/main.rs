@@ -220,6 +220,7 @@ fn solve_fixed(
         resume: None,
         cancel: None,
         closure: false,
+        after: None,
     };
     mcrad_solve::solve(&problem, observer)
 }

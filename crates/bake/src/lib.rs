@@ -209,21 +209,31 @@ pub struct BakeInput<'a, C: RayCaster> {
     pub direct: Option<DirectLight<'a>>,
 }
 
-/// Lights without a surface whose direct irradiance a bake computes at each texel's point
-/// with its own shadow rays ([`DIRECT_SAMPLES`] per light, a sun's direction stratified over
-/// its disc, streams keyed by the texel), adding it to the solution's irradiance without it.
+/// Lights without a surface and the sky, whose direct irradiance a bake computes at each
+/// texel's point with its own shadow rays ([`DIRECT_SAMPLES`] per light, a sun's direction
+/// stratified over its disc; [`SKY_SAMPLES`] towards the sky; streams keyed by the texel),
+/// adding it to the solution's irradiance without it.
 #[derive(Debug, Clone, Copy)]
 pub struct DirectLight<'a> {
     /// The lights (point, spot, sun), in the scene's frame.
     pub lights: &'a [mcrad_scene_io::Light],
+    /// The sky whose direct light is drawn per texel too (`None`: no sky, or its direct light
+    /// is not in `irradiance`).
+    pub sky: Option<&'a mcrad_scene_io::Sky>,
     /// Their direct irradiance `H_d` per patch in the solution (W/m² per channel, mesh
-    /// order): the solution's `rho H_d` is taken out of `radiosity` before it is interpolated.
+    /// order; the lights' and, with `sky`, the sky's): the solution's `rho H_d` is taken out
+    /// of `radiosity` before it is interpolated.
     pub irradiance: &'a [DVec3],
 }
 
 /// Shadow rays per light and texel (a 4 x 4 stratified grid over the light's sample domain)
 /// of [`DirectLight`].
 pub const DIRECT_SAMPLES: u32 = 16;
+
+/// Rays towards the sky per texel of [`DirectLight::sky`] (an 8 x 8 stratified grid of
+/// cosine directions; for a map, as many more by its luminance, combined by the balance
+/// heuristic: [`mcrad_render::sky_irradiance_sample`]).
+pub const SKY_SAMPLES: u32 = 64;
 
 /// The pass number of the bake's direct-light streams.
 const DIRECT_PASS: u64 = 0x4241_4b45_4449_5200;
@@ -247,10 +257,7 @@ fn direct_at<C: RayCaster>(
     for light in lights {
         for a in 0..m {
             for b in 0..m {
-                let u = [
-                    (f64::from(a) + rng.uniform_f64()) / f64::from(m),
-                    (f64::from(b) + rng.uniform_f64()) / f64::from(m),
-                ];
+                let u = jittered(&mut rng, m, a, b);
                 let Some((e, target)) = light.arrival(point, normal, u, far) else {
                     continue;
                 };
@@ -258,6 +265,39 @@ fn direct_at<C: RayCaster>(
                     h += e;
                 }
             }
+        }
+    }
+    h / f64::from(m * m)
+}
+
+/// A uniform point of cell `(a, b)` of the `m × m` grid over the unit square.
+fn jittered(rng: &mut mcrad_random::Stream, m: u32, a: u32, b: u32) -> [f64; 2] {
+    [
+        (f64::from(a) + rng.uniform_f64()) / f64::from(m),
+        (f64::from(b) + rng.uniform_f64()) / f64::from(m),
+    ]
+}
+
+/// The sky's direct irradiance (W/m² per channel) at `point` of `patch` (normal `normal`, the
+/// mesh's frame): the mean of [`SKY_SAMPLES`] estimates on a stratified grid, random numbers
+/// from sub-stream 1 of the stream of `key`.
+fn sky_at<C: RayCaster>(
+    caster: &C,
+    sky: &mcrad_scene_io::Sky,
+    far: f64,
+    point: Vec3,
+    normal: Vec3,
+    patch: u32,
+    key: u64,
+) -> DVec3 {
+    let mut rng = mcrad_random::Stream::new(0, DIRECT_PASS, key, 1);
+    let m = SKY_SAMPLES.isqrt();
+    let mut h = DVec3::ZERO;
+    for a in 0..m {
+        for b in 0..m {
+            let mut cell = || jittered(&mut rng, m, a, b).map(|x| x.min(1.0 - f64::EPSILON));
+            let (u, v) = (cell(), cell());
+            h += mcrad_render::sky_irradiance_sample(caster, sky, far, point, normal, patch, u, v);
         }
     }
     h / f64::from(m * m)
@@ -418,6 +458,7 @@ pub fn bake<C: RayCaster>(
                 .collect()
         })
         .unwrap_or_default();
+    let sky = input.direct.and_then(|d| d.sky).filter(|s| !s.is_dark());
     let far = mesh.escape_distance();
     let corner_h: Vec<Vec3> = mesh
         .seamless_corner_radiosity(&h, mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES)
@@ -451,6 +492,10 @@ pub fn bake<C: RayCaster>(
             let corners = mesh.corners(patch);
             let values = &corner_h[offset..offset + corners.len()];
             let mut h = mcrad_render::interpolate(mesh.positions(), corners, values, hit.point);
+            if let Some(sky) = sky {
+                let d = sky_at(input.caster, sky, far, hit.point, patch.normal, hit.id, key);
+                h += d.as_vec3();
+            }
             if !lights.is_empty() {
                 let d = direct_at(
                     input.caster,

@@ -629,13 +629,9 @@ mod tests {
         );
     }
 
-    /// A two-sided plane (reflectance 0.5, `y = 0`, front up) lit from below by a delta sun at
-    /// 30 degrees elevation, 1000 W/m², with the mesh's caster (back sides report their own
-    /// patch): seen from below, every pixel on the plane shows its back side,
-    /// `rho E sin(30°) / π` exactly (one bounce, then the path escapes); seen from above, the
-    /// front is dark. One-sided (the same plane without its back side), it is dark from below.
-    #[test]
-    fn a_two_sided_plane_shows_its_lit_back() {
+    /// The 2 m square `|x|, |z| <= 1` on `y = 0` facing up, one face of material 0: its
+    /// corners, the face, and a grey material of reflectance `rho` that emits nothing.
+    fn square_plane(rho: f32) -> (Vec<Vec3>, Vec<Face>, Material) {
         let positions = vec![
             Vec3::new(-1.0, 0.0, -1.0),
             Vec3::new(-1.0, 0.0, 1.0),
@@ -648,10 +644,21 @@ mod tests {
             source: 0,
         }];
         let material = Material {
-            name: "sheet".into(),
-            reflectance: Vec3::splat(0.5),
+            name: "plane".into(),
+            reflectance: Vec3::splat(rho),
             emission: Vec3::ZERO,
         };
+        (positions, faces, material)
+    }
+
+    /// A two-sided plane (reflectance 0.5, `y = 0`, front up) lit from below by a delta sun at
+    /// 30 degrees elevation, 1000 W/m², with the mesh's caster (back sides report their own
+    /// patch): seen from below, every pixel on the plane shows its back side,
+    /// `rho E sin(30°) / π` exactly (one bounce, then the path escapes); seen from above, the
+    /// front is dark. One-sided (the same plane without its back side), it is dark from below.
+    #[test]
+    fn a_two_sided_plane_shows_its_lit_back() {
+        let (positions, faces, material) = square_plane(0.5);
         let el = 30f32.to_radians();
         let sun = Light::Sun(mcrad_scene_io::Sun {
             direction: Vec3::new(el.cos(), -el.sin(), 0.0),
@@ -706,22 +713,7 @@ mod tests {
     fn escaping_paths_see_the_sky() {
         let l = DVec3::new(1.0, 2.0, 3.0);
         let sky = mcrad_scene_io::Sky::Uniform(l);
-        let positions = vec![
-            Vec3::new(-1.0, 0.0, -1.0),
-            Vec3::new(-1.0, 0.0, 1.0),
-            Vec3::new(1.0, 0.0, 1.0),
-            Vec3::new(1.0, 0.0, -1.0),
-        ];
-        let faces = vec![Face {
-            vertices: vec![0, 1, 2, 3],
-            material: 0,
-            source: 0,
-        }];
-        let material = Material {
-            name: "ground".into(),
-            reflectance: Vec3::splat(0.4),
-            emission: Vec3::ZERO,
-        };
+        let (positions, faces, material) = square_plane(0.4);
         let scene = Input::new_lit_sky(positions, faces, vec![material], vec![], Some(sky.clone()))
             .unwrap()
             .0;

@@ -12,6 +12,7 @@ use mcrad_random::{Stream, StreamKey, derive_seed};
 use mcrad_raycast::{BuildError, Bvh, Ray, RayCaster, SurfacePoint};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Luminance weights of linear RGB (Rec. 709), used to compare colours by one number.
@@ -135,6 +136,11 @@ pub struct Refined {
     pub rays: u64,
     /// Each round's counts.
     pub rounds: Vec<RoundStats>,
+    /// The ray caster over the refined mesh as it is now ([`Mesh::caster`] of
+    /// [`AdaptiveMesh::mesh`]), when the refinement's last one was built after its last split
+    /// (the same layout a new build gives): a caller solving the refined mesh can take it
+    /// instead of building it again. `None` when the refinement dropped it.
+    pub caster: Option<Arc<Bvh>>,
 }
 
 impl Refined {
@@ -231,6 +237,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             estimate,
             rays: l.rays,
             rounds: Vec::new(),
+            caster: Some(Arc::new(bvh)),
         });
     }
     // A pilot stopped by the clock before it shipped all its power is short of light: its
@@ -268,7 +275,9 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             None => s.estimate,
         }
     };
-    drop(bvh);
+    // The caster over the mesh as it is (built anew after each split): a round's marks and the
+    // caller reuse it.
+    let mut current = Some(bvh);
     let mut pooled = estimate.clone();
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
@@ -292,7 +301,10 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             Some(_) => (budget - rays.min(budget)) / u64::from(config.rounds - round),
             None => (config.rays - pilot_rays.min(config.rays)) / u64::from(config.rounds),
         };
-        let bvh = caster(mesh.mesh())?;
+        let bvh = match current.take() {
+            Some(bvh) => bvh,
+            None => caster(mesh.mesh())?,
+        };
         let ctx = Context::new(mesh.mesh(), &bvh);
         let key = StreamKey::new(derive_seed(config.seed, SHADOW_TAG)).pass(u64::from(round));
         let penumbra = lit.as_ref().map(|l| l.penumbra.as_slice());
@@ -316,7 +328,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         };
         rays += stats.rays;
         drop(ctx);
-        drop(bvh);
         let order: Vec<u32> = order.into_iter().map(|(_, i)| i).collect();
         // The round's share of what the patch budget has left: half of it (rounded up), or all
         // of it in the last round the rays can pay for (this one's gathering and the next one's
@@ -326,6 +337,13 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         let last = round + 1 == config.rounds
             || rays.saturating_add(round_rays).saturating_add(next) > budget;
         let share = if last { left } else { left.div_ceil(2) };
+        // Nothing marked, or no room for a child: the mesh stays as it is, and so does its
+        // caster; else the caster goes before the split builds the new mesh.
+        if order.is_empty() || share == 0 {
+            current = Some(bvh);
+        } else {
+            drop(bvh);
+        }
         let r = mesh.refine_within(&order, share);
         stats.split = r.split;
         stats.held = r.held;
@@ -382,6 +400,8 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         pooled = pool(mesh.mesh(), &gathered, &carried, &kept).map_err(Error::from)?;
         estimate = gathered;
         rounds.push(stats);
+        drop(ctx);
+        current = Some(bvh);
     }
     // Without a gathering round the pool holds the pilot alone.
     let pooled_valid = pilot_complete || rounds.iter().any(|r| r.split > 0);
@@ -391,6 +411,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         pooled_valid,
         rays,
         rounds,
+        caster: current.map(Arc::new),
     })
 }
 

@@ -103,6 +103,10 @@ pub struct DirectLight {
     pub samples: u64,
     /// Shadow rays that found their segment blocked.
     pub occluded: u64,
+    /// Per patch, the replicates' signed error sample of `estimate`'s radiosity (W/m² per
+    /// channel, [`Halves::error_of_mean`] times `rho_i`): mean zero, its square unbiased for
+    /// the variance of stratified samples with one degree of freedom. Zeros without emitters.
+    pub(crate) errors: Vec<DVec3>,
 }
 
 /// Estimates the reflected direct light `D_i = rho_i sum_j F_ij E_j` (W/m²) of every patch with
@@ -151,9 +155,10 @@ fn direct_with<C: RayCaster>(
     let Some(emitters) = ctx.emitters() else {
         let zero = vec![DVec3::ZERO; patches.len()];
         return Ok(DirectLight {
-            estimate: Estimate::new(zero.clone(), Some(zero), 0)?,
+            estimate: Estimate::new(zero.clone(), Some(zero.clone()), 0)?,
             samples,
             occluded: 0,
+            errors: zero,
         });
     };
     let light = Light {
@@ -207,9 +212,11 @@ fn direct_with<C: RayCaster>(
     };
     let (mut radiosity, mut variance) = (Vec::new(), Vec::new());
     let (mut rays, mut occluded) = (0, 0);
+    let mut errors = Vec::with_capacity(patches.len());
     for ((p, t), g) in patches.iter().zip(&per_patch).zip(&gains) {
         let rho = p.reflectance.as_dvec3();
         radiosity.push(rho * t.moments.mean);
+        errors.push(rho * t.halves.error_of_mean(t.moments.n));
         variance.push(rho * rho * t.moments.variance_of_mean() * *g);
         rays += t.rays;
         occluded += t.occluded;
@@ -218,6 +225,7 @@ fn direct_with<C: RayCaster>(
         estimate: Estimate::new(radiosity, Some(variance), rays)?,
         samples,
         occluded,
+        errors,
     })
 }
 
@@ -559,13 +567,16 @@ fn shadow_fraction<C: RayCaster>(ctx: &Context<C>, key: StreamKey) -> f64 {
 /// indirect and direct scores together (one sum over the same rays), the emitter samples'
 /// adds to it. Also returns the part of that variance the indirect gathering inherits from
 /// `shooting`'s ([`gather_round_parts`]; the direct light, from the exact emission, inherits
-/// nothing).
+/// nothing). With `sketch` (`shooting`'s error samples), also their image through the
+/// indirect gathering ([`GatherRound::sketch`](crate::gather::GatherRound)): the error the split
+/// inherits, sample by sample (empty without).
 pub(crate) fn split_with_budget<C: RayCaster>(
     ctx: &Context<C>,
     shooting: &Estimate,
+    sketch: Option<&[crate::replicates::Row]>,
     rays: u64,
     key: StreamKey,
-) -> Result<(Estimate, Vec<DVec3>), Error> {
+) -> Result<Split, Error> {
     let mesh = ctx.mesh();
     check_input(mesh, shooting.radiosity())?;
     let patches = mesh.patches();
@@ -576,16 +587,42 @@ pub(crate) fn split_with_budget<C: RayCaster>(
     let shadow_rays = (n as f64 * samples as f64 * q).round() as u64;
     let rays_per_patch = (rays.saturating_sub(shadow_rays) / n).clamp(2, u32::MAX as u64) as u32;
     let cosine_per_sample = rays_per_patch as f64 / samples as f64;
-    let direct = direct_with(ctx, samples, Mis::Shared { cosine_per_sample }, key)?.estimate;
+    let direct = direct_with(ctx, samples, Mis::Shared { cosine_per_sample }, key)?;
     let light = ctx.emitters().map(|emitters| CosineLight {
         patches,
         emitters,
         samples_per_ray: 1.0 / cosine_per_sample,
     });
     let indirect_input = reflected_part(patches, shooting)?;
-    let (indirect, inherited) =
-        gather_round_parts_with_light(ctx, &indirect_input, light.as_ref(), rays_per_patch, key)?;
-    Ok((join_split(patches, &indirect.estimate, &direct)?, inherited))
+    let (indirect, inherited) = gather_round_parts_with_light(
+        ctx,
+        &indirect_input,
+        light.as_ref(),
+        sketch,
+        rays_per_patch,
+        key,
+    )?;
+    Ok(Split {
+        estimate: join_split(patches, &indirect.estimate, &direct.estimate)?,
+        inherited,
+        image: indirect.sketch,
+        own_errors: [indirect.errors, direct.errors],
+    })
+}
+
+/// What [`split_with_budget`] returns.
+pub(crate) struct Split {
+    /// `E + direct + gather(B - E)` (W/m²) with its whole variance ((W/m²)²).
+    pub estimate: Estimate,
+    /// The part of the variance the indirect gathering inherits from the shooting estimate.
+    pub inherited: Vec<DVec3>,
+    /// The image of the shooting's error samples through the indirect gathering (empty
+    /// without them).
+    pub image: Vec<crate::replicates::Row>,
+    /// The replicates' signed error samples of the split's own noise per patch (W/m² per
+    /// channel): the indirect gathering's and the direct light's, independent of each other
+    /// and of the shooting estimate, each of mean zero with one degree of freedom.
+    pub own_errors: [Vec<DVec3>; 2],
 }
 
 #[cfg(test)]
@@ -638,7 +675,9 @@ mod tests {
             Estimate::new(vec![DVec3::ONE, DVec3::ZERO], Some(vec![DVec3::ZERO; 2]), 0).unwrap();
         let runs: Vec<(f64, f64)> = (0..32)
             .map(|seed| {
-                let (e, _) = split_with_budget(&ctx, &first, 20_000, StreamKey::new(seed)).unwrap();
+                let e = split_with_budget(&ctx, &first, None, 20_000, StreamKey::new(seed))
+                    .unwrap()
+                    .estimate;
                 assert_eq!(e.radiosity()[0], DVec3::ONE, "the lamp reflects nothing");
                 (e.radiosity()[1].x, e.variance().unwrap()[1].x)
             })

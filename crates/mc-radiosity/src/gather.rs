@@ -105,6 +105,15 @@ pub struct GatherRound {
     pub escaped_rays: u64,
     /// Rays whose first hit was a back face (contributing 0).
     pub back_face_hits: u64,
+    /// Where the caller gave the input's error samples ([`crate::replicates::Row`], W/m²):
+    /// their gathered image per patch, `rho_i (1/n) sum_k z_g[j_k]`, the error the round
+    /// inherits from its input, sample by sample; empty otherwise.
+    pub(crate) sketch: Vec<crate::replicates::Row>,
+    /// Per patch, the replicates' signed error sample of the round's own noise (W/m² per
+    /// channel, `rho_i` times [`Halves::error_of_mean`](crate::replicates::Halves) of the
+    /// values its rays saw): mean zero given the input, its square unbiased for the variance
+    /// of the patch's stratified rays with one degree of freedom.
+    pub(crate) errors: Vec<DVec3>,
 }
 
 /// One Jacobi gathering round (Balog, section 1.4): every patch `i` casts `rays_per_patch`
@@ -224,6 +233,7 @@ pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
     ctx: &Context<C>,
     input: &Estimate,
     light: Option<&CosineLight>,
+    sketch: Option<&[crate::replicates::Row]>,
     rays_per_patch: u32,
     key: StreamKey,
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
@@ -234,7 +244,11 @@ pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
         Emission::Exclude,
         rays_per_patch,
         key,
-        Side { light, pool: None },
+        Side {
+            light,
+            pool: None,
+            sketch,
+        },
     )
 }
 
@@ -247,6 +261,9 @@ struct Side<'a> {
     /// The emission seen by the earlier rounds of a Jacobi run ([`gather`]), which this
     /// round's joins and which takes the place of this round's own in the variances.
     pool: Option<&'a mut EmittedPool>,
+    /// The input's error samples per patch, gathered by the same rays
+    /// ([`GatherRound::sketch`]).
+    sketch: Option<&'a [crate::replicates::Row]>,
 }
 
 /// The emission `E_j` the rays of a Jacobi run's rounds saw, per input face: the sums over
@@ -279,6 +296,7 @@ fn gather_round_pooled<C: RayCaster>(
         Side {
             light: None,
             pool: Some(pool),
+            sketch: None,
         },
     )?
     .0)
@@ -295,7 +313,19 @@ fn round_parts<C: RayCaster>(
     key: StreamKey,
     side: Side<'_>,
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
-    let Side { light, pool } = side;
+    let Side {
+        light,
+        pool,
+        sketch,
+    } = side;
+    if let Some(z) = sketch
+        && z.len() != input.len()
+    {
+        return Err(Error::InputLength {
+            patches: input.len(),
+            got: z.len(),
+        });
+    }
     let (mesh, sampler, caster) = (ctx.mesh(), ctx.sampler(), ctx.caster());
     check_input(mesh, input)?;
     if let Some(v) = input_variance {
@@ -324,10 +354,27 @@ fn round_parts<C: RayCaster>(
         let beta = controls[job.item as usize].beta;
         let inherit = input_variance.map(|v| (v, patches));
         match light {
-            None => look(job.rays, caster, input, inherit, beta, ray),
-            Some(light) => look_with(job.rays, caster, input, inherit, beta, ray, |r, h| {
-                light.share(job.item as usize, r, h)
-            }),
+            None if sketch.is_none() => look(job.rays, caster, input, inherit, beta, ray),
+            None => look_with(
+                job.rays,
+                caster,
+                input,
+                inherit,
+                sketch,
+                beta,
+                ray,
+                |_, _| DVec3::ZERO,
+            ),
+            Some(light) => look_with(
+                job.rays,
+                caster,
+                input,
+                inherit,
+                sketch,
+                beta,
+                ray,
+                |r, h| light.share(job.item as usize, r, h),
+            ),
         }
     });
     ctx.check_cancelled()?;
@@ -361,6 +408,16 @@ fn round_parts<C: RayCaster>(
         emission,
         patches.len() as u64 * rays_per_patch as u64,
     )?;
+    if sketch.is_some() {
+        round.sketch = patches
+            .iter()
+            .zip(&seen)
+            .map(|(p, s)| {
+                let rho = p.reflectance / s.moments.n.max(1) as f32;
+                crate::replicates::scaled(&s.sketch, rho)
+            })
+            .collect();
+    }
     let qmc = ctx.sampling() == Sampler::Qmc;
     round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool, qmc)?;
     Ok((round, inherited))
@@ -494,6 +551,7 @@ fn finish(
     rays: u64,
 ) -> Result<GatherRound, Error> {
     let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
+    let mut errors = Vec::with_capacity(seen.len());
     let (mut escaped_rays, mut back_face_hits) = (0, 0);
     for (i, ((rho, e), s)) in materials.zip(seen).enumerate() {
         let rho = rho.as_dvec3();
@@ -503,6 +561,7 @@ fn finish(
         };
         let c = controls.get(i).copied().unwrap_or_default();
         radiosity.push(own + rho * (s.moments.mean + c.offset));
+        errors.push(rho * s.halves.error_of_mean(s.moments.n));
         variance.push(
             rho * rho * (s.moments.variance_of_mean() + s.inherited_mean() + c.offset_variance),
         );
@@ -510,6 +569,8 @@ fn finish(
         back_face_hits += s.back_faces;
     }
     Ok(GatherRound {
+        sketch: Vec::new(),
+        errors,
         estimate: Estimate::new(radiosity, Some(variance), rays)?,
         escaped_rays,
         back_face_hits,

@@ -2,7 +2,7 @@
 //! (the unit of parallel work and of random streams), run in parallel and reduced in a fixed
 //! order, so a seed gives the same answer on any number of threads.
 
-use crate::replicates::Halves;
+use crate::replicates::{Halves, Row};
 use glam::DVec3;
 use mcrad_meshing::Patch;
 use mcrad_random::replicate;
@@ -114,6 +114,9 @@ pub(crate) struct Seen {
     /// The values split by the replicate of the ray's point in its sequence (ray `t` of a job
     /// is point `chunk * JOB_RAYS + t`, replicate `t mod 2`; [`crate::replicates`]).
     pub halves: Halves,
+    /// The sum over the rays of the input's error samples at each front-face hit (0 for the
+    /// other rays; recorded where the caller gives them: [`crate::replicates::Row`]).
+    pub sketch: Row,
 }
 
 impl Seen {
@@ -127,6 +130,7 @@ impl Seen {
             emitted: self.emitted + other.emitted,
             emitted_squares: self.emitted_squares + other.emitted_squares,
             halves: self.halves.merge(other.halves),
+            sketch: std::array::from_fn(|k| self.sketch[k] + other.sketch[k]),
         }
     }
 
@@ -165,18 +169,23 @@ pub(crate) fn look<C: RayCaster>(
     beta: DVec3,
     ray: impl FnMut() -> Ray,
 ) -> Seen {
-    look_with(n, caster, input, inherit, beta, ray, |_, _| DVec3::ZERO)
+    look_with(n, caster, input, inherit, None, beta, ray, |_, _| {
+        DVec3::ZERO
+    })
 }
 
 /// [`look`], each front-face hit recording `input` of the patch hit plus `extra(ray, hit)` (the
 /// cosine half of the direct light's multiple importance sampling, which rides on gathering
-/// rays: `direct::CosineLight`), less `beta`.
+/// rays: `direct::CosineLight`), less `beta`; with `sketch` (the input's error samples per
+/// patch), also their sum over the hits ([`Seen::sketch`]).
 #[inline]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn look_with<C: RayCaster>(
     n: u32,
     caster: &C,
     input: &[DVec3],
     inherit: Option<(&[DVec3], &[Patch])>,
+    sketch: Option<&[Row]>,
     beta: DVec3,
     mut ray: impl FnMut() -> Ray,
     extra: impl Fn(&Ray, &Hit) -> DVec3,
@@ -186,7 +195,12 @@ pub(crate) fn look_with<C: RayCaster>(
         let r = ray();
         let hit = caster.closest_hit(&r);
         let x = match hit {
-            Some(hit) if hit.front => input[hit.id as usize] + extra(&r, &hit) - beta,
+            Some(hit) if hit.front => {
+                if let Some(z) = sketch {
+                    crate::replicates::add_row(&mut seen.sketch, &z[hit.id as usize]);
+                }
+                input[hit.id as usize] + extra(&r, &hit) - beta
+            }
             Some(_) => {
                 seen.back_faces += 1;
                 DVec3::ZERO
@@ -231,7 +245,25 @@ pub(crate) fn run<F: Fn(&Job) -> Seen + Sync + Send>(
     jobs: &[Job],
     f: F,
 ) -> Vec<Seen> {
-    let seen: Vec<Seen> = jobs.par_iter().map(f).collect();
+    let mut seen: Vec<Seen> = jobs.par_iter().map(f).collect();
+    // Jobs item by item, every item from 0 on with a job ([`jobs`]): an item's slot is at or
+    // before its first job's, so its chunks fold into it in place, without a second vector.
+    let dense = jobs.first().is_none_or(|j| j.item == 0)
+        && jobs
+            .windows(2)
+            .all(|w| w[1].item >= w[0].item && w[1].item - w[0].item <= 1)
+        && jobs.last().is_none_or(|j| j.item as usize + 1 == items);
+    if dense {
+        for (k, job) in jobs.iter().enumerate() {
+            let item = job.item as usize;
+            let first = k == 0 || jobs[k - 1].item != job.item;
+            let acc = if first { Seen::default() } else { seen[item] };
+            seen[item] = acc.merge(seen[k]);
+        }
+        seen.truncate(items);
+        seen.resize(items, Seen::default());
+        return seen;
+    }
     let mut out = vec![Seen::default(); items];
     for (job, s) in jobs.iter().zip(seen) {
         out[job.item as usize] = out[job.item as usize].merge(s);

@@ -51,9 +51,11 @@ pub(crate) struct Lit {
     /// every point agrees (what the adaptive refinement's visibility test measures for
     /// emitting faces).
     pub(crate) penumbra: Vec<f64>,
-    /// The punctual lights' part of `H_i` per patch (W/m², the sky's not included): what a
-    /// renderer replaces with per-pixel shadow rays ([`Solution::direct`]).
+    /// The direct part of `H_i` per patch (W/m²: the punctual lights' and the sky's, all of
+    /// `H_i`): what a renderer replaces with per-pixel shadow rays ([`Solution::direct`]).
     pub(crate) direct: Vec<DVec3>,
+    /// The sky's part of `direct` per patch (W/m²; 0 without a sky).
+    pub(crate) sky: Vec<DVec3>,
 }
 
 /// Points per patch: `m²` with `m = floor(sqrt(budget / (4 patches rays)))` in `[2, 16]`,
@@ -154,8 +156,10 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let mut variance = Vec::with_capacity(patches.len());
     let mut penumbra = Vec::with_capacity(patches.len());
     let mut direct = Vec::with_capacity(patches.len());
+    let mut sky_part = Vec::with_capacity(patches.len());
     for (i, m) in moments.into_iter().enumerate() {
-        direct.push(m.lights);
+        direct.push(m.direct);
+        sky_part.push(m.sky);
         let rho = patches[i].reflectance.as_dvec3();
         let emission = patches[i].emission.as_dvec3() + rho * m.mean;
         lit.set_emission(i, emission.as_vec3());
@@ -173,6 +177,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
         rays: u64::from(n) * patches.len() as u64 * per_point as u64,
         penumbra,
         direct,
+        sky: sky_part,
     })
 }
 
@@ -197,17 +202,23 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
         .filter(|s| !s.is_dark())
         .map(|sky| mcrad_reference::sky_irradiance(mesh, caster, sky));
     let mut lit = mesh.clone();
+    let mut total = Vec::with_capacity(mesh.patches().len());
+    let mut sky_part = Vec::with_capacity(mesh.patches().len());
     for (i, (patch, h)) in mesh.patches().iter().zip(&direct.irradiance).enumerate() {
-        let h = *h + sky.as_ref().map_or(DVec3::ZERO, |s| s.irradiance[i]);
+        let from_sky = sky.as_ref().map_or(DVec3::ZERO, |s| s.irradiance[i]);
+        sky_part.push(from_sky);
+        let h = *h + from_sky;
         let emission = patch.emission.as_dvec3() + patch.reflectance.as_dvec3() * h;
         lit.set_emission(i, emission.as_vec3());
+        total.push(h);
     }
     Lit {
         mesh: lit,
         variance: vec![DVec3::ZERO; mesh.patches().len()],
         rays: direct.rays + sky.as_ref().map_or(0, |s| s.rays),
         penumbra: vec![0.0; mesh.patches().len()],
-        direct: direct.irradiance,
+        direct: total,
+        sky: sky_part,
     }
 }
 
@@ -219,8 +230,10 @@ const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 struct Moments {
     /// Mean irradiance, W/m² per channel.
     mean: DVec3,
-    /// The punctual lights' part of `mean` (the sky's not included), W/m² per channel.
-    lights: DVec3,
+    /// The direct part of `mean` (the lights' and the sky's: all of it), W/m² per channel.
+    direct: DVec3,
+    /// The sky's part of `direct`, W/m² per channel.
+    sky: DVec3,
     /// Variance of that mean, (W/m²)² per channel.
     variance: DVec3,
     /// Mean luminance of the irradiance the lights would give the points unoccluded, W/m².
@@ -238,7 +251,8 @@ impl Moments {
         let (fa, fb) = (wa / n, wb / n);
         Moments {
             mean: self.mean * fa + b.mean * fb,
-            lights: self.lights * fa + b.lights * fb,
+            direct: self.direct * fa + b.direct * fb,
+            sky: self.sky * fa + b.sky * fb,
             variance: self.variance * (fa * fa) + b.variance * (fb * fb),
             unoccluded: self.unoccluded * fa + b.unoccluded * fb,
             visible: self.visible * fa + b.visible * fb,
@@ -267,7 +281,8 @@ fn irradiance_moments<C: RayCaster>(
     rng: &mut Stream,
 ) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
-    let (mut sum, mut sum2, mut from_lights) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    let (mut sum, mut sum2, mut direct_sum) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    let mut sky_sum = DVec3::ZERO;
     let (mut unoccluded, mut visible) = (0.0, 0.0);
     for a in 0..m {
         for b in 0..m {
@@ -278,7 +293,10 @@ fn irradiance_moments<C: RayCaster>(
             let x = sampler.point2(patch, u);
             let mut h = DVec3::ZERO;
             if let Some(sky) = sources.sky {
-                h += crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
+                let s = crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
+                h += s;
+                direct_sum += s;
+                sky_sum += s;
             }
             for light in sources.lights {
                 let u = [rng.uniform_f64(), rng.uniform_f64()];
@@ -289,7 +307,7 @@ fn irradiance_moments<C: RayCaster>(
                 let from = SurfacePoint::new(x, normal, patch as u32);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
                     h += e;
-                    from_lights += e;
+                    direct_sum += e;
                     visible += LUMINANCE.dot(e);
                 }
             }
@@ -306,7 +324,8 @@ fn irradiance_moments<C: RayCaster>(
     };
     Moments {
         mean,
-        lights: from_lights / count,
+        direct: direct_sum / count,
+        sky: sky_sum / count,
         variance: var,
         unoccluded: unoccluded / count,
         visible: visible / count,
@@ -335,6 +354,7 @@ impl Lit {
         let variance = e.variance().map(|v| self.add_variance(v));
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         solution.direct = Some(self.direct.clone());
+        solution.sky_direct = Some(self.sky.clone());
         Ok(solution)
     }
 
@@ -368,6 +388,7 @@ impl Lit {
             unshot_fraction: 0.0,
             stop,
             direct: Some(self.direct.clone()),
+            sky_direct: Some(self.sky.clone()),
         }))
     }
 
@@ -404,21 +425,23 @@ mod tests {
     fn merged_moments_are_those_of_all_the_points() {
         let a = Moments {
             mean: DVec3::splat(2.0),
-            lights: DVec3::splat(1.0),
+            direct: DVec3::splat(1.0),
+            sky: DVec3::splat(0.5),
             variance: DVec3::splat(0.5),
             unoccluded: 3.0,
             visible: 1.0,
         };
         let b = Moments {
             mean: DVec3::splat(5.0),
-            lights: DVec3::splat(4.0),
+            direct: DVec3::splat(4.0),
+            sky: DVec3::splat(2.0),
             variance: DVec3::splat(0.1),
             unoccluded: 6.0,
             visible: 4.0,
         };
         let m = a.merge(4, &b, 12);
         assert!((m.mean.x - (4.0 * 2.0 + 12.0 * 5.0) / 16.0).abs() < 1e-12);
-        assert!((m.lights.x - (4.0 + 48.0) / 16.0).abs() < 1e-12);
+        assert!((m.direct.x - (4.0 + 48.0) / 16.0).abs() < 1e-12);
         assert!((m.variance.x - (16.0 * 0.5 + 144.0 * 0.1) / 256.0).abs() < 1e-12);
         assert!((m.unoccluded - (12.0 + 72.0) / 16.0).abs() < 1e-12);
         assert!((m.visible - (4.0 + 48.0) / 16.0).abs() < 1e-12);

@@ -46,8 +46,73 @@
 //! gain is a few percent, and `prr`'s spread between seeds over its reported variance went
 //! from 0.04 to 0.8-1.0. Gathering and the direct light run one round per call: their
 //! patches keep one difference each, drawn towards the formula as above.
+//!
+//! **`combined` measures its gathers' own noise over its passes.** Each pass gathers once
+//! with independent streams, so every pass gives each patch one more signed difference
+//! ([`Halves::error_of_mean`]) of its indirect gathering and one of its direct light; their
+//! squares, merged over the passes as the gathers are, measure the gathers' own variance
+//! without the formula's pull (`crate::schedule::combined`): a face of one patch in a
+//! small-light room reported 7x its spread before.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
+
+/// Error samples per patch kept by shooting ([`Waves::sketch`]): the waves are dealt round robin
+/// into this many groups, each group's summed replicate differences one sample of the run's
+/// error over every patch at once.
+pub(crate) const SKETCHES: usize = 8;
+
+/// One patch's [`SKETCHES`] error samples (per channel; W or W/m² as the holder says), in
+/// `f32`: a sample needs the precision of a variance estimate with [`SKETCHES`] degrees of
+/// freedom (a few per cent), not that of the radiosity, and they are most of the memory the
+/// error samples cost (issue 36). The sums they come from are short (one wave's deposits on
+/// one patch; one job's gathering rays).
+/// Flat, sample `g`'s channel `c` at `3 g + c` ([`sample`]): the hot loops add whole rows
+/// (a ray's carried error, a gathering ray's hit), which then compile to a few vector adds.
+pub(crate) type Row = [f32; 3 * SKETCHES];
+
+/// A row of zeros.
+pub(crate) const ZERO_ROW: Row = [0.0; 3 * SKETCHES];
+
+/// Sample `g` of `row`, per channel.
+#[inline]
+pub(crate) fn sample(row: &Row, g: usize) -> DVec3 {
+    DVec3::new(
+        f64::from(row[3 * g]),
+        f64::from(row[3 * g + 1]),
+        f64::from(row[3 * g + 2]),
+    )
+}
+
+/// Adds `x` to sample `g` of `row`.
+#[inline]
+pub(crate) fn add_sample(row: &mut Row, g: usize, x: DVec3) {
+    row[3 * g] += x.x as f32;
+    row[3 * g + 1] += x.y as f32;
+    row[3 * g + 2] += x.z as f32;
+}
+
+/// `a += b`, sample by sample.
+#[inline]
+pub(crate) fn add_row(a: &mut Row, b: &Row) {
+    for (a, b) in a.iter_mut().zip(b) {
+        *a += *b;
+    }
+}
+
+/// `a += rho b`, `rho` per channel (the same for every sample).
+#[inline]
+pub(crate) fn add_row_scaled(a: &mut Row, b: &Row, rho: Vec3) {
+    let r: Row = std::array::from_fn(|k| rho[k % 3]);
+    for ((a, b), r) in a.iter_mut().zip(b).zip(&r) {
+        *a += *b * *r;
+    }
+}
+
+/// `rho row`, `rho` per channel.
+#[inline]
+pub(crate) fn scaled(row: &Row, rho: Vec3) -> Row {
+    std::array::from_fn(|k| row[k] * rho[k % 3])
+}
 
 /// The weight, in patches, of the independent-ray formula (gain 1) in a face's gain
 /// ([module](self)).
@@ -85,6 +150,18 @@ impl Halves {
         }
         let d = self.sum[0] / n0 - self.sum[1] / n1;
         Some(d.length_squared() * n0 * n1 / (n as f64 * n as f64))
+    }
+
+    /// The replicates' signed error sample of the mean of all `n` samples, per channel:
+    /// `(m_0 - m_1) sqrt(n_0 n_1) / n`, of mean zero, its square unbiased for the variance of
+    /// the mean (one degree of freedom; [`Halves::variance_of_mean`] is its square summed over
+    /// the channels). Zero below two samples.
+    pub fn error_of_mean(&self, n: u64) -> DVec3 {
+        let (n0, n1) = (n.div_ceil(2) as f64, (n / 2) as f64);
+        if n1 == 0.0 {
+            return DVec3::ZERO;
+        }
+        (self.sum[0] / n0 - self.sum[1] / n1) * ((n0 * n1).sqrt() / n as f64)
     }
 
     /// The replicates' estimate of the variance of the sum of all the samples, `(S_0 - S_1)²`
@@ -133,6 +210,18 @@ pub(crate) struct Waves {
     differences: Vec<f64>,
     /// `sum_w v_w` and `sum_w v_w²` per patch.
     model: Vec<(f64, f64)>,
+    /// Per patch, the differences `d_w` summed over the waves of each group (wave `w` in
+    /// group `w mod SKETCHES`), with what the later waves' rays carried there, as far as the
+    /// patch's last shot: the rest is in `pending`.
+    sketch: Vec<Row>,
+    /// Waves closed.
+    closed: usize,
+    /// Per patch, the error power of each group not yet shot (W per channel): a deposit's
+    /// error is power the patch reflects, so it travels on with the patch's next rays.
+    pending: Vec<Row>,
+    /// Per patch, the error power each of its rays carries in this wave (`None` where it
+    /// carries none: most of all the emitters' first wave, the largest, carries nothing).
+    per_ray: Vec<Option<Row>>,
 }
 
 impl Waves {
@@ -145,21 +234,72 @@ impl Waves {
             touched: Vec::new(),
             differences: vec![0.0; patches],
             model: vec![(0.0, 0.0); patches],
+            sketch: vec![ZERO_ROW; patches],
+            closed: 0,
+            pending: vec![ZERO_ROW; patches],
+            per_ray: vec![None; patches],
         }
     }
 
-    /// Adds a deposit `x` (W per channel) of replicate `r` on patch `j`.
+    /// Opens a wave in which patch `i` casts `counts[i]` rays: its pending error power joins
+    /// its samples and is spread over them (a patch casting none keeps it, as it keeps its
+    /// unshot power).
+    pub fn begin_wave(&mut self, counts: &[u64]) {
+        for (((sketch, pending), per_ray), &n) in self
+            .sketch
+            .iter_mut()
+            .zip(&mut self.pending)
+            .zip(&mut self.per_ray)
+            .zip(counts)
+        {
+            *per_ray = None;
+            if n > 0 && *pending != ZERO_ROW {
+                let share = 1.0 / n as f32;
+                add_row(sketch, pending);
+                *per_ray = Some(pending.map(|z| z * share));
+                *pending = ZERO_ROW;
+            }
+        }
+    }
+
+    /// The error power each ray of patch `i` carries in this wave (`None`: none).
     #[inline]
-    pub fn push(&mut self, j: usize, r: usize, x: DVec3) {
+    pub fn per_ray(&self, i: usize) -> Option<Row> {
+        self.per_ray[i]
+    }
+
+    /// A ray carrying error power `q` ([`Waves::per_ray`]) kept a share `rho` (per channel) of
+    /// its power on patch `j`: so it does of the error power, which joins `j`'s pending power
+    /// (and its samples when `j` next shoots or the run ends).
+    #[inline]
+    pub fn carry(&mut self, q: &Row, j: usize, rho: Vec3) {
+        add_row_scaled(&mut self.pending[j], q, rho);
+    }
+
+    /// Adds a deposit `x` (W per channel) of replicate `r` on patch `j`, `scale` the factor
+    /// `n / (2 n_r)` of the ray's source patch (`n_r` of its `n` rays in the wave of
+    /// replicate `r`): the replicates' scaled deposits then have the same mean whatever the
+    /// parity of `n`, and their difference is the error alone. `None` for a ray alone in its
+    /// replicate: its deposit counts in the gains unscaled (its square, the formula) and is
+    /// left out of the error samples (a difference of mean `x` is no error sample).
+    #[inline]
+    pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>) {
         if self.wave_squares[j] == 0.0 {
             self.touched.push(j as u32);
         }
-        self.wave[j].push(r, x);
+        self.wave[j].push(r, x * scale.unwrap_or(1.0));
+        if let Some(s) = scale {
+            // This wave's difference of the scaled replicates joins its group's pending error
+            // power at once: the wave's rays are shot, and the group is the wave's.
+            let d = if r == 0 { x * s } else { -x * s };
+            add_sample(&mut self.pending[j], self.closed % SKETCHES, d);
+        }
         self.wave_squares[j] += x.length_squared();
     }
 
     /// Closes a wave: its differences join the sums.
     pub fn end_wave(&mut self) {
+        self.closed += 1;
         for j in self.touched.drain(..) {
             let j = j as usize;
             let v = self.wave_squares[j];
@@ -181,14 +321,7 @@ impl Waves {
     /// tens of degrees of freedom a face measures gains of a few percent (a furnace of one
     /// patch per face) that the formula's pull would multiply.
     pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
-        let (mut d, mut w) = (0.0, 0.0);
-        for (j, t) in self.total.iter().enumerate() {
-            if self.model[j].0 > 0.0 {
-                d += t.variance_of_sum();
-                w += self.differences[j];
-            }
-        }
-        let kappa = if w > 0.0 { d / w } else { 1.0 };
+        let kappa = self.kappa();
         let measures = face.into_iter().enumerate().map(|(j, face)| {
             let (v, v2) = self.model[j];
             Measure {
@@ -199,6 +332,53 @@ impl Waves {
             }
         });
         gains(measures, Toward::Scene)
+    }
+}
+
+impl Waves {
+    /// `kappa = sum_j D_j / sum_j W_j` ([`Waves::gains`]): the share of the per-wave variance
+    /// the run keeps; 1 before anything was measured.
+    fn kappa(&self) -> f64 {
+        let (mut d, mut w) = (0.0, 0.0);
+        for (j, t) in self.total.iter().enumerate() {
+            if self.model[j].0 > 0.0 {
+                d += t.variance_of_sum();
+                w += self.differences[j];
+            }
+        }
+        if w > 0.0 { d / w } else { 1.0 }
+    }
+
+    /// The run's error samples (after the last [`Waves::end_wave`]), W per channel: per patch
+    /// `sqrt(kappa) z_g`, `z_g` the wave differences of group `g` with what the later waves
+    /// made of them. A wave's error `d_w` is power its patches then reflect: the later waves
+    /// shoot it with their rays ([`Waves::carry`]), so `z_g = sum_{w in g} (I + K + K² + ...)
+    /// d_w` as the run's own error is, `K` the transport of the rays cast (without it, in a
+    /// closed furnace of one patch per face the samples overstated the error by about
+    /// `1 / (1 - rho F)² = 1.4` at rho 0.9). The `d_w` are
+    /// uncorrelated with mean zero, so `E[sum_g z_g z_g^T]` is the covariance of the run's
+    /// error between *every* pair of patches (shooting conserves power, so its errors on
+    /// neighbouring patches are correlated, often negatively): a linear
+    /// function of the run's deposits, `sum_j c_j S_j`, has its variance estimated by
+    /// `sum_g (sum_j c_j z_gj)²` with up to [`SKETCHES`] degrees of freedom. A gather from
+    /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
+    /// Also returns the samples of the error power still unshot, summed over the patches.
+    pub fn sketch(&self) -> (Vec<Row>, [DVec3; SKETCHES]) {
+        let k = self.kappa().sqrt();
+        let mut pending = [DVec3::ZERO; SKETCHES];
+        for row in &self.pending {
+            for (g, p) in pending.iter_mut().enumerate() {
+                *p += sample(row, g) * k;
+            }
+        }
+        let k = k as f32;
+        let rows = self
+            .sketch
+            .iter()
+            .zip(&self.pending)
+            .map(|(row, pending)| std::array::from_fn(|x| (row[x] + pending[x]) * k))
+            .collect();
+        (rows, pending)
     }
 }
 
@@ -263,6 +443,9 @@ mod tests {
         // Sums 3 and 9.
         assert_eq!(h.variance_of_sum(), 36.0);
         assert_eq!(Halves::default().variance_of_mean(1), None);
+        // Signed: (1.5 - 4.5) * 2 / 4, its square the variance of the mean.
+        assert_eq!(h.error_of_mean(4), DVec3::new(-1.5, 0.0, 0.0));
+        assert_eq!(Halves::default().error_of_mean(1), DVec3::ZERO);
         let (a, b) = (h, Halves::default());
         assert_eq!(a.merge(b), h);
     }

@@ -159,13 +159,17 @@ pub struct Solution {
     pub unshot_fraction: f64,
     /// Why the run ended.
     pub stop: StopReason,
-    /// With lights without a surface (`ScheduleConfig::lights`): their direct irradiance
-    /// `H_d,i` per patch (W/m² per channel, mesh order; the sky's not included) as the
-    /// lights' pre-pass estimated it, so the solution's radiosity holds `rho_i H_d,i` of
-    /// direct light and `B_i - rho_i H_d,i` is the rest (emission and reflected light): what a
-    /// renderer or baker keeps when it draws the lights' direct light per pixel with its own
-    /// shadow rays. `None` without lights (or sky).
+    /// With lights without a surface (`ScheduleConfig::lights`) or a sky: their direct
+    /// irradiance `H_d,i` per patch (W/m² per channel, mesh order; the lights' and the sky's
+    /// together) as the lights' pre-pass estimated it, so the solution's radiosity holds
+    /// `rho_i H_d,i` of direct light and `B_i - rho_i H_d,i` is the rest (emission and
+    /// reflected light): what a renderer or baker keeps when it draws the lights' and the
+    /// sky's direct light per pixel with its own shadow rays. `None` without lights or sky.
     pub direct: Option<Vec<DVec3>>,
+    /// The sky's part of [`direct`](Self::direct) (W/m² per channel, mesh order; 0 without a
+    /// sky): a renderer that draws only the lights' direct light per pixel takes
+    /// `B_i - rho_i (H_d,i - H_sky,i)` from the solution. `None` when `direct` is.
+    pub sky_direct: Option<Vec<DVec3>>,
 }
 
 /// The observer of a schedule.
@@ -432,6 +436,12 @@ impl Gathers {
         Ok(())
     }
 
+    /// The gathers merged by rays with their own variances only (the inherited parts left
+    /// out); `None` before the first.
+    pub(crate) fn own(&self) -> Option<&Estimate> {
+        self.own.as_ref()
+    }
+
     /// The merged gathering estimate with its whole variance.
     pub(crate) fn estimate(&self) -> Result<Estimate, Error> {
         let own = self.own.as_ref().ok_or(EstimateError::MissingVariance)?;
@@ -642,6 +652,7 @@ impl Progressive {
             unshot_fraction: self.unshot_fraction,
             stop: budget_or_stopped(self.stopped),
             direct: None,
+            sky_direct: None,
         })
     }
 }

@@ -224,6 +224,17 @@ pub struct Shooting {
     pub unshot: Vec<DVec3>,
     /// Counters and the power balance.
     pub stats: ShootStats,
+    /// Error samples of `estimate`'s radiosity (W/m² per channel, [`SKETCHES`] per patch,
+    /// mesh order; [`Waves::sketch`] divided by the areas): for weights `c`,
+    /// `sum_g (sum_j c_j z_gj)²` estimates the variance of `sum_j c_j B_j`, the correlation
+    /// between patches included. Empty when no wave ran.
+    ///
+    /// [`SKETCHES`]: crate::replicates::SKETCHES
+    pub sketch: Vec<crate::replicates::Row>,
+    /// The part of `estimate`'s variance that `sketch` does not hold ((W/m²)², per patch and
+    /// channel, by the independent-ray formula): deposits of rays alone in their replicate
+    /// in a wave (a roulette tail's, mostly) and an extrapolated remainder's.
+    pub unsampled: Vec<DVec3>,
 }
 
 /// Without a budget (`rays == u64::MAX`, a run the observer stops) the waves plan for a
@@ -307,9 +318,13 @@ pub fn shoot<C: RayCaster>(
 
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     let mut squares = vec![DVec3::ZERO; patches.len()];
+    // The part of `squares` the error samples do not hold: deposits of rays alone in their
+    // replicate (`replicate_scale`).
+    let mut unsampled = vec![DVec3::ZERO; patches.len()];
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
     // sequence, wave by wave (crate::replicates).
-    let mut waves = (ctx.sampling() == Sampler::Qmc).then(|| Waves::new(patches.len()));
+    // Kept under either sampler: their error samples (`Waves::sketch`) serve both.
+    let mut waves = Some(Waves::new(patches.len()));
     let mut stats = ShootStats {
         rays: 0,
         waves: 0,
@@ -378,8 +393,19 @@ pub fn shoot<C: RayCaster>(
             counts
         };
         let jobs = wave_jobs(&counts, &cast);
+        // Each replicate's deposits scaled to the whole wave: a patch casting an odd number
+        // of rays gives one replicate a ray more, a difference of mean `rho p` on the patches
+        // its rays reach that is no error (crate::replicates, `Waves::push`).
+        let halves: Vec<Option<[f64; 2]>> = counts
+            .iter()
+            .zip(&cast)
+            .map(|(&n, &a)| replicate_scale(a, n))
+            .collect();
         for (c, n) in cast.iter_mut().zip(&counts) {
             *c += n;
+        }
+        if let Some(waves) = waves.as_mut() {
+            waves.begin_wave(&counts);
         }
         for (i, &n) in counts.iter().enumerate() {
             if n > 0 {
@@ -401,6 +427,9 @@ pub fn shoot<C: RayCaster>(
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {
                 let p = per_ray[job.patch as usize];
+                let scale = halves[job.patch as usize];
+                // The error power this job's rays carry, if any.
+                let carried = waves.as_ref().and_then(|w| w.per_ray(job.patch as usize));
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
@@ -416,8 +445,15 @@ pub fn shoot<C: RayCaster>(
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
+                        if scale.is_none() {
+                            unsampled[j] += kept * kept;
+                        }
                         if let Some(waves) = waves.as_mut() {
-                            waves.push(j, replicate(job.first + t as u64), kept);
+                            let r = replicate(job.first + t as u64);
+                            waves.push(j, r, kept, scale.map(|h| h[r]));
+                            if let Some(q) = &carried {
+                                waves.carry(q, j, patches[j].reflectance);
+                            }
                         }
                         kept_sum += kept;
                         kept_squares += kept * kept;
@@ -456,18 +492,49 @@ pub fn shoot<C: RayCaster>(
     // What the waves needed goes before the replicates' gains are measured (the run's peak).
     drop(per_ray);
     drop(cast);
-    if let Some(waves) = waves.take() {
+    if let Some(waves) = waves.as_ref().filter(|_| ctx.sampling() == Sampler::Qmc) {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure, wave by wave (crate::replicates).
         let gains = waves.gains(patches.iter().map(|p| p.face));
         replicates::scale(&mut squares, &gains);
+        replicates::scale(&mut unsampled, &gains);
     }
+    let (mut sketch, pending) = waves.map(|w| w.sketch()).unwrap_or_default();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
+        // The extrapolation `reflected_i (1 + x)`, `x = |U| r / ((1 - r) sum reflected)`, is
+        // linear in the unshot power and the reflected light so far: their errors move it
+        // by `z_i (1 + x) + reflected_i x (dU / |U| - sum z / sum reflected)`.
+        let (u, so_far): (DVec3, DVec3) = (unshot.iter().sum(), reflected.iter().sum());
+        let x = scale - DVec3::ONE;
+        let ratio = |a: DVec3, b: DVec3| {
+            DVec3::new(
+                if b.x > 0.0 { a.x / b.x } else { 0.0 },
+                if b.y > 0.0 { a.y / b.y } else { 0.0 },
+                if b.z > 0.0 { a.z / b.z } else { 0.0 },
+            )
+        };
+        let mut sums = [DVec3::ZERO; crate::replicates::SKETCHES];
+        for row in &sketch {
+            for (g, s) in sums.iter_mut().enumerate() {
+                *s += crate::replicates::sample(row, g);
+            }
+        }
+        let shift: Vec<DVec3> = (0..crate::replicates::SKETCHES)
+            .map(|g| x * (ratio(pending[g], u) - ratio(sums[g], so_far)))
+            .collect();
+        for (row, q) in sketch.iter_mut().zip(&reflected) {
+            for (g, shift) in shift.iter().enumerate() {
+                let z = crate::replicates::sample(row, g) * scale + *q * *shift;
+                row[3 * g..3 * g + 3].copy_from_slice(&z.as_vec3().to_array());
+            }
+        }
         for (i, (r, q)) in reflected.iter_mut().zip(&mut squares).enumerate() {
             *r *= scale;
             *q = *q * scale * scale + remainder_variance[i];
+            unsampled[i] = unsampled[i] * scale * scale + remainder_variance[i];
         }
+
         stats.extrapolated = stats.unshot;
         stats.unshot = DVec3::ZERO;
         unshot.iter_mut().for_each(|u| *u = DVec3::ZERO);
@@ -478,6 +545,12 @@ pub fn shoot<C: RayCaster>(
     for (r, q) in reflected.iter_mut().zip(&mut squares) {
         *r *= scale;
         *q *= scale * scale;
+    }
+    for ((row, u), p) in sketch.iter_mut().zip(&mut unsampled).zip(patches) {
+        let a = p.area;
+        let factor = (scale / a).as_vec3();
+        *row = crate::replicates::scaled(row, factor);
+        *u *= (scale / a) * (scale / a);
     }
     radiosity_so_far(patches, &reflected, &mut radiosity);
     let variance = squares
@@ -490,7 +563,23 @@ pub fn shoot<C: RayCaster>(
         estimate,
         unshot,
         stats,
+        sketch,
+        unsampled,
     })
+}
+
+/// The factors `n / (2 n_r)` that scale the deposits of replicate `r` of a patch's `n` rays in a
+/// wave, points `first .. first + n` of its sequence (`n_r` of them of replicate `r`), to
+/// estimates of the whole wave's: `None` when a replicate has no ray (a lone ray's error
+/// cannot be told from its value, and a difference of mean `rho p` would be taken for one).
+fn replicate_scale(first: u64, n: u64) -> Option<[f64; 2]> {
+    let even = (first + n).div_ceil(2) - first.div_ceil(2);
+    let odd = n - even;
+    if even == 0 || odd == 0 {
+        return None;
+    }
+    let n = n as f64;
+    Some([n / (2.0 * even as f64), n / (2.0 * odd as f64)])
 }
 
 /// The share of shot power that returns as unshot power, per channel: `r = sum kept / sum p`

@@ -33,13 +33,15 @@ use std::sync::Arc;
 /// One leaf element: a triangle (3 corners) or a convex quad (4), counter-clockwise from its
 /// front, with the template of its input face.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Leaf {
+pub(crate) struct Leaf {
     corners: [Vec3; 4],
     count: u8,
     /// Splits from the starting mesh's element.
     depth: u8,
-    /// Index into [`AdaptiveMesh::templates`].
+    /// Index into [`AdaptiveMesh::templates`]: the face's material.
     template: u32,
+    /// The input face ([`mcrad_scene_io::Face::source`]) the leaf lies in.
+    face: u32,
     /// The back side of the leaf before it (a two-sided face): it splits with its front, into
     /// the same children, and its patch is the front's back side (its corners are unused).
     back: bool,
@@ -195,24 +197,22 @@ impl AdaptiveMesh {
     ) -> Result<AdaptiveMesh, MeshError> {
         bounds.check()?;
         let coarse = Mesh::build(scene, start)?;
-        let mut templates: Vec<PatchTemplate> = Vec::new();
-        let mut index: HashMap<(u32, u32), u32> = HashMap::new();
+        // one template a material (its factors: a textured face's patches multiply them anew);
+        // each leaf names its face itself
+        let templates: Vec<PatchTemplate> = scene
+            .materials()
+            .iter()
+            .enumerate()
+            .map(|(m, material)| PatchTemplate {
+                reflectance: material.reflectance,
+                emission: material.emission,
+                face: 0,
+                material: m as u32,
+                two_sided: scene.is_two_sided(m as u32),
+            })
+            .collect();
         let mut leaves = Vec::with_capacity(coarse.patches().len());
         for patch in coarse.patches() {
-            let template = *index
-                .entry((patch.face, patch.material))
-                .or_insert_with(|| {
-                    // the material's factors: a textured face's patches multiply them anew
-                    let material = &scene.materials()[patch.material as usize];
-                    templates.push(PatchTemplate {
-                        reflectance: material.reflectance,
-                        emission: material.emission,
-                        face: patch.face,
-                        material: patch.material,
-                        two_sided: scene.is_two_sided(patch.material),
-                    });
-                    (templates.len() - 1) as u32
-                });
             let c = coarse.corners(patch);
             let mut corners = [Vec3::ZERO; 4];
             for (k, &v) in c.iter().enumerate() {
@@ -222,7 +222,8 @@ impl AdaptiveMesh {
                 corners,
                 count: c.len() as u8,
                 depth: 0,
-                template,
+                template: patch.material,
+                face: patch.face,
                 back: patch.back,
             });
         }
@@ -429,11 +430,13 @@ impl AdaptiveMesh {
         !self.leaves[i].back && self.leaves.get(i + 1).is_some_and(|l| l.back)
     }
 
-    /// Bytes held per leaf element: the hierarchy's leaves and the mesh's patches, corners,
-    /// triangles and vertices (capacities, not counting allocator overhead).
+    /// Bytes held per leaf element: the hierarchy's leaves and templates (one a material) and
+    /// the mesh's patches, corners, triangles and vertices (capacities, not counting allocator
+    /// overhead).
     pub fn bytes_per_element(&self) -> f64 {
         let leaves = self.leaves.capacity() * size_of::<Leaf>();
-        (leaves + self.mesh.heap_bytes()) as f64 / self.leaves.len().max(1) as f64
+        let templates = self.templates.capacity() * size_of::<PatchTemplate>();
+        (leaves + templates + self.mesh.heap_bytes()) as f64 / self.leaves.len().max(1) as f64
     }
 }
 
@@ -477,6 +480,7 @@ fn split_leaf(leaf: &Leaf, plan: Plan, min_size: f64) -> Option<Vec<Leaf>> {
             count: corners.len() as u8,
             depth: leaf.depth.saturating_add(1),
             template: leaf.template,
+            face: leaf.face,
             back: false,
         }
     };
@@ -568,7 +572,11 @@ fn build_mesh(
             let v = *vertex.entry(key).or_insert_with(|| mesh.push_position(p));
             corners.push(v);
         }
-        mesh.push_patch(&corners, &templates[leaf.template as usize]);
+        let template = PatchTemplate {
+            face: leaf.face,
+            ..templates[leaf.template as usize]
+        };
+        mesh.push_patch(&corners, &template);
     }
     mesh.shrink_to_fit();
     mesh

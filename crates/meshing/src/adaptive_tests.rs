@@ -369,3 +369,36 @@ fn two_sided_faces_have_back_sides_that_split_with_their_fronts_and_are_traced()
         assert_eq!((hit.id, hit.front), (i as u32, true), "patch {i}");
     }
 }
+
+/// The hierarchy keeps one template a material, not one a face: on a scene of many faces of
+/// one material, split once, it holds a leaf (60 bytes) and the mesh per element, each patch
+/// still naming its own face.
+#[test]
+fn the_hierarchy_holds_a_leaf_per_element_and_a_template_per_material() {
+    let n = 2000u32;
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    for i in 0..n {
+        let x = i as f32;
+        let at = positions.len() as u32;
+        positions.extend([
+            Vec3::new(x, 0.0, 0.0),
+            Vec3::new(x + 1.0, 0.0, 0.0),
+            Vec3::new(x, 1.0, 0.0),
+        ]);
+        faces.push(vec![at, at + 1, at + 2]);
+    }
+    let s = scene(positions, faces);
+    let mut m = AdaptiveMesh::new(&s, Subdivision::None, bounds(0.1, 1_000_000)).unwrap();
+    m.refine(&[0, 7, 1999]);
+    assert_eq!(m.len(), n as usize + 9);
+    assert_eq!(size_of::<super::adaptive::Leaf>(), 60);
+    let mesh_bytes = m.mesh().heap_bytes() as f64 / m.len() as f64;
+    let hierarchy = m.bytes_per_element() - mesh_bytes;
+    assert!(hierarchy <= 61.0, "{hierarchy} bytes per element");
+    // every patch names its face: the first four are face 0's children, then face 1
+    let faces: Vec<u32> = m.mesh().patches().iter().map(|p| p.face).collect();
+    assert_eq!(&faces[..6], &[0, 0, 0, 0, 1, 2]);
+    assert_eq!(&faces[faces.len() - 4..], &[1999; 4]);
+    assert_eq!(faces[10..14], [7; 4]);
+}

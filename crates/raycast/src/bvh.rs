@@ -514,6 +514,8 @@ impl Task for Closest<'_> {
             shift,
             ids: (self.exclude, self.exclude),
             any_hit: bvh.any_hit.as_deref().map(|t| (t, &bvh.frame)),
+            few: false,
+            tested: 0,
         };
         let best = traverse::closest(isa, nodes, packets, &r, stack, &mut leaves);
         best.found()
@@ -526,6 +528,9 @@ struct Blocked<'a> {
     segment: &'a CanonicalSegment,
     ia: u32,
     ib: u32,
+    /// Whether a BVH of at most [`FEW_PACKETS`] packets tests each packet once (always, but
+    /// for the tests that compare with and without).
+    once: bool,
 }
 
 impl Task for Blocked<'_> {
@@ -556,6 +561,8 @@ impl Task for Blocked<'_> {
             shift,
             ids: (self.ia, self.ib),
             any_hit: bvh.any_hit.as_deref().map(|t| (t, &bvh.frame)),
+            few: self.once && packets.len() <= FEW_PACKETS,
+            tested: 0,
         };
         traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
     }
@@ -641,6 +648,14 @@ impl RayCaster for Bvh {
     // comparison): the sort costs as much as a fast occlusion query gains from it.
 
     fn occluded(&self, a: &SurfacePoint, b: &SurfacePoint) -> bool {
+        self.blocked(a, b, true)
+    }
+}
+
+impl Bvh {
+    /// [`RayCaster::occluded`]; `once` as in [`Blocked`].
+    #[inline(always)]
+    fn blocked(&self, a: &SurfacePoint, b: &SurfacePoint, once: bool) -> bool {
         let Some(s) = self.frame.canonical_segment(a, b) else {
             return false;
         };
@@ -652,12 +667,19 @@ impl RayCaster for Bvh {
             segment: &s,
             ia,
             ib,
+            once,
         })
     }
 }
 
 /// Every lane of a packet (unused lanes never pass the test, see [`wide::Packet`]).
 const ALL_LANES: u32 = (1 << LANES) - 1;
+
+/// Most packets (of 4 triangles) a BVH may have for an occlusion query to remember which it
+/// has tested: on so small a scene the few nodes have many leaves, which share packets (see
+/// `wide::Part::pack`), and a segment that passes several of them would test a shared packet
+/// again. (The Cornell box: 32 triangles, one node of 16 leaves in 9 packets.)
+const FEW_PACKETS: usize = 64;
 
 /// The packet tests of one query.
 struct Leaves<'a> {
@@ -669,6 +691,10 @@ struct Leaves<'a> {
     ids: (u32, u32),
     /// The BVH's any-hit test and the frame that places its points.
     any_hit: Option<(&'a dyn AnyHit, &'a Frame)>,
+    /// Whether the BVH has at most [`FEW_PACKETS`] packets, so that `tested` can record them.
+    few: bool,
+    /// The packets this query has tested, bit `p` for packet `p` (when `few`).
+    tested: u64,
 }
 
 impl LeafTest for Leaves<'_> {
@@ -681,6 +707,20 @@ impl LeafTest for Leaves<'_> {
 
     #[inline(always)]
     fn any(&mut self, run: Range<usize>) -> bool {
+        if self.few {
+            // Leaves of one node share packets: test each packet once per query.
+            for p in run {
+                let bit = 1u64 << (p & 63);
+                if self.tested & bit != 0 {
+                    continue;
+                }
+                self.tested |= bit;
+                if self.any_in(&self.packets[p]) {
+                    return true;
+                }
+            }
+            return false;
+        }
         self.packets[run].iter().any(|packet| self.any_in(packet))
     }
 }
@@ -807,6 +847,55 @@ mod tests {
             })
             .collect();
         (bvh, rays)
+    }
+
+    /// Occlusion on scenes of at most `FEW_PACKETS` packets tests each packet once per query:
+    /// the same answers as testing every leaf's packets (and the oracle's), on triangle soups
+    /// of either side of the threshold, with end points on triangles and free ones.
+    #[test]
+    fn testing_each_packet_once_gives_the_same_occlusion() {
+        let mut next = crate::testing::uniforms(11);
+        let mut few = 0;
+        for n in [8usize, 32, 64, 128, 200, 256, 400] {
+            let mut tris = Vec::with_capacity(n);
+            for _ in 0..n {
+                let c = Vec3::new(next(), next(), next()) * 4.0;
+                let mut corner = || c + (Vec3::new(next(), next(), next()) - 0.5) * 1.5;
+                tris.push([corner(), corner(), corner()]);
+            }
+            let ids: Vec<u32> = (0..n as u32).collect();
+            let bvh = Bvh::build(&tris, &ids).unwrap();
+            let oracle = crate::BruteForce::build(&tris, &ids).unwrap();
+            few += usize::from(bvh.wide.packets.len() <= FEW_PACKETS);
+            let mut point = |k: usize| {
+                if k.is_multiple_of(5) {
+                    return SurfacePoint::free(Vec3::new(next(), next(), next()) * 4.0);
+                }
+                let i = (next() * n as f32) as usize % n;
+                let [a, b, c] = tris[i];
+                let (mut u, mut v) = (next(), next());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let normal = (b - a).cross(c - a).normalize_or_zero();
+                SurfacePoint::new(a + (b - a) * u + (c - a) * v, normal, i as u32)
+            };
+            let (mut blocked, mut differ) = (0, 0);
+            for k in 0..4000 {
+                let (a, b) = (point(k), point(k + 1));
+                let once = bvh.blocked(&a, &b, true);
+                assert_eq!(once, bvh.blocked(&a, &b, false), "{n} triangles, pair {k}");
+                blocked += usize::from(once);
+                differ += usize::from(once != oracle.occluded(&a, &b));
+            }
+            assert!((100..3900).contains(&blocked), "{n} triangles: {blocked}");
+            assert!(
+                differ <= 4,
+                "{n} triangles: {differ} differ from the oracle"
+            );
+        }
+        // both sides of the threshold were tested
+        assert!((1..7).contains(&few), "{few}");
     }
 
     #[test]

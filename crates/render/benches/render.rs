@@ -41,6 +41,7 @@ fn bench(c: &mut Criterion) {
             samples_per_pixel: spp,
             sky: None,
             lights: Vec::new(),
+            sky_rays: 0,
         };
         group.bench_function(format!("flat_{spp}spp"), |bench| {
             bench.iter(|| {

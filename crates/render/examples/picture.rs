@@ -35,6 +35,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         samples_per_pixel: 4,
         sky: None,
         lights: Vec::new(),
+        sky_rays: 0,
     };
     let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_| {})?;
     println!(

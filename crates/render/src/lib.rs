@@ -30,7 +30,7 @@
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
 //! let camera = Camera::look_at(Vec3::new(0.5, 0.5, 2.0), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 20.0)?;
 //! let b = [DVec3::splat(std::f64::consts::PI)]; // B = π W/m², so L = 1 W/(m² sr)
-//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None, lights: vec![] };
+//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None, lights: vec![], sky_rays: 0 };
 //! let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_rows| {})?;
 //! assert!((image.get(4, 4).unwrap() - Vec3::ONE).length() < 1e-6);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
@@ -42,6 +42,7 @@ mod frame;
 mod image;
 mod jitter;
 mod shade;
+mod sky;
 mod tonemap;
 
 #[cfg(test)]
@@ -60,6 +61,7 @@ pub use self::camera_spec::{CameraSpecError, parse_camera};
 pub use self::frame::{FRAME_FOV_Y_DEGREES, INSIDE_FOV_Y_DEGREES};
 pub use self::image::{Image, ImageError, ImageReadError, read_exr, write_exr, write_png};
 pub use self::shade::{Shading, interpolate};
+pub use self::sky::sky_irradiance_sample;
 pub use self::tonemap::{AUTO_PERCENTILE, AUTO_TARGET, Exposure, luminance, srgb_encode};
 
 /// The pass number of the per-pixel direct light's streams.
@@ -92,6 +94,14 @@ pub struct RenderSettings {
     /// default): the shading alone. Shadow rays pass alpha cut-outs as the caster's any-hit
     /// filter says; their random numbers come from a stream keyed by the pixel.
     pub lights: Vec<mcrad_scene_io::Light>,
+    /// Rays towards [`sky`](Self::sky) per sample for its direct light, drawn per sample like
+    /// the lights': at each front hit `x` of a patch of reflectance `rho`, the mean of
+    /// [`sky_irradiance_sample`] over the rays adds radiance `rho H_sky(x) / π` (W/(m² sr)).
+    /// The pixel's `samples_per_pixel × sky_rays` ray directions are stratified over the
+    /// square together (an `m × m` grid when that is a square number), from a stream keyed by
+    /// the pixel of its own. The shading must then hold the radiosity without the sky's direct
+    /// light too. 0 (the default, and without a sky): the shading alone.
+    pub sky_rays: u32,
 }
 
 impl Default for RenderSettings {
@@ -103,6 +113,7 @@ impl Default for RenderSettings {
             samples_per_pixel: 16,
             sky: None,
             lights: Vec::new(),
+            sky_rays: 0,
         }
     }
 }
@@ -167,6 +178,13 @@ pub fn render<C: RayCaster + ?Sized>(
     }
     let shader = shade::Shader::new(mesh, shading)?;
     let direct = shade::Direct::new(mesh, &settings.lights);
+    // the sky's direct light per sample: `sky_rays` rays each
+    let sky_direct = settings
+        .sky
+        .as_ref()
+        .filter(|s| settings.sky_rays > 0 && !s.is_dark());
+    let sky_rays = settings.sky_rays as usize;
+    let far = mesh.escape_distance();
     let mut pixels = vec![Vec3::ZERO; width as usize * height as usize];
     let rows_done = AtomicUsize::new(0);
     pixels
@@ -178,6 +196,17 @@ pub fn render<C: RayCaster + ?Sized>(
                 let mut sum = DVec3::ZERO;
                 let pixel_index = u64::from(y) * u64::from(width) + u64::from(x);
                 let mut rng = Stream::new(0, DIRECT_PASS, pixel_index, 0);
+                // the pixel's sky directions (and, for a map, its map draws), stratified
+                let strata = sky_direct.map(|sky| {
+                    let mut sky_rng = Stream::new(0, DIRECT_PASS, pixel_index, 1);
+                    let n = spp as usize * sky_rays;
+                    let u = sky::stratified(n, &mut sky_rng);
+                    let v = match sky {
+                        mcrad_scene_io::Sky::Map(_) => sky::stratified(n, &mut sky_rng),
+                        mcrad_scene_io::Sky::Uniform(_) => Vec::new(),
+                    };
+                    (u, v)
+                });
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
@@ -185,8 +214,13 @@ pub fn render<C: RayCaster + ?Sized>(
                     sum += match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
                         (hit, _) => {
-                            shader.radiance(mesh, hit).as_dvec3()
-                                + direct.radiance(mesh, caster, hit, &mut rng)
+                            let mut l = shader.radiance(mesh, hit).as_dvec3()
+                                + direct.radiance(mesh, caster, hit, &mut rng);
+                            if let (Some(sky), Some((u, v))) = (sky_direct, &strata) {
+                                let range = s as usize * sky_rays..(s as usize + 1) * sky_rays;
+                                l += shade::sky_radiance(mesh, caster, sky, far, hit, u, v, range);
+                            }
+                            l
                         }
                     };
                 }

@@ -164,6 +164,48 @@ impl Direct {
     }
 }
 
+/// The reflected radiance `rho H_sky / π` (W/(m² sr)) of the sky's direct light at the front
+/// hit `hit`, `H_sky` the mean of [`sky_irradiance_sample`](crate::sky_irradiance_sample) over
+/// the points `u[range]` (and `v[range]` for a map; `v` may be empty for a uniform sky); 0 for a
+/// miss or a back face.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sky_radiance<C: RayCaster + ?Sized>(
+    mesh: &Mesh,
+    caster: &C,
+    sky: &mcrad_scene_io::Sky,
+    far: f64,
+    hit: Option<Hit>,
+    u: &[[f64; 2]],
+    v: &[[f64; 2]],
+    range: std::ops::Range<usize>,
+) -> DVec3 {
+    let Some(hit) = hit.filter(|h| h.front) else {
+        return DVec3::ZERO;
+    };
+    let Some(patch) = mesh.patches().get(hit.id as usize) else {
+        return DVec3::ZERO;
+    };
+    if range.is_empty() {
+        return DVec3::ZERO;
+    }
+    let count = range.len() as f64;
+    let mut h = DVec3::ZERO;
+    for k in range {
+        let vk = v.get(k).copied().unwrap_or(u[k]);
+        h += crate::sky_irradiance_sample(
+            caster,
+            sky,
+            far,
+            hit.point,
+            patch.normal,
+            hit.id,
+            u[k],
+            vk,
+        );
+    }
+    patch.reflectance.as_dvec3() * h / (count * PI)
+}
+
 /// Linear interpolation of per-corner `values` at `point` on a convex polygon with corner
 /// vertex indices `corners` (into `positions`): barycentric over the fan triangle
 /// `(0, j, j + 1)` that contains the point (or, for a point just outside through rounding, the

@@ -62,6 +62,7 @@ fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
         samples_per_pixel,
         sky: None,
         lights: Vec::new(),
+        sky_rays: 0,
     }
 }
 

@@ -71,24 +71,23 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
         let rest = || rest_after_keyword(line, keyword);
         match keyword {
             "v" => {
-                let p = parse_vertex(line, words.collect(), count + 1).map_err(|e| (line_no, e))?;
+                let p = parse_vertex(line, words, count + 1).map_err(|e| (line_no, e))?;
                 count += 1;
                 out.positions.push(p);
             }
             "f" => {
-                let corners: Vec<&str> = words.collect();
-                if corners.len() < 3 {
+                // counted first (no list of the words per face)
+                let corners = words.clone();
+                let found = words.count();
+                if found < 3 {
                     let message = format!(
-                        "a face needs at least 3 vertices, found {}: {}",
-                        corners.len(),
+                        "a face needs at least 3 vertices, found {found}: {}",
                         crate::quote(line.trim())
                     );
                     return Err((line_no, SceneError::parse(message)));
                 }
-                if corners.len() > crate::MAX_FACE_VERTICES {
-                    let e = SceneError::TooManyFaceVertices {
-                        count: corners.len(),
-                    };
+                if found > crate::MAX_FACE_VERTICES {
+                    let e = SceneError::TooManyFaceVertices { count: found };
                     return Err((line_no, e));
                 }
                 if out.face_lines.len() >= crate::MAX_FACES {
@@ -144,11 +143,22 @@ fn rest_after_keyword<'a>(line: &'a str, keyword: &str) -> &'a str {
 
 /// Parses the numbers of a `v` line (`number` is its 1-based OBJ vertex number): `x y z`,
 /// `x y z w` or `x y z r g b`. The position must be finite.
-fn parse_vertex(line: &str, numbers: Vec<&str>, number: usize) -> Result<Vec3, SceneError> {
-    let mut values = Vec::with_capacity(numbers.len());
-    for n in &numbers {
+fn parse_vertex<'a>(
+    line: &str,
+    numbers: impl Iterator<Item = &'a str>,
+    number: usize,
+) -> Result<Vec3, SceneError> {
+    // the first 7 numbers on the stack (a longer line is refused by its count alone)
+    let mut stack = [0f32; 7];
+    let mut found = 0usize;
+    for n in numbers {
         match n.parse::<f32>() {
-            Ok(x) => values.push(x),
+            Ok(x) => {
+                if let Some(slot) = stack.get_mut(found) {
+                    *slot = x;
+                }
+                found += 1;
+            }
             Err(_) => {
                 return Err(SceneError::parse(format!(
                     "cannot parse vertex coordinate {} in {}",
@@ -158,13 +168,13 @@ fn parse_vertex(line: &str, numbers: Vec<&str>, number: usize) -> Result<Vec3, S
             }
         }
     }
-    let p = match values[..] {
-        [x, y, z] | [x, y, z, _, _, _] => Vec3::new(x, y, z),
-        [x, y, z, w] => Vec3::new(x, y, z) / w,
+    let [x, y, z, w, ..] = stack;
+    let p = match found {
+        3 | 6 => Vec3::new(x, y, z),
+        4 => Vec3::new(x, y, z) / w,
         _ => {
             return Err(SceneError::parse(format!(
-                "a vertex needs 3 numbers (4 with w, 6 with a colour), found {}: {}",
-                values.len(),
+                "a vertex needs 3 numbers (4 with w, 6 with a colour), found {found}: {}",
                 crate::quote(line.trim())
             )));
         }

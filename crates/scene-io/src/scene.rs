@@ -173,29 +173,39 @@ impl Scene {
         let mut dropped = Tally::default();
         let mut split = Tally::default();
         let mut duplicates = Tally::default();
-        let mut seen = Duplicates::default();
+        let mut seen = Duplicates::with_capacity(faces.len());
         // emitting faces dropped as degenerate, and the largest area among them
         let mut dark = Tally::default();
         let mut dark_area = 0.0f64;
-        for face in faces {
-            let ring = merge_repeated(&face.vertices, &positions);
+        // the corners of faces of up to `SMALL` vertices in a buffer on the stack (no allocation
+        // per face)
+        let mut small = [DVec3::ZERO; SMALL];
+        let mut large: Vec<DVec3> = Vec::new();
+        for mut face in faces {
+            let ring = merge_repeated(std::mem::take(&mut face.vertices), &positions);
             if seen.is_duplicate(&ring, face.material, &positions) {
                 duplicates.add(face.source);
                 continue;
             }
-            let pts: Vec<DVec3> = ring
-                .iter()
-                .map(|&v| positions[v as usize].as_dvec3())
-                .collect();
+            let pts: &mut [DVec3] = if ring.len() <= SMALL {
+                &mut small[..ring.len()]
+            } else {
+                large.resize(ring.len(), DVec3::ZERO);
+                &mut large
+            };
+            for (p, &v) in pts.iter_mut().zip(&ring) {
+                *p = positions[v as usize].as_dvec3();
+            }
+            let pts: &[DVec3] = pts;
             let emits = materials[face.material as usize].is_emitter();
             let mut drop = |dropped: &mut Tally| {
                 dropped.add(face.source);
                 if emits {
                     dark.add(face.source);
-                    dark_area = dark_area.max(polygon::vector_area2(&pts).length() / 2.0);
+                    dark_area = dark_area.max(polygon::vector_area2(pts).length() / 2.0);
                 }
             };
-            match polygon::classify(&pts, degenerate_area) {
+            match polygon::classify(pts, degenerate_area) {
                 Shape::Degenerate => drop(&mut dropped),
                 Shape::Fan { apex } => {
                     let mut vertices = ring;
@@ -486,42 +496,79 @@ fn used_bounds(positions: &[Vec3], faces: &[Face]) -> Option<Bounds> {
 /// an earlier one. Faces are
 /// remembered by a 128-bit hash (16 bytes each; two different faces share one with
 /// probability about `n² / 2^129`).
-#[derive(Default)]
 struct Duplicates {
-    seen: std::collections::HashSet<u128>,
+    seen: std::collections::HashSet<u128, std::hash::BuildHasherDefault<Folded>>,
+}
+
+/// The set's hasher: its keys are already hashes (uniform 128-bit), so their two halves xored
+/// are a hash; hashing them again (SipHash) took a quarter of the time of loading ten million
+/// triangles.
+#[derive(Default)]
+struct Folded(u64);
+
+impl std::hash::Hasher for Folded {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        // not used by u128 keys; a plain FNV-1a for completeness
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+
+    fn write_u128(&mut self, key: u128) {
+        self.0 ^= (key >> 64) as u64 ^ key as u64;
+    }
 }
 
 impl Duplicates {
+    /// Room for the faces of a scene of `faces` faces (the set does not rehash as it grows).
+    fn with_capacity(faces: usize) -> Duplicates {
+        Duplicates {
+            seen: std::collections::HashSet::with_capacity_and_hasher(faces, Default::default()),
+        }
+    }
+
     /// Whether the face (`ring` of vertices after [`merge_repeated`]) repeats an earlier one;
     /// if not, remembers it.
     fn is_duplicate(&mut self, ring: &[u32], material: u32, positions: &[Vec3]) -> bool {
         use std::hash::{Hash, Hasher};
-        let mut key: Vec<[u32; 3]> = ring
-            .iter()
-            .map(|&v| positions[v as usize].to_array().map(f32::to_bits))
-            .collect();
+        // on the stack for faces of up to `SMALL` vertices
+        let mut small = [[0u32; 3]; SMALL];
+        let mut large = Vec::new();
+        let key: &mut [[u32; 3]] = if ring.len() <= SMALL {
+            &mut small[..ring.len()]
+        } else {
+            large.resize(ring.len(), [0u32; 3]);
+            &mut large
+        };
+        for (k, &v) in key.iter_mut().zip(ring) {
+            *k = positions[v as usize].to_array().map(f32::to_bits);
+        }
         // rotate the smallest position first: the same cycle gives the same key
         if let Some(start) = (0..key.len()).min_by_key(|&i| key[i]) {
             key.rotate_left(start);
         }
+        let key: &[[u32; 3]] = key;
         let half = |salt: u64| {
             let mut hasher = std::collections::hash_map::DefaultHasher::new();
-            (salt, material, &key).hash(&mut hasher);
+            (salt, material, key).hash(&mut hasher);
             hasher.finish() as u128
         };
         !self.seen.insert(half(1) << 64 | half(2))
     }
 }
 
-/// The face's vertex ring with consecutive vertices at equal positions merged (cyclically).
-fn merge_repeated(vertices: &[u32], positions: &[Vec3]) -> Vec<u32> {
+/// Faces of at most this many vertices are checked without a heap allocation.
+const SMALL: usize = 8;
+
+/// The face's vertex ring with consecutive vertices at equal positions merged (cyclically), in
+/// place: the first of each run of equal positions is kept.
+fn merge_repeated(mut ring: Vec<u32>, positions: &[Vec3]) -> Vec<u32> {
     let at = |v: u32| positions[v as usize];
-    let mut ring: Vec<u32> = Vec::with_capacity(vertices.len());
-    for &v in vertices {
-        if ring.last().is_none_or(|&last| at(last) != at(v)) {
-            ring.push(v);
-        }
-    }
+    ring.dedup_by(|v, kept| at(*v) == at(*kept));
     while ring.len() > 1 && at(ring[0]) == at(ring[ring.len() - 1]) {
         ring.pop();
     }
@@ -546,6 +593,44 @@ mod tests {
             material,
             source,
         }
+    }
+
+    /// Faces of more corners than the stack buffers hold (`SMALL`) take the heap path: a
+    /// 12-gon, the same 12-gon rotated with a repeated corner (a duplicate once it is merged),
+    /// and a quad with a corner repeated under another index (equal positions merge).
+    #[test]
+    fn large_faces_are_merged_and_found_duplicate_like_small_ones() {
+        let n = 3 * SMALL / 2;
+        let mut p: Vec<Vec3> = (0..n)
+            .map(|k| {
+                let a = std::f32::consts::TAU * k as f32 / n as f32;
+                Vec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        p.push(p[0]);
+        let first: Vec<u32> = (0..n as u32).collect();
+        let mut rotated: Vec<u32> = (0..n as u32).map(|k| (k + 5) % n as u32).collect();
+        rotated.insert(3, rotated[2]);
+        let faces = vec![
+            face(&first, 0, 0),
+            face(&rotated, 0, 1),
+            face(&[0, n as u32, 1, 2, 3], 0, 2),
+        ];
+        let (scene, warnings) = Scene::new(p, faces, vec![mat("lamp", 0.5, 1.0)]).unwrap();
+        let sizes: Vec<(u32, usize)> = scene
+            .faces()
+            .iter()
+            .map(|f| (f.source, f.vertices.len()))
+            .collect();
+        assert_eq!(sizes, vec![(0, n), (2, 4)], "{warnings:?}");
+        assert_eq!(scene.faces()[1].vertices, vec![0, 1, 2, 3]);
+        assert_eq!(
+            warnings,
+            vec![Warning::DuplicateFacesDropped {
+                count: 1,
+                first_source: 1
+            }]
+        );
     }
 
     /// A unit square (emitting) and a square at z = 1 (material 1), 8 positions.

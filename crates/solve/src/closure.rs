@@ -48,8 +48,12 @@
 //! ```
 //!
 //! taking the patches' errors as independent: the reported variances carry no correlation
-//! between patches. Measured over 8-16 seeds at 2e6 rays on the Cornell box (open front), the
-//! mean `z²` of the balance is 0.5-0.8 on a uniform mesh of 943 patches (the standard error
+//! between patches, but for the faces of a pooled cluster ([`crate::clusters`]), which share
+//! one estimate of irradiance: their errors are one error scaled, `sqrt(V_i)` each, so their
+//! terms `c_i sqrt(V_i)` are summed before squaring (on the sun- and sky-lit atrium a small
+//! part: 0.5% of the variance at 2e6 rays, the lights' delivery and the probe's fractions
+//! being most of it). Measured over 8-16 seeds at 2e6 rays on the Cornell box (open front),
+//! the mean `z²` of the balance is 0.5-0.8 on a uniform mesh of 943 patches (the standard error
 //! is honest, a little large), but 2.2-3.3 on the default adaptive mesh of about 5 700
 //! (`combined`, `prr`, `bidirectional`), and still 1.7-2.1 for `combined` run on that mesh
 //! without the refinement's pooling (12 seeds). The many small patches of a face gather from
@@ -69,6 +73,7 @@
 //! [`Answer::warnings`](crate::Answer::warnings): the answer loses or makes light beyond
 //! its error bars (a bias, or error bars too small).
 
+use crate::clusters::ALONE;
 use glam::DVec3;
 use mcrad_combine::Estimate;
 use mcrad_mc_radiosity::{RayFates, ray_fates};
@@ -164,10 +169,14 @@ fn rounding(emitted: f64) -> f64 {
 }
 
 /// The probe's rays for a run whose method cast `method_rays` rays on `patches` patches:
-/// `method_rays / 16`, and at least [`MIN_PROBE_RAYS`] per patch.
+/// `method_rays /` [`PROBE_SHARE`], and at least [`MIN_PROBE_RAYS`] per patch.
 pub(crate) fn probe_budget(method_rays: u64, patches: usize) -> u64 {
-    (method_rays / 16).max(MIN_PROBE_RAYS as u64 * patches as u64)
+    (method_rays / PROBE_SHARE).max(MIN_PROBE_RAYS as u64 * patches as u64)
 }
+
+/// The probe casts one ray per this many of the method's (at least [`MIN_PROBE_RAYS`] a
+/// patch).
+pub(crate) const PROBE_SHARE: u64 = 16;
 
 /// The fewest probe rays a patch gets (two give a sample variance).
 const MIN_PROBE_RAYS: u32 = 2;
@@ -309,10 +318,13 @@ pub(crate) fn closure(
     estimate: &Estimate,
     probe: &Probe,
     light: &[(DVec3, DVec3)],
+    groups: &[u32],
 ) -> Closure {
     let variance = estimate.variance();
     let (mut emitted, mut absorbed, mut escaped, mut var) =
         (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    // per group of pooled patches, `sum c_i sqrt(V_i)`: their errors are one error scaled
+    let mut shared: Vec<DVec3> = Vec::new();
     for (i, p) in mesh.patches().iter().enumerate() {
         let (area, e, rho) = (p.area, p.emission.as_dvec3(), p.reflectance.as_dvec3());
         let b = estimate.radiosity()[i];
@@ -334,9 +346,20 @@ pub(crate) fn closure(
         escaped += area * b * esc;
         if let Some(v) = variance {
             let c = area * (a + s);
-            var += c * c * v[i] + area * area * b * b * s * (DVec3::ONE - s) / (k - 1.0);
+            match groups.get(i).copied().filter(|&g| g != ALONE) {
+                Some(g) => {
+                    let g = g as usize;
+                    if shared.len() <= g {
+                        shared.resize(g + 1, DVec3::ZERO);
+                    }
+                    shared[g] += c * v[i].max(DVec3::ZERO).map(f64::sqrt);
+                }
+                None => var += c * c * v[i],
+            }
+            var += area * area * b * b * s * (DVec3::ONE - s) / (k - 1.0);
         }
     }
+    var += shared.iter().map(|&x| x * x).sum::<DVec3>();
     let balance = emitted - absorbed - escaped;
     Closure {
         emitted: emitted.to_array(),
@@ -376,8 +399,19 @@ mod tests {
         );
         let seen = probe(&answer.mesh, &answer.bvh, rays, 11);
         assert!(seen.escaped.iter().all(|&e| e == 0), "a closed furnace");
-        let honest = closure(&answer.mesh, &answer.estimate, &seen, &[]);
+        let honest = closure(&answer.mesh, &answer.estimate, &seen, &[], &[]);
         assert_eq!(honest.warning(), None, "{honest:?}");
+        // Pooled into one group, the patches' errors are one error: in the closed furnace (no
+        // probe variance) the variance is `(sum c sqrt V)²`, between half and all of `n` times
+        // `sum c² V` for patches this alike (Cauchy-Schwarz), and the balance is unchanged.
+        let n = answer.mesh.patches().len();
+        let one = closure(&answer.mesh, &answer.estimate, &seen, &[], &vec![0; n]);
+        assert_eq!(one.balance, honest.balance);
+        let (alone, pooled) = (honest.balance_se.unwrap(), one.balance_se.unwrap());
+        for c in 0..3 {
+            let ratio = (pooled[c] / alone[c]).powi(2) / n as f64;
+            assert!((0.5..=1.0 + 1e-9).contains(&ratio), "{ratio}");
+        }
         let e = &answer.estimate;
         let high = Estimate::new(
             e.radiosity().iter().map(|b| *b * 1.1).collect(),
@@ -385,7 +419,7 @@ mod tests {
             e.rays(),
         )
         .unwrap();
-        let biased = closure(&answer.mesh, &high, &seen, &[]);
+        let biased = closure(&answer.mesh, &high, &seen, &[], &[]);
         // B 10% high: absorbed = sum A (1 - rho) / rho (1.1 B - E) = 1.2 emitted
         let expected = -0.2 * biased.emitted[0];
         assert!((biased.balance[0] - expected).abs() < 0.02 * expected.abs());

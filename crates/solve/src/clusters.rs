@@ -42,16 +42,25 @@ pub(crate) struct PoolCounts {
     pub splits: usize,
 }
 
-/// `estimate` pooled over `clusters` of `mesh` (see the module documentation), and what the
-/// pooling did. An estimate without variances is returned as it is (nothing to test against).
+/// Per patch, the group whose estimate it shares after pooling ([`pool_clusters`]; numbered
+/// from 0), or [`ALONE`]: the members of a group have fully correlated errors (one `H` each).
+pub(crate) type Groups = Vec<u32>;
+
+/// A patch that shares no estimate.
+pub(crate) const ALONE: u32 = u32::MAX;
+
+/// `estimate` pooled over `clusters` of `mesh` (see the module documentation), what the
+/// pooling did, and the groups that share an estimate. An estimate without variances is
+/// returned as it is (nothing to test against).
 pub(crate) fn pool_clusters(
     mesh: &Mesh,
     clusters: &Clusters,
     estimate: &Estimate,
-) -> Result<(Estimate, PoolCounts), EstimateError> {
+) -> Result<(Estimate, PoolCounts, Groups), EstimateError> {
     let mut counts = PoolCounts::default();
+    let mut groups = vec![ALONE; mesh.patches().len()];
     let Some(variance) = estimate.variance() else {
-        return Ok((estimate.clone(), counts));
+        return Ok((estimate.clone(), counts, groups));
     };
     let mut b = estimate.radiosity().to_vec();
     let mut v = variance.to_vec();
@@ -59,17 +68,19 @@ pub(crate) fn pool_clusters(
     for cluster in clusters.iter() {
         members.clear();
         members.extend_from_slice(cluster);
-        settle(mesh, &mut members, &mut b, &mut v, &mut counts);
+        settle(mesh, &mut members, &mut b, &mut v, &mut groups, &mut counts);
     }
-    Ok((Estimate::new(b, Some(v), estimate.rays())?, counts))
+    Ok((Estimate::new(b, Some(v), estimate.rays())?, counts, groups))
 }
 
-/// Tests `members` and pools them into `b`, `v`, or splits them and goes on with each half.
+/// Tests `members` and pools them into `b`, `v` (numbering their group in `groups`), or
+/// splits them and goes on with each half.
 fn settle(
     mesh: &Mesh,
     members: &mut [u32],
     b: &mut [DVec3],
     v: &mut [DVec3],
+    groups: &mut [u32],
     counts: &mut PoolCounts,
 ) {
     if members.len() < 2 {
@@ -104,8 +115,8 @@ fn settle(
         });
         counts.splits += 1;
         let (left, right) = members.split_at_mut(members.len() / 2);
-        settle(mesh, left, b, v, counts);
-        settle(mesh, right, b, v, counts);
+        settle(mesh, left, b, v, groups, counts);
+        settle(mesh, right, b, v, groups, counts);
         return;
     }
     let var_h = DVec3::select(
@@ -115,6 +126,7 @@ fn settle(
     );
     for &i in members.iter() {
         let (p, i) = (&patches[i as usize], i as usize);
+        groups[i] = counts.groups as u32;
         let rho = p.reflectance.as_dvec3();
         for c in 0..3 {
             // a channel no member reflects keeps its members' own values

@@ -17,6 +17,10 @@ pub enum Error {
         /// its start's), or `None` for one patch per face.
         max_edge: Option<f32>,
     },
+    /// An [`Input::SceneOnce`](crate::Input::SceneOnce) held no scene (a solve took it before,
+    /// or a thread panicked holding its lock).
+    #[error("the scene was taken by an earlier solve: hand each solve its own")]
+    SceneTaken,
     /// The ray caster could not be built over the mesh.
     #[error("could not build the ray caster: {0}")]
     Caster(#[from] BuildError),

@@ -57,6 +57,6 @@ pub use error::Error;
 pub use mcrad_mc_radiosity::DEFAULT_RAYS;
 pub use memory::{BYTES_FIXED, BYTES_PER_ELEMENT, MemoryEstimate};
 pub use pipeline::{Answer, Observer, Progress, solve};
-pub use problem::{Budget, Input, MeshPlan, Problem, Settings};
+pub use problem::{AfterSolve, Budget, Input, MeshPlan, Problem, Settings};
 pub use state::{RunState, piece_seed};
 pub use stats::{ClusterStats, RefinementRound, RunStats};

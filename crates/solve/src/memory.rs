@@ -41,6 +41,10 @@ impl Problem<'_> {
         let (elements, scene_bytes) = match self.input {
             Input::Mesh(mesh) => (mesh.patches().len() as u64, 0),
             Input::Scene(scene) => (plan_elements(scene, self), scene_bytes(scene)),
+            Input::SceneOnce(held) => match held.lock().ok().as_deref().and_then(Option::as_ref) {
+                Some(scene) => (plan_elements(scene, self), scene_bytes(scene)),
+                None => (0, 0),
+            },
         };
         let bytes = BYTES_FIXED
             .saturating_add(scene_bytes)

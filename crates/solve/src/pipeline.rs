@@ -1,6 +1,6 @@
 //! [`solve`]: mesh, refine, run, pool, under one budget.
 
-use crate::clusters::{PoolCounts, pool_clusters};
+use crate::clusters::{Groups, PoolCounts, pool_clusters};
 use crate::problem::Input;
 use crate::state::Identity;
 use crate::stats::ClusterStats;
@@ -20,6 +20,7 @@ use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
 use mcrad_scene_io::Scene;
 use std::ops::ControlFlow;
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
@@ -55,14 +56,17 @@ pub struct Answer {
     pub complete_steps: bool,
     /// What the caller should be told (a repair, a setting without effect), one line each.
     pub warnings: Vec<String>,
-    /// With punctual lights (point, spot, sun; the sky's light not included): their direct
-    /// irradiance `H_d,i` per patch (W/m² per channel, mesh order) as this piece's lights'
-    /// pre-pass estimated it, the part of `estimate` that is direct light being `rho_i H_d,i`.
-    /// A renderer or baker that draws `rho(x) H_d(x)` per pixel with its own shadow rays takes
-    /// the rest, `B_i - rho_i H_d,i` (clamped at 0), from the solution. For a continued or
-    /// pooled answer the pieces' own estimates of `H_d` differ by their noise. `None` without
-    /// punctual lights, or when the run was cancelled within a step.
+    /// With punctual lights (point, spot, sun) or a sky: their direct irradiance `H_d,i` per
+    /// patch (W/m² per channel, mesh order; the lights' and the sky's together) as this
+    /// piece's lights' pre-pass estimated it, the part of `estimate` that is direct light
+    /// being `rho_i H_d,i`. A renderer or baker that draws `rho(x) H_d(x)` per pixel with its
+    /// own shadow rays takes the rest, `B_i - rho_i H_d,i` (clamped at 0), from the solution.
+    /// For a continued or pooled answer the pieces' own estimates of `H_d` differ by their
+    /// noise. `None` without lights or sky, or when the run was cancelled within a step.
     pub direct: Option<Vec<DVec3>>,
+    /// The sky's part of `direct` (W/m² per channel, mesh order; 0 without a sky); `None` when
+    /// `direct` is.
+    pub sky_direct: Option<Vec<DVec3>>,
 }
 
 /// A complete step of the run, as the observer of [`solve`] sees it.
@@ -125,8 +129,8 @@ struct Run<'a> {
     /// Small faces that share one estimate of irradiance where the light allows
     /// ([`crate::clusters`]); empty but on the adaptive plan.
     clusters: &'a Clusters,
-    /// What the last pooling over `clusters` did.
-    pooled: std::sync::Mutex<PoolCounts>,
+    /// What the last pooling over `clusters` did, and its groups.
+    pooled: std::sync::Mutex<(PoolCounts, Groups)>,
 }
 
 impl Run<'_> {
@@ -151,9 +155,9 @@ impl Run<'_> {
         if self.clusters.is_empty() {
             return Ok(estimate.clone());
         }
-        let (pooled, counts) = pool_clusters(self.mesh, self.clusters, estimate)?;
+        let (pooled, counts, groups) = pool_clusters(self.mesh, self.clusters, estimate)?;
         if let Ok(mut last) = self.pooled.lock() {
-            *last = counts;
+            *last = (counts, groups);
         }
         Ok(pooled)
     }
@@ -227,30 +231,50 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             });
         }
     }
+    // A scene handed over (`Input::SceneOnce`) is dropped once meshed.
+    let mut owned: Option<Scene> = match problem.input {
+        Input::SceneOnce(held) => Some(
+            held.lock()
+                .ok()
+                .and_then(|mut s| s.take())
+                .ok_or(Error::SceneTaken)?,
+        ),
+        _ => None,
+    };
+    let scene: Option<&Scene> = match problem.input {
+        Input::Scene(scene) => Some(scene),
+        Input::SceneOnce(_) => owned.as_ref(),
+        Input::Mesh(_) => None,
+    };
     let mut config = schedule_config(settings, &budget);
-    if let Input::Scene(scene) = problem.input {
+    if let Some(scene) = scene {
         config.lights = scene.lights().to_vec();
         config.sky = scene.sky().cloned();
     }
     let lighting = crate::state::lighting_fingerprint(&config.lights, config.sky.as_ref());
+    let diagonal = scene.map_or(0.0, |s| s.bounds().diagonal());
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
-    let (mesh, refinement, history) = match (problem.input, settings.mesh, history) {
-        (Input::Mesh(mesh), _, _) => (mesh.clone(), None, None),
-        (Input::Scene(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
+    let (mesh, mut refinement, history) = match (problem.input, scene, settings.mesh, history) {
+        (Input::Mesh(mesh), ..) => (mesh.clone(), None, None),
+        (_, None, ..) => return Err(Error::SceneTaken),
+        (_, Some(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
             let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
                 .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
-        (Input::Scene(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
+        (_, Some(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
             // a state saved from a caller's mesh: its mesh is not the scene's to refine
             let saved = problem.resume.map_or(0, |s| s.patch_numbers().len());
             return Err(Error::StateMesh { saved, now: 0 });
         }
-        (Input::Scene(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
+        (_, Some(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
+            let start = adaptive_start(scene, settings, config.rays)?;
+            // meshed: a scene handed over goes before the refinement builds its casters
+            drop(owned.take());
             let (mesh, refined, history) =
-                adaptive_mesh(scene, settings, &budget, config.rays, &mut warnings)?;
+                adaptive_refine(start, settings, &budget, &config, &mut warnings)?;
             if config.rays != u64::MAX {
                 // The method gets what the refinement left, and at least half the budget.
                 config.rays = config
@@ -261,7 +285,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             }
             (mesh, Some(refined), Some(history))
         }
-        (Input::Scene(scene), plan, _) => {
+        (_, Some(scene), plan, _) => {
             let subdivision = match plan {
                 MeshPlan::PerFace => Subdivision::None,
                 MeshPlan::Uniform { max_edge: Some(l) } => Subdivision::MaxEdge(l),
@@ -285,8 +309,18 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             (mesh, None, None)
         }
     };
+    drop(owned.take());
     warnings.extend(sliver_warning(&mesh));
-    let bvh = mesh.caster()?;
+    // the refinement's caster when it is over the final mesh (the same a build gives), else
+    // a new one
+    let reused = refinement
+        .as_mut()
+        .and_then(|r| r.caster.take())
+        .and_then(|c| Arc::try_unwrap(c).ok());
+    let bvh = match reused {
+        Some(bvh) => bvh,
+        None => mesh.caster()?,
+    };
     let back = mesh.back_face_offset();
     let patch: Vec<u32> = mesh
         .patches()
@@ -307,20 +341,27 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     // Small neighbouring faces share one estimate of irradiance (the adaptive plan only: a
     // fixed mesh is solved as given).
     let clusters = match (problem.input, settings.mesh) {
-        (Input::Scene(scene), MeshPlan::Adaptive { .. }) if !deterministic => Clusters::build(
-            &mesh,
-            ClusterBounds {
-                max_size: scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION,
-                cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
-            },
-        ),
+        (Input::Scene(_) | Input::SceneOnce(_), MeshPlan::Adaptive { .. }) if !deterministic => {
+            Clusters::build(
+                &mesh,
+                ClusterBounds {
+                    max_size: diagonal as f32 * DEFAULT_COARSE_EDGE_FRACTION,
+                    cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
+                },
+            )
+        }
         _ => Clusters::default(),
+    };
+    // The caller's work after the solve, timed now that the mesh and caster exist.
+    let after_seconds = match (problem.after, budget.seconds) {
+        (Some(after), Some(_)) if !deterministic => (after.0)(&mesh, &bvh).max(0.0),
+        _ => 0.0,
     };
     let setup_seconds = clock.elapsed().as_secs_f64();
     // Under a time budget the lights' direct-light pass takes a quarter of the time left at
     // most (64 points a patch of a large mesh could take it all).
     if let Some(seconds) = budget.seconds.filter(|_| !deterministic) {
-        config.lights_seconds = Some(((seconds - setup_seconds) / 4.0).max(0.0));
+        config.lights_seconds = Some(((seconds - setup_seconds - after_seconds) / 4.0).max(0.0));
     }
 
     // A continuation is an independent run with its own streams (piece number > 0).
@@ -336,10 +377,19 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         resumed: problem.resume,
         lighting,
         clusters: &clusters,
-        pooled: std::sync::Mutex::new(PoolCounts::default()),
+        pooled: std::sync::Mutex::new((PoolCounts::default(), Groups::new())),
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deadline = if deterministic { None } else { budget.seconds };
+    let after = After {
+        seconds: after_seconds,
+        probe_per_ray: if problem.closure {
+            let shadow = config.lights.len() + usize::from(config.sky.is_some());
+            (1 + shadow) as f64 / crate::closure::PROBE_SHARE as f64
+        } else {
+            0.0
+        },
+    };
     let start = Instant::now();
     let mut complete_steps = false;
     let mut last_step: Option<Solution> = None;
@@ -386,6 +436,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             unshot_fraction: f64::NAN,
             stop: StopReason::Stopped,
             direct: None,
+            sky_direct: None,
         });
         if flow.is_break() {
             return ControlFlow::Break(());
@@ -399,7 +450,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             // far, size the rest to what fits: time up is a budget spent, not an
             // interruption (a shooting extrapolates what it could not shoot).
             let left = seconds_budget - clock.elapsed().as_secs_f64();
-            let fits = rays_that_fit(left, seconds, step.rays);
+            let fits = rays_that_fit(left, seconds, step.rays, after);
             if step.next_rays > fits {
                 step.limit_rays_left(fits);
             }
@@ -418,6 +469,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     let direct = solution.direct.clone();
+    let sky_direct = solution.sky_direct.clone();
     let (estimate, state) =
         run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
     // a run stopped in a step that is not an answer lacks part of its light
@@ -445,7 +497,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             config.seed,
         );
         let probe = crate::closure::probe(&mesh, &bvh, probe_rays, config.seed);
-        crate::closure::closure(&mesh, &estimate, &probe, &light)
+        let pooled = run.pooled.lock().map(|p| p.1.clone()).unwrap_or_default();
+        crate::closure::closure(&mesh, &estimate, &probe, &light, &pooled)
     });
     if let Some(c) = &closure {
         warnings.extend(c.warning());
@@ -470,7 +523,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             .map(|r| r.rounds.iter().map(RefinementRound::from).collect()),
         closure,
         clusters: (!clusters.is_empty()).then(|| {
-            let pooled = run.pooled.lock().map(|c| *c).unwrap_or_default();
+            let pooled = run.pooled.lock().map(|c| c.0).unwrap_or_default();
             ClusterStats {
                 clusters: clusters.len(),
                 faces: clusters.patches(),
@@ -481,6 +534,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             }
         }),
     };
+    let no_direct = config.lights.is_empty() && config.sky.as_ref().is_none_or(|s| s.is_dark());
     Ok(Answer {
         mesh,
         bvh,
@@ -492,11 +546,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         cancelled,
         complete_steps,
         warnings,
-        direct: if config.lights.is_empty() {
-            None
-        } else {
-            direct
-        },
+        direct: if no_direct { None } else { direct },
+        sky_direct: if no_direct { None } else { sky_direct },
     })
 }
 
@@ -593,20 +644,14 @@ fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
     bounds
 }
 
-/// The adaptive mesh: the scene cut to the diagonal / 40 when the cut adds at most
+/// The adaptive mesh's start: the scene cut to the diagonal / 40 when the cut adds at most
 /// 1 / [`START_SHARE`] of the patch budget to one element per face (small faces stay whole:
 /// only faces larger than the cut are split), else to the uniform default when that adds at
 /// most the budget, else one element per face (every start within the elements the ray budget
-/// pays [`START_RAYS_PER_ELEMENT`] for); refined with a quarter of the ray budget and of the
-/// time, within the budget raised to one element per face plus half of it
-/// ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement off.
-fn adaptive_mesh(
-    scene: &Scene,
-    settings: &Settings,
-    budget: &Budget,
-    rays: u64,
-    warnings: &mut Vec<String>,
-) -> Result<(Mesh, Refined, History), Error> {
+/// pays [`START_RAYS_PER_ELEMENT`] for), within the budget raised to one element per face plus
+/// half of it ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement
+/// off. Refined by [`adaptive_refine`] (which needs the scene no more).
+fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<AdaptiveMesh, Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
     let (faces, asked) = (
@@ -640,6 +685,20 @@ fn adaptive_mesh(
         mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
             .map_err(mesh_error(Subdivision::None))?;
     }
+    Ok(mesh)
+}
+
+/// The adaptive mesh `mesh` ([`adaptive_start`]) refined with a quarter of the ray budget and
+/// of the time (`config`: the run's schedule, with the scene's lights and sky), as a mesh, the
+/// refinement and its history.
+fn adaptive_refine(
+    mut mesh: AdaptiveMesh,
+    settings: &Settings,
+    budget: &Budget,
+    config: &ScheduleConfig,
+    warnings: &mut Vec<String>,
+) -> Result<(Mesh, Refined, History), Error> {
+    let rays = config.rays;
     let config = AdaptiveConfig {
         rays: if rays == u64::MAX {
             u64::MAX
@@ -648,8 +707,8 @@ fn adaptive_mesh(
         },
         seconds: budget.seconds.map(|t| t / 4.0),
         seed: settings.seed,
-        lights: scene.lights().to_vec(),
-        sky: scene.sky().cloned(),
+        lights: config.lights.clone(),
+        sky: config.sky.clone(),
         ..Default::default()
     };
     let mut refined = refine(&mut mesh, &config)?;
@@ -682,9 +741,23 @@ const START_RAYS_PER_ELEMENT: u64 = 16;
 /// work that does not scale with rays and the writing of the outputs.
 const TIME_FILL: f64 = 0.97;
 
+/// What runs after the method on the same clock: the caller's work ([`Problem::after`]), and
+/// the closure probe's rays, a share of the method's.
+#[derive(Debug, Clone, Copy, Default)]
+struct After {
+    /// The caller's work, seconds.
+    seconds: f64,
+    /// The closure probe's rays per ray of the method: its rays
+    /// ([`crate::closure::PROBE_SHARE`]) and their shadow rays (one per light and the sky); 0
+    /// without a closure.
+    probe_per_ray: f64,
+}
+
 /// The rays that fit in `left` seconds at the speed of a run that cast `rays` rays in
-/// `seconds` seconds, with [`TIME_FILL`]'s margin (0 when no time is left).
-fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
+/// `seconds` seconds, with [`TIME_FILL`]'s margin, once what runs after the method has its
+/// time: `n` more rays cost `n + p (rays + n)` rays' time, `p` the probe's rays per method
+/// ray, after `after.seconds` (0 when no time is left).
+fn rays_that_fit(left: f64, seconds: f64, rays: u64, after: After) -> u64 {
     if left <= 0.0 {
         return 0;
     }
@@ -695,5 +768,10 @@ fn rays_that_fit(left: f64, seconds: f64, rays: u64) -> u64 {
     if per_ray <= 0.0 {
         return u64::MAX;
     }
-    (TIME_FILL * left / per_ray).min(u64::MAX as f64) as u64
+    let p = after.probe_per_ray;
+    let room = TIME_FILL * (left - after.seconds) / per_ray - p * rays as f64;
+    if room <= 0.0 {
+        return 0;
+    }
+    (room / (1.0 + p)).min(u64::MAX as f64) as u64
 }

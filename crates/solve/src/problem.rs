@@ -4,6 +4,7 @@ use crate::{Error, RunState};
 use mcrad_mc_radiosity::Kind;
 use mcrad_mc_radiosity::{ControlVariate, DEFAULT_UNSHOT_THRESHOLD, Method, Sampler};
 use mcrad_meshing::{DEFAULT_MAX_PATCHES, Mesh};
+use mcrad_raycast::Bvh;
 use mcrad_reference::DEFAULT_VISIBILITY_TOLERANCE;
 use mcrad_scene_io::Scene;
 use std::sync::atomic::AtomicBool;
@@ -180,6 +181,13 @@ impl Budget {
 pub enum Input<'a> {
     /// A scene, meshed by the settings' [`MeshPlan`].
     Scene(&'a Scene),
+    /// A scene that [`crate::solve`] takes out of the mutex and drops once it is meshed, before
+    /// the refinement and the run build their ray casters: its faces and positions (about 70
+    /// bytes a triangle) are not held beside the mesh at the solve's peak. Otherwise as
+    /// [`Input::Scene`], with the same answer. The caller finds `None` there after the solve
+    /// (also after an error that came after the take); an empty mutex is
+    /// [`crate::Error::SceneTaken`].
+    SceneOnce(&'a std::sync::Mutex<Option<Scene>>),
     /// A mesh built by the caller (the plan is not used).
     Mesh(&'a Mesh),
 }
@@ -203,6 +211,22 @@ pub struct Problem<'a> {
     /// Report where the power went ([`crate::RunStats::closure`]), with probe rays of about a
     /// sixteenth of the method's beyond the budget.
     pub closure: bool,
+    /// The caller's work after the solve on the clock of [`Budget::seconds`] (a render); `None`:
+    /// none. Under a time budget the solve leaves it its time.
+    pub after: Option<AfterSolve<'a>>,
+}
+
+/// The caller's work after a solve, on its clock ([`Problem::after`]): asked once, when the
+/// mesh and its ray caster are built, for the wall-clock seconds it will take (`>= 0`; e.g. a
+/// render timed on a small image). Under [`Budget::seconds`] the solve then stops early
+/// enough to leave them, as it leaves the closure probe's rays their time.
+#[derive(Clone, Copy)]
+pub struct AfterSolve<'a>(pub &'a (dyn Fn(&Mesh, &Bvh) -> f64 + Sync));
+
+impl std::fmt::Debug for AfterSolve<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("AfterSolve(..)")
+    }
 }
 
 impl<'a> Problem<'a> {
@@ -216,6 +240,7 @@ impl<'a> Problem<'a> {
             resume: None,
             cancel: None,
             closure: false,
+            after: None,
         }
     }
 }

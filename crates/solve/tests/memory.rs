@@ -101,3 +101,53 @@ fn a_budget_below_the_estimate_refuses_the_problem() {
     assert!(problem.memory_estimate().bytes <= estimate.bytes);
     assert!(solve(&problem, &mut go).is_ok());
 }
+
+/// A scene handed over ([`Input::SceneOnce`]) is taken and dropped once meshed: the answer is
+/// the borrowed scene's, bit for bit, for the adaptive and the uniform plan and a continued
+/// (replayed) run; the mutex is empty afterwards, a second solve of it is refused
+/// ([`Error::SceneTaken`]), and so is none at all; the memory check still reads the scene.
+#[test]
+fn a_scene_handed_over_gives_the_same_answer_and_is_dropped() {
+    use mcrad_solve::Input;
+    use std::sync::Mutex;
+    let scene = scene("cornell-box.obj");
+    let plans = [
+        MeshPlan::default(),
+        MeshPlan::Uniform {
+            max_edge: Some(0.1),
+        },
+    ];
+    for plan in plans {
+        let mut problem = Problem::new(&scene);
+        problem.settings.mesh = plan;
+        problem.budget = Budget {
+            rays: Some(50_000),
+            ..Budget::default()
+        };
+        let borrowed = solve(&problem, &mut go).unwrap();
+        let handed = Mutex::new(Some(scene.clone()));
+        let mut once = problem;
+        once.input = Input::SceneOnce(&handed);
+        let estimate = once.memory_estimate();
+        assert_eq!(estimate, problem.memory_estimate());
+        let answer = solve(&once, &mut go).unwrap();
+        assert!(
+            handed.lock().unwrap().is_none(),
+            "{plan:?}: the scene is dropped"
+        );
+        assert_eq!(answer.estimate.radiosity(), borrowed.estimate.radiosity());
+        assert_eq!(answer.estimate.variance(), borrowed.estimate.variance());
+        assert_eq!(answer.stats.patches, borrowed.stats.patches);
+        assert!(matches!(solve(&once, &mut go), Err(Error::SceneTaken)));
+        // a continued run replays the adaptive mesh from the scene handed over
+        if let Some(state) = &borrowed.state {
+            let mut resumed = problem;
+            resumed.resume = Some(state);
+            let again = solve(&resumed, &mut go).unwrap();
+            let handed = Mutex::new(Some(scene.clone()));
+            resumed.input = Input::SceneOnce(&handed);
+            let once_again = solve(&resumed, &mut go).unwrap();
+            assert_eq!(once_again.estimate.radiosity(), again.estimate.radiosity());
+        }
+    }
+}

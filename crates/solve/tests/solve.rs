@@ -207,3 +207,34 @@ fn a_continued_run_refuses_another_sky_or_sun() {
         }
     }
 }
+
+/// Under a time budget, the caller's work after the solve ([`Problem::after`], asked once with
+/// the solved mesh) gets its time: when it claims the whole budget the run stops after its
+/// first step, where without it the ray budget ends the run (an hour is far more than 1e6
+/// rays need).
+#[test]
+fn a_time_budget_leaves_the_callers_work_after_the_solve_its_time() {
+    let scene = furnace();
+    let mut problem = Problem::new(&scene);
+    problem.settings.mesh = MeshPlan::Uniform { max_edge: None };
+    problem.settings.method = Method::Prr;
+    problem.budget.rays = Some(1_000_000);
+    problem.budget.seconds = Some(3600.0);
+    let free = solve(&problem, &mut go).unwrap();
+    assert!(free.stats.iterations > 1);
+    assert!(free.estimate.rays() >= 990_000, "{}", free.estimate.rays());
+
+    let asked = std::sync::atomic::AtomicUsize::new(0);
+    let patches = free.mesh.patches().len();
+    let after = |mesh: &mcrad_meshing::Mesh, _: &mcrad_raycast::Bvh| {
+        asked.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        assert_eq!(mesh.patches().len(), patches);
+        3600.0
+    };
+    problem.after = Some(mcrad_solve::AfterSolve(&after));
+    let busy = solve(&problem, &mut go).unwrap();
+    assert_eq!(asked.load(std::sync::atomic::Ordering::SeqCst), 1);
+    assert_eq!(busy.stats.iterations, 1);
+    assert!(busy.estimate.rays() < free.estimate.rays() / 4);
+    assert_eq!(busy.stats.stop, mcrad_mc_radiosity::StopReason::BudgetSpent);
+}

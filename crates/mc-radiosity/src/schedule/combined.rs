@@ -55,6 +55,7 @@ use super::{
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
+use crate::replicates::Row;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
@@ -69,6 +70,12 @@ const SHARE: (f64, f64) = (0.1, 0.9);
 struct Shots {
     /// Passes merged by rays (Algorithm 1).
     merged: Estimate,
+    /// Its error samples (W/m², [`Row`]), the passes' merged with the same weights (the
+    /// passes are independent, so samples of the same group add).
+    sketch: Vec<Row>,
+    /// The part of its variance the samples do not hold ((W/m²)², `Shooting::unsampled`),
+    /// merged as the passes are.
+    unsampled: Vec<DVec3>,
     /// Mean power carried by a shooting ray, weighted as the merge weights the passes:
     /// `sum_k w_k² p_k` with `w_k = n_k / n` (W per channel).
     ray_power: DVec3,
@@ -130,6 +137,11 @@ fn with_context<C: RayCaster>(
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
     let mut gathers = Gathers::default();
+    // The gathers' images of the shooting's error samples, merged by rays as the gathers are.
+    let mut gathered_sketch: Vec<Row> = Vec::new();
+    // The gathers' own noise measured by their replicates, merged by rays as the gathers are
+    // ((W/m²)², `Measured`).
+    let mut measured: Vec<DVec3> = Vec::new();
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
@@ -157,12 +169,16 @@ fn with_context<C: RayCaster>(
         shots = Some(match shots.take() {
             None => Shots {
                 merged: s.estimate,
+                sketch: s.sketch,
+                unsampled: s.unsampled,
                 ray_power,
             },
             Some(old) => {
                 let w = asked as f64 / shot_rays as f64;
                 Shots {
                     merged: accumulate(Some(old.merged), s.estimate)?,
+                    sketch: blend(old.sketch, &s.sketch, w),
+                    unsampled: by_rays(&old.unsampled, &s.unsampled, w),
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
                 }
             }
@@ -173,21 +189,56 @@ fn with_context<C: RayCaster>(
         // patches, so what a gather inherits from it is the inherited-noise term; not from the
         // combination, whose errors the gathers themselves correlate (module documentation).
         let gather_budget = budget.saturating_sub(pass_rays);
-        let (g, inherited) = split_with_budget(
+        let split = split_with_budget(
             ctx,
             &shots_now.merged,
+            Some(&shots_now.sketch),
             gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
+        let (g, inherited, image) = (split.estimate, split.inherited, split.image);
         // What the pass did not use (rays per patch are whole) goes to the passes after it.
         passes.refund(budget.saturating_sub(pass_rays + g.rays()));
         // And what the shooting cast beyond its share (its roulette tail) is taken from them.
         passes.charge((pass_rays + g.rays()).saturating_sub(budget));
         gather_rays += g.rays();
         run.rays += g.rays();
+        // This gather's own noise, measured: the squares of its independent parts' error
+        // samples (the indirect gathering's and the direct light's replicates).
+        let squares: Vec<DVec3> = split.own_errors[0]
+            .iter()
+            .zip(&split.own_errors[1])
+            .map(|(a, b)| *a * *a + *b * *b)
+            .collect();
+        measured = if measured.is_empty() {
+            squares
+        } else {
+            by_rays(
+                &measured,
+                &squares,
+                g.rays() as f64 / gather_rays.max(1) as f64,
+            )
+        };
+        gathered_sketch = if gathered_sketch.is_empty() {
+            image
+        } else {
+            blend(
+                gathered_sketch,
+                &image,
+                g.rays() as f64 / gather_rays.max(1) as f64,
+            )
+        };
         gathers.add(g, &inherited)?;
         let g = gathers.estimate()?;
-        let c = combine(mesh, shots_now, &g, run.merged.as_ref(), weighting)?;
+        let own = gathers.own().ok_or(EstimateError::MissingVariance)?;
+        let own_measured = (ctx.sampling() == crate::Sampler::Qmc).then_some(&measured[..]);
+        let c = combine(
+            mesh,
+            shots_now,
+            (&g, own, &gathered_sketch, own_measured),
+            run.merged.as_ref(),
+            weighting,
+        )?;
         gathered = Some(g);
         if !run.replace(c, &mut passes, observer)? {
             break;
@@ -236,12 +287,49 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 }
 
 /// `S` and `G` merged by `weighting`, each operand carrying its expected variance at the
-/// reflected radiosity of `previous` (the last combination; `S` in the first pass); the
-/// variance reported is the merge's with the estimates' own variances.
+/// reflected radiosity of `previous` (the last combination; `S` in the first pass).
+///
+/// The variance reported is the merge's error, `C_i - B_i = w_i e^S_i + (1 - w_i) e^G_i`, with
+/// `e^G_i` made of the gathers' own noise (their rays and emitter samples, independent of `S`)
+/// and what they inherit from `S`, `rho_i sum_j F̂_ij e^S_j`, which is correlated with `e^S_i`
+/// and between patches (shooting conserves power: in a closed furnace of one patch per face a
+/// gather inherits `-0.2 rho e^S_i`, not `rho² sum_j F_ij² V_j`). Both parts of `e^S` come
+/// from the same error samples `z_g` ([`Row`]: `S`'s and their images through the gathers,
+/// `y_g`), so
+/// `V_i = (1 - w_i)² own^G_i + sum_g (w_i z_gi + (1 - w_i) y_gi)²`, per channel, for what
+/// the samples hold.
+///
+/// **The gathers' own noise** `own^G_i` is, under quasi-Monte Carlo rays, what their
+/// replicates measure (`measured`: per pass the squares of the indirect gathering's and the
+/// direct light's signed replicate differences, merged by rays as the gathers are; unbiased,
+/// one degree of freedom a pass and part): the independent-ray formula `own` keeps its shape
+/// over the patches of an input face `f` and takes the face's measured scale,
+/// `own_i sum_f measured / sum_f own`. A face of many patches measures it with many degrees
+/// of freedom; a face of one patch (`--no-subdivide`) with one per pass and part, where the
+/// formula (drawn towards by each round's own gain) overstated its stratified rays' noise
+/// about ten times (the slivers room of `cargo xtask calibrate`).
+///
+/// **What the samples miss**: rays alone in their replicate (a roulette tail's most of all)
+/// are shooting's error of the same transport, so it is taken to reach the combination as the
+/// held part does over the scene: `t sum_g z_g² -> sum_g (w z_g + (1 - w) y_g)²` summed over
+/// every patch gives the factor `t` (per channel), and patch `i` adds `t U_i M_f / U_f`, with
+/// `U_i` the lone rays' independent-ray formula and `M_f` the missed part of its input face
+/// `f`: at most what the gain-calibrated total `V^S_f` leaves beyond the samples' `Z_f =
+/// sum_g z_g²` and at most `U_f` (each overstates it somewhere: `U` under stratified rays,
+/// `V^S` on faces of one patch, whose gain is drawn towards the formula). (The face's own
+/// factor `1 + M_f / Z_f` on the sampled term, with 8 samples of a face of one patch in its
+/// denominator, made a few patches of the slivers room report thousands of times their
+/// spread: pooled spread / reported 0.000 over 64 seeds, 0.77 now.) Where no sample holds
+/// anything, `U` and its share `phi` of the gathers' inherited variance `H_i` are summed as
+/// independent: `w_i² U_i + (1 - w_i)² phi H_i`.
+/// (`w² V_S + (1 - w)² V_G`, the two as independent, overstated the error 3-14 times on faces
+/// of one patch; summing `U` and `phi H` as independent of the samples overstated it 5 times
+/// on the rho 0.99 furnace of one patch per face and 1.5 times on the subdivided one:
+/// `cargo xtask calibrate`, cases `furnace-*`, `*-faces` and `slivers`.)
 fn combine(
     mesh: &Mesh,
     shots: &Shots,
-    gathered: &Estimate,
+    (gathered, own, image, measured): (&Estimate, &Estimate, &[Row], Option<&[DVec3]>),
     previous: Option<&Estimate>,
     weighting: &dyn Weighting,
 ) -> Result<Estimate, Error> {
@@ -250,11 +338,139 @@ fn combine(
         shooting_variance(mesh, shots, &r),
         gathering_variance(mesh, gathered, &r)?,
     );
-    Ok(merge(
+    let (a, b) = (
         Operand::with_expected(&shots.merged, &vs),
         Operand::with_expected(gathered, &vg),
-        weighting,
+    );
+    let merged = merge(a, b, weighting)?;
+    let own = own.variance().ok_or(EstimateError::MissingVariance)?;
+    if shots.sketch.len() != own.len() || image.len() != own.len() {
+        return Ok(merged);
+    }
+    let whole = gathered.variance().ok_or(EstimateError::MissingVariance)?;
+    let shot = shots
+        .merged
+        .variance()
+        .ok_or(EstimateError::MissingVariance)?;
+    let total = |v: &[DVec3]| v.iter().map(|x| x.element_sum()).sum::<f64>();
+    let share = |part: &[DVec3]| {
+        if total(shot) > 0.0 {
+            (total(part) / total(shot)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let phi = share(&shots.unsampled);
+    let n = own.len();
+    let mut sampled = vec![DVec3::ZERO; n];
+    let mut held = vec![DVec3::ZERO; n];
+    let mut weights = vec![DVec3::ZERO; n];
+    for i in 0..n {
+        for c in 0..3 {
+            let w = weighting.weight(&a, &b, i, c);
+            weights[i][c] = w;
+            for g in 0..crate::replicates::SKETCHES {
+                let (z, y) = (
+                    f64::from(shots.sketch[i][3 * g + c]),
+                    f64::from(image[i][3 * g + c]),
+                );
+                sampled[i][c] += (w * z + (1.0 - w) * y).powi(2);
+                held[i][c] += z * z;
+            }
+        }
+    }
+    // Per input face (its patches see nearly the same scene; one patch's samples alone would
+    // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
+    // noise measured against the formula's.
+    let faces = mesh
+        .patches()
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let mut face_shot = vec![DVec3::ZERO; faces];
+    let mut face_held = vec![DVec3::ZERO; faces];
+    let mut face_unsampled = vec![DVec3::ZERO; faces];
+    let mut face_own = vec![DVec3::ZERO; faces];
+    let mut face_measured = vec![DVec3::ZERO; faces];
+    for (i, p) in mesh.patches().iter().enumerate() {
+        let f = p.face as usize;
+        face_shot[f] += shot[i];
+        face_held[f] += held[i];
+        face_unsampled[f] += shots.unsampled[i];
+        face_own[f] += own[i];
+        if let Some(m) = measured {
+            face_measured[f] += m[i];
+        }
+    }
+    // How the samples' part of `S`'s variance reaches the combination, over the scene (a face
+    // of one patch holds 8 samples: its own ratio, in the denominator, made rare patches
+    // report thousands of times their spread).
+    let (ts, th): (DVec3, DVec3) = (sampled.iter().sum(), held.iter().sum());
+    let transfer = DVec3::new(
+        if th.x > 0.0 { ts.x / th.x } else { 0.0 },
+        if th.y > 0.0 { ts.y / th.y } else { 0.0 },
+        if th.z > 0.0 { ts.z / th.z } else { 0.0 },
+    );
+    let variance: Vec<DVec3> = (0..n)
+        .map(|i| {
+            let f = mesh.patches()[i].face as usize;
+            let mut v = DVec3::ZERO;
+            for c in 0..3 {
+                let w = weights[i][c];
+                let own_i = match measured {
+                    Some(_) if face_own[f][c] > 0.0 => {
+                        own[i][c] * face_measured[f][c] / face_own[f][c]
+                    }
+                    Some(m) => m[i][c],
+                    None => own[i][c],
+                };
+                v[c] = (1.0 - w).powi(2) * own_i
+                    + if face_held[f][c] > 0.0 {
+                        let missed = (face_shot[f][c] - face_held[f][c])
+                            .max(0.0)
+                            .min(face_unsampled[f][c]);
+                        let share = if face_unsampled[f][c] > 0.0 {
+                            missed / face_unsampled[f][c]
+                        } else {
+                            0.0
+                        };
+                        sampled[i][c] + transfer[c] * share * shots.unsampled[i][c]
+                    } else {
+                        let inherited = (whole[i][c] - own[i][c]).max(0.0);
+                        let unsampled = shots.unsampled[i][c];
+                        (1.0 - w).powi(2) * phi * inherited + w * w * unsampled + sampled[i][c]
+                    };
+            }
+            v
+        })
+        .collect();
+    Ok(Estimate::new(
+        merged.radiosity().to_vec(),
+        Some(variance),
+        merged.rays(),
     )?)
+}
+
+/// `(1 - w)² a + w² b` per patch and channel: variances of two independent estimates merged
+/// with weight `w` on the second.
+fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| *a * (1.0 - w).powi(2) + *b * (w * w))
+        .collect()
+}
+
+/// `(1 - w) a + w b`, sample by sample: error samples of two independent estimates merged
+/// with weight `w` on the second.
+fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
+    let w = w as f32;
+    for (a, b) in a.iter_mut().zip(b) {
+        for (a, b) in a.iter_mut().zip(b) {
+            *a = *a * (1.0 - w) + *b * w;
+        }
+    }
+    a
 }
 
 /// The shooting share `f` in [`SHARE`] of the next `remaining` rays that minimises the expected

@@ -64,6 +64,7 @@ pub(crate) fn run<C: RayCaster>(
         unshot_fraction: series_remainder(mesh, g.rounds),
         stop: g.stats.stop,
         direct: None,
+        sky_direct: None,
     })
 }
 

@@ -40,5 +40,6 @@ pub(crate) fn run<C: RayCaster>(
             StopReason::Converged
         },
         direct: None,
+        sky_direct: None,
     })
 }

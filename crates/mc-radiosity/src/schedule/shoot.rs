@@ -42,5 +42,6 @@ pub(crate) fn run<C: RayCaster>(
         unshot_fraction,
         stop,
         direct: None,
+        sky_direct: None,
     })
 }

@@ -56,6 +56,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
             unshot_fraction: unshot,
             stop: StopReason::Stopped,
             direct: None,
+            sky_direct: None,
         });
     }
     gather_budget = gather_budget.min(limit.get());
@@ -129,6 +130,7 @@ fn unbounded<C: RayCaster>(
             unshot_fraction: unshot,
             stop: StopReason::Stopped,
             direct: None,
+            sky_direct: None,
         });
     }
     let shot = Shot {
@@ -169,7 +171,7 @@ fn finish<C: RayCaster>(
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
     let gathered = if split {
         // Half for the direct light, sized by what its samples really cost; the rest gathers.
-        split_with_budget(ctx, &shooting, gather_budget, key)?.0
+        split_with_budget(ctx, &shooting, None, gather_budget, key)?.estimate
     } else {
         let r = gather_round_from(
             ctx,
@@ -204,6 +206,7 @@ fn finish<C: RayCaster>(
         unshot_fraction: unshot,
         stop: budget_or_stopped(stopped),
         direct: None,
+        sky_direct: None,
     })
 }
 

@@ -494,3 +494,62 @@ fn a_pilot_stopped_by_the_clock_is_not_pooled_into_the_answer() {
     let r = refine(&mut mesh, &config(1)).unwrap();
     assert!(r.pooled_valid, "{:?}", r.rounds);
 }
+
+/// The caster `refine` hands back is the refined mesh's (a caller solves with it instead of
+/// building it again): rays straight down onto the floor hit the same elements through it as
+/// through a caster built anew, after a pilot alone (no round affordable) and after rounds
+/// that split. A caster kept from before a split would name the parents instead.
+#[test]
+fn the_caster_refine_hands_back_is_the_refined_meshs() {
+    use mcrad_raycast::{Ray, RayCaster};
+    let scene = shadow_scene();
+    let bounds = AdaptiveBounds {
+        min_edge: 0.05,
+        max_patches: 400,
+    };
+    // (rays, rounds): the pilot alone; one round that splits (its caster is built after the
+    // split); four rounds
+    for (rays, rounds, splits) in [
+        (2_000u64, 4u32, false),
+        (360_000, 1, true),
+        (360_000, 4, true),
+    ] {
+        let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
+        let start = mesh.len();
+        let config = AdaptiveConfig {
+            rays,
+            rounds,
+            seed: 1,
+            ..Default::default()
+        };
+        let r = refine(&mut mesh, &config).unwrap();
+        assert_eq!(r.rounds.iter().any(|x| x.split > 0), splits, "{rays} rays");
+        assert_eq!(mesh.len() > start, splits);
+        let last_split = r.rounds.last().is_some_and(|x| x.split > 0);
+        // after a pilot alone and after a round that split, the caster is the one built last
+        let Some(caster) = r.caster else {
+            assert!(
+                !last_split,
+                "{rays} rays, {rounds} rounds: no caster after a split"
+            );
+            continue;
+        };
+        let fresh = mesh.mesh().caster().unwrap();
+        let mut hits = 0;
+        for i in 0..40 {
+            for j in 0..40 {
+                let at = Vec3::new(0.05 + 0.1 * i as f32, 0.05 + 0.1 * j as f32, 1.0);
+                let ray = Ray::new(at, Vec3::NEG_Z);
+                let (a, b) = (caster.closest_hit(&ray), fresh.closest_hit(&ray));
+                assert_eq!(a.map(|h| h.id), b.map(|h| h.id), "{rays} rays, at {at}");
+                assert_eq!(
+                    a.map(|h| h.distance.to_bits()),
+                    b.map(|h| h.distance.to_bits())
+                );
+                hits += usize::from(a.is_some());
+            }
+        }
+        // the blocker at height 1.5 is above the start points: every ray reaches the floor
+        assert_eq!(hits, 1600);
+    }
+}

@@ -17,7 +17,7 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 B=${B:?set B to a scratch directory outside the checkout}
 if [ ! -d "$B/src" ]; then
   dpkg -s libembree-dev >/dev/null 2>&1 || { apt-get update && apt-get install -y libembree-dev; }
-  mkdir -p "$B" && cp -r "${RBENCH:?set RBENCH to the stand-alone benchmark's source}" "$B/src" && chmod -R u+w "$B/src"
+  mkdir -p "$B" && cp -r "${RBENCH:?set RBENCH to the source directory of the stand-alone benchmark}" "$B/src" && chmod -R u+w "$B/src"
   patch -p1 -d "$B/src" < "$HERE/mcrad-modes.patch"
 fi
 table() {
