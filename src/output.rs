@@ -119,6 +119,7 @@ pub fn bake(
         caster: bvh,
         radiosity,
         variance: estimate.variance(),
+        face_correlation: answer.face_correlation.as_deref(),
         progress: Some(&progress),
         direct: direct.map(|irradiance| mcrad_bake::DirectLight {
             lights: loaded.scene.lights(),

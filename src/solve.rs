@@ -336,7 +336,10 @@ fn finish(
             estimate.variance(),
         );
         if args.per_face {
-            write_patch_csv(create(path)?, per_face(rows))?;
+            write_patch_csv(
+                create(path)?,
+                per_face(rows, answer.face_correlation.as_deref()),
+            )?;
         } else {
             write_patch_csv(create(path)?, rows)?;
         }

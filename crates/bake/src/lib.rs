@@ -177,8 +177,11 @@ pub struct FaceTexels {
     /// Their mean incident irradiance `H`, W/m² per channel.
     pub mean: DVec3,
     /// The variance of that mean from the solution's, (W/m²)² per channel: texels on one patch
-    /// share its error, so `sum_p (n_p / n)² var(B_p) / rho_p²` over the patches `p` the face's
-    /// `n` texels fall on (`n_p` of them). `None` when the solution has no variances.
+    /// share its error, so `k_f sum_p (n_p / n)² var(B_p) / rho_p²` over the patches `p` the
+    /// face's `n` texels fall on (`n_p` of them), `k_f` the factor of the correlation between
+    /// the patches ([`BakeInput::face_correlation`]; the texels fall on the patches nearly in
+    /// proportion to their areas, the weights the factor is for). `None` when the solution
+    /// has no variances.
     pub variance: Option<DVec3>,
 }
 
@@ -202,6 +205,12 @@ pub struct BakeInput<'a, C: RayCaster> {
     pub radiosity: &'a [DVec3],
     /// The estimated variance of `B` per patch, (W/m²)² per channel, when the method gives one.
     pub variance: Option<&'a [DVec3]>,
+    /// Per face as outputs number them (its input face, plus [`Mesh::back_face_offset`] for
+    /// a back side), per channel, the factor the correlation between its patches' errors puts
+    /// on their variances summed as independent (dimensionless, 1 for a face of one patch;
+    /// [`mcrad_mc_radiosity::Solution::face_correlation`]): [`FaceTexels::variance`] takes
+    /// it. `None` (or a face beyond the slice): the patches are taken as independent.
+    pub face_correlation: Option<&'a [DVec3]>,
     /// Told `(charts sampled, charts)` as the texels are sampled (from any thread).
     pub progress: Option<&'a (dyn Fn(u64, u64) + Sync)>,
     /// The direct light drawn per texel (and per vertex) with shadow rays instead of taken
@@ -667,7 +676,15 @@ pub fn bake<C: RayCaster>(
                     );
                     v += share * share * vh;
                 }
-                v
+                let back = mesh.back_face_offset();
+                let p = &patches[hit[0] as usize];
+                let key = (p.face + if p.back { back } else { 0 }) as usize;
+                let k = input
+                    .face_correlation
+                    .and_then(|k| k.get(key))
+                    .copied()
+                    .unwrap_or(DVec3::ONE);
+                k * v
             });
             FaceTexels {
                 source,

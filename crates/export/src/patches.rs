@@ -109,11 +109,17 @@ pub fn patch_rows<'a>(
 }
 
 /// One row per input face, in face order: the area-weighted means `sum A_i B_i / sum A_i` of
-/// its patches' rows (W/m²), with the variance of that mean `sum (A_i / A)² V_i` (patches taken
-/// as independent; unknown when a patch's is) and the face's area `A` (scene units²). A row's
-/// face is [`PatchRow::face`], or its `patch` without one; the result's `patch` is the face
-/// number and its `face` is `None`.
-pub fn per_face(rows: impl IntoIterator<Item = PatchRow>) -> Vec<PatchRow> {
+/// its patches' rows (W/m²), with the variance of that mean `k_f sum (A_i / A)² V_i` (unknown
+/// when a patch's is) and the face's area `A` (scene units²). `k_f` is
+/// `face_correlation[f]` per channel, the factor the correlation between the face's patches
+/// puts on their independent sum (the solver's estimate, dimensionless, 1 for a face of one
+/// patch); without it (`None`, or a face beyond the slice) the patches are taken as
+/// independent, `k_f = 1`. A row's face is [`PatchRow::face`], or its `patch` without one;
+/// the result's `patch` is the face number and its `face` is `None`.
+pub fn per_face(
+    rows: impl IntoIterator<Item = PatchRow>,
+    face_correlation: Option<&[DVec3]>,
+) -> Vec<PatchRow> {
     use std::collections::BTreeMap;
     // face -> (area, sum A B, sum A² V, every patch had a variance)
     let mut faces: BTreeMap<u32, (f64, DVec3, DVec3, bool)> = BTreeMap::new();
@@ -135,7 +141,13 @@ pub fn per_face(rows: impl IntoIterator<Item = PatchRow>) -> Vec<PatchRow> {
             patch: face,
             area,
             radiosity: sum / area,
-            variance: has_var.then(|| var / (area * area)),
+            variance: has_var.then(|| {
+                let k = face_correlation
+                    .and_then(|k| k.get(face as usize))
+                    .copied()
+                    .unwrap_or(DVec3::ONE);
+                k * var / (area * area)
+            }),
             face: None,
         })
         .collect()
@@ -178,6 +190,35 @@ pub fn write_patch_csv<W: Write>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_face_row_is_the_area_weighted_mean_with_its_correlation_factor() {
+        let row = |area: f64, b: f64, v: f64, face: u32| PatchRow {
+            patch: 0,
+            area,
+            radiosity: DVec3::splat(b),
+            variance: Some(DVec3::splat(v)),
+            face: Some(face),
+        };
+        // Face 0: patches of areas 1 and 3; face 1: one patch.
+        let rows = [
+            row(1.0, 2.0, 4.0, 0),
+            row(3.0, 6.0, 8.0, 0),
+            row(2.0, 1.0, 3.0, 1),
+        ];
+        let independent = per_face(rows, None);
+        assert_eq!(independent.len(), 2);
+        assert_eq!(independent[0].radiosity, DVec3::splat(5.0));
+        // (1/4)² 4 + (3/4)² 8 = 4.75
+        assert_eq!(independent[0].variance, Some(DVec3::splat(4.75)));
+        assert_eq!(independent[1].variance, Some(DVec3::splat(3.0)));
+        // The solver's factors scale each face's independent sum, per channel; a face beyond
+        // them keeps it.
+        let k = [DVec3::new(2.0, 0.5, 1.0)];
+        let correlated = per_face(rows, Some(&k));
+        assert_eq!(correlated[0].variance, Some(DVec3::new(9.5, 2.375, 4.75)));
+        assert_eq!(correlated[1].variance, Some(DVec3::splat(3.0)));
+    }
 
     #[test]
     fn rows_round_trip_exactly() {

@@ -38,6 +38,7 @@ mod adaptive;
 mod ambient;
 mod context;
 mod control;
+mod correlation;
 mod direct;
 mod error;
 mod fates;

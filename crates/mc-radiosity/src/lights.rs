@@ -352,6 +352,9 @@ impl Lit {
     pub(crate) fn finish(&self, mut solution: Solution) -> Result<Solution, Error> {
         let e = &solution.estimate;
         let variance = e.variance().map(|v| self.add_variance(v));
+        if let (Some(k), Some(v)) = (solution.face_correlation.as_mut(), e.variance()) {
+            crate::correlation::with_independent(&self.mesh, k, v, &self.variance);
+        }
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         solution.direct = Some(self.direct.clone());
         solution.sky_direct = Some(self.sky.clone());
@@ -389,6 +392,7 @@ impl Lit {
             stop,
             direct: Some(self.direct.clone()),
             sky_direct: Some(self.sky.clone()),
+            face_correlation: None,
         }))
     }
 

@@ -170,6 +170,16 @@ pub struct Solution {
     /// sky): a renderer that draws only the lights' direct light per pixel takes
     /// `B_i - rho_i (H_d,i - H_sky,i)` from the solution. `None` when `direct` is.
     pub sky_direct: Option<Vec<DVec3>>,
+    /// Per face as outputs number them (its input face, plus
+    /// [`Mesh::back_face_offset`](mcrad_meshing::Mesh::back_face_offset) for a back side), per
+    /// channel: the factor `k_f` by which the variance of the face's area-weighted mean
+    /// exceeds `sum_i a_i² V_i` (`a_i = A_i / A_f`, `V_i` the estimate's variances: the
+    /// patches taken as independent) through the correlation between its patches' errors,
+    /// estimated from the method's error samples; dimensionless, `>= 0`, exactly 1 for a face
+    /// of one patch. `None` where the method keeps no error samples (then the patches are
+    /// taken as independent). Only `shoot`, `prr` and `combined` under quasi-Monte Carlo rays
+    /// give it.
+    pub face_correlation: Option<Vec<DVec3>>,
 }
 
 /// The observer of a schedule.
@@ -653,6 +663,7 @@ impl Progressive {
             stop: budget_or_stopped(self.stopped),
             direct: None,
             sky_direct: None,
+            face_correlation: None,
         })
     }
 }

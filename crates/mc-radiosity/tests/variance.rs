@@ -207,6 +207,11 @@ fn combined_on_a_subdivided_rho_0_99_furnace_reports_its_error() {
 /// ceiling is four faces around it (10 patches): the small-light room of issue 36 at its
 /// smallest.
 fn small_light_room(rho: f32) -> Mesh {
+    small_light_room_meshed(rho, Subdivision::None)
+}
+
+/// [`small_light_room`]'s 10 faces meshed by `subdivision`.
+fn small_light_room_meshed(rho: f32, subdivision: Subdivision) -> Mesh {
     let (h, a) = (0.5f32, 0.05f32);
     let mut positions = Vec::new();
     let mut faces = Vec::new();
@@ -250,7 +255,7 @@ fn small_light_room(rho: f32) -> Mesh {
     )
     .unwrap()
     .0;
-    Mesh::build(&scene, Subdivision::None).unwrap()
+    Mesh::build(&scene, subdivision).unwrap()
 }
 
 /// `spread / reported` of `method` on `mesh` over `seeds` seeds at `rays` rays (qmc): the
@@ -299,4 +304,108 @@ fn spread_over_reported(method: Method, mesh: &Mesh, rays: u64, seeds: u64) -> f
 fn combined_in_a_small_light_room_of_one_patch_per_face_reports_its_error() {
     let ratio = spread_over_reported(Method::Combined, &small_light_room(0.5), 200_000, 16);
     assert!((0.5..=2.0).contains(&ratio), "spread / reported {ratio:.3}");
+}
+
+/// Per input face, `spread / reported` of `method` on `mesh` over `seeds` seeds at `rays` rays
+/// (qmc), the face's value being the area-weighted mean of its patches (`--per-face`): the
+/// between-seed variance of the face's mean (red channel) over the mean reported variance,
+/// averaged over the faces that report one (each face's ratio counts alike: the small faces'
+/// variances are hundreds of times the large ones'). Reported (a) with the patches taken as
+/// independent, `sum a_i² V_i`, and (b) with the solution's correlation factors,
+/// `k_f sum a_i² V_i` ([`mcrad_mc_radiosity::Solution::face_correlation`]).
+fn face_spread_over_reported(method: Method, mesh: &Mesh, rays: u64, seeds: u64) -> (f64, f64) {
+    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
+    let faces = mesh
+        .patches()
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap();
+    let mut area = vec![0.0; faces];
+    for p in mesh.patches() {
+        area[p.face as usize] += p.area;
+    }
+    // Per seed and face: the mean, the independent sum and the factor (red channel).
+    let runs: Vec<Vec<(f64, f64, f64)>> = (0..seeds)
+        .map(|seed| {
+            let config = ScheduleConfig {
+                rays,
+                seed,
+                sampler: Sampler::Qmc,
+                ..Default::default()
+            };
+            let s = run(method, mesh, &bvh, &config, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap();
+            let (b, v) = (s.estimate.radiosity(), s.estimate.variance().unwrap());
+            let k = s.face_correlation.expect("qmc runs give the correlation");
+            let mut face: Vec<(f64, f64, f64)> = k.iter().map(|k| (0.0, 0.0, k.x)).collect();
+            for (i, p) in mesh.patches().iter().enumerate() {
+                let a = p.area / area[p.face as usize];
+                face[p.face as usize].0 += a * b[i].x;
+                face[p.face as usize].1 += a * a * v[i].x;
+            }
+            face
+        })
+        .collect();
+    let n = seeds as f64;
+    let (mut independent, mut correlated, mut counted) = (0.0, 0.0, 0.0);
+    for f in 0..faces {
+        let mean = runs.iter().map(|r| r[f].0).sum::<f64>() / n;
+        let spread = runs.iter().map(|r| (r[f].0 - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        let reported = runs.iter().map(|r| r[f].1).sum::<f64>() / n;
+        if reported > 0.0 {
+            independent += spread / reported;
+            correlated += spread / (runs.iter().map(|r| r[f].1 * r[f].2).sum::<f64>() / n);
+            counted += 1.0;
+        }
+    }
+    (independent / counted, correlated / counted)
+}
+
+/// Issue 36, item 3: per-face variances carry the correlation between a face's patches. The
+/// small-light room (rho 0.5) with edges of 1/8: 393 patches on 10 faces, the walls of 64.
+/// `combined`'s gathers read one shooting solution, so a face's patches inherit nearly the
+/// same error from it: summed as independent, a face's variance was about half its spread
+/// (mean spread / reported over the 9 faces with an error 1.87 here; `cargo xtask
+/// bake-check`'s mean `z²` per face 1.55). With the factors from the error samples it is
+/// 1.07. Each face's ratio has 15 degrees of freedom (16 seeds, a relative error near 37%),
+/// their mean over 9 faces near 12% (the factors' own noise adds some): it must lie within
+/// the calibration's target `[0.67, 1.5]`, which the independent sum misses.
+#[test]
+fn per_face_variances_of_combined_carry_the_correlation_between_patches() {
+    let mesh = small_light_room_meshed(0.5, Subdivision::MaxEdge(0.125));
+    let (independent, correlated) = face_spread_over_reported(Method::Combined, &mesh, 400_000, 16);
+    eprintln!(
+        "spread / reported per face: independent {independent:.3}, correlated {correlated:.3}"
+    );
+    assert!(
+        (0.67..=1.5).contains(&correlated),
+        "correlated {correlated:.3}"
+    );
+}
+
+/// Issue 36, item 3, for `prr`: shooting conserves power, so the errors of a face's patches
+/// are negatively correlated (a ray that lands on one patch misses the others), and under
+/// stratified rays strongly so: in the room above a wall's mean has a tenth of the variance
+/// its patches give as independent (mean spread / reported over the faces 0.24 so summed).
+/// The error samples see part of it, not the stratification across the waves, which leaves
+/// the per-face figures conservative: 0.46 here. The test holds what is reached: within
+/// `[0.33, 1.5]`, and above the independent sum's.
+#[test]
+fn per_face_variances_of_prr_carry_the_correlation_between_patches() {
+    let mesh = small_light_room_meshed(0.5, Subdivision::MaxEdge(0.125));
+    let (independent, correlated) = face_spread_over_reported(Method::Prr, &mesh, 400_000, 16);
+    eprintln!(
+        "spread / reported per face: independent {independent:.3}, correlated {correlated:.3}"
+    );
+    assert!(
+        (0.33..=1.5).contains(&correlated),
+        "correlated {correlated:.3}"
+    );
+    assert!(
+        correlated > independent * 1.3,
+        "{correlated:.3} against {independent:.3}"
+    );
 }

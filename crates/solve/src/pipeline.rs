@@ -67,6 +67,16 @@ pub struct Answer {
     /// The sky's part of `direct` (W/m² per channel, mesh order; 0 without a sky); `None` when
     /// `direct` is.
     pub sky_direct: Option<Vec<DVec3>>,
+    /// Per face as outputs number them (its input face, plus [`Mesh::back_face_offset`] for a
+    /// back side), per channel: the factor `k_f` by which the variance of the face's
+    /// area-weighted mean exceeds `sum_i (A_i / A_f)² V_i` over its patches (taken as
+    /// independent) through the correlation between their errors; dimensionless, 1 for a face
+    /// of one patch ([`Solution::face_correlation`](mcrad_mc_radiosity::Solution)). The
+    /// refinement's and a continued run's merges weigh a face's patches alike, so the factor
+    /// of this piece's solution stands for the answer's. `None` where the method keeps no
+    /// error samples, or the run was cancelled within a step: the patches are then taken as
+    /// independent.
+    pub face_correlation: Option<Vec<DVec3>>,
 }
 
 /// A complete step of the run, as the observer of [`solve`] sees it.
@@ -437,6 +447,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             stop: StopReason::Stopped,
             direct: None,
             sky_direct: None,
+            face_correlation: None,
         });
         if flow.is_break() {
             return ControlFlow::Break(());
@@ -470,6 +481,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let piece_rays = solution.estimate.rays();
     let direct = solution.direct.clone();
     let sky_direct = solution.sky_direct.clone();
+    let face_correlation = solution.face_correlation.clone();
     let (estimate, state) =
         run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
     // a run stopped in a step that is not an answer lacks part of its light
@@ -548,6 +560,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         warnings,
         direct: if no_direct { None } else { direct },
         sky_direct: if no_direct { None } else { sky_direct },
+        face_correlation: if cancelled { None } else { face_correlation },
     })
 }
 

@@ -143,6 +143,8 @@ fn with_context<C: RayCaster>(
     // ((W/m²)², `Measured`).
     let mut measured: Vec<DVec3> = Vec::new();
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
+    // The last combination's correlation factors per face (`Solution::face_correlation`).
+    let mut face_correlation = None;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let share = match (&shots, &gathered, &run.merged) {
@@ -232,19 +234,22 @@ fn with_context<C: RayCaster>(
         let g = gathers.estimate()?;
         let own = gathers.own().ok_or(EstimateError::MissingVariance)?;
         let own_measured = (ctx.sampling() == crate::Sampler::Qmc).then_some(&measured[..]);
-        let c = combine(
+        let (c, factors) = combine(
             mesh,
             shots_now,
             (&g, own, &gathered_sketch, own_measured),
             run.merged.as_ref(),
             weighting,
         )?;
+        face_correlation = factors;
         gathered = Some(g);
         if !run.replace(c, &mut passes, observer)? {
             break;
         }
     }
-    run.finish(config.rays)
+    let mut solution = run.finish(config.rays)?;
+    solution.face_correlation = face_correlation;
+    Ok(solution)
 }
 
 /// The reflected radiosity `R_i = (B_i - E_i)^+` the expected variances scale with (W/m²),
@@ -332,7 +337,7 @@ fn combine(
     (gathered, own, image, measured): (&Estimate, &Estimate, &[Row], Option<&[DVec3]>),
     previous: Option<&Estimate>,
     weighting: &dyn Weighting,
-) -> Result<Estimate, Error> {
+) -> Result<(Estimate, Option<Vec<DVec3>>), Error> {
     let r = reflected(mesh, previous.unwrap_or(&shots.merged));
     let (vs, vg) = (
         shooting_variance(mesh, shots, &r),
@@ -345,7 +350,7 @@ fn combine(
     let merged = merge(a, b, weighting)?;
     let own = own.variance().ok_or(EstimateError::MissingVariance)?;
     if shots.sketch.len() != own.len() || image.len() != own.len() {
-        return Ok(merged);
+        return Ok((merged, None));
     }
     let whole = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let shot = shots
@@ -445,16 +450,26 @@ fn combine(
             v
         })
         .collect();
-    Ok(Estimate::new(
-        merged.radiosity().to_vec(),
-        Some(variance),
-        merged.rays(),
-    )?)
+    // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
+    // of their variance as independent (the gathers' own noise, the samples' missed part).
+    let factors = crate::correlation::factors_of(
+        mesh,
+        |i, g| {
+            let (z, y) = (
+                crate::replicates::sample(&shots.sketch[i], g),
+                crate::replicates::sample(&image[i], g),
+            );
+            weights[i] * z + (DVec3::ONE - weights[i]) * y
+        },
+        |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
+    );
+    let estimate = Estimate::new(merged.radiosity().to_vec(), Some(variance), merged.rays())?;
+    Ok((estimate, Some(factors)))
 }
 
 /// `(1 - w)² a + w² b` per patch and channel: variances of two independent estimates merged
 /// with weight `w` on the second.
-fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
+pub(super) fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
     a.iter()
         .zip(b)
         .map(|(a, b)| *a * (1.0 - w).powi(2) + *b * (w * w))
@@ -463,7 +478,7 @@ fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
 
 /// `(1 - w) a + w b`, sample by sample: error samples of two independent estimates merged
 /// with weight `w` on the second.
-fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
+pub(super) fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
     let w = w as f32;
     for (a, b) in a.iter_mut().zip(b) {
         for (a, b) in a.iter_mut().zip(b) {

@@ -65,6 +65,7 @@ pub(crate) fn run<C: RayCaster>(
         stop: g.stats.stop,
         direct: None,
         sky_direct: None,
+        face_correlation: None,
     })
 }
 

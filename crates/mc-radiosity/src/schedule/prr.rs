@@ -1,8 +1,12 @@
 //! Algorithm 1 of the paper: progressive ray refinement (PRR), shooting passes merged by rays.
 
+use super::combined::{blend, by_rays};
 use super::{Doubling, Observer, Progressive, ScheduleConfig, Solution, with_ambient};
 use crate::context::Context;
+use crate::correlation::face_factors;
 use crate::error::Error;
+use crate::replicates::Row;
+use glam::DVec3;
 use mcrad_raycast::RayCaster;
 
 /// Algorithm 1: progressive ray refinement.
@@ -22,6 +26,10 @@ pub(crate) fn run<C: RayCaster>(
     // small early passes (the largest shares) make conservative, and what its tail leaves
     // unspent goes to further passes sized alike, down to 1% of the budget.
     let (mut asked, mut cast) = (0u64, 0u64);
+    // The passes' error samples and their independent remainder, merged as the passes are
+    // (by the rays asked), for the correlation between a face's patches.
+    let mut rows: Vec<Row> = Vec::new();
+    let mut unsampled: Vec<DVec3> = Vec::new();
     loop {
         let left = passes.remaining();
         // Rays kept back from the last pass, given back after it.
@@ -35,9 +43,19 @@ pub(crate) fn run<C: RayCaster>(
             held = left - size;
         }
         let Some(budget) = passes.next() else { break };
-        let s = run.shoot(ctx, config, budget, passes.remaining(), run.steps as u64)?;
+        let mut s = run.shoot(ctx, config, budget, passes.remaining(), run.steps as u64)?;
         asked += budget;
         cast += s.stats.rays;
+        let w = budget as f64 / asked as f64;
+        if rows.is_empty() {
+            (rows, unsampled) = (
+                std::mem::take(&mut s.sketch),
+                std::mem::take(&mut s.unsampled),
+            );
+        } else if s.sketch.len() == rows.len() {
+            rows = blend(rows, &s.sketch, w);
+            unsampled = by_rays(&unsampled, &s.unsampled, w);
+        }
         passes.refund(held);
         passes.charge(s.stats.rays.saturating_sub(budget));
         if !run.step(with_ambient(mesh, config, s)?, &mut passes, observer)? {
@@ -45,6 +63,9 @@ pub(crate) fn run<C: RayCaster>(
         }
     }
     let mut solution = run.finish(config.rays)?;
+    if ctx.sampling() == crate::Sampler::Qmc && rows.len() == mesh.patches().len() {
+        solution.face_correlation = Some(face_factors(mesh, &rows, &unsampled));
+    }
     // A patch no ray reached: "no information", not a zero variance.
     solution.estimate = crate::shoot::unreached_variance(mesh, solution.estimate)?;
     Ok(solution)

@@ -41,5 +41,6 @@ pub(crate) fn run<C: RayCaster>(
         },
         direct: None,
         sky_direct: None,
+        face_correlation: None,
     })
 }

@@ -34,6 +34,9 @@ pub(crate) fn run<C: RayCaster>(
     let stop = s.stats.stop;
     let unshot_fraction = unshot_fraction(&s);
     let escaped_rays = s.stats.escaped_rays;
+    let face_correlation = (ctx.sampling() == crate::Sampler::Qmc
+        && s.sketch.len() == mesh.patches().len())
+    .then(|| crate::correlation::face_factors(mesh, &s.sketch, &s.unsampled));
     Ok(Solution {
         // A patch no ray reached: "no information", not a zero variance.
         estimate: crate::shoot::unreached_variance(mesh, with_ambient(mesh, config, s)?)?,
@@ -43,5 +46,6 @@ pub(crate) fn run<C: RayCaster>(
         stop,
         direct: None,
         sky_direct: None,
+        face_correlation,
     })
 }

@@ -57,6 +57,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
             stop: StopReason::Stopped,
             direct: None,
             sky_direct: None,
+            face_correlation: None,
         });
     }
     gather_budget = gather_budget.min(limit.get());
@@ -131,6 +132,7 @@ fn unbounded<C: RayCaster>(
             stop: StopReason::Stopped,
             direct: None,
             sky_direct: None,
+            face_correlation: None,
         });
     }
     let shot = Shot {
@@ -207,6 +209,7 @@ fn finish<C: RayCaster>(
         stop: budget_or_stopped(stopped),
         direct: None,
         sky_direct: None,
+        face_correlation: None,
     })
 }
 
