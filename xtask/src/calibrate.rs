@@ -95,6 +95,20 @@ pub struct Case {
     /// The furnace reflectance when the case is a high-reflectance one (the 1% target applies
     /// at 0.999).
     rho: Option<f64>,
+    /// What is judged: the patches of the case's mesh, or the input faces of an adaptive mesh.
+    grain: Grain,
+}
+
+/// What a case judges.
+#[derive(Clone, Copy, PartialEq)]
+enum Grain {
+    /// Every patch of the case's mesh, the same for every run.
+    Patches,
+    /// Every input face, as `--per-face` writes it (the area-weighted mean of its patches,
+    /// its variance with the correlation between them), each run meshing the scene on the
+    /// adaptive plan (its own mesh: refined where its own pilot saw the light vary); the
+    /// exact answer is per face from the case's mesh.
+    AdaptiveFaces,
 }
 
 /// Where a case's exact answer comes from.
@@ -107,7 +121,7 @@ enum Exact {
 }
 
 /// The calibration cases.
-pub const CASES: [Case; 11] = [
+pub const CASES: [Case; 12] = [
     Case {
         name: "furnace-0.5",
         what: "closed box, side 12, every face E = 1, rho = 0.5; exact B = 2",
@@ -115,6 +129,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.5),
+        grain: Grain::Patches,
     },
     Case {
         name: "furnace-0.9",
@@ -123,6 +138,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.9),
+        grain: Grain::Patches,
     },
     Case {
         name: "furnace-0.99",
@@ -131,6 +147,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.99),
+        grain: Grain::Patches,
     },
     Case {
         name: "furnace-0.999",
@@ -139,6 +156,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.999),
+        grain: Grain::Patches,
     },
     Case {
         name: "furnace-far",
@@ -147,6 +165,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.5),
+        grain: Grain::Patches,
     },
     Case {
         name: "tiny-light",
@@ -156,6 +175,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Reference,
         rays_factor: 5,
         rho: None,
+        grain: Grain::Patches,
     },
     Case {
         name: "slivers",
@@ -167,6 +187,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Reference,
         rays_factor: 5,
         rho: None,
+        grain: Grain::Patches,
     },
     Case {
         name: "textured",
@@ -177,6 +198,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Reference,
         rays_factor: 2,
         rho: None,
+        grain: Grain::Patches,
     },
     // Issue 36, item 1: the bias case of the issue built more faithfully than `slivers`: dim
     // patches far from the light.
@@ -191,6 +213,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Reference,
         rays_factor: 5,
         rho: None,
+        grain: Grain::Patches,
     },
     // Issue 36, item 2: one patch per face (`--no-subdivide`), where a patch's variance has
     // no other patches of its face to pool the quasi-Monte Carlo gain with.
@@ -202,6 +225,7 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.9),
+        grain: Grain::Patches,
     },
     Case {
         name: "furnace-0.99-faces",
@@ -211,6 +235,20 @@ pub const CASES: [Case; 11] = [
         exact: Exact::Furnace,
         rays_factor: 1,
         rho: Some(0.99),
+        grain: Grain::Patches,
+    },
+    // Issue 36, items 3 and 5: per-face figures on an adaptive mesh.
+    Case {
+        name: "tiny-light-faces",
+        what: "the tiny-light room on the adaptive plan (each run refines its own mesh), \
+               judged per input face (14 faces, `--per-face`: the area-weighted mean of a face's \
+               patches, its variance with their correlation); exact: the reference solver on \
+               the tiny-light case's patches, per face",
+        build: tiny_light_room,
+        exact: Exact::Reference,
+        rays_factor: 5,
+        rho: None,
+        grain: Grain::AdaptiveFaces,
     },
 ];
 
@@ -617,28 +655,82 @@ enum Outcome {
     Panicked(String),
 }
 
-/// Runs `method` once through the library's solve on the fixed `mesh`, panics caught, stopped
-/// at its first step past `limit` seconds.
-fn run_once(method: Method, mesh: &Mesh, config: &ScheduleConfig, limit: f64) -> (Outcome, f64) {
+/// What a run solves ([`Grain`]).
+#[derive(Clone, Copy)]
+enum Target<'a> {
+    /// This mesh, the answer per patch.
+    Mesh(&'a Mesh),
+    /// This scene meshed on the adaptive plan, the answer per input face.
+    AdaptiveFaces(&'a Scene),
+}
+
+/// `radiosity` and `variance` per patch of `mesh` as per-face figures (`--per-face`: the
+/// area-weighted mean of a face's patches, its variance `k_f sum a_i² V_i` with the factors
+/// `k` of the correlation between them), in face order: `(B, variance, area)` per face.
+fn per_face(
+    mesh: &Mesh,
+    radiosity: &[DVec3],
+    variance: Option<&[DVec3]>,
+    k: Option<&[DVec3]>,
+) -> (Vec<DVec3>, Option<Vec<DVec3>>, Vec<f64>) {
+    let numbers: Vec<u32> = (0..mesh.patches().len() as u32).collect();
+    let rows = mcrad_export::per_face(
+        mcrad_export::patch_rows(mesh, &numbers, radiosity, variance),
+        k,
+    );
+    (
+        rows.iter().map(|r| r.radiosity).collect(),
+        rows.iter().map(|r| r.variance).collect(),
+        rows.iter().map(|r| r.area).collect(),
+    )
+}
+
+/// Runs `method` once through the library's solve of `target`, panics caught, stopped at its
+/// first step past `limit` seconds.
+fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64) -> (Outcome, f64) {
     let start = Instant::now();
     let result = catch_unwind(AssertUnwindSafe(|| {
-        crate::solve_fixed(method, mesh, config, &mut |_| {
+        let mut observer = |_: &mcrad_solve::Progress| {
             if start.elapsed().as_secs_f64() > limit {
                 ControlFlow::Break(())
             } else {
                 ControlFlow::Continue(())
             }
+        };
+        let answer = match target {
+            Target::Mesh(mesh) => crate::solve_fixed(method, mesh, config, &mut observer),
+            Target::AdaptiveFaces(scene) => crate::solve_input(
+                method,
+                mcrad_solve::Input::Scene(scene),
+                mcrad_solve::MeshPlan::default(),
+                config,
+                &mut observer,
+            ),
+        };
+        answer.map(|a| {
+            let (e, stop) = (&a.estimate, a.stats.stop);
+            let (radiosity, variance) = match target {
+                Target::Mesh(_) => (
+                    e.radiosity().to_vec(),
+                    e.variance().map(<[DVec3]>::to_vec),
+                ),
+                Target::AdaptiveFaces(_) => {
+                    let k = a.face_correlation.as_deref().filter(|_| std::env::var("NOK").is_err());
+                    let (b, v, _) = per_face(&a.mesh, e.radiosity(), e.variance(), k);
+                    (b, v)
+                }
+            };
+            (radiosity, variance, a.stats.rays, stop)
         })
-        .map(|a| (a.estimate, a.stats.stop))
     }));
     let secs = start.elapsed().as_secs_f64();
     let outcome = match result {
-        Ok(Ok((_, StopReason::Stopped))) => Outcome::Stopped,
-        Ok(Ok((estimate, stop))) => Outcome::Done(
+        Ok(Ok((_, _, _, StopReason::Stopped))) => Outcome::Stopped,
+        Ok(Ok((radiosity, variance, rays, stop))) => Outcome::Done(
             RunResult {
-                radiosity: estimate.radiosity().to_vec(),
-                variance: estimate.variance().map(<[DVec3]>::to_vec),
-                rays: estimate.rays(),
+                radiosity,
+                variance,
+                rays,
                 converged: stop == StopReason::Converged,
             },
             stop,
@@ -873,9 +965,9 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
         let (scene, subdivision) = (case.build)();
         let mesh = Mesh::build(&scene, subdivision)?;
         let bvh = mesh.caster()?;
-        let areas: Vec<f64> = mesh.patches().iter().map(|p| p.area).collect();
+        let mut areas: Vec<f64> = mesh.patches().iter().map(|p| p.area).collect();
         eprintln!("{}: {} patches", case.name, mesh.patches().len());
-        let exact: Option<Vec<DVec3>> = match case.exact {
+        let mut exact: Option<Vec<DVec3>> = match case.exact {
             Exact::Furnace => Some(
                 mesh.patches()
                     .iter()
@@ -904,6 +996,15 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                 }
             }
         };
+        let target = match case.grain {
+            Grain::Patches => Target::Mesh(&mesh),
+            Grain::AdaptiveFaces => {
+                exact = exact.map(|b| per_face(&mesh, &b, None, None).0);
+                areas = per_face(&mesh, &vec![DVec3::ZERO; areas.len()], None, None).2;
+                eprintln!("  judged per face: {} faces", areas.len());
+                Target::AdaptiveFaces(&scene)
+            }
+        };
         for &method in &o.methods {
             let mut runs = Vec::new();
             let mut notes = Vec::new();
@@ -916,7 +1017,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                     sampler: o.sampler,
                     ..Default::default()
                 };
-                let (outcome, secs) = run_once(method, &mesh, &config, o.limit);
+                let (outcome, secs) = run_once(method, target, &config, o.limit);
                 seconds += secs;
                 ended += 1;
                 match outcome {

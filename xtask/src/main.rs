@@ -200,17 +200,35 @@ fn solve_fixed(
     config: &mcrad_mc_radiosity::ScheduleConfig,
     observer: &mut mcrad_solve::Observer,
 ) -> Result<mcrad_solve::Answer, mcrad_solve::Error> {
+    solve_input(
+        method,
+        mcrad_solve::Input::Mesh(mesh),
+        mcrad_solve::MeshPlan::PerFace,
+        config,
+        observer,
+    )
+}
+
+/// The library's solve of `input` meshed by `plan` (not used for a mesh) with `config`'s
+/// settings and ray budget, as [`solve_fixed`].
+fn solve_input(
+    method: mcrad_mc_radiosity::Method,
+    input: mcrad_solve::Input<'_>,
+    plan: mcrad_solve::MeshPlan,
+    config: &mcrad_mc_radiosity::ScheduleConfig,
+    observer: &mut mcrad_solve::Observer,
+) -> Result<mcrad_solve::Answer, mcrad_solve::Error> {
     let problem = mcrad_solve::Problem {
-        input: mcrad_solve::Input::Mesh(mesh),
+        input,
         settings: mcrad_solve::Settings {
             method,
+            mesh: plan,
             seed: config.seed,
             sampler: config.sampler,
             control_variate: config.control_variate,
             ambient: config.ambient,
             unshot_threshold: config.unshot_threshold,
             visibility_tolerance: config.reference.visibility_tolerance,
-            ..Default::default()
         },
         budget: mcrad_solve::Budget {
             rays: Some(config.rays),

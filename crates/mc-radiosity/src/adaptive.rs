@@ -438,6 +438,49 @@ pub fn pool(
     earlier: &Estimate,
     earlier_valid: &[bool],
 ) -> Result<Estimate, EstimateError> {
+    match pool_weights(mesh, fresh, earlier, earlier_valid)? {
+        Some(weights) => merge(fresh, earlier, &Given(weights)),
+        None => Ok(fresh.clone()),
+    }
+}
+
+/// The factors of the correlation between each face's patches
+/// ([`Solution::face_correlation`](crate::Solution)) in [`pool`]'s answer, `k` those of
+/// `fresh`: `earlier`'s part is taken as independent between patches (its own correlation is
+/// not known), so per face and channel `k'_f = (k_f S_f + E_f) / (S_f + E_f)` with
+/// `S_f = sum_i A_i² w_i² V_f,i` and `E_f = sum_i A_i² (1 - w_i)² V_e,i` ([`pool`]'s weights
+/// `w` on `fresh`). `k` itself where [`pool`] returns `fresh`. Errors as [`pool`]'s.
+pub fn pool_correlation(
+    mesh: &Mesh,
+    fresh: &Estimate,
+    earlier: &Estimate,
+    earlier_valid: &[bool],
+    k: &[DVec3],
+) -> Result<Vec<DVec3>, EstimateError> {
+    let mut k = k.to_vec();
+    let (Some(weights), Some(vf), Some(ve)) = (
+        pool_weights(mesh, fresh, earlier, earlier_valid)?,
+        fresh.variance(),
+        earlier.variance(),
+    ) else {
+        return Ok(k);
+    };
+    let part = |v: &[DVec3], w: fn(DVec3) -> DVec3| -> Vec<DVec3> {
+        v.iter().zip(&weights).map(|(v, x)| w(*x) * w(*x) * *v).collect()
+    };
+    let (own, added) = (part(vf, |w| w), part(ve, |w| DVec3::ONE - w));
+    crate::correlation::with_independent(mesh, &mut k, &own, &added);
+    Ok(k)
+}
+
+/// [`pool`]'s weights on `fresh` per patch and channel; `None` without a variance on either
+/// side. Errors as [`pool`]'s.
+fn pool_weights(
+    mesh: &Mesh,
+    fresh: &Estimate,
+    earlier: &Estimate,
+    earlier_valid: &[bool],
+) -> Result<Option<Vec<DVec3>>, EstimateError> {
     let n = mesh.patches().len();
     for len in [fresh.len(), earlier.len(), earlier_valid.len()] {
         if len != n {
@@ -445,7 +488,7 @@ pub fn pool(
         }
     }
     let (Some(vf), Some(ve)) = (fresh.variance(), earlier.variance()) else {
-        return Ok(fresh.clone());
+        return Ok(None);
     };
     let faces = mesh
         .patches()
@@ -489,7 +532,7 @@ pub fn pool(
             }
         })
         .collect();
-    merge(fresh, earlier, &Given(weights))
+    Ok(Some(weights))
 }
 
 /// Weights given per patch and channel (the weight of the first operand).

@@ -56,7 +56,9 @@ mod surface;
 mod tests;
 
 // The public interface: the methods and how to run them, and adaptive meshing.
-pub use adaptive::{AdaptiveConfig, AdaptiveError, Refined, RoundStats, pool, refine};
+pub use adaptive::{
+    AdaptiveConfig, AdaptiveError, Refined, RoundStats, pool, pool_correlation, refine,
+};
 pub use context::Sampler;
 pub use control::ControlVariate;
 pub use error::Error;

@@ -10,7 +10,7 @@ use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
 use mcrad_mc_radiosity::{
     AdaptiveConfig, Error as MethodError, Refined, ScheduleConfig, Solution, Step, StopReason,
-    pool, refine, run_cancellable,
+    pool, pool_correlation, refine, run_cancellable,
 };
 use mcrad_meshing::{
     AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES,
@@ -481,7 +481,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let piece_rays = solution.estimate.rays();
     let direct = solution.direct.clone();
     let sky_direct = solution.sky_direct.clone();
-    let face_correlation = solution.face_correlation.clone();
+    // The refinement's pool adds its earlier estimate's part, taken as independent between
+    // patches; a continued run's pieces (the same method on the same mesh) share the factors.
+    let face_correlation = match (&solution.face_correlation, &refinement, problem.resume) {
+        (Some(k), Some(r), None) => {
+            let all = vec![r.pooled_valid; mesh.patches().len()];
+            Some(pool_correlation(&mesh, &solution.estimate, &r.pooled, &all, k)?)
+        }
+        (k, ..) => k.clone(),
+    };
     let (estimate, state) =
         run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
     // a run stopped in a step that is not an answer lacks part of its light
