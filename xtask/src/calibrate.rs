@@ -710,12 +710,12 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
         answer.map(|a| {
             let (e, stop) = (&a.estimate, a.stats.stop);
             let (radiosity, variance) = match target {
-                Target::Mesh(_) => (
-                    e.radiosity().to_vec(),
-                    e.variance().map(<[DVec3]>::to_vec),
-                ),
+                Target::Mesh(_) => (e.radiosity().to_vec(), e.variance().map(<[DVec3]>::to_vec)),
                 Target::AdaptiveFaces(_) => {
-                    let k = a.face_correlation.as_deref().filter(|_| std::env::var("NOK").is_err());
+                    let k = a
+                        .face_correlation
+                        .as_deref()
+                        .filter(|_| std::env::var("NOK").is_err());
                     let (b, v, _) = per_face(&a.mesh, e.radiosity(), e.variance(), k);
                     (b, v)
                 }

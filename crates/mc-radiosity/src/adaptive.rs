@@ -466,7 +466,10 @@ pub fn pool_correlation(
         return Ok(k);
     };
     let part = |v: &[DVec3], w: fn(DVec3) -> DVec3| -> Vec<DVec3> {
-        v.iter().zip(&weights).map(|(v, x)| w(*x) * w(*x) * *v).collect()
+        v.iter()
+            .zip(&weights)
+            .map(|(v, x)| w(*x) * w(*x) * *v)
+            .collect()
     };
     let (own, added) = (part(vf, |w| w), part(ve, |w| DVec3::ONE - w));
     crate::correlation::with_independent(mesh, &mut k, &own, &added);

@@ -486,7 +486,13 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let face_correlation = match (&solution.face_correlation, &refinement, problem.resume) {
         (Some(k), Some(r), None) => {
             let all = vec![r.pooled_valid; mesh.patches().len()];
-            Some(pool_correlation(&mesh, &solution.estimate, &r.pooled, &all, k)?)
+            Some(pool_correlation(
+                &mesh,
+                &solution.estimate,
+                &r.pooled,
+                &all,
+                k,
+            )?)
         }
         (k, ..) => k.clone(),
     };

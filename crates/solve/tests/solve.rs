@@ -238,3 +238,27 @@ fn a_time_budget_leaves_the_callers_work_after_the_solve_its_time() {
     assert!(busy.estimate.rays() < free.estimate.rays() / 4);
     assert_eq!(busy.stats.stop, mcrad_mc_radiosity::StopReason::BudgetSpent);
 }
+
+/// The answer carries, per face, the factor of the correlation between its patches
+/// (`Answer::face_correlation`, what `--per-face` and a bake's per-face figures take): on the
+/// default adaptive mesh one for every face, finite and positive, through the refinement's
+/// pool; exactly 1 on faces of one patch, where there is no other patch to correlate with.
+#[test]
+fn the_answer_carries_each_faces_correlation_factor() {
+    let scene = furnace();
+    let mut problem = Problem::new(&scene);
+    problem.budget.rays = Some(200_000);
+    let answer = solve(&problem, &mut go).unwrap();
+    let k = answer.face_correlation.expect("combined gives the factors");
+    let faces = answer.mesh.patches().iter().map(|p| p.face).max().unwrap() as usize + 1;
+    assert_eq!(k.len(), faces);
+    assert!(
+        k.iter().all(|k| k.is_finite() && k.min_element() > 0.0),
+        "{k:?}"
+    );
+    assert!(k.iter().any(|k| *k != glam::DVec3::ONE), "{k:?}");
+    problem.settings.mesh = MeshPlan::PerFace;
+    let answer = solve(&problem, &mut go).unwrap();
+    let k = answer.face_correlation.expect("combined gives the factors");
+    assert!(k.iter().all(|k| *k == glam::DVec3::ONE), "{k:?}");
+}
