@@ -33,14 +33,19 @@
 //! over the scene ([`PRIOR_FACES`]), whose faces share the geometry of the correlation (a
 //! face's patches reading the same gathers), as the gains of `crate::replicates` are.
 //!
+//! Shooting's samples are its waves' replicate differences, scaled by the share of the
+//! per-wave variance the whole run keeps over the scene (`Waves::kappa`): a patch's rays
+//! continue one sequence over the waves, stratified across them too, and over a whole face
+//! much more so than over one patch. So the samples' variance of a face's total takes
+//! `Waves::face_scale` as well, the same share measured on the faces' totals.
+//!
 //! Measured (mean over faces of the spread between 16 seeds over the reported variance, the
 //! small-light room of `tests/variance.rs`, 393 patches on 10 faces): `combined` 1.87 with the
-//! patches as independent, 1.07 with the factors; `cargo xtask bake-check` (a textured room,
-//! 8 seeds, per-face texel means), pooled spread / reported 2.11 and mean `z²` 2.41 before,
-//! 0.87 and 1.07 with them. `prr`'s errors are negatively correlated (a ray that lands on one
-//! patch misses the others; stratified rays more so): a wall's mean has a tenth of the
-//! variance of its patches summed, and the samples, blind to the stratification across the
-//! waves, see half of that (0.23 before, 0.46 with the factors: conservative).
+//! patches as independent, 1.07 with the factors; `prr` 0.23 (a wall's mean has a tenth of
+//! the variance of its patches summed), 0.47 with the samples' factors, 0.72 with the face
+//! scale. `cargo xtask bake-check` (a textured room, 8 seeds, per-face texel means), pooled
+//! spread / reported and mean `z²`: `combined` 2.11 and 2.41 before, 0.87 and 1.07 with the
+//! factors; `prr` 0.43 and 0.36 before, 0.70 and 0.78.
 
 use crate::replicates::{Row, SKETCHES};
 use glam::DVec3;
@@ -65,11 +70,19 @@ pub(crate) fn face_key(mesh: &Mesh, i: usize, back: u32) -> usize {
 /// ([`face_key`]), per channel, from error samples `rows` (W/m², one per patch) and the
 /// independent remainder `independent` ((W/m²)² per patch). Faces of one patch get exactly 1;
 /// a face whose patches hold no error at all, 1.
-pub(crate) fn face_factors(mesh: &Mesh, rows: &[Row], independent: &[DVec3]) -> Vec<DVec3> {
+/// `face_scale` multiplies the samples' variance of a face's total (the numerator's first
+/// term; shooting's `Waves::face_scale`), 1 where the samples hold it as it is.
+pub(crate) fn face_factors(
+    mesh: &Mesh,
+    rows: &[Row],
+    independent: &[DVec3],
+    face_scale: f64,
+) -> Vec<DVec3> {
     factors_of(
         mesh,
         |i, g| crate::replicates::sample(&rows[i], g),
         |i| independent[i],
+        face_scale,
     )
 }
 
@@ -79,6 +92,7 @@ pub(crate) fn factors_of(
     mesh: &Mesh,
     sample: impl Fn(usize, usize) -> DVec3,
     independent: impl Fn(usize) -> DVec3,
+    face_scale: f64,
 ) -> Vec<DVec3> {
     let back = mesh.back_face_offset();
     let n = mesh.patches().len();
@@ -124,7 +138,7 @@ pub(crate) fn factors_of(
     let correlated: Vec<DVec3> = sums
         .iter()
         .zip(&own)
-        .map(|(sums, own)| sums.iter().map(|x| *x * *x).sum::<DVec3>() + *own)
+        .map(|(sums, own)| face_scale * sums.iter().map(|x| *x * *x).sum::<DVec3>() + *own)
         .collect();
     // The scene's factor per band of patch counts: the prior each face is drawn towards.
     let band = |c: u32| (c.max(1).ilog2() as usize).min(BANDS - 1);

@@ -222,12 +222,26 @@ pub(crate) struct Waves {
     /// Per patch, the error power each of its rays carries in this wave (`None` where it
     /// carries none: most of all the emitters' first wave, the largest, carries nothing).
     per_ray: Vec<Option<Row>>,
+    /// Per patch, the input face it lies on ([`Waves::face_scale`]).
+    face: Vec<u32>,
+    /// Per face, this wave's difference `sum_{j in f} d_wj` (W per channel), and the faces
+    /// it touched.
+    face_wave: Vec<DVec3>,
+    face_touched: Vec<u32>,
+    /// Per face, `sum_w |sum_{j in f} d_wj|²`.
+    face_differences: Vec<f64>,
 }
 
 impl Waves {
-    /// Sums for `patches` patches.
-    pub fn new(patches: usize) -> Waves {
+    /// Sums for the patches of `face` (patch `j` on input face `face[j]`).
+    pub fn new(face: Vec<u32>) -> Waves {
+        let patches = face.len();
+        let faces = face.iter().map(|&f| f as usize + 1).max().unwrap_or(0);
         Waves {
+            face,
+            face_wave: vec![DVec3::ZERO; faces],
+            face_touched: Vec::new(),
+            face_differences: vec![0.0; faces],
             wave: vec![Halves::default(); patches],
             total: vec![Halves::default(); patches],
             wave_squares: vec![0.0; patches],
@@ -307,8 +321,51 @@ impl Waves {
             self.model[j].0 += v;
             self.model[j].1 += v * v;
             self.total[j] = self.total[j].merge(self.wave[j]);
+            let f = self.face[j] as usize;
+            if self.face_wave[f] == DVec3::ZERO {
+                self.face_touched.push(f as u32);
+            }
+            self.face_wave[f] += self.wave[j].sum[0] - self.wave[j].sum[1];
             self.wave[j] = Halves::default();
             self.wave_squares[j] = 0.0;
+        }
+        for f in self.face_touched.drain(..) {
+            let d = std::mem::take(&mut self.face_wave[f as usize]);
+            self.face_differences[f as usize] += d.length_squared();
+        }
+    }
+
+    /// How much less of the per-wave variance a face's total keeps than a patch's: `kappa_F /
+    /// kappa` (after the last [`Waves::end_wave`]), `kappa` the scene's ([`Waves::gains`])
+    /// and `kappa_F = sum_f D_f / sum_f W_f` the same over the faces of several patches, `D_f`
+    /// the run's one difference of the face's total and `W_f` the waves' summed. A patch's
+    /// rays continue one sequence over the waves, so where they land is stratified across
+    /// the waves as well as within each: over a whole face much more so than over one patch
+    /// (a wall's mean under `prr` had a tenth of its patches' summed variance, the per-wave
+    /// samples showed a fifth). The error samples ([`Waves::sketch`]) are the waves', scaled
+    /// by `kappa`; the variance of a face's total from them takes this factor too
+    /// (`crate::correlation`). 1 without a face of several patches.
+    pub fn face_scale(&self) -> f64 {
+        let mut count = vec![0u32; self.face_differences.len()];
+        for &f in &self.face {
+            count[f as usize] += 1;
+        }
+        let mut totals = vec![DVec3::ZERO; count.len()];
+        for (t, &f) in self.total.iter().zip(&self.face) {
+            totals[f as usize] += t.sum[0] - t.sum[1];
+        }
+        let (mut d, mut w) = (0.0, 0.0);
+        for ((total, &c), &waves) in totals.iter().zip(&count).zip(&self.face_differences) {
+            if c > 1 {
+                d += total.length_squared();
+                w += waves;
+            }
+        }
+        let kappa = self.kappa();
+        if w > 0.0 && kappa > 0.0 {
+            d / w / kappa
+        } else {
+            1.0
         }
     }
 

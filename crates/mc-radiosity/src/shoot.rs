@@ -235,6 +235,10 @@ pub struct Shooting {
     /// channel, by the independent-ray formula): deposits of rays alone in their replicate
     /// in a wave (a roulette tail's, mostly) and an extrapolated remainder's.
     pub unsampled: Vec<DVec3>,
+    /// The factor on the variance of a face's total that `sketch` gives
+    /// ([`Waves::face_scale`]: the stratification across the waves over a whole face),
+    /// dimensionless; 1 without a face of several patches.
+    pub face_scale: f64,
 }
 
 /// Without a budget (`rays == u64::MAX`, a run the observer stops) the waves plan for a
@@ -324,7 +328,7 @@ pub fn shoot<C: RayCaster>(
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
     // sequence, wave by wave (crate::replicates).
     // Kept under either sampler: their error samples (`Waves::sketch`) serve both.
-    let mut waves = Some(Waves::new(patches.len()));
+    let mut waves = Some(Waves::new(patches.iter().map(|p| p.face).collect()));
     let mut stats = ShootStats {
         rays: 0,
         waves: 0,
@@ -499,6 +503,7 @@ pub fn shoot<C: RayCaster>(
         replicates::scale(&mut squares, &gains);
         replicates::scale(&mut unsampled, &gains);
     }
+    let face_scale = waves.as_ref().map_or(1.0, Waves::face_scale);
     let (mut sketch, pending) = waves.map(|w| w.sketch()).unwrap_or_default();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
@@ -565,6 +570,7 @@ pub fn shoot<C: RayCaster>(
         stats,
         sketch,
         unsampled,
+        face_scale,
     })
 }
 

@@ -389,10 +389,10 @@ fn per_face_variances_of_combined_carry_the_correlation_between_patches() {
 /// Issue 36, item 3, for `prr`: shooting conserves power, so the errors of a face's patches
 /// are negatively correlated (a ray that lands on one patch misses the others), and under
 /// stratified rays strongly so: in the room above a wall's mean has a tenth of the variance
-/// its patches give as independent (mean spread / reported over the faces 0.24 so summed).
-/// The error samples see part of it, not the stratification across the waves, which leaves
-/// the per-face figures conservative: 0.46 here. The test holds what is reached: within
-/// `[0.33, 1.5]`, and above the independent sum's.
+/// its patches give as independent (mean spread / reported over the faces 0.23 so summed).
+/// The error samples see part of it (0.47 with their factors alone); the stratification of
+/// a patch's sequence across the waves is measured per face (`Waves::face_scale`): 0.72.
+/// Within the calibration's target `[0.67, 1.5]` (as the test above).
 #[test]
 fn per_face_variances_of_prr_carry_the_correlation_between_patches() {
     let mesh = small_light_room_meshed(0.5, Subdivision::MaxEdge(0.125));
@@ -401,11 +401,7 @@ fn per_face_variances_of_prr_carry_the_correlation_between_patches() {
         "spread / reported per face: independent {independent:.3}, correlated {correlated:.3}"
     );
     assert!(
-        (0.33..=1.5).contains(&correlated),
+        (0.67..=1.5).contains(&correlated),
         "correlated {correlated:.3}"
-    );
-    assert!(
-        correlated > independent * 1.3,
-        "{correlated:.3} against {independent:.3}"
     );
 }

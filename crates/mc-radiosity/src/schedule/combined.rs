@@ -462,6 +462,7 @@ fn combine(
             weights[i] * z + (DVec3::ONE - weights[i]) * y
         },
         |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
+        1.0,
     );
     let estimate = Estimate::new(merged.radiosity().to_vec(), Some(variance), merged.rays())?;
     Ok((estimate, Some(factors)))

@@ -30,6 +30,8 @@ pub(crate) fn run<C: RayCaster>(
     // (by the rays asked), for the correlation between a face's patches.
     let mut rows: Vec<Row> = Vec::new();
     let mut unsampled: Vec<DVec3> = Vec::new();
+    // Their face scales (`Shooting::face_scale`) averaged by rays.
+    let mut face_scale = 0.0;
     loop {
         let left = passes.remaining();
         // Rays kept back from the last pass, given back after it.
@@ -47,6 +49,7 @@ pub(crate) fn run<C: RayCaster>(
         asked += budget;
         cast += s.stats.rays;
         let w = budget as f64 / asked as f64;
+        face_scale = (1.0 - w) * face_scale + w * s.face_scale;
         if rows.is_empty() {
             (rows, unsampled) = (
                 std::mem::take(&mut s.sketch),
@@ -64,7 +67,7 @@ pub(crate) fn run<C: RayCaster>(
     }
     let mut solution = run.finish(config.rays)?;
     if ctx.sampling() == crate::Sampler::Qmc && rows.len() == mesh.patches().len() {
-        solution.face_correlation = Some(face_factors(mesh, &rows, &unsampled));
+        solution.face_correlation = Some(face_factors(mesh, &rows, &unsampled, face_scale));
     }
     // A patch no ray reached: "no information", not a zero variance.
     solution.estimate = crate::shoot::unreached_variance(mesh, solution.estimate)?;
