@@ -30,8 +30,8 @@ use std::path::{Path, PathBuf};
 pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
     let bytes = files::read_file(path, options)?;
     let text = String::from_utf8_lossy(&bytes);
-    let obj =
-        obj_text::scan_obj_parallel(&text).map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
+    let obj = obj_text::scan_obj_parallel(&text)
+        .map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
 
     // The faces grouped as `tobj` groups them (one group per object, group and material run),
     // with the MTL files read by `tobj` as their `mtllib` statements come.
@@ -284,17 +284,11 @@ fn collect_faces(
     let mut faces = Vec::with_capacity(total);
     for (group, &material) in groups.iter().zip(&group_materials) {
         let first = faces.len();
-        faces.par_extend(
-            group
-                .faces
-                .par_iter()
-                .enumerate()
-                .map(|(k, corners)| Face {
-                    vertices: mapped[corners.clone()].to_vec(),
-                    material,
-                    source: (first + k) as u32,
-                }),
-        );
+        faces.par_extend(group.faces.par_iter().enumerate().map(|(k, corners)| Face {
+            vertices: mapped[corners.clone()].to_vec(),
+            material,
+            source: (first + k) as u32,
+        }));
     }
     Ok((positions, faces, defaulted))
 }

@@ -1,4 +1,5 @@
-//! The OBJ reader's one pass over the file, and a check of MTL text before `tobj` reads it.
+//! The OBJ reader's one pass over the file (in parallel over line-aligned chunks, stitched in
+//! order: [`scan_obj_parallel`]), and a check of MTL text before `tobj` reads it.
 //!
 //! `tobj` reports errors without a line, silently drops faces with fewer than 3 vertices,
 //! rejects valid input (1-component `vt`, mixed vertex colours, faces referring to vertices
@@ -170,7 +171,10 @@ fn line_chunks(text: &str, chunk_bytes: usize) -> Vec<&str> {
     let mut start = 0usize;
     loop {
         let at = start.saturating_add(chunk_bytes);
-        let end = match bytes.get(at..).and_then(|b| b.iter().position(|&c| c == b'\n')) {
+        let end = match bytes
+            .get(at..)
+            .and_then(|b| b.iter().position(|&c| c == b'\n'))
+        {
             Some(newline) => at + newline + 1,
             None => bytes.len(),
         };
@@ -680,13 +684,19 @@ mod tests {
                     parsed += 1;
                 }
                 Err(_) => {
-                    assert!(own.is_none(), "seed {seed}: parallel parse missed the error");
+                    assert!(
+                        own.is_none(),
+                        "seed {seed}: parallel parse missed the error"
+                    );
                     failed += 1;
                 }
             }
         }
         // both paths are exercised, with many chunks
-        assert!(parsed > 50 && failed > 50, "{parsed} parsed, {failed} failed");
+        assert!(
+            parsed > 50 && failed > 50,
+            "{parsed} parsed, {failed} failed"
+        );
     }
 
     #[test]
