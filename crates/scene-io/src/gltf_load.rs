@@ -8,6 +8,7 @@ use crate::{Camera, Face, Loaded, Material, Scene};
 use glam::{Mat4, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::{Mode, Semantic};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// What a reflectance channel of exactly 1.0 becomes (the solver needs `rho < 1`).
@@ -476,15 +477,19 @@ impl Geometry<'_> {
             .ok_or_else(|| SceneError::Unsupported {
                 what: "more than 2^32 vertices".into(),
             })?;
-        for (vertex, p) in local.iter().enumerate() {
+        // (in parallel; the first bad vertex in order is reported)
+        let bad = local.par_iter().enumerate().find_map_first(|(vertex, p)| {
             // The value in the file first; then the transform may still overflow.
-            for position in [*p, world.transform_point3(*p)] {
-                if !position.is_finite() {
-                    return Err(SceneError::NonFinitePosition { vertex, position });
-                }
-            }
-            self.positions.push(world.transform_point3(*p));
+            [*p, world.transform_point3(*p)]
+                .into_iter()
+                .find(|position| !position.is_finite())
+                .map(|position| SceneError::NonFinitePosition { vertex, position })
+        });
+        if let Some(e) = bad {
+            return Err(e);
         }
+        self.positions
+            .par_extend(local.par_iter().map(|p| world.transform_point3(*p)));
         let placed = &self.positions[offset as usize..];
         // a factor channel of 1.0 is stored as 0.999: the texture's mapping makes up for it
         let index = primitive.material().index();
@@ -509,16 +514,19 @@ impl Geometry<'_> {
                 self.default_material
             }
         };
-        for t in triangles {
-            let source = u32::try_from(self.faces.len()).map_err(|_| SceneError::Unsupported {
+        let first = self.faces.len();
+        if first + triangles.len() > u32::MAX as usize + 1 {
+            return Err(SceneError::Unsupported {
                 what: "more than 2^32 faces".into(),
-            })?;
-            self.faces.push(Face {
-                vertices: t.iter().map(|&i| i + offset).collect(),
-                material,
-                source,
             });
         }
+        // (in parallel, in order)
+        self.faces
+            .par_extend(triangles.par_iter().enumerate().map(|(k, t)| Face {
+                vertices: t.iter().map(|&i| i + offset).collect(),
+                material,
+                source: (first + k) as u32,
+            }));
         Ok(())
     }
 }

@@ -7,6 +7,7 @@ use crate::files::{self, LoadOptions};
 use crate::obj_text::{self, ObjText, Statement};
 use crate::{Face, Loaded, Material, Scene};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -29,8 +30,8 @@ use std::path::{Path, PathBuf};
 pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
     let bytes = files::read_file(path, options)?;
     let text = String::from_utf8_lossy(&bytes);
-    let obj =
-        obj_text::scan_obj(&text).map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
+    let obj = obj_text::scan_obj_parallel(&text)
+        .map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
 
     // The faces grouped as `tobj` groups them (one group per object, group and material run),
     // with the MTL files read by `tobj` as their `mtllib` statements come.
@@ -233,7 +234,6 @@ fn collect_faces(
     };
     let default = u32::try_from(materials).map_err(|_| too_many("materials"))?;
     let mut positions = Vec::new();
-    let mut faces = Vec::new();
     let mut defaulted = 0;
     // Each OBJ vertex's index in this group's positions (`UNSEEN` before its first use): a
     // dense table reset through the entries the group touched, instead of a hash map (a
@@ -241,6 +241,9 @@ fn collect_faces(
     const UNSEEN: u32 = u32::MAX;
     let mut index: Vec<u32> = vec![UNSEEN; obj.positions.len()];
     let mut touched: Vec<usize> = Vec::new();
+    // First, in order, each corner's index into `positions` (`mapped[c]` for `obj.corners[c]`)
+    let mut mapped: Vec<u32> = vec![0; obj.corners.len()];
+    let mut group_materials = Vec::with_capacity(groups.len());
     for group in groups {
         for v in touched.drain(..) {
             index[v] = UNSEEN;
@@ -249,10 +252,14 @@ fn collect_faces(
             Some(id) if id < materials => id as u32,
             _ => default,
         };
+        group_materials.push(material);
+        if material == default {
+            defaulted += group.faces.len();
+        }
         for corners in &group.faces {
-            let mut vertices = Vec::with_capacity(corners.len());
-            for &v in &obj.corners[corners.clone()] {
-                let i = match index[v] {
+            for c in corners.clone() {
+                let v = obj.corners[c];
+                mapped[c] = match index[v] {
                     UNSEEN => {
                         let next =
                             u32::try_from(positions.len()).map_err(|_| too_many("vertices"))?;
@@ -266,18 +273,22 @@ fn collect_faces(
                     }
                     i => i,
                 };
-                vertices.push(i);
-            }
-            let source = u32::try_from(faces.len()).map_err(|_| too_many("faces"))?;
-            faces.push(Face {
-                vertices,
-                material,
-                source,
-            });
-            if material == default {
-                defaulted += 1;
             }
         }
+    }
+    // then the faces, in parallel (each its own list of vertices), in order
+    let total: usize = groups.iter().map(|g| g.faces.len()).sum();
+    if total > u32::MAX as usize + 1 {
+        return Err(too_many("faces"));
+    }
+    let mut faces = Vec::with_capacity(total);
+    for (group, &material) in groups.iter().zip(&group_materials) {
+        let first = faces.len();
+        faces.par_extend(group.faces.par_iter().enumerate().map(|(k, corners)| Face {
+            vertices: mapped[corners.clone()].to_vec(),
+            material,
+            source: (first + k) as u32,
+        }));
     }
     Ok((positions, faces, defaulted))
 }

@@ -1,4 +1,5 @@
-//! The OBJ reader's one pass over the file, and a check of MTL text before `tobj` reads it.
+//! The OBJ reader's one pass over the file (in parallel over line-aligned chunks, stitched in
+//! order: [`scan_obj_parallel`]), and a check of MTL text before `tobj` reads it.
 //!
 //! `tobj` reports errors without a line, silently drops faces with fewer than 3 vertices,
 //! rejects valid input (1-component `vt`, mixed vertex colours, faces referring to vertices
@@ -11,6 +12,7 @@
 
 use crate::error::SceneError;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::ops::Range;
 
 /// An error with the 1-based line it was found on.
@@ -35,6 +37,7 @@ pub(crate) enum Statement {
 }
 
 /// An OBJ file checked and parsed.
+#[derive(Debug, PartialEq)]
 pub(crate) struct ObjText {
     /// Every `v` position, in file order (`w` divided out).
     pub positions: Vec<Vec3>,
@@ -133,6 +136,208 @@ pub(crate) fn scan_obj(text: &str) -> Result<ObjText, LineError> {
         return Err((line_no, e));
     }
     Ok(out)
+}
+
+/// The text of a chunk parsed in parallel by [`scan_obj_parallel`]: at least this many bytes
+/// (then to the end of the line). Fixed, so the chunks do not depend on the thread count.
+const CHUNK_BYTES: usize = 1 << 20;
+
+/// [`scan_obj`] in parallel: the text is cut into line-aligned chunks of about
+/// [`CHUNK_BYTES`], parsed in parallel, then stitched in order (vertex numbers, relative
+/// indices and line numbers offset by the chunks before). The result is [`scan_obj`]'s, the
+/// same for any thread count: where a chunk finds something wrong, or the stitched whole breaks
+/// a rule that needs the whole file (a relative index reaching before the first vertex, an
+/// index past the last, too many faces), the text is parsed again by [`scan_obj`], which finds
+/// the first error with its line and message.
+pub(crate) fn scan_obj_parallel(text: &str) -> Result<ObjText, LineError> {
+    scan_obj_chunked(text, CHUNK_BYTES)
+}
+
+/// [`scan_obj_parallel`] with chunks of at least `chunk_bytes` bytes.
+fn scan_obj_chunked(text: &str, chunk_bytes: usize) -> Result<ObjText, LineError> {
+    let chunks: Vec<&str> = line_chunks(text, chunk_bytes.max(1));
+    let parsed: Option<Vec<Chunk>> = chunks.into_par_iter().map(scan_chunk).collect();
+    match parsed.and_then(stitch) {
+        Some(obj) => Ok(obj),
+        None => scan_obj(text),
+    }
+}
+
+/// `text` cut into pieces of at least `chunk_bytes` bytes that end just after a newline (the
+/// last at the end of the text); at least one piece.
+fn line_chunks(text: &str, chunk_bytes: usize) -> Vec<&str> {
+    let bytes = text.as_bytes();
+    let mut chunks = Vec::with_capacity(text.len() / chunk_bytes + 1);
+    let mut start = 0usize;
+    loop {
+        let at = start.saturating_add(chunk_bytes);
+        let end = match bytes
+            .get(at..)
+            .and_then(|b| b.iter().position(|&c| c == b'\n'))
+        {
+            Some(newline) => at + newline + 1,
+            None => bytes.len(),
+        };
+        // (after a newline or at the end: a character boundary)
+        chunks.push(text.get(start..end).unwrap_or(""));
+        if end >= bytes.len() {
+            return chunks;
+        }
+        start = end;
+    }
+}
+
+/// A chunk of an OBJ file parsed on its own: as [`ObjText`], but with line numbers counted
+/// from the chunk's first line and vertices from its first vertex.
+struct Chunk {
+    /// Its `v` positions.
+    positions: Vec<Vec3>,
+    /// Its statements; face ranges index [`Chunk::corners`], `mtllib` lines are the chunk's.
+    statements: Vec<Statement>,
+    /// Its faces' corners as 0-based indices into the file's positions, except those listed in
+    /// [`Chunk::relative`].
+    corners: Vec<usize>,
+    /// The corners with relative (negative) indices: the corner's place in
+    /// [`Chunk::corners`] and its 1-based vertex number counted from the chunk's first vertex
+    /// (`<= 0` for vertices of earlier chunks).
+    relative: Vec<(usize, i64)>,
+    /// The chunk's line of each face.
+    face_lines: Vec<usize>,
+    /// Each `usemtl` name with the chunk's line of its first use in the chunk.
+    usemtl: Vec<(String, usize)>,
+    /// The largest positive vertex index used (0 if none).
+    max_index: i64,
+    /// Its lines (all ending in a newline, but the last chunk's last one may not).
+    lines: usize,
+}
+
+/// Parses one chunk; `None` if any statement in it is wrong (the serial parse then finds the
+/// error).
+fn scan_chunk(text: &str) -> Option<Chunk> {
+    let mut out = Chunk {
+        positions: Vec::new(),
+        statements: Vec::new(),
+        corners: Vec::new(),
+        relative: Vec::new(),
+        face_lines: Vec::new(),
+        usemtl: Vec::new(),
+        max_index: 0,
+        lines: 0,
+    };
+    for (i, line) in text.lines().enumerate() {
+        let line_no = i + 1;
+        out.lines = line_no;
+        let statement = line.split('#').next().unwrap_or("");
+        let mut words = statement.split_whitespace();
+        let Some(keyword) = words.next() else {
+            continue;
+        };
+        let rest = || rest_after_keyword(line, keyword);
+        match keyword {
+            "v" => {
+                // (the vertex number only shows in an error, which the serial parse reports)
+                let p = parse_vertex(line, words, 0).ok()?;
+                out.positions.push(p);
+            }
+            "f" => {
+                let corners = words.clone();
+                let found = words.count();
+                if !(3..=crate::MAX_FACE_VERTICES).contains(&found) {
+                    return None;
+                }
+                let start = out.corners.len();
+                for corner in corners {
+                    let v = corner.split('/').next().unwrap_or("");
+                    let index = v.parse::<i64>().ok()?;
+                    match index {
+                        0 => return None,
+                        i if i < 0 => {
+                            let local = out.positions.len() as i64 + i + 1;
+                            out.relative.push((out.corners.len(), local));
+                            out.corners.push(0);
+                        }
+                        i => {
+                            out.max_index = out.max_index.max(i);
+                            out.corners.push(usize::try_from(i - 1).ok()?);
+                        }
+                    }
+                }
+                out.statements
+                    .push(Statement::Face(start..out.corners.len()));
+                out.face_lines.push(line_no);
+            }
+            "mtllib" => out.statements.push(Statement::Mtllib {
+                name: rest().to_string(),
+                line: line_no,
+            }),
+            "usemtl" => {
+                let name = rest();
+                if name.is_empty() {
+                    return None;
+                }
+                if !out.usemtl.iter().any(|(n, _)| *n == name) {
+                    out.usemtl.push((name.to_string(), line_no));
+                }
+                out.statements.push(Statement::Usemtl(name.to_string()));
+            }
+            "o" | "g" => out.statements.push(Statement::Group),
+            _ => {}
+        }
+    }
+    Some(out)
+}
+
+/// The chunks joined in order into the file's [`ObjText`]; `None` if the whole breaks a rule
+/// the chunks alone could not check.
+fn stitch(chunks: Vec<Chunk>) -> Option<ObjText> {
+    let total = |f: fn(&Chunk) -> usize| chunks.iter().map(f).sum::<usize>();
+    let vertices = total(|c| c.positions.len());
+    let faces = total(|c| c.face_lines.len());
+    if faces > crate::MAX_FACES {
+        return None;
+    }
+    if chunks.iter().any(|c| c.max_index > vertices as i64) {
+        return None;
+    }
+    let mut out = ObjText {
+        positions: Vec::with_capacity(vertices),
+        statements: Vec::with_capacity(total(|c| c.statements.len())),
+        corners: Vec::with_capacity(total(|c| c.corners.len())),
+        face_lines: Vec::with_capacity(faces),
+        usemtl: Vec::new(),
+    };
+    let mut lines = 0usize;
+    for chunk in chunks {
+        let first_vertex = out.positions.len();
+        let first_corner = out.corners.len();
+        out.positions.extend_from_slice(&chunk.positions);
+        out.corners.extend_from_slice(&chunk.corners);
+        for &(at, local) in &chunk.relative {
+            let absolute = first_vertex as i64 + local;
+            if absolute < 1 {
+                return None;
+            }
+            out.corners[first_corner + at] = absolute as usize - 1;
+        }
+        out.statements
+            .extend(chunk.statements.into_iter().map(|s| match s {
+                Statement::Face(r) => Statement::Face(r.start + first_corner..r.end + first_corner),
+                Statement::Mtllib { name, line } => Statement::Mtllib {
+                    name,
+                    line: line + lines,
+                },
+                other => other,
+            }));
+        out.face_lines
+            .extend(chunk.face_lines.iter().map(|l| l + lines));
+        for (name, line) in chunk.usemtl {
+            if !out.usemtl.iter().any(|(n, _)| *n == name) {
+                out.usemtl.push((name, line + lines));
+            }
+        }
+        lines += chunk.lines;
+    }
+    Some(out)
 }
 
 /// The text after a statement's keyword, trimmed (names may contain spaces).
@@ -360,6 +565,165 @@ mod tests {
             "cannot parse vertex coordinate 'a' in 'v 1 a 1'"
         );
         assert_eq!(obj_err("usemtl\n").1, "usemtl needs a material name");
+    }
+
+    /// A random OBJ text of `lines` lines (seeded): vertices (with `w`, with colours), faces
+    /// of 3 to 5 corners in every index form (absolute, relative, forward, some past the end),
+    /// names, comments, blank lines, CRLF endings; with `error`, one line replaced by a
+    /// malformed statement.
+    fn random_obj(seed: u64, lines: usize, error: bool) -> String {
+        use rand_core::Rng as _;
+        let mut stream = rand_pcg::Pcg32::new(seed, 0x0a02_bdbf_7bb3_c0a7);
+        let mut pick = |n: u64| stream.next_u64() % n.max(1);
+        let bad = [
+            "f 1 2",
+            "f 1 x 2",
+            "f 0 1 2",
+            "f -100000 1 2",
+            "f 1 2 100000",
+            "v 1 nan 0",
+            "v 1 1",
+            "v 1 a 1",
+            "v 1 1 1 0",
+            "v 2e38 2e38 2e38 0.5",
+            "usemtl",
+            "usemtl   # nothing",
+        ];
+        let error_line = error.then(|| pick(lines as u64) as usize);
+        let mut count = 0u64;
+        let mut text = String::new();
+        for l in 0..lines {
+            let line = if Some(l) == error_line {
+                bad[pick(bad.len() as u64) as usize].to_string()
+            } else {
+                match pick(20) {
+                    0..=6 => {
+                        count += 1;
+                        let (x, y, z) = (pick(9), pick(9) as f64 / 4.0, pick(9));
+                        match pick(4) {
+                            0 => format!("v {x} {y} {z} 2"),
+                            1 => format!("v {x} {y} {z} 0.1 0.2 0.3"),
+                            _ => format!("v  {x}\t{y} {z}"),
+                        }
+                    }
+                    7..=12 => {
+                        let corners = (0..3 + pick(3))
+                            .map(|_| {
+                                // relative; absolute; forward (rarely past the end)
+                                let i = match pick(6) {
+                                    0 | 1 if count > 0 => -(1 + pick(count) as i64),
+                                    0 => 1 + pick(count + 3) as i64,
+                                    _ => 1 + pick(count.max(1)) as i64,
+                                };
+                                match pick(4) {
+                                    0 => format!("{i}/1"),
+                                    1 => format!("{i}//2"),
+                                    2 => format!("{i}/3/4"),
+                                    _ => format!("{i}"),
+                                }
+                            })
+                            .collect::<Vec<_>>();
+                        format!("f {}", corners.join(" "))
+                    }
+                    13 => "vt 0.5 0.5".into(),
+                    14 => "# f 1 2".into(),
+                    15 => String::new(),
+                    16 => format!("usemtl m{} # x", pick(4)),
+                    17 => format!("{} part {}", ["g", "o"][pick(2) as usize], pick(5)),
+                    18 => format!("mtllib lib{}.mtl", pick(3)),
+                    _ => "s 1".into(),
+                }
+            };
+            text.push_str(&line);
+            text.push_str(if pick(5) == 0 { "\r\n" } else { "\n" });
+        }
+        if pick(2) == 0 {
+            text.pop(); // no newline at the end
+        }
+        text
+    }
+
+    fn outcome(r: Result<ObjText, LineError>) -> Result<ObjText, (usize, String)> {
+        r.map_err(|(line, e)| (line, e.to_string()))
+    }
+
+    #[test]
+    fn chunks_are_line_aligned_and_cover_the_text() {
+        for text in ["", "v 1 2 3", "v 1 2 3\n", "a\r\nbb\n\nccc\n d"] {
+            for size in [1, 2, 3, 100] {
+                let chunks = line_chunks(text, size);
+                assert_eq!(chunks.concat(), text);
+                let (last, rest) = chunks.split_last().unwrap();
+                assert!(rest.iter().all(|c| c.ends_with('\n') && c.len() >= size));
+                assert!(!last.is_empty() || text.is_empty());
+            }
+        }
+        assert_eq!(line_chunks("ab\ncd\nef\n", 1), ["ab\n", "cd\n", "ef\n"]);
+        assert_eq!(line_chunks("ab\ncd\nef", 4), ["ab\ncd\n", "ef"]);
+    }
+
+    #[test]
+    fn parallel_parse_is_the_serial_one() {
+        let (mut parsed, mut failed) = (0, 0);
+        for seed in 0..300 {
+            let text = random_obj(seed, 60 + seed as usize % 200, seed % 3 == 2);
+            let serial = outcome(scan_obj(&text));
+            for size in [1, 7, 40, 256, CHUNK_BYTES] {
+                let chunked = outcome(scan_obj_chunked(&text, size));
+                assert_eq!(chunked, serial, "seed {seed}, chunks of {size}:\n{text}");
+            }
+            // the chunks' own path (no fallback) where the serial parse succeeds
+            let own = line_chunks(&text, 7)
+                .into_iter()
+                .map(scan_chunk)
+                .collect::<Option<Vec<_>>>()
+                .and_then(stitch);
+            match &serial {
+                Ok(obj) => {
+                    assert_eq!(own.as_ref(), Some(obj), "seed {seed}");
+                    parsed += 1;
+                }
+                Err(_) => {
+                    assert!(
+                        own.is_none(),
+                        "seed {seed}: parallel parse missed the error"
+                    );
+                    failed += 1;
+                }
+            }
+        }
+        // both paths are exercised, with many chunks
+        assert!(
+            parsed > 50 && failed > 50,
+            "{parsed} parsed, {failed} failed"
+        );
+    }
+
+    #[test]
+    fn errors_in_later_chunks_keep_their_line_and_vertex_number() {
+        let mut text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".repeat(50);
+        text.push_str("f -1 -2 -201\n");
+        let (line, e) = scan_obj_chunked(&text, 10).err().unwrap();
+        assert_eq!(line, 201);
+        assert_eq!(
+            e.to_string(),
+            "face uses vertex -201 (relative) but only 150 vertices are defined so far"
+        );
+        // a relative index reaching back over many chunks is fine
+        let ok = format!("{}f -150 -1 -75\n", text.trim_end_matches("f -1 -2 -201\n"));
+        let obj = scan_obj_chunked(&ok, 10).unwrap();
+        assert_eq!(obj.corners[obj.corners.len() - 3..], [0, 149, 75]);
+        assert_eq!(*obj.face_lines.last().unwrap(), 201);
+        let (line, e) = scan_obj_chunked(&format!("{ok}v 1 inf 0\n"), 10)
+            .err()
+            .unwrap();
+        assert_eq!(
+            (line, e.to_string()),
+            (
+                202,
+                "vertex 151 has a non-finite coordinate (1, inf, 0)".into()
+            )
+        );
     }
 
     #[test]

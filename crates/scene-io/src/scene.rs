@@ -3,6 +3,7 @@
 use crate::error::{SceneError, Warning};
 use crate::polygon::{self, Shape};
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 
 /// A diffuse material.
 #[derive(Debug, Clone, PartialEq)]
@@ -169,79 +170,14 @@ impl Scene {
         let diagonal = bounds.map_or(0.0, |b| b.diagonal());
         let degenerate_area = 1e-12 * diagonal * diagonal;
 
-        let mut kept = Vec::with_capacity(faces.len());
-        let mut dropped = Tally::default();
-        let mut split = Tally::default();
-        let mut duplicates = Tally::default();
-        let mut seen = Duplicates::with_capacity(faces.len());
-        // emitting faces dropped as degenerate, and the largest area among them
-        let mut dark = Tally::default();
-        let mut dark_area = 0.0f64;
-        // the corners of faces of up to `SMALL` vertices in a buffer on the stack (no allocation
-        // per face)
-        let mut small = [DVec3::ZERO; SMALL];
-        let mut large: Vec<DVec3> = Vec::new();
-        for mut face in faces {
-            let ring = merge_repeated(std::mem::take(&mut face.vertices), &positions);
-            if seen.is_duplicate(&ring, face.material, &positions) {
-                duplicates.add(face.source);
-                continue;
-            }
-            let pts: &mut [DVec3] = if ring.len() <= SMALL {
-                &mut small[..ring.len()]
-            } else {
-                large.resize(ring.len(), DVec3::ZERO);
-                &mut large
-            };
-            for (p, &v) in pts.iter_mut().zip(&ring) {
-                *p = positions[v as usize].as_dvec3();
-            }
-            let pts: &[DVec3] = pts;
-            let emits = materials[face.material as usize].is_emitter();
-            let mut drop = |dropped: &mut Tally| {
-                dropped.add(face.source);
-                if emits {
-                    dark.add(face.source);
-                    dark_area = dark_area.max(polygon::vector_area2(pts).length() / 2.0);
-                }
-            };
-            match polygon::classify(pts, degenerate_area) {
-                Shape::Degenerate => drop(&mut dropped),
-                Shape::Fan { apex } => {
-                    let mut vertices = ring;
-                    vertices.rotate_left(apex);
-                    kept.push(Face { vertices, ..face });
-                }
-                Shape::Split(tris) => {
-                    let before = kept.len();
-                    let mut repeated = false;
-                    for t in tris {
-                        let tri = [pts[t[0]], pts[t[1]], pts[t[2]]];
-                        if polygon::vector_area2(&tri).length() / 2.0 <= degenerate_area {
-                            continue;
-                        }
-                        let vertices = vec![ring[t[0]], ring[t[1]], ring[t[2]]];
-                        // (a self-overlapping outline such as `f 1 2 3 1 2 3` splits into
-                        // copies of one triangle)
-                        if seen.is_duplicate(&vertices, face.material, &positions) {
-                            duplicates.add(face.source);
-                            repeated = true;
-                            continue;
-                        }
-                        kept.push(Face {
-                            vertices,
-                            material: face.material,
-                            source: face.source,
-                        });
-                    }
-                    if kept.len() > before {
-                        split.add(face.source);
-                    } else if !repeated {
-                        drop(&mut dropped);
-                    }
-                }
-            }
-        }
+        let Repaired {
+            kept,
+            dropped,
+            split,
+            duplicates,
+            dark,
+            dark_area,
+        } = repair(faces, &positions, &materials, degenerate_area, REPAIR_BLOCK);
 
         if kept.is_empty() {
             return Err(SceneError::NoFaces {
@@ -391,8 +327,201 @@ impl Scene {
     }
 }
 
-/// Counts faces and remembers the first one's source.
+/// Faces prepared in parallel per block of the repairs (see [`repair`]); the blocks are taken
+/// in turn, each prepared while the one before is sorted in order.
+const REPAIR_BLOCK: usize = 1 << 14;
+
+/// What the repairs of [`Scene::new`] made of the faces.
 #[derive(Default)]
+struct Repaired {
+    /// The faces kept, in input order (split faces by their triangles).
+    kept: Vec<Face>,
+    /// Faces dropped as degenerate.
+    dropped: Tally,
+    /// Faces split into triangles.
+    split: Tally,
+    /// Faces (or triangles of split faces) dropped as duplicates.
+    duplicates: Tally,
+    /// Emitting faces dropped as degenerate.
+    dark: Tally,
+    /// The largest area among `dark`, in units².
+    dark_area: f64,
+}
+
+/// A face made ready for the repairs on its own (in parallel with the others): everything but
+/// whether it repeats an earlier face, which takes the faces in order.
+struct Prepared {
+    /// The face, its vertices merged ([`merge_repeated`]) and, if it is kept whole, rotated.
+    face: Face,
+    /// Its key among the faces seen ([`Duplicates::key`] of the merged ring).
+    key: u128,
+    /// Its area (units²) if its material emits (for [`SceneError::NoEmitter`]'s message).
+    emit_area: Option<f64>,
+    /// What becomes of it if it repeats no earlier face.
+    outcome: Outcome,
+}
+
+/// How a face that is no duplicate is stored.
+enum Outcome {
+    /// Dropped as degenerate.
+    Degenerate,
+    /// Kept whole, vertices as in [`Prepared::face`].
+    Fan,
+    /// Split: its triangles that are not slivers, each with its [`Duplicates::key`].
+    Split(Vec<(Vec<u32>, u128)>),
+}
+
+/// The repairs of [`Scene::new`] (merged vertices, duplicates, degenerate, non-planar and
+/// non-convex faces) over faces whose indices were checked. The per-face work runs in parallel
+/// in blocks of `block` faces; duplicates are then found in input order, so the result is the
+/// same for any block size and thread count.
+fn repair(
+    faces: Vec<Face>,
+    positions: &[Vec3],
+    materials: &[Material],
+    degenerate_area: f64,
+    block: usize,
+) -> Repaired {
+    let mut out = Repaired {
+        kept: Vec::with_capacity(faces.len()),
+        ..Repaired::default()
+    };
+    let mut seen = Duplicates::with_capacity(faces.len());
+    let mut faces = faces.into_iter();
+    let block = block.max(1);
+    let next = |faces: &mut std::vec::IntoIter<Face>| -> Vec<Prepared> {
+        let chunk: Vec<Face> = faces.by_ref().take(block).collect();
+        chunk
+            .into_par_iter()
+            .map(|face| prepare(face, positions, materials, degenerate_area))
+            .collect()
+    };
+    let mut current = next(&mut faces);
+    while !current.is_empty() {
+        let (following, ()) = rayon::join(
+            || next(&mut faces),
+            || {
+                for prepared in current {
+                    out.take(prepared, &mut seen);
+                }
+            },
+        );
+        current = following;
+    }
+    out
+}
+
+/// The per-face part of [`repair`].
+fn prepare(
+    mut face: Face,
+    positions: &[Vec3],
+    materials: &[Material],
+    degenerate_area: f64,
+) -> Prepared {
+    let ring = merge_repeated(std::mem::take(&mut face.vertices), positions);
+    let key = Duplicates::key(&ring, face.material, positions);
+    // the corners of faces of up to `SMALL` vertices in a buffer on the stack (no allocation
+    // per face)
+    let mut small = [DVec3::ZERO; SMALL];
+    let mut large: Vec<DVec3> = Vec::new();
+    let pts: &mut [DVec3] = if ring.len() <= SMALL {
+        &mut small[..ring.len()]
+    } else {
+        large.resize(ring.len(), DVec3::ZERO);
+        &mut large
+    };
+    for (p, &v) in pts.iter_mut().zip(&ring) {
+        *p = positions[v as usize].as_dvec3();
+    }
+    let pts: &[DVec3] = pts;
+    let emit_area = materials[face.material as usize]
+        .is_emitter()
+        .then(|| polygon::vector_area2(pts).length() / 2.0);
+    let outcome = match polygon::classify(pts, degenerate_area) {
+        Shape::Degenerate => Outcome::Degenerate,
+        Shape::Fan { apex } => {
+            let mut vertices = ring;
+            vertices.rotate_left(apex);
+            face.vertices = vertices;
+            Outcome::Fan
+        }
+        Shape::Split(tris) => Outcome::Split(
+            tris.into_iter()
+                .filter_map(|t| {
+                    let tri = [pts[t[0]], pts[t[1]], pts[t[2]]];
+                    if polygon::vector_area2(&tri).length() / 2.0 <= degenerate_area {
+                        return None;
+                    }
+                    let vertices = vec![ring[t[0]], ring[t[1]], ring[t[2]]];
+                    let key = Duplicates::key(&vertices, face.material, positions);
+                    Some((vertices, key))
+                })
+                .collect(),
+        ),
+    };
+    Prepared {
+        face,
+        key,
+        emit_area,
+        outcome,
+    }
+}
+
+impl Repaired {
+    /// Takes the next face in input order: drops it if it repeats an earlier one, else stores
+    /// it as prepared.
+    fn take(&mut self, prepared: Prepared, seen: &mut Duplicates) {
+        let Prepared {
+            face,
+            key,
+            emit_area,
+            outcome,
+        } = prepared;
+        if !seen.insert(key) {
+            self.duplicates.add(face.source);
+            return;
+        }
+        match outcome {
+            Outcome::Degenerate => self.drop_degenerate(face.source, emit_area),
+            Outcome::Fan => self.kept.push(face),
+            Outcome::Split(tris) => {
+                let before = self.kept.len();
+                let mut repeated = false;
+                for (vertices, key) in tris {
+                    // (a self-overlapping outline such as `f 1 2 3 1 2 3` splits into copies
+                    // of one triangle)
+                    if !seen.insert(key) {
+                        self.duplicates.add(face.source);
+                        repeated = true;
+                        continue;
+                    }
+                    self.kept.push(Face {
+                        vertices,
+                        material: face.material,
+                        source: face.source,
+                    });
+                }
+                if self.kept.len() > before {
+                    self.split.add(face.source);
+                } else if !repeated {
+                    self.drop_degenerate(face.source, emit_area);
+                }
+            }
+        }
+    }
+
+    /// Drops face `source` as degenerate (`emit_area`: its area if it emits).
+    fn drop_degenerate(&mut self, source: u32, emit_area: Option<f64>) {
+        self.dropped.add(source);
+        if let Some(area) = emit_area {
+            self.dark.add(source);
+            self.dark_area = self.dark_area.max(area);
+        }
+    }
+}
+
+/// Counts faces and remembers the first one's source.
+#[derive(Debug, Default, PartialEq)]
 struct Tally {
     count: usize,
     first: Option<u32>,
@@ -405,16 +534,22 @@ impl Tally {
     }
 }
 
+/// The first position (in order) that is not finite or beyond the largest coordinate, checked
+/// in parallel.
 fn check_positions(positions: &[Vec3]) -> Result<(), SceneError> {
-    for (vertex, &position) in positions.iter().enumerate() {
-        if !position.is_finite() {
-            return Err(SceneError::NonFinitePosition { vertex, position });
-        }
-        if position.abs().max_element() > crate::MAX_COORDINATE {
-            return Err(SceneError::CoordinateTooLarge { vertex, position });
-        }
-    }
-    Ok(())
+    let bad = positions
+        .par_iter()
+        .enumerate()
+        .find_map_first(|(vertex, &position)| {
+            if !position.is_finite() {
+                return Some(SceneError::NonFinitePosition { vertex, position });
+            }
+            if position.abs().max_element() > crate::MAX_COORDINATE {
+                return Some(SceneError::CoordinateTooLarge { vertex, position });
+            }
+            None
+        });
+    bad.map_or(Ok(()), Err)
 }
 
 fn check_materials(materials: &[Material]) -> Result<(), SceneError> {
@@ -438,57 +573,69 @@ fn check_materials(materials: &[Material]) -> Result<(), SceneError> {
     Ok(())
 }
 
+/// The first face (in order) that breaks a limit or has an index out of range, checked in
+/// parallel.
 fn check_faces(faces: &[Face], positions: usize, materials: usize) -> Result<(), SceneError> {
     if faces.len() > crate::MAX_FACES {
         return Err(SceneError::TooManyFaces);
     }
-    for f in faces {
+    let bad = faces.par_iter().find_map_first(|f| {
         if f.vertices.len() > crate::MAX_FACE_VERTICES {
-            return Err(SceneError::TooManyFaceVertices {
+            return Some(SceneError::TooManyFaceVertices {
                 count: f.vertices.len(),
             });
         }
         if f.vertices.len() < 3 {
-            return Err(SceneError::TooFewVertices {
+            return Some(SceneError::TooFewVertices {
                 face: f.source,
                 count: f.vertices.len(),
             });
         }
         if let Some(&vertex) = f.vertices.iter().find(|&&v| v as usize >= positions) {
-            return Err(SceneError::VertexOutOfRange {
+            return Some(SceneError::VertexOutOfRange {
                 face: f.source,
                 vertex,
                 count: positions,
             });
         }
         if f.material as usize >= materials {
-            return Err(SceneError::MaterialOutOfRange {
+            return Some(SceneError::MaterialOutOfRange {
                 face: f.source,
                 material: f.material,
                 count: materials,
             });
         }
-    }
-    Ok(())
+        None
+    });
+    bad.map_or(Ok(()), Err)
 }
 
 /// Bounding box of the positions the faces use; `None` if they use none. Indices must be valid.
+/// (Computed in parallel: minima and maxima do not depend on the order.)
 fn used_bounds(positions: &[Vec3], faces: &[Face]) -> Option<Bounds> {
-    let mut used = faces
-        .iter()
-        .flat_map(|f| f.vertices.iter())
-        .map(|&v| positions[v as usize]);
-    let first = used.next()?;
-    Some(used.fold(
-        Bounds {
-            min: first,
-            max: first,
-        },
-        |b, p| Bounds {
-            min: b.min.min(p),
-            max: b.max.max(p),
-        },
-    ))
+    fn join(a: Option<Bounds>, b: Option<Bounds>) -> Option<Bounds> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(Bounds {
+                min: a.min.min(b.min),
+                max: a.max.max(b.max),
+            }),
+            (a, None) => a,
+            (None, b) => b,
+        }
+    }
+    faces
+        .par_iter()
+        .with_min_len(1024)
+        .fold(
+            || None,
+            |b, f| {
+                f.vertices.iter().fold(b, |b, &v| {
+                    let p = positions[v as usize];
+                    join(b, Some(Bounds { min: p, max: p }))
+                })
+            },
+        )
+        .reduce(|| None, join)
 }
 
 /// The faces seen so far, to find duplicates: a face (or a triangle of a split face) with the
@@ -531,9 +678,14 @@ impl Duplicates {
         }
     }
 
-    /// Whether the face (`ring` of vertices after [`merge_repeated`]) repeats an earlier one;
-    /// if not, remembers it.
-    fn is_duplicate(&mut self, ring: &[u32], material: u32, positions: &[Vec3]) -> bool {
+    /// Remembers a face by its [`Duplicates::key`]; false if a face of that key was seen.
+    fn insert(&mut self, key: u128) -> bool {
+        self.seen.insert(key)
+    }
+
+    /// The key of a face (`ring` of vertices after [`merge_repeated`], `material`): the same
+    /// for the same material and positions in the same cyclic order.
+    fn key(ring: &[u32], material: u32, positions: &[Vec3]) -> u128 {
         use std::hash::{Hash, Hasher};
         // on the stack for faces of up to `SMALL` vertices
         let mut small = [[0u32; 3]; SMALL];
@@ -557,7 +709,7 @@ impl Duplicates {
             (salt, material, key).hash(&mut hasher);
             hasher.finish() as u128
         };
-        !self.seen.insert(half(1) << 64 | half(2))
+        half(1) << 64 | half(2)
     }
 }
 
@@ -592,6 +744,49 @@ mod tests {
             vertices: vertices.to_vec(),
             material,
             source,
+        }
+    }
+
+    /// The repairs in blocks of any size, on any thread count, give the same faces, counts and
+    /// first sources as one face at a time: random faces on a small grid (so duplicates,
+    /// reversed copies, degenerate, non-planar and non-convex faces are common), some
+    /// emitting.
+    #[test]
+    fn repairs_do_not_depend_on_blocks_or_threads() {
+        use rand_core::Rng as _;
+        let mut stream = rand_pcg::Pcg32::new(7, 0x0a02_bdbf_7bb3_c0a7);
+        let mut pick = |n: u64| (stream.next_u64() % n) as u32;
+        let positions: Vec<Vec3> = (0..27)
+            .map(|i| Vec3::new((i % 3) as f32, (i / 3 % 3) as f32, (i / 9) as f32))
+            .collect();
+        let materials = vec![mat("white", 0.5, 0.0), mat("lamp", 0.5, 1.0)];
+        let faces: Vec<Face> = (0..3000)
+            .map(|source| {
+                let n = 3 + pick(4) as usize;
+                // mostly on the z = 0 plane (indices 0..9), where copies are likely
+                let range = if pick(3) == 0 { 27 } else { 9 };
+                let vertices: Vec<u32> = (0..n).map(|_| pick(range)).collect();
+                face(&vertices, pick(2), source)
+            })
+            .collect();
+        let run = |block: usize, threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| repair(faces.clone(), &positions, &materials, 1e-9, block))
+        };
+        let one = run(1, 1);
+        assert!(one.duplicates.count > 100 && one.split.count > 100 && one.dropped.count > 100);
+        assert!(one.dark.count > 0 && one.kept.len() > 500);
+        for (block, threads) in [(7, 2), (REPAIR_BLOCK, 2), (1000, 3), (1 << 20, 1)] {
+            let other = run(block, threads);
+            assert_eq!(other.kept, one.kept, "blocks of {block}, {threads} threads");
+            assert_eq!(
+                [&other.dropped, &other.split, &other.duplicates, &other.dark],
+                [&one.dropped, &one.split, &one.duplicates, &one.dark]
+            );
+            assert_eq!(other.dark_area, one.dark_area);
         }
     }
 
