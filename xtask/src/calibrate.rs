@@ -7,7 +7,10 @@
 //! `rho` 0.5, 0.9, 0.99 and 0.999; the rho 0.5 furnace moved 1e7 from the origin (exact as at the
 //! origin); a closed room lit by a light of about 1e-4 of its area with ~1.6k small patches,
 //! whose exact answer is the reference solver's ([`Method::Reference`]: the room is convex, so
-//! its form factors need no visibility and are exact to the quadrature tolerance).
+//! its form factors need no visibility and are exact to the quadrature tolerance); and
+//! ([`LIT_CASES`], issue 34) rooms lit by lights without a surface, a point light, a spot light,
+//! and a sun and a uniform sky through a window, each run solving the scene with its lights
+//! (`window`, whose reference is slow, only when `--cases` names it).
 //!
 //! Every method of `Method::monte_carlo()` runs `K` seeds on every case through
 //! the library's solve (`mcrad_solve::solve` on the case's mesh), one run at a time. A run that returns
@@ -559,8 +562,9 @@ pub const LIT_CASES: [Case; 5] = [
     },
     Case {
         name: "window",
-        what: "the sun- and sky-lit room of `window-faces`, patches of at most 0.25 (about \
-               930); exact: the reference solver",
+        what: "the sun- and sky-lit room of `window-faces`, patches of at most 0.25 (940); \
+               exact: the reference solver; run only when `--cases` names it (its reference \
+               takes 40-125 s)",
         build: || (window_room(), Subdivision::MaxEdge(0.25)),
         exact: Exact::Reference,
         rays_factor: 2,
@@ -572,6 +576,10 @@ pub const LIT_CASES: [Case; 5] = [
 fn all_cases() -> impl Iterator<Item = &'static Case> {
     CASES.iter().chain(LIT_CASES.iter())
 }
+
+/// Cases run only when `--cases` names them: the subdivided window room, whose reference
+/// integrates the sky through the window on each of its 940 patches (40-125 s on 2 cores).
+const NAMED_ONLY: [&str; 1] = ["window"];
 
 /// Whether `scene` has lights without a surface or a sky (a case of [`LIT_CASES`]).
 fn is_lit(scene: &Scene) -> bool {
@@ -721,7 +729,9 @@ impl Options {
     /// The settings `args` ask for (the arguments after `calibrate`).
     pub fn parse(root: &Path, args: &CalibrateArgs) -> Result<Options> {
         let cases = if args.cases.is_empty() {
-            all_cases().collect()
+            all_cases()
+                .filter(|c| !NAMED_ONLY.contains(&c.name))
+                .collect()
         } else {
             args.cases
                 .iter()
@@ -803,7 +813,9 @@ fn run_once(
             }
         };
         match lit {
-            Some((scene, subdivision)) => solve_lit(method, scene, subdivision, config, &mut observer),
+            Some((scene, subdivision)) => {
+                solve_lit(method, scene, subdivision, config, &mut observer)
+            }
             None => crate::solve_fixed(method, mesh, config, &mut observer),
         }
         .map(|a| (a.estimate, a.stats.stop))
@@ -1400,8 +1412,7 @@ fn document(o: &Options, table: &str) -> String {
          the ceiling), so the reference solver needs no visibility and its answer is exact to \
          its quadrature tolerance (1e-4 of a row's sum) and residual (1e-9).\n\n",
     );
-    if o
-        .cases
+    if o.cases
         .iter()
         .any(|c| LIT_CASES.iter().any(|l| l.name == c.name))
     {
@@ -1688,6 +1699,43 @@ mod tests {
                 r.method
             );
         }
+    }
+
+    /// A lit case goes through the solve from its scene: the point light's direct light is in
+    /// the runs (the power near the reference's), and the pass's variance is reported.
+    #[test]
+    fn a_lit_case_runs_end_to_end() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = CalibrateArgs {
+            seeds: 2,
+            rays: 20_000,
+            cases: vec!["point-faces".into()],
+            methods: vec![Method::Prr],
+            limit: DEFAULT_LIMIT,
+            out: "calibration.md".into(),
+            sampler: None,
+        };
+        let o = Options::parse(dir.path(), &args).unwrap();
+        let rows = measure(&o).unwrap();
+        let s = &rows[0].stats;
+        assert_eq!(rows[0].done, 2, "{:?}", rows[0].notes);
+        assert_eq!((s.zero_var, s.no_var), (0, 0), "{s:?}");
+        // without the light every patch would be 0: a power bias of -100%
+        assert!(s.power_bias.unwrap().abs() < 0.05, "{s:?}");
+        assert!(s.z2.is_some() && s.spread_pooled.is_some(), "{s:?}");
+        let all = Options::parse(
+            dir.path(),
+            &CalibrateArgs {
+                cases: Vec::new(),
+                ..args
+            },
+        )
+        .unwrap();
+        let names: Vec<_> = all.cases.iter().map(|c| c.name).collect();
+        assert!(
+            names.contains(&"point-faces") && !names.contains(&"window"),
+            "{names:?}"
+        );
     }
 
     #[test]

@@ -572,7 +572,10 @@ mod tests {
         let sky = Some(Sky::Uniform(DVec3::new(2.0, 3.0, 4.0)));
         let shaded = lit_square(vec![point.clone()], sky.clone(), true);
         let ratio = spread_over_reported(&shaded, vec![point], sky);
-        assert!((0.5..=2.0).contains(&ratio), "point light and sky: {ratio:.3}");
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "point light and sky: {ratio:.3}"
+        );
     }
 
     #[test]
