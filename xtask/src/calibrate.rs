@@ -869,7 +869,6 @@ fn solve_lit(
             ambient: config.ambient,
             unshot_threshold: config.unshot_threshold,
             visibility_tolerance: config.reference.visibility_tolerance,
-            ..Default::default()
         },
         budget: mcrad_solve::Budget {
             rays: Some(config.rays),
