@@ -7,7 +7,10 @@
 //! `rho` 0.5, 0.9, 0.99 and 0.999; the rho 0.5 furnace moved 1e7 from the origin (exact as at the
 //! origin); a closed room lit by a light of about 1e-4 of its area with ~1.6k small patches,
 //! whose exact answer is the reference solver's ([`Method::Reference`]: the room is convex, so
-//! its form factors need no visibility and are exact to the quadrature tolerance).
+//! its form factors need no visibility and are exact to the quadrature tolerance); and
+//! ([`LIT_CASES`], issue 34) rooms lit by lights without a surface, a point light, a spot light,
+//! and a sun and a uniform sky through a window, each run solving the scene with its lights
+//! (`window`, whose reference is slow, only when `--cases` names it).
 //!
 //! Every method of `Method::monte_carlo()` runs `K` seeds on every case through
 //! the library's solve (`mcrad_solve::solve` on the case's mesh), one run at a time. A run that returns
@@ -546,6 +549,181 @@ fn textured_room() -> (Scene, Subdivision) {
     (scene.with_textures(textures), Subdivision::MaxEdge(0.15))
 }
 
+/// The calibration cases lit by lights without a surface (issue 34, item 4): a point light, a
+/// spot light, and a sun with a uniform sky through a window. No face emits; the lights'
+/// direct-light pass ([`Scene::lights`], [`Scene::sky`]) makes the first emission, so these
+/// cases check its variance and how each method carries it on. Exact: the reference solver with
+/// the lights' direct light computed deterministically (closed forms on wholly lit patches,
+/// quadrature elsewhere and for the sky).
+pub const LIT_CASES: [Case; 5] = [
+    Case {
+        name: "point-faces",
+        what: "closed 4 x 2.5 x 3 room (coloured walls), no emitting face, an isotropic point \
+               light of (40, 36, 32) W/sr at (1.3, 2.0, 1.1); one patch per face (6 patches); \
+               exact: the reference solver (the light's direct light in closed form)",
+        build: || (point_room(), Subdivision::None),
+        exact: Exact::Reference,
+        rays_factor: 1,
+        rho: None,
+        grain: Grain::Patches,
+    },
+    Case {
+        name: "point",
+        what: "the point-lit room of `point-faces`, patches of at most 0.25 (944); exact: the \
+               reference solver",
+        build: || (point_room(), Subdivision::MaxEdge(0.25)),
+        exact: Exact::Reference,
+        rays_factor: 2,
+        rho: None,
+        grain: Grain::Patches,
+    },
+    Case {
+        name: "spot",
+        what: "the room of `point-faces` lit by a spot light instead, (200, 190, 170) W/sr on \
+               its axis, at (2.6, 2.3, 1.2) shining down and tilted towards x = 0, cones of 20° \
+               and 35°; patches of at most 0.25 (944); exact: the reference solver (the cone by \
+               quadrature)",
+        build: || (spot_room(), Subdivision::MaxEdge(0.25)),
+        exact: Exact::Reference,
+        rays_factor: 2,
+        rho: None,
+        grain: Grain::Patches,
+    },
+    Case {
+        name: "window-faces",
+        what: "the 4 x 2.5 x 3 room with a 1.2 x 1 m window in its x = 4 wall (sill at 0.8 m), \
+               a sun of 300 W/m² (direction towards it (0.7, 0.6, 0.3), 0.53°) lighting a patch \
+               of the floor through it and a uniform sky of (20, 25, 35) W/(m² sr); one patch per \
+               face (9 patches); exact: the reference solver (the sun by quadrature where a \
+               patch is partly lit, the sky through the window by quadrature)",
+        build: || (window_room(), Subdivision::None),
+        exact: Exact::Reference,
+        rays_factor: 1,
+        rho: None,
+        grain: Grain::Patches,
+    },
+    Case {
+        name: "window",
+        what: "the sun- and sky-lit room of `window-faces`, patches of at most 0.25 (940); \
+               exact: the reference solver; run only when `--cases` names it (its reference \
+               takes 40-125 s)",
+        build: || (window_room(), Subdivision::MaxEdge(0.25)),
+        exact: Exact::Reference,
+        rays_factor: 2,
+        rho: None,
+        grain: Grain::Patches,
+    },
+];
+
+/// Every case: [`CASES`], then [`LIT_CASES`].
+fn all_cases() -> impl Iterator<Item = &'static Case> {
+    CASES.iter().chain(LIT_CASES.iter())
+}
+
+/// Cases run only when `--cases` names them: the subdivided window room, whose reference
+/// integrates the sky through the window on each of its 940 patches (40-125 s on 2 cores).
+const NAMED_ONLY: [&str; 1] = ["window"];
+
+/// Whether `scene` has lights without a surface or a sky (a case of [`LIT_CASES`]).
+fn is_lit(scene: &Scene) -> bool {
+    !scene.lights().is_empty() || scene.sky().is_some()
+}
+
+/// The rooms of [`LIT_CASES`]: a 4 (x) by 2.5 (y, up) by 3 (z) box, faces inward, no emitting
+/// face, coloured walls as in [`tiny_light_room`]; with `window`, the x = 4 wall is cut around a
+/// 1.2 (z, from 0.9) by 1 (y, from 0.8) m opening, so light leaves through it and a sun and the
+/// sky come in. The faces lie on the box, so the room is convex with or without the window.
+fn lit_box(
+    window: bool,
+    lights: Vec<mcrad_scene_io::Light>,
+    sky: Option<mcrad_scene_io::Sky>,
+) -> Scene {
+    let (w, h, d) = (4.0f32, 2.5f32, 3.0f32);
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    let mut rect = |p: Vec3, u: Vec3, v: Vec3, normal: Vec3, material: u32| {
+        let mut ring = [p, p + u, p + u + v, p + v];
+        if u.cross(v).dot(normal) < 0.0 {
+            ring.reverse();
+        }
+        let base = positions.len() as u32;
+        positions.extend(ring);
+        let source = faces.len() as u32;
+        faces.push(Face {
+            vertices: (base..base + 4).collect(),
+            material,
+            source,
+        });
+    };
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    rect(Vec3::ZERO, w * x, d * z, y, 0); // floor
+    rect(h * y, w * x, d * z, -y, 3); // ceiling
+    rect(Vec3::ZERO, d * z, h * y, x, 1); // x = 0
+    rect(Vec3::ZERO, w * x, h * y, z, 1); // z = 0
+    rect(d * z, w * x, h * y, -z, 1); // z = d
+    if window {
+        // x = w, the accent wall, around the opening [z0, z1] x [y0, y1]
+        let (z0, z1, y0, y1) = (0.9f32, 2.1f32, 0.8f32, 1.8f32);
+        let o = w * x;
+        rect(o, d * z, y0 * y, -x, 2); // below
+        rect(o + y1 * y, d * z, (h - y1) * y, -x, 2); // above
+        rect(o + y0 * y, z0 * z, (y1 - y0) * y, -x, 2); // beside, z < z0
+        rect(o + y0 * y + z1 * z, (d - z1) * z, (y1 - y0) * y, -x, 2); // beside, z > z1
+    } else {
+        rect(w * x, d * z, h * y, -x, 2); // x = w, the accent wall
+    }
+    let materials = vec![
+        material("floor", Vec3::new(0.45, 0.35, 0.25), 0.0),
+        material("wall", Vec3::new(0.7, 0.7, 0.68), 0.0),
+        material("accent", Vec3::new(0.3, 0.5, 0.6), 0.0),
+        material("ceiling", Vec3::splat(0.8), 0.0),
+    ];
+    Scene::new_lit_sky(positions, faces, materials, lights, sky)
+        .expect("the lit room is a valid scene")
+        .0
+}
+
+/// The closed room of [`lit_box`] lit by one isotropic point light of (40, 36, 32) W/sr at
+/// (1.3, 2.0, 1.1), off every symmetry plane.
+fn point_room() -> Scene {
+    let light = mcrad_scene_io::Light::Point(mcrad_scene_io::PointLight {
+        position: Vec3::new(1.3, 2.0, 1.1),
+        intensity: DVec3::new(40.0, 36.0, 32.0),
+        range: None,
+    });
+    lit_box(false, vec![light], None)
+}
+
+/// The closed room of [`lit_box`] lit by one spot light of (200, 190, 170) W/sr on its axis at
+/// (2.6, 2.3, 1.2), shining down and tilted towards x = 0, with cones of 20° and 35°: its pool
+/// of light falls on the floor and climbs the x = 0 wall.
+fn spot_room() -> Scene {
+    let light = mcrad_scene_io::Light::Spot(mcrad_scene_io::SpotLight {
+        point: mcrad_scene_io::PointLight {
+            position: Vec3::new(2.6, 2.3, 1.2),
+            intensity: DVec3::new(200.0, 190.0, 170.0),
+            range: None,
+        },
+        direction: Vec3::new(-0.6, -1.0, 0.2).normalize(),
+        inner: 20f64.to_radians(),
+        outer: 35f64.to_radians(),
+    });
+    lit_box(false, vec![light], None)
+}
+
+/// The room of [`lit_box`] with its window, lit through it by a sun of 300 W/m² (direction
+/// towards it (0.7, 0.6, 0.3), 0.53°), whose patch of light falls on the floor, and a uniform
+/// sky of (20, 25, 35) W/(m² sr).
+fn window_room() -> Scene {
+    let sun = mcrad_scene_io::Light::Sun(mcrad_scene_io::Sun {
+        direction: Vec3::new(0.7, 0.6, 0.3).normalize(),
+        irradiance: DVec3::splat(300.0),
+        diameter: mcrad_scene_io::DEFAULT_SUN_DIAMETER,
+    });
+    let sky = mcrad_scene_io::Sky::Uniform(DVec3::new(20.0, 25.0, 35.0));
+    lit_box(true, vec![sun], Some(sky))
+}
+
 /// The run's settings.
 pub struct Options {
     /// Seeds `0..seeds` per (case, method).
@@ -594,13 +772,15 @@ impl Options {
     /// The settings `args` ask for (the arguments after `calibrate`).
     pub fn parse(root: &Path, args: &CalibrateArgs) -> Result<Options> {
         let cases = if args.cases.is_empty() {
-            CASES.iter().collect()
+            all_cases()
+                .filter(|c| !NAMED_ONLY.contains(&c.name))
+                .collect()
         } else {
             args.cases
                 .iter()
                 .map(|n| {
-                    CASES.iter().find(|c| c.name == n).with_context(|| {
-                        let names: Vec<_> = CASES.iter().map(|c| c.name).collect();
+                    all_cases().find(|c| c.name == n).with_context(|| {
+                        let names: Vec<_> = all_cases().map(|c| c.name).collect();
                         format!("unknown case '{n}' (the cases: {})", names.join(", "))
                     })
                 })
@@ -660,6 +840,9 @@ enum Outcome {
 enum Target<'a> {
     /// This mesh, the answer per patch.
     Mesh(&'a Mesh),
+    /// A case of [`LIT_CASES`]: this scene meshed by this subdivision, through the solve from
+    /// its scene (which hands its lights and sky to the method), the answer per patch.
+    Lit(&'a Scene, Subdivision),
     /// This scene meshed on the adaptive plan, the answer per input face.
     AdaptiveFaces(&'a Scene),
 }
@@ -699,6 +882,9 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
         };
         let answer = match target {
             Target::Mesh(mesh) => crate::solve_fixed(method, mesh, config, &mut observer),
+            Target::Lit(scene, subdivision) => {
+                solve_lit(method, scene, subdivision, config, &mut observer)
+            }
             Target::AdaptiveFaces(scene) => crate::solve_input(
                 method,
                 mcrad_solve::Input::Scene(scene),
@@ -710,12 +896,11 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
         answer.map(|a| {
             let (e, stop) = (&a.estimate, a.stats.stop);
             let (radiosity, variance) = match target {
-                Target::Mesh(_) => (e.radiosity().to_vec(), e.variance().map(<[DVec3]>::to_vec)),
+                Target::Mesh(_) | Target::Lit(..) => {
+                    (e.radiosity().to_vec(), e.variance().map(<[DVec3]>::to_vec))
+                }
                 Target::AdaptiveFaces(_) => {
-                    let k = a
-                        .face_correlation
-                        .as_deref()
-                        .filter(|_| std::env::var("NOK").is_err());
+                    let k = a.face_correlation.as_deref();
                     let (b, v, _) = per_face(&a.mesh, e.radiosity(), e.variance(), k);
                     (b, v)
                 }
@@ -745,6 +930,45 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
         ),
     };
     (outcome, secs)
+}
+
+/// [`crate::solve_fixed`] for a lit case: the library's solve from `scene` (its lights and sky
+/// included, as `mcrad solve` runs a scene) meshed as `subdivision` says, which is the mesh the
+/// case's statistics and reference are computed on (the same build of the same scene).
+fn solve_lit(
+    method: Method,
+    scene: &Scene,
+    subdivision: Subdivision,
+    config: &ScheduleConfig,
+    observer: &mut mcrad_solve::Observer,
+) -> Result<mcrad_solve::Answer, mcrad_solve::Error> {
+    let mesh = match subdivision {
+        Subdivision::None => mcrad_solve::MeshPlan::PerFace,
+        Subdivision::MaxEdge(l) => mcrad_solve::MeshPlan::Uniform { max_edge: Some(l) },
+    };
+    let problem = mcrad_solve::Problem {
+        input: mcrad_solve::Input::Scene(scene),
+        settings: mcrad_solve::Settings {
+            method,
+            mesh,
+            seed: config.seed,
+            sampler: config.sampler,
+            control_variate: config.control_variate,
+            ambient: config.ambient,
+            unshot_threshold: config.unshot_threshold,
+            visibility_tolerance: config.reference.visibility_tolerance,
+        },
+        budget: mcrad_solve::Budget {
+            rays: Some(config.rays),
+            ..Default::default()
+        },
+        threads: None,
+        resume: None,
+        cancel: None,
+        closure: false,
+        after: None,
+    };
+    mcrad_solve::solve(&problem, observer)
 }
 
 /// The statistics of K complete runs of one method on one case.
@@ -967,6 +1191,14 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
         let bvh = mesh.caster()?;
         let mut areas: Vec<f64> = mesh.patches().iter().map(|p| p.area).collect();
         eprintln!("{}: {} patches", case.name, mesh.patches().len());
+        // A lit case's runs go through the solve from the scene (its lights and sky); the
+        // reference gets them too.
+        let lit = is_lit(&scene).then_some((&scene, subdivision));
+        let reference_config = ScheduleConfig {
+            lights: scene.lights().to_vec(),
+            sky: scene.sky().cloned(),
+            ..Default::default()
+        };
         let mut exact: Option<Vec<DVec3>> = match case.exact {
             Exact::Furnace => Some(
                 mesh.patches()
@@ -980,7 +1212,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                     Method::Reference,
                     &mesh,
                     &bvh,
-                    &ScheduleConfig::default(),
+                    &reference_config,
                     &mut |_| ControlFlow::Continue(()),
                 );
                 eprintln!(
@@ -996,9 +1228,10 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                 }
             }
         };
-        let target = match case.grain {
-            Grain::Patches => Target::Mesh(&mesh),
-            Grain::AdaptiveFaces => {
+        let target = match (case.grain, lit) {
+            (Grain::Patches, Some((scene, subdivision))) => Target::Lit(scene, subdivision),
+            (Grain::Patches, None) => Target::Mesh(&mesh),
+            (Grain::AdaptiveFaces, _) => {
                 exact = exact.map(|b| per_face(&mesh, &b, None, None).0);
                 areas = per_face(&mesh, &vec![DVec3::ZERO; areas.len()], None, None).2;
                 eprintln!("  judged per face: {} faces", areas.len());
@@ -1276,6 +1509,22 @@ fn document(o: &Options, table: &str) -> String {
          the ceiling), so the reference solver needs no visibility and its answer is exact to \
          its quadrature tolerance (1e-4 of a row's sum) and residual (1e-9).\n\n",
     );
+    if o.cases
+        .iter()
+        .any(|c| LIT_CASES.iter().any(|l| l.name == c.name))
+    {
+        d.push_str(
+            "The lit cases (`point`, `spot`, `window`, issue 34) have no emitting face: a \
+             point light, a spot light, or a sun and a uniform sky through a window light them, \
+             and each run goes through the solve from the scene, as `mcrad solve` does, so the \
+             lights' direct-light pass makes the first emission and its variance is part of \
+             what is reported. The window room is open (light leaves through the window); its \
+             faces still lie on a box, so it is convex. Their reference computes the lights' \
+             direct light deterministically: a point light in closed form on wholly lit \
+             patches, the spot's cone, a partly lit patch and the sky by quadrature (the sky's \
+             error about 2.5e-3 of a window-lit patch's sky irradiance).\n\n",
+        );
+    }
     d.push_str(
         "## Columns\n\n\
          - **runs**: complete runs / seeds asked. A run that errs, panics, or is stopped at the \
@@ -1547,6 +1796,43 @@ mod tests {
                 r.method
             );
         }
+    }
+
+    /// A lit case goes through the solve from its scene: the point light's direct light is in
+    /// the runs (the power near the reference's), and the pass's variance is reported.
+    #[test]
+    fn a_lit_case_runs_end_to_end() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = CalibrateArgs {
+            seeds: 2,
+            rays: 20_000,
+            cases: vec!["point-faces".into()],
+            methods: vec![Method::Prr],
+            limit: DEFAULT_LIMIT,
+            out: "calibration.md".into(),
+            sampler: None,
+        };
+        let o = Options::parse(dir.path(), &args).unwrap();
+        let rows = measure(&o).unwrap();
+        let s = &rows[0].stats;
+        assert_eq!(rows[0].done, 2, "{:?}", rows[0].notes);
+        assert_eq!((s.zero_var, s.no_var), (0, 0), "{s:?}");
+        // without the light every patch would be 0: a power bias of -100%
+        assert!(s.power_bias.unwrap().abs() < 0.05, "{s:?}");
+        assert!(s.z2.is_some() && s.spread_pooled.is_some(), "{s:?}");
+        let all = Options::parse(
+            dir.path(),
+            &CalibrateArgs {
+                cases: Vec::new(),
+                ..args
+            },
+        )
+        .unwrap();
+        let names: Vec<_> = all.cases.iter().map(|c| c.name).collect();
+        assert!(
+            names.contains(&"point-faces") && !names.contains(&"window"),
+            "{names:?}"
+        );
     }
 
     #[test]

@@ -9,10 +9,18 @@
 //! `x_k` (a stratified grid through [`SurfaceSampler::point2`]), one shadow ray per point and
 //! light (a sun's direction jittered in its cone), and the method then solves the mesh with
 //! `E'`: shooting starts from the lit patches, gathering and the direct part find them as
-//! emitters. The estimate's variance `rho_i² s_i² / n` (`s_i²` the sample variance of the
-//! points' irradiance, conservative for stratified points) adds to every reported variance of
-//! `B_i`; the noise it carries on to other patches through reflection, averaged over many
-//! points, is not counted.
+//! emitters. The estimate's variance `V_i = rho_i² Var(H_i)` (of the jittered points' mean, from
+//! second differences between neighbouring cells: [`jittered_variance`]) adds to every
+//! reported variance of `B_i`. Its error also reaches every other patch through reflection:
+//! the method solves with `E'` as if exact, so the light reflected from an error `dE'_j` is
+//! missed. It is counted as an error of the power the pass puts in, spread over the reflected
+//! light: patch `i` adds `R_i² sum_j A_j² V_j / (sum_j A_j E'_j)²` with `R_i = B_i - E'_i` its
+//! reflected (indirect) radiosity, per channel ([`Lit::power_relvar`]): exact where the
+//! reflected light is proportional to the power put in (a room whose light is well mixed), and
+//! negligible where many patches share the pass's error. Without it, a closed room of one
+//! patch per face lit by a point light reported half its error at the median patch, and a
+//! window-lit room's walls a few hundredth of it (`cargo xtask calibrate`, cases
+//! `point-faces`, `window-faces`).
 //!
 //! The sky ([`mcrad_scene_io::Sky`]) joins the same pass: at each point its own rays
 //! (`crate::sky`: cosine for a uniform sky, cosine and the map's luminance by the balance
@@ -45,6 +53,11 @@ pub(crate) struct Lit {
     pub(crate) variance: Vec<DVec3>,
     /// Shadow rays cast.
     pub(crate) rays: u64,
+    /// The relative variance of the power the pass puts in, per channel:
+    /// `sum_j A_j² V_j / (sum_j A_j E'_j)²` (`V_j` = `variance`, `E'` the lit emission; 0 where
+    /// nothing is put in). The reflected light `R_i` of each patch is taken to carry this
+    /// relative error ([module](self)).
+    pub(crate) power_relvar: DVec3,
     /// Per patch, how much of the lights' direct light its shadows vary across it, as
     /// luminance of reflected light (W/m²): `rho D min(f, 1 - f)` with `D` the unoccluded mean
     /// irradiance of the lights (the sky's not included) and `f` its visible share, 0 where
@@ -157,6 +170,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let mut penumbra = Vec::with_capacity(patches.len());
     let mut direct = Vec::with_capacity(patches.len());
     let mut sky_part = Vec::with_capacity(patches.len());
+    let (mut power_var, mut power) = (DVec3::ZERO, DVec3::ZERO);
     for (i, m) in moments.into_iter().enumerate() {
         direct.push(m.direct);
         sky_part.push(m.sky);
@@ -164,6 +178,9 @@ pub(crate) fn light_mesh<C: RayCaster>(
         let emission = patches[i].emission.as_dvec3() + rho * m.mean;
         lit.set_emission(i, emission.as_vec3());
         variance.push(rho * rho * m.variance);
+        let area = patches[i].area;
+        power_var += rho * rho * m.variance * (area * area);
+        power += emission * area;
         let f = if m.unoccluded > 0.0 {
             m.visible / m.unoccluded
         } else {
@@ -171,9 +188,15 @@ pub(crate) fn light_mesh<C: RayCaster>(
         };
         penumbra.push(LUMINANCE.dot(rho) * m.unoccluded * f.min(1.0 - f));
     }
+    let relative = |v: f64, p: f64| if p > 0.0 { v / (p * p) } else { 0.0 };
     Ok(Lit {
         mesh: lit,
         variance,
+        power_relvar: DVec3::new(
+            relative(power_var.x, power.x),
+            relative(power_var.y, power.y),
+            relative(power_var.z, power.z),
+        ),
         rays: u64::from(n) * patches.len() as u64 * per_point as u64,
         penumbra,
         direct,
@@ -215,6 +238,7 @@ pub(crate) fn exact_light_mesh<C: RayCaster>(
     Lit {
         mesh: lit,
         variance: vec![DVec3::ZERO; mesh.patches().len()],
+        power_relvar: DVec3::ZERO,
         rays: direct.rays + sky.as_ref().map_or(0, |s| s.rays),
         penumbra: vec![0.0; mesh.patches().len()],
         direct: total,
@@ -284,6 +308,8 @@ fn irradiance_moments<C: RayCaster>(
     let (mut sum, mut sum2, mut direct_sum) = (DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
     let mut sky_sum = DVec3::ZERO;
     let (mut unoccluded, mut visible) = (0.0, 0.0);
+    // every point's irradiance, cell (a, b) at `a m + b`, for the variance
+    let mut cells = Vec::with_capacity((m * m) as usize);
     for a in 0..m {
         for b in 0..m {
             let u = [
@@ -313,11 +339,14 @@ fn irradiance_moments<C: RayCaster>(
             }
             sum += h;
             sum2 += h * h;
+            cells.push(h);
         }
     }
     let count = f64::from(m * m);
     let mean = sum / count;
-    let var = if count > 1.0 {
+    let var = if m >= 3 {
+        jittered_variance(&cells, m as usize)
+    } else if count > 1.0 {
         ((sum2 - sum * mean) / (count - 1.0)).max(DVec3::ZERO) / count
     } else {
         DVec3::ZERO
@@ -332,11 +361,42 @@ fn irradiance_moments<C: RayCaster>(
     }
 }
 
+/// The variance of the mean of `m²` jittered points (`m >= 3`; `cells[a m + b]` the value of
+/// the point of cell `(a, b)`, W/m² per channel) from second differences along the cells'
+/// second axis: `Var(mean) = (1/n²) sum_k Var_k` with `Var_k` the variance of one cell's value
+/// (its point's place in the cell, and any noise of its own: the sky's rays, a sun's
+/// direction), estimated by `D² / 6` with `D = h_{a,b-1} - 2 h_{a,b} + h_{a,b+1}`, averaged over
+/// the `m (m - 2)` triplets:
+///
+/// ```text
+/// Var(mean) = (1/n) mean_{a, 0 < b < m-1} D_{a,b}² / 6
+/// ```
+///
+/// For a value linear across the patch the cells' means are linear in `b` (the second uniform
+/// maps linearly across the triangle: [`SurfaceSampler::point2`]), so `E D = 0` and `E D² =
+/// 6 Var_k`: unbiased, where `s² / n` (the independent-point formula) counts the variation
+/// between cells, which stratification removes, and overstates the error by up to `m²` on a
+/// smoothly lit patch. A shadow edge or a curvature within three cells adds to `D²`: there it
+/// overstates (a straight edge about twice), never understates. Along the first axis the cells
+/// cross from one triangle of the patch to the next, so it is not used.
+fn jittered_variance(cells: &[DVec3], m: usize) -> DVec3 {
+    let mut sum = DVec3::ZERO;
+    for row in cells.chunks_exact(m) {
+        for w in row.windows(3) {
+            let d = w[0] - 2.0 * w[1] + w[2];
+            sum += d * d;
+        }
+    }
+    let triplets = (m * (m - 2)) as f64;
+    sum / (6.0 * triplets) / (m * m) as f64
+}
+
 impl Lit {
     /// The observer's view of a step of the method run on the lit mesh: the light's rays
     /// counted, its variance added.
     pub(crate) fn observe(&self, step: &Step, observer: &mut Observer) -> ControlFlow<()> {
-        let variance: Option<Vec<DVec3>> = step.variance.map(|v| self.add_variance(v));
+        let variance: Option<Vec<DVec3>> =
+            step.variance.map(|v| self.add_variance(v, step.radiosity));
         let seen = Step {
             index: step.index,
             rays: step.rays + self.rays,
@@ -351,9 +411,16 @@ impl Lit {
     /// The method's solution with the light's rays and variance included.
     pub(crate) fn finish(&self, mut solution: Solution) -> Result<Solution, Error> {
         let e = &solution.estimate;
-        let variance = e.variance().map(|v| self.add_variance(v));
-        if let (Some(k), Some(v)) = (solution.face_correlation.as_mut(), e.variance()) {
-            crate::correlation::with_independent(&self.mesh, k, v, &self.variance);
+        let variance = e.variance().map(|v| self.add_variance(v, e.radiosity()));
+        if let (Some(k), Some(v), Some(total)) = (
+            solution.face_correlation.as_mut(),
+            e.variance(),
+            variance.as_deref(),
+        ) {
+            // The pass's part taken as independent between patches (its error in the
+            // reflected light is not: a scene-wide share, small beside the rest).
+            let added: Vec<DVec3> = total.iter().zip(v).map(|(t, v)| *t - *v).collect();
+            crate::correlation::with_independent(&self.mesh, k, v, &added);
         }
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         solution.direct = Some(self.direct.clone());
@@ -398,7 +465,9 @@ impl Lit {
 
     /// `estimate` (of the lit mesh) with the light's variance and rays included.
     pub(crate) fn include(&self, estimate: Estimate) -> Result<Estimate, Error> {
-        let variance = estimate.variance().map(|v| self.add_variance(v));
+        let variance = estimate
+            .variance()
+            .map(|v| self.add_variance(v, estimate.radiosity()));
         Ok(Estimate::new(
             estimate.radiosity().to_vec(),
             variance,
@@ -406,14 +475,119 @@ impl Lit {
         )?)
     }
 
-    fn add_variance(&self, v: &[DVec3]) -> Vec<DVec3> {
-        v.iter().zip(&self.variance).map(|(a, b)| *a + *b).collect()
+    /// `v` (the method's variance of `radiosity`, on the lit mesh) with the pass's own
+    /// variance `V_i` and the part its error gives the reflected light,
+    /// `R_i² power_relvar` with `R_i = max(B_i - E'_i, 0)` ([module](self)).
+    fn add_variance(&self, v: &[DVec3], radiosity: &[DVec3]) -> Vec<DVec3> {
+        v.iter()
+            .zip(&self.variance)
+            .zip(radiosity.iter().zip(self.mesh.patches()))
+            .map(|((a, b), (r, p))| {
+                let reflected = (*r - p.emission.as_dvec3()).max(DVec3::ZERO);
+                *a + *b + reflected * reflected * self.power_relvar
+            })
+            .collect()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use mcrad_meshing::Subdivision;
+    use mcrad_scene_io::{Face, Material, PointLight, Scene, Sky};
+
+    /// A 2 x 2 square facing up (reflectance 0.5), with `blocker` a 0.5 x 1 square 0.4 above
+    /// it facing down, one patch each, lit by `lights` and `sky`.
+    fn lit_square(lights: Vec<Light>, sky: Option<Sky>, blocker: bool) -> Mesh {
+        let mut positions = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 0.0),
+        ];
+        let mut faces = vec![Face {
+            vertices: vec![0, 1, 2, 3],
+            material: 0,
+            source: 0,
+        }];
+        if blocker {
+            positions.extend([
+                Vec3::new(0.5, 0.4, 0.5),
+                Vec3::new(1.0, 0.4, 0.5),
+                Vec3::new(1.0, 0.4, 1.5),
+                Vec3::new(0.5, 0.4, 1.5),
+            ]);
+            faces.push(Face {
+                vertices: vec![4, 5, 6, 7],
+                material: 0,
+                source: 1,
+            });
+        }
+        let grey = Material {
+            name: "grey".into(),
+            reflectance: Vec3::splat(0.5),
+            emission: Vec3::ZERO,
+        };
+        let scene = Scene::new_lit_sky(positions, faces, vec![grey], lights, sky)
+            .unwrap()
+            .0;
+        Mesh::build(&scene, Subdivision::None).unwrap()
+    }
+
+    /// Spread between 64 seeds of the lit square's `rho H` over the mean variance the pass
+    /// reports for it, per channel summed.
+    fn spread_over_reported(mesh: &Mesh, lights: Vec<Light>, sky: Option<Sky>) -> f64 {
+        let bvh = mesh.caster().unwrap();
+        let runs: Vec<(DVec3, DVec3)> = (0..64)
+            .map(|seed| {
+                let config = ScheduleConfig {
+                    rays: 1_000_000,
+                    seed,
+                    lights: lights.clone(),
+                    sky: sky.clone(),
+                    ..Default::default()
+                };
+                let lit = light_mesh(mesh, &bvh, &config, None).unwrap();
+                (lit.direct[0] * 0.5, lit.variance[0])
+            })
+            .collect();
+        let k = runs.len() as f64;
+        let mean = runs.iter().map(|r| r.0).sum::<DVec3>() / k;
+        let spread = runs
+            .iter()
+            .map(|r| (r.0 - mean) * (r.0 - mean))
+            .sum::<DVec3>()
+            / (k - 1.0);
+        let reported = runs.iter().map(|r| r.1).sum::<DVec3>() / k;
+        spread.element_sum() / reported.element_sum()
+    }
+
+    /// Issue 34: the pass's variance is the error of its jittered points. A point light 0.5
+    /// above a 2 x 2 square lights it unevenly (40 W/m² under the light, under 1 at the far
+    /// corner) but smoothly: the independent-point formula `s² / n` counted the variation
+    /// between the 16 x 16 cells, which stratification removes, and reported about 40 times
+    /// the spread. With a blocker's shadow under a uniform sky (its own noisy rays per point)
+    /// too. 64 seeds: the spread's relative standard error is `sqrt(2 / 63) = 0.18`, so the
+    /// bounds [0.5, 2] are 2.8 standard errors below and 5.6 above 1.
+    #[test]
+    fn the_lights_pass_reports_the_spread_of_its_jittered_points() {
+        let point = Light::Point(PointLight {
+            position: Vec3::new(0.4, 0.5, 0.3),
+            intensity: DVec3::new(10.0, 8.0, 6.0),
+            range: None,
+        });
+        let open = lit_square(vec![point.clone()], None, false);
+        let ratio = spread_over_reported(&open, vec![point.clone()], None);
+        assert!((0.5..=2.0).contains(&ratio), "point light: {ratio:.3}");
+        let sky = Some(Sky::Uniform(DVec3::new(2.0, 3.0, 4.0)));
+        let shaded = lit_square(vec![point.clone()], sky.clone(), true);
+        let ratio = spread_over_reported(&shaded, vec![point], sky);
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "point light and sky: {ratio:.3}"
+        );
+    }
 
     #[test]
     fn the_second_round_takes_what_the_first_rounds_speed_fits() {
