@@ -946,29 +946,13 @@ fn solve_lit(
         Subdivision::None => mcrad_solve::MeshPlan::PerFace,
         Subdivision::MaxEdge(l) => mcrad_solve::MeshPlan::Uniform { max_edge: Some(l) },
     };
-    let problem = mcrad_solve::Problem {
-        input: mcrad_solve::Input::Scene(scene),
-        settings: mcrad_solve::Settings {
-            method,
-            mesh,
-            seed: config.seed,
-            sampler: config.sampler,
-            control_variate: config.control_variate,
-            ambient: config.ambient,
-            unshot_threshold: config.unshot_threshold,
-            visibility_tolerance: config.reference.visibility_tolerance,
-        },
-        budget: mcrad_solve::Budget {
-            rays: Some(config.rays),
-            ..Default::default()
-        },
-        threads: None,
-        resume: None,
-        cancel: None,
-        closure: false,
-        after: None,
-    };
-    mcrad_solve::solve(&problem, observer)
+    crate::solve_input(
+        method,
+        mcrad_solve::Input::Scene(scene),
+        mesh,
+        config,
+        observer,
+    )
 }
 
 /// The statistics of K complete runs of one method on one case.
