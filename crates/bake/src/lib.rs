@@ -208,7 +208,7 @@ pub struct BakeInput<'a, C: RayCaster> {
     /// Per face as outputs number them (its input face, plus [`Mesh::back_face_offset`] for
     /// a back side), per channel, the factor the correlation between its patches' errors puts
     /// on their variances summed as independent (dimensionless, 1 for a face of one patch;
-    /// [`mcrad_mc_radiosity::Solution::face_correlation`]): [`FaceTexels::variance`] takes
+    /// `Solution::face_correlation` of `mcrad-mc-radiosity`): [`FaceTexels::variance`] takes
     /// it. `None` (or a face beyond the slice): the patches are taken as independent.
     pub face_correlation: Option<&'a [DVec3]>,
     /// Told `(charts sampled, charts)` as the texels are sampled (from any thread).

@@ -113,33 +113,45 @@ pub(crate) fn factors_of(
             slots += 1;
         }
     }
-    // Per slot: the samples' area-weighted sums, and the independent sum's numerator and
-    // denominator parts.
-    let mut sums = vec![[DVec3::ZERO; SKETCHES]; slots];
-    let mut own = vec![DVec3::ZERO; slots];
-    let mut alone = vec![DVec3::ZERO; slots];
+    // The patches grouped by face (a counting sort), so that one face's sums are made at a
+    // time: the samples' sums of a face are 8 vectors, and a scene may have millions of faces.
+    let mut first = vec![0u32; faces + 1];
+    for (f, &c) in count.iter().enumerate() {
+        first[f + 1] = first[f] + c;
+    }
+    let mut order = vec![0u32; n];
+    let mut next = first.clone();
     for i in 0..n {
-        let s = slot[face_key(mesh, i, back)];
+        let f = face_key(mesh, i, back);
+        order[next[f] as usize] = i as u32;
+        next[f] += 1;
+    }
+    drop(next);
+    // Per slot: the correlated numerator and the independent sum (the denominator).
+    let mut correlated = vec![DVec3::ZERO; slots];
+    let mut alone = vec![DVec3::ZERO; slots];
+    for (f, &s) in slot.iter().enumerate() {
         if s == u32::MAX {
             continue;
         }
-        let s = s as usize;
-        let a = mesh.patches()[i].area;
-        let mut held = DVec3::ZERO;
-        for (g, sum) in sums[s].iter_mut().enumerate() {
-            let z = sample(i, g);
-            *sum += a * z;
-            held += z * z;
+        let (mut sums, mut own, mut independent_sum) =
+            ([DVec3::ZERO; SKETCHES], DVec3::ZERO, DVec3::ZERO);
+        for &i in &order[first[f] as usize..first[f + 1] as usize] {
+            let i = i as usize;
+            let a = mesh.patches()[i].area;
+            let mut held = DVec3::ZERO;
+            for (g, sum) in sums.iter_mut().enumerate() {
+                let z = sample(i, g);
+                *sum += a * z;
+                held += z * z;
+            }
+            let u = independent(i);
+            own += a * a * u;
+            independent_sum += a * a * (held + u);
         }
-        let u = independent(i);
-        own[s] += a * a * u;
-        alone[s] += a * a * (held + u);
+        correlated[s as usize] = face_scale * sums.iter().map(|x| *x * *x).sum::<DVec3>() + own;
+        alone[s as usize] = independent_sum;
     }
-    let correlated: Vec<DVec3> = sums
-        .iter()
-        .zip(&own)
-        .map(|(sums, own)| face_scale * sums.iter().map(|x| *x * *x).sum::<DVec3>() + *own)
-        .collect();
     // The scene's factor per band of patch counts: the prior each face is drawn towards.
     let band = |c: u32| (c.max(1).ilog2() as usize).min(BANDS - 1);
     let mut prior = [(DVec3::ZERO, DVec3::ZERO); BANDS];
