@@ -22,7 +22,11 @@
 //!   gathers from shooting solutions of growing quality).
 //! - [`refine`] and [`pool`]: adaptive meshing, refining an
 //!   [`AdaptiveMesh`](mcrad_meshing::AdaptiveMesh) where the measured solution varies beyond
-//!   its noise or the emitters' visibility changes within an element.
+//!   its noise or the emitters' visibility changes within an element;
+//!   [`pool_correlation`]: the per-face correlation factors of a pooled answer.
+//! - [`Solution::face_correlation`]: per input face, the factor by which the correlation
+//!   between its patches' errors scales their variances summed as independent, for the
+//!   variance of the face's mean (`--per-face`, a bake's per-face figures).
 //!
 //! Randomness is a pure function of `(seed, pass, item, sub-stream)` and every reduction runs
 //! in a fixed order, so a seed gives the same answer whatever the thread count. With

@@ -72,10 +72,11 @@ pub struct Answer {
     /// area-weighted mean exceeds `sum_i (A_i / A_f)² V_i` over its patches (taken as
     /// independent) through the correlation between their errors; dimensionless, 1 for a face
     /// of one patch ([`Solution::face_correlation`](mcrad_mc_radiosity::Solution)). The
-    /// refinement's and a continued run's merges weigh a face's patches alike, so the factor
-    /// of this piece's solution stands for the answer's. `None` where the method keeps no
-    /// error samples, or the run was cancelled within a step: the patches are then taken as
-    /// independent.
+    /// refinement's pool enters its earlier estimate as independent between patches
+    /// ([`pool_correlation`](mcrad_mc_radiosity::pool_correlation)); a continued run's pieces
+    /// (the same method on the same mesh, merged alike over a face) share this piece's
+    /// factors. `None` where the method keeps no error samples, or the run was cancelled
+    /// within a step: the patches are then taken as independent.
     pub face_correlation: Option<Vec<DVec3>>,
 }
 
