@@ -304,28 +304,38 @@ fn furnace(rho: f32, o: Vec3) -> (Scene, Subdivision) {
     (scene, sub)
 }
 
+/// Faces being built as rectangles, numbered in order (the calibration rooms).
+#[derive(Default)]
+struct Rects {
+    positions: Vec<Vec3>,
+    faces: Vec<Face>,
+}
+
+impl Rects {
+    /// A rectangle with corners `p`, `p + u`, `p + u + v`, `p + v`, facing `normal`.
+    fn add(&mut self, p: Vec3, u: Vec3, v: Vec3, normal: Vec3, material: u32) {
+        let mut ring = [p, p + u, p + u + v, p + v];
+        if u.cross(v).dot(normal) < 0.0 {
+            ring.reverse();
+        }
+        let base = self.positions.len() as u32;
+        self.positions.extend(ring);
+        let source = self.faces.len() as u32;
+        self.faces.push(Face {
+            vertices: (base..base + 4).collect(),
+            material,
+            source,
+        });
+    }
+}
+
 /// A closed room 4 (x) by 2.5 (y, up) by 3 (z), its ceiling cut into a 3 x 3 grid of
 /// rectangles whose centre one is a 0.08 x 0.08 light (E = 1000 W/m², 1.1e-4 of the room's
 /// area); coloured walls; patches of at most 0.2.
 fn tiny_light_room() -> (Scene, Subdivision) {
     let (w, h, d, l) = (4.0f32, 2.5f32, 3.0f32, 0.08f32);
-    let mut positions = Vec::new();
-    let mut faces = Vec::new();
-    // A rectangle with corners p, p + u, p + u + v, p + v, facing `normal`.
-    let mut rect = |p: Vec3, u: Vec3, v: Vec3, normal: Vec3, material: u32| {
-        let mut ring = [p, p + u, p + u + v, p + v];
-        if u.cross(v).dot(normal) < 0.0 {
-            ring.reverse();
-        }
-        let base = positions.len() as u32;
-        positions.extend(ring);
-        let source = faces.len() as u32;
-        faces.push(Face {
-            vertices: (base..base + 4).collect(),
-            material,
-            source,
-        });
-    };
+    let mut r = Rects::default();
+    let mut rect = |p, u, v, normal, material| r.add(p, u, v, normal, material);
     let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
     rect(Vec3::ZERO, w * x, d * z, y, 0); // floor
     rect(Vec3::ZERO, d * z, h * y, x, 1); // x = 0
@@ -353,7 +363,7 @@ fn tiny_light_room() -> (Scene, Subdivision) {
         material("ceiling", Vec3::splat(0.8), 0.0),
         material("light", Vec3::ZERO, 1000.0),
     ];
-    let scene = Scene::new(positions, faces, materials)
+    let scene = Scene::new(r.positions, r.faces, materials)
         .expect("the room is a valid scene")
         .0;
     (scene, Subdivision::MaxEdge(0.2))
@@ -639,22 +649,8 @@ fn lit_box(
     sky: Option<mcrad_scene_io::Sky>,
 ) -> Scene {
     let (w, h, d) = (4.0f32, 2.5f32, 3.0f32);
-    let mut positions = Vec::new();
-    let mut faces = Vec::new();
-    let mut rect = |p: Vec3, u: Vec3, v: Vec3, normal: Vec3, material: u32| {
-        let mut ring = [p, p + u, p + u + v, p + v];
-        if u.cross(v).dot(normal) < 0.0 {
-            ring.reverse();
-        }
-        let base = positions.len() as u32;
-        positions.extend(ring);
-        let source = faces.len() as u32;
-        faces.push(Face {
-            vertices: (base..base + 4).collect(),
-            material,
-            source,
-        });
-    };
+    let mut r = Rects::default();
+    let mut rect = |p, u, v, normal, material| r.add(p, u, v, normal, material);
     let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
     rect(Vec3::ZERO, w * x, d * z, y, 0); // floor
     rect(h * y, w * x, d * z, -y, 3); // ceiling
@@ -678,7 +674,7 @@ fn lit_box(
         material("accent", Vec3::new(0.3, 0.5, 0.6), 0.0),
         material("ceiling", Vec3::splat(0.8), 0.0),
     ];
-    Scene::new_lit_sky(positions, faces, materials, lights, sky)
+    Scene::new_lit_sky(r.positions, r.faces, materials, lights, sky)
         .expect("the lit room is a valid scene")
         .0
 }
