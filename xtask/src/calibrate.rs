@@ -1780,20 +1780,27 @@ mod tests {
 
     /// A lit case goes through the solve from its scene: the point light's direct light is in
     /// the runs (the power near the reference's), and the pass's variance is reported.
-    #[test]
-    fn a_lit_case_runs_end_to_end() {
-        let dir = tempfile::tempdir().unwrap();
+    /// Case `name` measured end to end in `dir`: `prr`, 2 seeds of 2e4 rays; the arguments
+    /// its options and the rows.
+    fn two_prr_runs(dir: &Path, name: &str) -> (CalibrateArgs, Options, Vec<Row>) {
         let args = CalibrateArgs {
             seeds: 2,
             rays: 20_000,
-            cases: vec!["point-faces".into()],
+            cases: vec![name.into()],
             methods: vec![Method::Prr],
             limit: DEFAULT_LIMIT,
             out: "calibration.md".into(),
             sampler: None,
         };
-        let o = Options::parse(dir.path(), &args).unwrap();
+        let o = Options::parse(dir, &args).unwrap();
         let rows = measure(&o).unwrap();
+        (args, o, rows)
+    }
+
+    #[test]
+    fn a_lit_case_runs_end_to_end() {
+        let dir = tempfile::tempdir().unwrap();
+        let (args, _, rows) = two_prr_runs(dir.path(), "point-faces");
         let s = &rows[0].stats;
         assert_eq!(rows[0].done, 2, "{:?}", rows[0].notes);
         assert_eq!((s.zero_var, s.no_var), (0, 0), "{s:?}");
@@ -1818,17 +1825,7 @@ mod tests {
     #[test]
     fn one_case_runs_end_to_end() {
         let dir = tempfile::tempdir().unwrap();
-        let args = CalibrateArgs {
-            seeds: 2,
-            rays: 20_000,
-            cases: vec!["furnace-0.5".into()],
-            methods: vec![Method::Prr],
-            limit: DEFAULT_LIMIT,
-            out: "calibration.md".into(),
-            sampler: None,
-        };
-        let o = Options::parse(dir.path(), &args).unwrap();
-        let rows = measure(&o).unwrap();
+        let (_, o, rows) = two_prr_runs(dir.path(), "furnace-0.5");
         assert_eq!(rows.len(), 1);
         let s = &rows[0].stats;
         assert_eq!(rows[0].done, 2, "{:?}", rows[0].notes);
