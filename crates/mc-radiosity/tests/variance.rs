@@ -113,31 +113,7 @@ fn furnace_ratio(method: Method, rho: f32, subdivision: Subdivision, seeds: u64)
     };
     let scene = common::cube(1.0, material, Vec::new());
     let mesh = Mesh::build(&scene, subdivision).unwrap();
-    let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let runs: Vec<(Vec<DVec3>, Vec<DVec3>)> = (0..seeds)
-        .map(|seed| {
-            let config = ScheduleConfig {
-                rays: 200_000,
-                seed,
-                sampler: Sampler::Qmc,
-                ..Default::default()
-            };
-            let e = run(method, &mesh, &bvh, &config, &mut |_| {
-                ControlFlow::Continue(())
-            })
-            .unwrap()
-            .estimate;
-            (e.radiosity().to_vec(), e.variance().unwrap().to_vec())
-        })
-        .collect();
-    let n = seeds as f64;
-    let (mut spread, mut reported) = (0.0, 0.0);
-    for i in 0..mesh.patches().len() {
-        let mean = runs.iter().map(|r| r.0[i].x).sum::<f64>() / n;
-        spread += runs.iter().map(|r| (r.0[i].x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-        reported += runs.iter().map(|r| r.1[i].x).sum::<f64>() / n;
-    }
-    spread / reported
+    spread_over_reported(method, &mesh, 200_000, seeds)
 }
 
 /// Issue 36, item 2: with quasi-Monte Carlo rays a face of one patch measures its own gain.
