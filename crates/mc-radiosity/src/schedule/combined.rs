@@ -63,6 +63,10 @@ use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
+/// The weight, in patches, of the scene's measured gain in a face's gain for the gathers' own
+/// noise.
+const PRIOR_OWN: f64 = 4.0;
+
 /// Bounds of the shooting share of a pass.
 const SHARE: (f64, f64) = (0.1, 0.9);
 
@@ -412,6 +416,18 @@ fn combine(
     // of one patch holds 8 samples: its own ratio, in the denominator, made rare patches
     // report thousands of times their spread).
     let (ts, th): (DVec3, DVec3) = (sampled.iter().sum(), held.iter().sum());
+    // The gathers' own noise measured over the scene against the formula's: what a face's
+    // few degrees of freedom are drawn towards.
+    let (sm, so): (DVec3, DVec3) = (face_measured.iter().sum(), face_own.iter().sum());
+    let scene_gain = DVec3::new(
+        if so.x > 0.0 { sm.x / so.x } else { 1.0 },
+        if so.y > 0.0 { sm.y / so.y } else { 1.0 },
+        if so.z > 0.0 { sm.z / so.z } else { 1.0 },
+    );
+    let mut face_patches = vec![0u32; faces];
+    for p in mesh.patches() {
+        face_patches[p.face as usize] += 1;
+    }
     let transfer = DVec3::new(
         if th.x > 0.0 { ts.x / th.x } else { 0.0 },
         if th.y > 0.0 { ts.y / th.y } else { 0.0 },
@@ -425,7 +441,9 @@ fn combine(
                 let w = weights[i][c];
                 let own_i = match measured {
                     Some(_) if face_own[f][c] > 0.0 => {
-                        own[i][c] * face_measured[f][c] / face_own[f][c]
+                        let prior = PRIOR_OWN * face_own[f][c] / f64::from(face_patches[f]);
+                        own[i][c] * (face_measured[f][c] + prior * scene_gain[c])
+                            / (face_own[f][c] + prior)
                     }
                     Some(m) => m[i][c],
                     None => own[i][c],
