@@ -736,6 +736,9 @@ pub struct Options {
     pub out: PathBuf,
     /// How the runs draw their rays (`--sampler random|qmc`).
     pub sampler: mcrad_mc_radiosity::Sampler,
+    /// The reference solver's form-factor tolerance (`--reference-tolerance`), relative to a
+    /// row's sum; a power bias below it passes whatever the standard error.
+    pub reference_tolerance: f64,
 }
 
 /// The arguments of `cargo xtask calibrate`.
@@ -762,6 +765,10 @@ pub struct CalibrateArgs {
     /// How the runs draw their rays [default: the library's]
     #[arg(long, value_name = "random|qmc")]
     pub sampler: Option<mcrad_mc_radiosity::Sampler>,
+    /// The reference solver's form-factor tolerance, relative to a row's sum: a power bias
+    /// below it passes whatever the standard error (tighter to judge biases of 1e-5)
+    #[arg(long, value_name = "T", default_value_t = target::POWER_TOLERANCE)]
+    pub reference_tolerance: f64,
 }
 
 impl Options {
@@ -798,6 +805,7 @@ impl Options {
             limit: args.limit,
             out: root.join(&args.out),
             sampler: args.sampler.unwrap_or_default(),
+            reference_tolerance: args.reference_tolerance,
         };
         if o.seeds < 2 || o.rays == 0 || o.limit.is_nan() || o.limit <= 0.0 {
             bail!("calibrate needs --seeds >= 2, --rays >= 1 and --limit > 0");
@@ -1140,7 +1148,7 @@ pub fn run(root: &Path, args: &CalibrateArgs) -> Result<()> {
     let o = Options::parse(root, args)?;
     let start = Instant::now();
     let rows = measure(&o)?;
-    let table = table(&rows) + &far_table(&rows);
+    let table = table(&rows, o.reference_tolerance) + &far_table(&rows);
     print!("{table}");
     let mut doc = document(&o, &table);
     let _ = write!(
@@ -1174,11 +1182,12 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
         // A lit case's runs go through the solve from the scene (its lights and sky); the
         // reference gets them too.
         let lit = is_lit(&scene).then_some((&scene, subdivision));
-        let reference_config = ScheduleConfig {
+        let mut reference_config = ScheduleConfig {
             lights: scene.lights().to_vec(),
             sky: scene.sky().cloned(),
             ..Default::default()
         };
+        reference_config.reference.tolerance = o.reference_tolerance;
         let mut exact: Option<Vec<DVec3>> = match case.exact {
             Exact::Furnace => Some(
                 mesh.patches()
@@ -1320,7 +1329,7 @@ fn within((lo, hi): (f64, f64)) -> impl Fn(f64) -> bool {
 }
 
 /// The Markdown table of the rows.
-fn table(rows: &[Row]) -> String {
+fn table(rows: &[Row], tolerance: f64) -> String {
     let mut t = String::from(
         "| case | method | runs | mean z² | z kurtosis | var 0 / none | spread/reported pooled | \
          spread/reported median | power bias | ± SE | bias / SE | budget used | s/run | notes |\n\
@@ -1330,7 +1339,7 @@ fn table(rows: &[Row]) -> String {
         let s = &r.stats;
         let high_rho = r.case.rho.is_some_and(|rho| rho >= 0.999);
         let bias_se = match (s.power_bias, s.power_se) {
-            (Some(b), Some(se)) => Some(b / se.max(target::POWER_TOLERANCE / target::POWER_SE)),
+            (Some(b), Some(se)) => Some(b / se.max(tolerance / target::POWER_SE)),
             _ => None,
         };
         let range = |(lo, hi): (f64, f64)| {
@@ -1464,7 +1473,7 @@ fn document(o: &Options, table: &str) -> String {
          {} seeds (0..{}) per case and method, {} rays asked of every run, a run stopped at its \
          first step after {} s, rays drawn by the `{}` sampler. Rerun with `cargo xtask \
          calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S] \
-         [--sampler random|qmc]`.\n\n",
+         [--sampler random|qmc] [--reference-tolerance T]`.\n\n",
         o.seeds,
         o.seeds,
         o.rays,
@@ -1487,7 +1496,8 @@ fn document(o: &Options, table: &str) -> String {
          for the `-faces` cases, one patch per face (issue 36, item 2); far from the origin every vertex is an integer, exact in `f32`, so the far furnace is the \
          same mesh as the one at the origin, moved. The room is convex (the light is part of \
          the ceiling), so the reference solver needs no visibility and its answer is exact to \
-         its quadrature tolerance (1e-4 of a row's sum) and residual (1e-9).\n\n",
+         its quadrature tolerance (`--reference-tolerance`, by default 1e-4 of a row's sum) \
+         and residual (1e-9).\n\n",
     );
     if o.cases
         .iter()
@@ -1541,8 +1551,9 @@ fn document(o: &Options, table: &str) -> String {
          B_g + B_b)` of the mean of the K runs.\n\
          - **± SE**: its standard error, the standard deviation of the runs' powers / sqrt(K), \
          relative to `P_exact`. **bias / SE**: their ratio, with the SE taken as at least \
-         1e-4 / 3 (a bias below 1e-4 of the power, the reference solver's own tolerance, passes: \
-         shooting's power has no other noise).\n\
+         T / 3 (a bias below T of the power, the reference solver's own tolerance \
+         `--reference-tolerance`, by default 1e-4, passes: shooting's power has no other \
+         noise).\n\
          - **budget used**: rays cast / rays asked, smallest and largest over the runs. A run \
          that converged before spending its budget with every entry exact (variance 0) is shown \
          apart as *exact early* and is no miss: more rays could not improve it.\n\
@@ -1764,6 +1775,7 @@ mod tests {
             limit: DEFAULT_LIMIT,
             out: "calibration.md".into(),
             sampler: None,
+            reference_tolerance: target::POWER_TOLERANCE,
         };
         let o = Options::parse(dir.path(), &args).unwrap();
         for r in measure(&o).unwrap() {
@@ -1791,6 +1803,7 @@ mod tests {
             limit: DEFAULT_LIMIT,
             out: "calibration.md".into(),
             sampler: None,
+            reference_tolerance: target::POWER_TOLERANCE,
         };
         let o = Options::parse(dir, &args).unwrap();
         let rows = measure(&o).unwrap();
@@ -1832,7 +1845,7 @@ mod tests {
         assert!(s.z2.is_some() && s.spread_pooled.is_some(), "{s:?}");
         // shooting conserves power: 20k rays on 864 patches leave it within a few percent
         assert!(s.power_bias.unwrap().abs() < 0.05, "{s:?}");
-        let doc = document(&o, &table(&rows));
+        let doc = document(&o, &table(&rows, o.reference_tolerance));
         assert!(doc.contains("| furnace-0.5 | prr | 2/2 |"), "{doc}");
     }
 }
