@@ -408,7 +408,11 @@ impl Waves {
     /// it lands elsewhere: in a closed furnace of one patch per face an excess on one face
     /// takes `rho / 5` of itself from that face in the next waves), so they are scaled by
     /// [`Waves::carry_factor`] too, which the error samples measure (0.68-0.77 in that
-    /// furnace at rho 0.9). Without the two, `shoot` on the furnaces of one patch per face
+    /// furnace at rho 0.9), taken only where it lowers the variance: the carrying rays add
+    /// their own sampling noise to the samples (each carries its share of its patch's pending
+    /// error to one patch), which on a subdivided furnace at rho 0.99, where most patches
+    /// cast about a ray a wave, makes the factor 1.9-2.0 while the uncarried differences
+    /// match the spread (0.99). Without the two, `shoot` on the furnaces of one patch per face
     /// reported 2.5x its spread (issue 36, item 2): 1.4x from the carrying, the rest from the
     /// noise of a `kappa` of 5 degrees of freedom (one run in 16 reported 5x the others).
     /// The faces' gains
@@ -418,7 +422,7 @@ impl Waves {
     pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
         // The run's share of the per-wave variance, measured over (source, receiver) pairs, and
         // what the later waves' carrying makes of the error.
-        let kappa = self.kappa_by_sources() * self.carry_factor();
+        let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
         let measures = face.into_iter().enumerate().map(|(j, face)| {
             let (v, v2) = self.model[j];
             Measure {
