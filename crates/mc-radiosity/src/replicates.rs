@@ -47,6 +47,12 @@
 //! from 0.04 to 0.8-1.0. Gathering and the direct light run one round per call: their
 //! patches keep one difference each, drawn towards the formula as above.
 //!
+//! The waves' differences are scaled by the share of their variance the whole run keeps
+//! (`kappa`, [`Waves::gains`]), measured per pair of source and receiver patch, and by what
+//! the later waves make of a wave's error ([`Waves::carry_factor`], where it lowers it):
+//! measured per receiver alone, with 5 degrees of freedom in a furnace of one patch per face,
+//! and without the carrying, `shoot` there reported 2.5x its spread (issue 36, item 2).
+//!
 //! **`combined` measures its gathers' own noise over its passes.** Each pass gathers once
 //! with independent streams, so every pass gives each patch one more signed difference
 //! ([`Halves::error_of_mean`]) of its indirect gathering and one of its direct light; their
