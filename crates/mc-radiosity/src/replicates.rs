@@ -47,6 +47,12 @@
 //! from 0.04 to 0.8-1.0. Gathering and the direct light run one round per call: their
 //! patches keep one difference each, drawn towards the formula as above.
 //!
+//! The waves' differences are scaled by the share of their variance the whole run keeps
+//! (`kappa`, [`Waves::gains`]), measured per pair of source and receiver patch, and by what
+//! the later waves make of a wave's error ([`Waves::carry_factor`], where it lowers it):
+//! measured per receiver alone, with 5 degrees of freedom in a furnace of one patch per face,
+//! and without the carrying, `shoot` there reported 2.5x its spread (issue 36, item 2).
+//!
 //! **`combined` measures its gathers' own noise over its passes.** Each pass gathers once
 //! with independent streams, so every pass gives each patch one more signed difference
 //! ([`Halves::error_of_mean`]) of its indirect gathering and one of its direct light; their
@@ -230,6 +236,24 @@ pub(crate) struct Waves {
     face_touched: Vec<u32>,
     /// Per face, `sum_w |sum_{j in f} d_wj|²`.
     face_differences: Vec<f64>,
+    /// Per patch, the run's differences projected over the source patches: sample `k` is
+    /// `sum_w sum_i s_ik d_wij` ([`Waves::kappa_by_sources`]), `s_ik = ±1` the signs of
+    /// source `i` ([`source_signs`]).
+    projected: Vec<Row>,
+    /// Per patch, the differences `d_w` summed over the waves of each group as in `sketch`,
+    /// without what the later waves carried ([`Waves::carry_factor`]).
+    raw: Vec<Row>,
+}
+
+/// The signs `s_ik = ±1` of source patch `i` in the [`SKETCHES`] projections of
+/// [`Waves::kappa_by_sources`], per channel (flat as a [`Row`]): a fixed hash of `i`, so the
+/// same run gives the same answer.
+pub(crate) fn source_signs(i: usize) -> Row {
+    let mut z = (i as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    std::array::from_fn(|k| if (z >> (k / 3)) & 1 == 0 { 1.0 } else { -1.0 })
 }
 
 impl Waves {
@@ -242,6 +266,8 @@ impl Waves {
             face_wave: vec![DVec3::ZERO; faces],
             face_touched: Vec::new(),
             face_differences: vec![0.0; faces],
+            projected: vec![ZERO_ROW; patches],
+            raw: vec![ZERO_ROW; patches],
             wave: vec![Halves::default(); patches],
             total: vec![Halves::default(); patches],
             wave_squares: vec![0.0; patches],
@@ -296,17 +322,26 @@ impl Waves {
     /// parity of `n`, and their difference is the error alone. `None` for a ray alone in its
     /// replicate: its deposit counts in the gains unscaled (its square, the formula) and is
     /// left out of the error samples (a difference of mean `x` is no error sample).
+    /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
-    pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>) {
+    pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
         if self.wave_squares[j] == 0.0 {
             self.touched.push(j as u32);
         }
         self.wave[j].push(r, x * scale.unwrap_or(1.0));
+        // The difference as the run's totals take it (a lone ray's value too).
+        let y = x * scale.unwrap_or(1.0);
+        let y = if r == 0 { y } else { -y };
+        let y = [y.x as f32, y.y as f32, y.z as f32];
+        for ((a, s), k) in self.projected[j].iter_mut().zip(signs).zip(0..) {
+            *a += *s * y[k % 3];
+        }
         if let Some(s) = scale {
             // This wave's difference of the scaled replicates joins its group's pending error
             // power at once: the wave's rays are shot, and the group is the wave's.
             let d = if r == 0 { x * s } else { -x * s };
             add_sample(&mut self.pending[j], self.closed % SKETCHES, d);
+            add_sample(&mut self.raw[j], self.closed % SKETCHES, d);
         }
         self.wave_squares[j] += x.length_squared();
     }
@@ -373,12 +408,27 @@ impl Waves {
     /// patch `j`. The per-wave differences miss the cancellation between the waves of one
     /// sequence, so they are scaled by `kappa = sum_j D_j / sum_j W_j` over the scene, `D_j`
     /// the run's one difference and `W_j` the sum of the waves' (the share of the per-wave
-    /// variance the run keeps; one degree of freedom per patch of the scene). The faces' gains
+    /// variance the run keeps), here measured per source patch
+    /// ([`Waves::kappa_by_sources`]: one degree of freedom per pair of patches a ray joined,
+    /// not per patch). They also miss what the later waves make of a wave's error (shot on,
+    /// it lands elsewhere: in a closed furnace of one patch per face an excess on one face
+    /// takes `rho / 5` of itself from that face in the next waves), so they are scaled by
+    /// [`Waves::carry_factor`] too, which the error samples measure (0.68-0.77 in that
+    /// furnace at rho 0.9), taken only where it lowers the variance: the carrying rays add
+    /// their own sampling noise to the samples (each carries its share of its patch's pending
+    /// error to one patch), which on a subdivided furnace at rho 0.99, where most patches
+    /// cast about a ray a wave, makes the factor 1.9-2.0 while the uncarried differences
+    /// match the spread (0.99). Without the two, `shoot` on the furnaces of one patch per face
+    /// reported 2.5x its spread (issue 36, item 2): 1.4x from the carrying, the rest from the
+    /// noise of a `kappa` of 5 degrees of freedom (one run in 16 reported 5x the others).
+    /// The faces' gains
     /// are then drawn towards the scene's, not towards the formula ([`Toward::Scene`]): with
     /// tens of degrees of freedom a face measures gains of a few percent (a furnace of one
     /// patch per face) that the formula's pull would multiply.
     pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
-        let kappa = self.kappa();
+        // The run's share of the per-wave variance, measured over (source, receiver) pairs, and
+        // what the later waves' carrying makes of the error.
+        let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
         let measures = face.into_iter().enumerate().map(|(j, face)| {
             let (v, v2) = self.model[j];
             Measure {
@@ -393,6 +443,44 @@ impl Waves {
 }
 
 impl Waves {
+    /// `kappa` as [`Waves::kappa`] measures it, with the run's difference of each patch taken
+    /// apart by source patch. With `delta_ij` the run's replicate difference of what source
+    /// `i` put on patch `j` (W per channel), `D_j = |sum_i delta_ij|²`; the sources' sequences
+    /// are independent, so `E[D_j] = sum_i E[|delta_ij|²]`, which has a degree of freedom per
+    /// (source, receiver) pair where `D_j` has one per receiver (5 in a furnace of one patch
+    /// per face, where one run in 16 measured 2.4x the mean). Without a table of pairs,
+    /// [`SKETCHES`] projections with signs `s_ik = ±1` of source `i` ([`source_signs`])
+    /// estimate the sum: `E[|sum_i s_ik delta_ij|²] = sum_i E[|delta_ij|²]`, and the
+    /// projections' mean has up to [`SKETCHES`] degrees of freedom per receiver. The cost: a
+    /// row of [`SKETCHES`] × 3 adds per deposit.
+    fn kappa_by_sources(&self) -> f64 {
+        let (mut d, mut w) = (0.0, 0.0);
+        for (j, row) in self.projected.iter().enumerate() {
+            if self.model[j].0 > 0.0 {
+                d += (0..SKETCHES)
+                    .map(|g| sample(row, g).length_squared())
+                    .sum::<f64>()
+                    / SKETCHES as f64;
+                w += self.differences[j];
+            }
+        }
+        if w > 0.0 { d / w } else { 1.0 }
+    }
+
+    /// How much of the error the later waves carry on: `sum_j sum_g |z_gj|² / sum_j sum_g
+    /// |u_gj|²`, `z_gj` the error samples with what the later waves' rays carried
+    /// ([`Waves::sketch`]) and `u_gj` without. 1 before anything was measured.
+    fn carry_factor(&self) -> f64 {
+        let (mut z, mut u) = (0.0, 0.0);
+        for ((row, pending), raw) in self.sketch.iter().zip(&self.pending).zip(&self.raw) {
+            for g in 0..SKETCHES {
+                z += (sample(row, g) + sample(pending, g)).length_squared();
+                u += sample(raw, g).length_squared();
+            }
+        }
+        if u > 0.0 { z / u } else { 1.0 }
+    }
+
     /// `kappa = sum_j D_j / sum_j W_j` ([`Waves::gains`]): the share of the per-wave variance
     /// the run keeps; 1 before anything was measured.
     fn kappa(&self) -> f64 {

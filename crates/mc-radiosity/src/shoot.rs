@@ -434,6 +434,7 @@ pub fn shoot<C: RayCaster>(
                 let scale = halves[job.patch as usize];
                 // The error power this job's rays carry, if any.
                 let carried = waves.as_ref().and_then(|w| w.per_ray(job.patch as usize));
+                let signs = crate::replicates::source_signs(job.patch as usize);
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
@@ -454,7 +455,7 @@ pub fn shoot<C: RayCaster>(
                         }
                         if let Some(waves) = waves.as_mut() {
                             let r = replicate(job.first + t as u64);
-                            waves.push(j, r, kept, scale.map(|h| h[r]));
+                            waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
                             if let Some(q) = &carried {
                                 waves.carry(q, j, patches[j].reflectance);
                             }
