@@ -24,6 +24,7 @@ pub(crate) mod progressive_gather;
 pub(crate) mod progressive_two_pass;
 pub(crate) mod prr;
 pub(crate) mod reference;
+pub(crate) mod samples;
 pub(crate) mod shoot;
 pub(crate) mod two_pass;
 pub(crate) mod two_pass_split;
