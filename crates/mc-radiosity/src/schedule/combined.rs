@@ -278,7 +278,8 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 /// from the same error samples `z_g` ([`Row`]: `S`'s and their images through the gathers,
 /// `y_g`), so
 /// `V_i = (1 - w_i)² own^G_i + sum_g (w_i z_gi + (1 - w_i) y_gi)²`, per channel, for what
-/// the samples hold.
+/// the samples hold. ([`samples::variance`] computes it; the methods that gather from a
+/// shooting alone use it with `w = 0`.)
 ///
 /// **The gathers' own noise** `own^G_i` is, under quasi-Monte Carlo rays, what their
 /// replicates measure (`measured`: per pass the squares of the indirect gathering's and the
@@ -348,6 +349,7 @@ fn combine(
         // Each pass gathers once: its own noise is measured with a degree of freedom a pass
         // and part, taken as it is (no pull towards the scene's).
         prior: 0.0,
+        image_scale: 1.0,
     };
     let Some((variance, factors)) = samples::variance(mesh, &parts, &weights) else {
         return Ok((merged, None));

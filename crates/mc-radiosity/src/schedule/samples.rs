@@ -54,6 +54,10 @@ pub(crate) struct ShotSamples {
     pub sketch: Vec<Row>,
     /// Per patch and channel, the variance the samples miss ((W/m²)²).
     pub unsampled: Vec<DVec3>,
+    /// The share of the samples' variance of a face's total that the run keeps
+    /// (`Shooting::face_scale`: the stratification across the waves over many patches),
+    /// averaged over the passes by rays; dimensionless, 1 without faces of several patches.
+    pub face_scale: f64,
 }
 
 impl ShotSamples {
@@ -62,6 +66,7 @@ impl ShotSamples {
         ShotSamples {
             sketch: std::mem::take(&mut s.sketch),
             unsampled: std::mem::take(&mut s.unsampled),
+            face_scale: s.face_scale,
         }
     }
 
@@ -73,6 +78,7 @@ impl ShotSamples {
         ShotSamples {
             sketch: blend(self.sketch, &next.sketch, w),
             unsampled: by_rays(&self.unsampled, &next.unsampled, w),
+            face_scale: (1.0 - w) * self.face_scale + w * next.face_scale,
         }
     }
 }
@@ -150,6 +156,10 @@ pub(crate) struct Parts<'a> {
     /// The weight, in faces of the rounds' degrees of freedom, of the scene's measured scale
     /// in a face's ([module](self)); 0: each face its own.
     pub prior: f64,
+    /// The factor on the variance the gathers' image of the samples gives (the gathers sum
+    /// the samples over many patches, as a face's total does: [`ShotSamples::face_scale`]);
+    /// 1 to take the image as it is.
+    pub image_scale: f64,
 }
 
 /// The variance of `w S + (1 - w) G` per patch and channel ((W/m²)², [module](self)), `w`
@@ -170,7 +180,9 @@ pub(crate) fn variance(
         gathers,
         measured,
         prior,
+        image_scale,
     } = *parts;
+    let image_scale = image_scale.max(0.0).sqrt();
     let n = own.len();
     let image = &gathers.image;
     if shot.sketch.len() != n
@@ -199,7 +211,7 @@ pub(crate) fn variance(
             for g in 0..SKETCHES {
                 let (z, y) = (
                     f64::from(shot.sketch[i][3 * g + c]),
-                    f64::from(image[i][3 * g + c]),
+                    f64::from(image[i][3 * g + c]) * image_scale,
                 );
                 sampled[i][c] += (w * z + (1.0 - w) * y).powi(2);
                 held[i][c] += z * z;
@@ -285,12 +297,27 @@ pub(crate) fn variance(
             v
         })
         .collect();
+    if std::env::var_os("MCRAD_DEBUG_SAMPLES").is_some() {
+        let sum = |f: &dyn Fn(usize) -> f64| (0..n).map(f).sum::<f64>();
+        let own_sum = sum(&|i| own[i].x);
+        let meas = measured.map_or(0.0, |m| sum(&|i| m[i].x));
+        let samp = sum(&|i| sampled[i].x);
+        let hld = sum(&|i| held[i].x);
+        let inh = sum(&|i| (whole[i].x - own[i].x).max(0.0));
+        let tot = sum(&|i| variance[i].x);
+        let shot_sum = sum(&|i| shot_v[i].x);
+        let uns = sum(&|i| shot.unsampled[i].x);
+        eprintln!("DEBUG own {own_sum:.3e} measured {meas:.3e} sampled {samp:.3e} held {hld:.3e} inherited-formula {inh:.3e} shot {shot_sum:.3e} unsampled {uns:.3e} total {tot:.3e} rounds {:.2}", gathers.rounds());
+    }
     // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
     // of their variance as independent (the gathers' own noise, the samples' missed part).
     let factors = crate::correlation::factors_of(
         mesh,
         |i, g| {
-            let (z, y) = (sample(&shot.sketch[i], g), sample(&image[i], g));
+            let (z, y) = (
+                sample(&shot.sketch[i], g),
+                sample(&image[i], g) * image_scale,
+            );
             weights[i] * z + (DVec3::ONE - weights[i]) * y
         },
         |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
@@ -363,6 +390,7 @@ pub(crate) fn gathered(
         gathers: gather_samples,
         measured,
         prior: PRIOR_FACES,
+        image_scale: shot.face_scale,
     };
     let weights = vec![DVec3::ZERO; own.len()];
     let Some((variance, factors)) = variance(mesh, &parts, &weights) else {
