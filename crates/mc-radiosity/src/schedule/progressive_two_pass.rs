@@ -46,7 +46,9 @@ pub(crate) fn run<C: RayCaster>(
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
         // The passes merge by the rays asked of them (`accumulate`): so do their samples.
         samples = match (samples.take(), pass) {
-            (Some(old), Some(new)) => Some(old.merge(new, pass_rays as f64 / refined.rays() as f64)),
+            (Some(old), Some(new)) => {
+                Some(old.merge(new, pass_rays as f64 / refined.rays() as f64))
+            }
             (_, new) => new,
         };
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);

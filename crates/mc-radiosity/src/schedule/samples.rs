@@ -297,18 +297,6 @@ pub(crate) fn variance(
             v
         })
         .collect();
-    if std::env::var_os("MCRAD_DEBUG_SAMPLES").is_some() {
-        let sum = |f: &dyn Fn(usize) -> f64| (0..n).map(f).sum::<f64>();
-        let own_sum = sum(&|i| own[i].x);
-        let meas = measured.map_or(0.0, |m| sum(&|i| m[i].x));
-        let samp = sum(&|i| sampled[i].x);
-        let hld = sum(&|i| held[i].x);
-        let inh = sum(&|i| (whole[i].x - own[i].x).max(0.0));
-        let tot = sum(&|i| variance[i].x);
-        let shot_sum = sum(&|i| shot_v[i].x);
-        let uns = sum(&|i| shot.unsampled[i].x);
-        eprintln!("DEBUG own {own_sum:.3e} measured {meas:.3e} sampled {samp:.3e} held {hld:.3e} inherited-formula {inh:.3e} shot {shot_sum:.3e} unsampled {uns:.3e} total {tot:.3e} rounds {:.2}", gathers.rounds());
-    }
     // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
     // of their variance as independent (the gathers' own noise, the samples' missed part).
     let factors = crate::correlation::factors_of(
