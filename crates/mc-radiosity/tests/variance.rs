@@ -386,10 +386,10 @@ fn per_face_variances_of_prr_carry_the_correlation_between_patches() {
 /// one patch per face. Their gathers inherit the shooting's error, which conservation makes
 /// negatively correlated between the faces (a gather of the other five inherits about
 /// `-0.2 rho` of a face's own error), and summing it as independent (`rho² sum F² V`) with
-/// the own part's independent-ray formula reported 7-10 times the spread: 0.11-0.15 here
-/// before (`cargo xtask calibrate`: 0.106-0.154). Now the shooting's error samples gathered
-/// by the gathers' rays carry the inherited part, the gathers' replicates their own
-/// (`schedule::samples`). 16 seeds at 2e5 rays, the pooled ratio over 6 correlated patches
+/// the own part's independent-ray formula reported 7-10 times the spread (`cargo xtask
+/// calibrate` on the same furnace, side 12: 0.106-0.154; 0.91-1.03 now). Now the shooting's
+/// error samples gathered by the gathers' rays carry the inherited part, the gathers'
+/// replicates their own (`schedule::samples`). 16 seeds at 2e5 rays, the pooled ratio over 6 correlated patches
 /// (about 5 × 15 degrees of freedom, a relative error near 20%) within `[1/2, 2]`, about 3
 /// standard errors of 1, for each method.
 #[test]
