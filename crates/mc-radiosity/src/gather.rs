@@ -183,9 +183,13 @@ pub fn gather_round_from<C: RayCaster>(
 /// input without variances), which the round's variance includes. A schedule that gathers
 /// several times from inputs sharing their noise (nested merges of the same shooting passes)
 /// needs it apart: the inherited parts of those gathers are correlated, their own parts are not.
+///
+/// With `sketch` (the input's error samples per patch), the round's rays also gather them
+/// into their image ([`GatherRound::sketch`]): the error the round inherits, sample by sample.
 pub(crate) fn gather_round_parts<C: RayCaster>(
     ctx: &Context<C>,
     input: &Estimate,
+    sketch: Option<&[crate::replicates::Row]>,
     emission: Emission,
     rays_per_patch: u32,
     key: StreamKey,
@@ -197,7 +201,10 @@ pub(crate) fn gather_round_parts<C: RayCaster>(
         emission,
         rays_per_patch,
         key,
-        Side::default(),
+        Side {
+            sketch,
+            ..Side::default()
+        },
     )
 }
 

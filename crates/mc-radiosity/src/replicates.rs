@@ -58,7 +58,10 @@
 //! ([`Halves::error_of_mean`]) of its indirect gathering and one of its direct light; their
 //! squares, merged over the passes as the gathers are, measure the gathers' own variance
 //! without the formula's pull (`crate::schedule::combined`): a face of one patch in a
-//! small-light room reported 7x its spread before.
+//! small-light room reported 7x its spread before. The other methods that gather from a
+//! shooting (`two-pass`, `two-pass-split`, `progressive-gather`, `progressive-two-pass`)
+//! measure theirs the same way over their rounds (`crate::schedule::samples`), a face's
+//! measure drawn towards the scene's where the rounds are few (`two-pass` has one).
 
 use glam::{DVec3, Vec3};
 

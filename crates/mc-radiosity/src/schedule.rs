@@ -24,6 +24,7 @@ pub(crate) mod progressive_gather;
 pub(crate) mod progressive_two_pass;
 pub(crate) mod prr;
 pub(crate) mod reference;
+pub(crate) mod samples;
 pub(crate) mod shoot;
 pub(crate) mod two_pass;
 pub(crate) mod two_pass_split;
@@ -177,8 +178,10 @@ pub struct Solution {
     /// patches taken as independent) through the correlation between its patches' errors,
     /// estimated from the method's error samples; dimensionless, `>= 0`, exactly 1 for a face
     /// of one patch. `None` where the method keeps no error samples (then the patches are
-    /// taken as independent). Only `shoot`, `prr` and `combined` under quasi-Monte Carlo rays
-    /// give it.
+    /// taken as independent). `shoot` and `prr` give it under quasi-Monte Carlo rays; the
+    /// methods that gather from shooting (`two-pass`, `two-pass-split`, `progressive-gather`,
+    /// `progressive-two-pass`, `combined`) from their error samples (`schedule::samples`;
+    /// not with the ambient term).
     pub face_correlation: Option<Vec<DVec3>>,
 }
 
@@ -416,7 +419,9 @@ fn accumulate(acc: Option<Estimate>, next: Estimate) -> Result<Estimate, Error> 
 /// inherited ones fully correlated (exact for one input, an upper bound that nested merges
 /// nearly reach). Measured by `cargo xtask calibrate` (8 seeds, spread between seeds /
 /// reported variance, furnaces rho 0.5-0.999): `progressive-gather` 2.0-2.4 with the parts
-/// summed as independent.
+/// summed as independent. Where the shooting kept error samples the schedules report the
+/// variance from those instead ([`samples`]); this one stands without them (the ambient
+/// term).
 #[derive(Default)]
 pub(crate) struct Gathers {
     /// The gathers merged by rays, with their own variances only.

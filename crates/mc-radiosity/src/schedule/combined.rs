@@ -49,13 +49,13 @@
 //! the total error most: to shooting where the scene's patches are mostly lit directly and
 //! gathering is noisy, to gathering where shooting's hit counts are the bottleneck.
 
+use super::samples::{self, GatherSamples, Parts, ShotSamples};
 use super::{
     Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
 };
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
-use crate::replicates::Row;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative, shot_noise};
 use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
@@ -63,8 +63,8 @@ use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
 
-/// The weight, in patches, of the scene's measured gain in a face's gain for the gathers' own
-/// noise.
+/// The weight, in patches of the passes' degrees of freedom, of the scene's measured scale of
+/// the gathers' own noise in a face's ([`Parts::prior`](samples::Parts)).
 const PRIOR_OWN: f64 = 4.0;
 
 /// Bounds of the shooting share of a pass.
@@ -74,12 +74,9 @@ const SHARE: (f64, f64) = (0.1, 0.9);
 struct Shots {
     /// Passes merged by rays (Algorithm 1).
     merged: Estimate,
-    /// Its error samples (W/m², [`Row`]), the passes' merged with the same weights (the
-    /// passes are independent, so samples of the same group add).
-    sketch: Vec<Row>,
-    /// The part of its variance the samples do not hold ((W/m²)², `Shooting::unsampled`),
-    /// merged as the passes are.
-    unsampled: Vec<DVec3>,
+    /// Its error samples and the part of its variance they do not hold, the passes' merged
+    /// with the same weights (the passes are independent, so samples of the same group add).
+    samples: ShotSamples,
     /// Mean power carried by a shooting ray, weighted as the merge weights the passes:
     /// `sum_k w_k² p_k` with `w_k = n_k / n` (W per channel).
     ray_power: DVec3,
@@ -141,11 +138,9 @@ fn with_context<C: RayCaster>(
     let mut shots: Option<Shots> = None;
     let mut gathered: Option<Estimate> = None;
     let mut gathers = Gathers::default();
-    // The gathers' images of the shooting's error samples, merged by rays as the gathers are.
-    let mut gathered_sketch: Vec<Row> = Vec::new();
-    // The gathers' own noise measured by their replicates, merged by rays as the gathers are
-    // ((W/m²)², `Measured`).
-    let mut measured: Vec<DVec3> = Vec::new();
+    // The gathers' images of the shooting's error samples and their own noise measured by
+    // their replicates, merged by rays as the gathers are.
+    let mut gather_samples = GatherSamples::default();
     let (mut shot_rays, mut gather_rays) = (0u64, 0u64);
     // The last combination's correlation factors per face (`Solution::face_correlation`).
     let mut face_correlation = None;
@@ -166,7 +161,7 @@ fn with_context<C: RayCaster>(
             _ => 0.5,
         };
         let shoot_budget = ((budget as f64 * share) as u64).max(1);
-        let s = run.shoot(ctx, config, shoot_budget, passes.remaining(), k)?;
+        let mut s = run.shoot(ctx, config, shoot_budget, passes.remaining(), k)?;
         let pass_rays = s.stats.rays;
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         // The passes merge by the rays asked of them (see `Progressive::shoot`).
@@ -174,17 +169,15 @@ fn with_context<C: RayCaster>(
         shot_rays += asked;
         shots = Some(match shots.take() {
             None => Shots {
+                samples: ShotSamples::take(&mut s),
                 merged: s.estimate,
-                sketch: s.sketch,
-                unsampled: s.unsampled,
                 ray_power,
             },
             Some(old) => {
                 let w = asked as f64 / shot_rays as f64;
                 Shots {
+                    samples: old.samples.merge(ShotSamples::take(&mut s), w),
                     merged: accumulate(Some(old.merged), s.estimate)?,
-                    sketch: blend(old.sketch, &s.sketch, w),
-                    unsampled: by_rays(&old.unsampled, &s.unsampled, w),
                     ray_power: old.ray_power * (1.0 - w).powi(2) + ray_power * w * w,
                 }
             }
@@ -198,50 +191,33 @@ fn with_context<C: RayCaster>(
         let split = split_with_budget(
             ctx,
             &shots_now.merged,
-            Some(&shots_now.sketch),
+            Some(&shots_now.samples.sketch),
             gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
-        let (g, inherited, image) = (split.estimate, split.inherited, split.image);
+        let (g, inherited) = (split.estimate, split.inherited);
         // What the pass did not use (rays per patch are whole) goes to the passes after it.
         passes.refund(budget.saturating_sub(pass_rays + g.rays()));
         // And what the shooting cast beyond its share (its roulette tail) is taken from them.
         passes.charge((pass_rays + g.rays()).saturating_sub(budget));
         gather_rays += g.rays();
         run.rays += g.rays();
-        // This gather's own noise, measured: the squares of its independent parts' error
-        // samples (the indirect gathering's and the direct light's replicates).
-        let squares: Vec<DVec3> = split.own_errors[0]
-            .iter()
-            .zip(&split.own_errors[1])
-            .map(|(a, b)| *a * *a + *b * *b)
-            .collect();
-        measured = if measured.is_empty() {
-            squares
-        } else {
-            by_rays(
-                &measured,
-                &squares,
-                g.rays() as f64 / gather_rays.max(1) as f64,
-            )
-        };
-        gathered_sketch = if gathered_sketch.is_empty() {
-            image
-        } else {
-            blend(
-                gathered_sketch,
-                &image,
-                g.rays() as f64 / gather_rays.max(1) as f64,
-            )
-        };
+        // This gather's image of the shooting's samples, and its own noise measured: its
+        // independent parts' error samples (the indirect gathering's and the direct light's
+        // replicates).
+        gather_samples.add(
+            split.image,
+            &[&split.own_errors[0], &split.own_errors[1]],
+            g.rays(),
+        );
         gathers.add(g, &inherited)?;
         let g = gathers.estimate()?;
         let own = gathers.own().ok_or(EstimateError::MissingVariance)?;
-        let own_measured = (ctx.sampling() == crate::Sampler::Qmc).then_some(&measured[..]);
         let (c, factors) = combine(
             mesh,
             shots_now,
-            (&g, own, &gathered_sketch, own_measured),
+            (&g, own, &gather_samples),
+            ctx.sampling() == crate::Sampler::Qmc,
             run.merged.as_ref(),
             weighting,
         )?;
@@ -306,7 +282,8 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 /// from the same error samples `z_g` ([`Row`]: `S`'s and their images through the gathers,
 /// `y_g`), so
 /// `V_i = (1 - w_i)² own^G_i + sum_g (w_i z_gi + (1 - w_i) y_gi)²`, per channel, for what
-/// the samples hold.
+/// the samples hold. ([`samples::variance`] computes it; the methods that gather from a
+/// shooting alone use it with `w = 0`.)
 ///
 /// **The gathers' own noise** `own^G_i` is, under quasi-Monte Carlo rays, what their
 /// replicates measure (`measured`: per pass the squares of the indirect gathering's and the
@@ -328,16 +305,8 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 /// `V^S` on faces of one patch, whose gain is drawn towards the formula). (The face's own
 /// factor `1 + M_f / Z_f` on the sampled term, with 8 samples of a face of one patch in its
 /// denominator, made a few patches of the slivers room report thousands of times their
-/// spread: pooled spread / reported 0.000 over 64 seeds, 0.77 now.) That transfer is the
-/// smooth, conserving error's (the early waves' that the samples hold): a lone ray's error is
-/// one deposit on one patch, which a gather averages away with the rest, so where `U` is most
-/// of the shooting's variance (rho 0.999, 864 patches: nearly every late ray is alone in its
-/// wave) it overstated the combination's error twice (median spread / reported 0.50). So the
-/// missed part `m_i` enters as the smaller of `t m_i` and the two parts summed as
-/// independent, `w_i² m_i + (1 - w_i)² phi H_i` (`phi` its share of the gathers' inherited
-/// variance `H_i`): each overstates where the other holds (independent sums ignore the
-/// cancellation of a furnace of one patch per face; the transfer, the averaging of local
-/// errors). Where no sample holds anything, `U` and `phi H` are summed as independent.
+/// spread: pooled spread / reported 0.000 over 64 seeds, 0.77 now.) Or, where smaller, the
+/// two summed as independent ([`samples`](super::samples)).
 /// (`w² V_S + (1 - w)² V_G`, the two as independent, overstated the error 3-14 times on faces
 /// of one patch; summing `U` and `phi H` as independent of the samples overstated it 5 times
 /// on the rho 0.99 furnace of one patch per face and 1.5 times on the subdivided one:
@@ -345,7 +314,8 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 fn combine(
     mesh: &Mesh,
     shots: &Shots,
-    (gathered, own, image, measured): (&Estimate, &Estimate, &[Row], Option<&[DVec3]>),
+    (gathered, own, gather_samples): (&Estimate, &Estimate, &GatherSamples),
+    measured: bool,
     previous: Option<&Estimate>,
     weighting: &dyn Weighting,
 ) -> Result<(Estimate, Option<Vec<DVec3>>), Error> {
@@ -360,161 +330,37 @@ fn combine(
     );
     let merged = merge(a, b, weighting)?;
     let own = own.variance().ok_or(EstimateError::MissingVariance)?;
-    if shots.sketch.len() != own.len() || image.len() != own.len() {
-        return Ok((merged, None));
-    }
-    let whole = gathered.variance().ok_or(EstimateError::MissingVariance)?;
-    let shot = shots
-        .merged
-        .variance()
-        .ok_or(EstimateError::MissingVariance)?;
-    let total = |v: &[DVec3]| v.iter().map(|x| x.element_sum()).sum::<f64>();
-    let share = |part: &[DVec3]| {
-        if total(shot) > 0.0 {
-            (total(part) / total(shot)).clamp(0.0, 1.0)
-        } else {
-            0.0
-        }
-    };
-    let phi = share(&shots.unsampled);
-    let n = own.len();
-    let mut sampled = vec![DVec3::ZERO; n];
-    let mut held = vec![DVec3::ZERO; n];
-    let mut weights = vec![DVec3::ZERO; n];
-    for i in 0..n {
-        for c in 0..3 {
-            let w = weighting.weight(&a, &b, i, c);
-            weights[i][c] = w;
-            for g in 0..crate::replicates::SKETCHES {
-                let (z, y) = (
-                    f64::from(shots.sketch[i][3 * g + c]),
-                    f64::from(image[i][3 * g + c]),
-                );
-                sampled[i][c] += (w * z + (1.0 - w) * y).powi(2);
-                held[i][c] += z * z;
-            }
-        }
-    }
-    // Per input face (its patches see nearly the same scene; one patch's samples alone would
-    // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
-    // noise measured against the formula's.
-    let faces = mesh
-        .patches()
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let mut face_shot = vec![DVec3::ZERO; faces];
-    let mut face_held = vec![DVec3::ZERO; faces];
-    let mut face_unsampled = vec![DVec3::ZERO; faces];
-    let mut face_own = vec![DVec3::ZERO; faces];
-    let mut face_measured = vec![DVec3::ZERO; faces];
-    for (i, p) in mesh.patches().iter().enumerate() {
-        let f = p.face as usize;
-        face_shot[f] += shot[i];
-        face_held[f] += held[i];
-        face_unsampled[f] += shots.unsampled[i];
-        face_own[f] += own[i];
-        if let Some(m) = measured {
-            face_measured[f] += m[i];
-        }
-    }
-    // How the samples' part of `S`'s variance reaches the combination, over the scene (a face
-    // of one patch holds 8 samples: its own ratio, in the denominator, made rare patches
-    // report thousands of times their spread).
-    let (ts, th): (DVec3, DVec3) = (sampled.iter().sum(), held.iter().sum());
-    // The gathers' own noise measured over the scene against the formula's: what a face's
-    // few degrees of freedom are drawn towards.
-    let (sm, so): (DVec3, DVec3) = (face_measured.iter().sum(), face_own.iter().sum());
-    let scene_gain = DVec3::new(
-        if so.x > 0.0 { sm.x / so.x } else { 1.0 },
-        if so.y > 0.0 { sm.y / so.y } else { 1.0 },
-        if so.z > 0.0 { sm.z / so.z } else { 1.0 },
-    );
-    let mut face_patches = vec![0u32; faces];
-    for p in mesh.patches() {
-        face_patches[p.face as usize] += 1;
-    }
-    let transfer = DVec3::new(
-        if th.x > 0.0 { ts.x / th.x } else { 0.0 },
-        if th.y > 0.0 { ts.y / th.y } else { 0.0 },
-        if th.z > 0.0 { ts.z / th.z } else { 0.0 },
-    );
-    let variance: Vec<DVec3> = (0..n)
+    let weights: Vec<DVec3> = (0..own.len())
         .map(|i| {
-            let f = mesh.patches()[i].face as usize;
-            let mut v = DVec3::ZERO;
-            for c in 0..3 {
-                let w = weights[i][c];
-                let own_i = match measured {
-                    Some(_) if face_own[f][c] > 0.0 => {
-                        let prior = PRIOR_OWN * face_own[f][c] / f64::from(face_patches[f]);
-                        own[i][c] * (face_measured[f][c] + prior * scene_gain[c])
-                            / (face_own[f][c] + prior)
-                    }
-                    Some(m) => m[i][c],
-                    None => own[i][c],
-                };
-                v[c] = (1.0 - w).powi(2) * own_i
-                    + if face_held[f][c] > 0.0 {
-                        let missed = (face_shot[f][c] - face_held[f][c])
-                            .max(0.0)
-                            .min(face_unsampled[f][c]);
-                        let share = if face_unsampled[f][c] > 0.0 {
-                            missed / face_unsampled[f][c]
-                        } else {
-                            0.0
-                        };
-                        let missed = share * shots.unsampled[i][c];
-                        let inherited = (whole[i][c] - own[i][c]).max(0.0);
-                        let independent = w * w * missed + (1.0 - w).powi(2) * phi * inherited;
-                        sampled[i][c] + (transfer[c] * missed).min(independent)
-                    } else {
-                        let inherited = (whole[i][c] - own[i][c]).max(0.0);
-                        let unsampled = shots.unsampled[i][c];
-                        (1.0 - w).powi(2) * phi * inherited + w * w * unsampled + sampled[i][c]
-                    };
-            }
-            v
+            DVec3::new(
+                weighting.weight(&a, &b, i, 0),
+                weighting.weight(&a, &b, i, 1),
+                weighting.weight(&a, &b, i, 2),
+            )
         })
         .collect();
-    // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
-    // of their variance as independent (the gathers' own noise, the samples' missed part).
-    let factors = crate::correlation::factors_of(
-        mesh,
-        |i, g| {
-            let (z, y) = (
-                crate::replicates::sample(&shots.sketch[i], g),
-                crate::replicates::sample(&image[i], g),
-            );
-            weights[i] * z + (DVec3::ONE - weights[i]) * y
-        },
-        |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
-        1.0,
-    );
+    let parts = Parts {
+        shot: &shots.samples,
+        shot_variance: shots
+            .merged
+            .variance()
+            .ok_or(EstimateError::MissingVariance)?,
+        gathered: gathered.variance().ok_or(EstimateError::MissingVariance)?,
+        own,
+        gathers: gather_samples,
+        measured,
+        // Each pass gathers once: its own noise is measured with a degree of freedom a pass
+        // and part, so a face of one patch is drawn towards the scene's scale with the
+        // weight of `PRIOR_OWN` patches (mean z² 1.63 -> 1.33 in calibrate's slivers
+        // corridor, spread / reported in target before and after).
+        prior: PRIOR_OWN * gather_samples.rounds().max(1.0),
+        image_scale: 1.0,
+    };
+    let Some((variance, factors)) = samples::variance(mesh, &parts, &weights) else {
+        return Ok((merged, None));
+    };
     let estimate = Estimate::new(merged.radiosity().to_vec(), Some(variance), merged.rays())?;
     Ok((estimate, Some(factors)))
-}
-
-/// `(1 - w)² a + w² b` per patch and channel: variances of two independent estimates merged
-/// with weight `w` on the second.
-pub(super) fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
-    a.iter()
-        .zip(b)
-        .map(|(a, b)| *a * (1.0 - w).powi(2) + *b * (w * w))
-        .collect()
-}
-
-/// `(1 - w) a + w b`, sample by sample: error samples of two independent estimates merged
-/// with weight `w` on the second.
-pub(super) fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
-    let w = w as f32;
-    for (a, b) in a.iter_mut().zip(b) {
-        for (a, b) in a.iter_mut().zip(b) {
-            *a = *a * (1.0 - w) + *b * w;
-        }
-    }
-    a
 }
 
 /// The shooting share `f` in [`SHARE`] of the next `remaining` rays that minimises the expected

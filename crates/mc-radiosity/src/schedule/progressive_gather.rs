@@ -1,5 +1,10 @@
 //! Algorithm 2 of the paper: progressive gathering from one shooting solution.
+//!
+//! Every gather inherits the same shooting error; the variance reported takes it from the
+//! shooting's error samples gathered by the gathers' rays, and the gathers' own noise from
+//! their replicates, merged over the rounds as the gathers are ([`samples`](super::samples)).
 
+use super::samples::{GatherSamples, ShotSamples};
 use super::{
     Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, per_patch,
     shoot_config, unshot_fraction, with_ambient,
@@ -24,7 +29,7 @@ pub(crate) fn run<C: RayCaster>(
     } else {
         config.rays / 4
     };
-    let s = shoot(
+    let mut s = shoot(
         ctx,
         &shoot_config(config, shoot_budget, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
@@ -35,6 +40,7 @@ pub(crate) fn run<C: RayCaster>(
         unshot_fraction: unshot_fraction(&s),
         ..Default::default()
     };
+    let samples = (!config.ambient).then(|| ShotSamples::take(&mut s));
     let shooting = with_ambient(mesh, config, s)?;
     // Without a budget the gathers have none either (an observer stops them): `u64::MAX`
     // less the shot rays would size the first gather at 2^58 rays.
@@ -55,21 +61,38 @@ pub(crate) fn run<C: RayCaster>(
     });
     // Every gather inherits the same shooting noise: their inherited parts add as correlated.
     let mut gathers = Gathers::default();
+    let mut face_correlation = None;
+    // Their images of the shooting's samples and their own noise measured.
+    let mut gather_samples = GatherSamples::default();
+    let qmc = ctx.sampling() == crate::Sampler::Qmc;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
         let (r, inherited) = gather_round_parts(
             ctx,
             &shooting,
+            samples.as_ref().map(|s| &s.sketch[..]),
             Emission::Include,
             per_patch(mesh, budget),
             key,
         )?;
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
+        gather_samples.add(r.sketch, &[&r.errors], r.estimate.rays());
         gathers.add(r.estimate, &inherited)?;
-        if !run.replace(gathers.estimate()?, &mut passes, observer)? {
+        let (estimate, factors) = super::samples::gathered(
+            mesh,
+            samples.as_ref(),
+            shooting.variance(),
+            &gathers,
+            &gather_samples,
+            qmc,
+        )?;
+        face_correlation = factors;
+        if !run.replace(estimate, &mut passes, observer)? {
             break;
         }
     }
-    run.finish(config.rays)
+    let mut solution = run.finish(config.rays)?;
+    solution.face_correlation = face_correlation;
+    Ok(solution)
 }

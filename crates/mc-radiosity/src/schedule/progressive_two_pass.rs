@@ -1,5 +1,11 @@
 //! Algorithm 3 of the paper: progressive two-pass.
+//!
+//! The gathers inherit from nested merges of the same shooting passes; the variance reported
+//! takes that from the passes' error samples (merged as the passes are) gathered by the
+//! gathers' rays, and the gathers' own noise from their replicates, merged over the passes as
+//! the gathers are ([`samples`](super::samples)).
 
+use super::samples::{GatherSamples, ShotSamples};
 use super::{
     Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
     per_patch, with_ambient,
@@ -25,27 +31,55 @@ pub(crate) fn run<C: RayCaster>(
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();
     let mut gathers = Gathers::default();
+    // The shooting's error samples merged as its passes are (`None` with the ambient term),
+    // the gathers' images of them and their own noise measured.
+    let mut samples: Option<ShotSamples> = None;
+    let mut gather_samples = GatherSamples::default();
+    let mut face_correlation = None;
+    let qmc = ctx.sampling() == crate::Sampler::Qmc;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
-        let s = run.shoot(ctx, config, budget / 2, passes.remaining(), k)?;
+        let mut s = run.shoot(ctx, config, budget / 2, passes.remaining(), k)?;
         passes.charge(s.stats.rays.saturating_sub(budget / 2));
+        let pass = (!config.ambient).then(|| ShotSamples::take(&mut s));
+        let pass_rays = s.estimate.rays();
         let refined = accumulate(shooting.take(), with_ambient(mesh, config, s)?)?;
+        // The passes merge by the rays asked of them (`accumulate`): so do their samples.
+        samples = match (samples.take(), pass) {
+            (Some(old), Some(new)) => {
+                Some(old.merge(new, pass_rays as f64 / refined.rays() as f64))
+            }
+            (_, new) => new,
+        };
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);
         let (r, inherited) = gather_round_parts(
             ctx,
             &refined,
+            samples.as_ref().map(|s| &s.sketch[..]),
             Emission::Include,
             per_patch(mesh, budget / 2),
             key,
         )?;
-        shooting = Some(refined);
         run.rays += r.estimate.rays();
         run.escaped_rays += r.escaped_rays;
         // The gathers inherit from nested merges of the same shooting passes.
+        gather_samples.add(r.sketch, &[&r.errors], r.estimate.rays());
         gathers.add(r.estimate, &inherited)?;
-        if !run.replace(gathers.estimate()?, &mut passes, observer)? {
+        let (estimate, factors) = super::samples::gathered(
+            mesh,
+            samples.as_ref(),
+            refined.variance(),
+            &gathers,
+            &gather_samples,
+            qmc,
+        )?;
+        shooting = Some(refined);
+        face_correlation = factors;
+        if !run.replace(estimate, &mut passes, observer)? {
             break;
         }
     }
-    run.finish(config.rays)
+    let mut solution = run.finish(config.rays)?;
+    solution.face_correlation = face_correlation;
+    Ok(solution)
 }

@@ -1,6 +1,6 @@
 //! Algorithm 1 of the paper: progressive ray refinement (PRR), shooting passes merged by rays.
 
-use super::combined::{blend, by_rays};
+use super::samples::{blend, by_rays};
 use super::{Doubling, Observer, Progressive, ScheduleConfig, Solution, with_ambient};
 use crate::context::Context;
 use crate::correlation::face_factors;

@@ -1,13 +1,22 @@
 //! Two-pass radiosity (Balog, section 1.5): shooting, then one gathering round from it.
+//!
+//! The variance reported is the gather's own noise plus what it inherits from the shooting,
+//! both from error samples ([`samples`](super::samples)): the shooting's samples gathered by
+//! the gather's rays carry the inherited error with the correlation that conservation puts
+//! between the shooting's patches, and the gather's replicates measure its own noise (one
+//! difference a patch and part, a face's scale drawn towards the scene's). Summed as
+//! independent by the formulas, both overstated the error 7-8 times on faces of one patch
+//! (`cargo xtask calibrate`, cases `furnace-*-faces` and `slivers`).
 
+use super::samples::{GatherSamples, ShotSamples};
 use super::{
-    GATHER_TAG, Observer, ScheduleConfig, Solution, Step, budget_or_stopped, per_patch,
+    GATHER_TAG, Gathers, Observer, ScheduleConfig, Solution, Step, budget_or_stopped, per_patch,
     shoot_config, unshot_fraction, with_ambient,
 };
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_from};
+use crate::gather::{Emission, gather_round_parts};
 use crate::method::StopReason;
 use crate::shoot::shoot;
 use glam::DVec3;
@@ -29,13 +38,14 @@ pub(super) fn run_two_pass<C: RayCaster>(
         return unbounded(ctx, config, split, observer);
     }
     let budget = config.rays;
-    let s = shoot(
+    let mut s = shoot(
         ctx,
         &shoot_config(config, budget / 2, derive_seed(config.seed, 0)),
         &mut |_| ControlFlow::Continue(()),
     )?;
     let (shot_rays, escaped_rays, unshot) =
         (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let samples = shot_samples(config, &mut s);
     let shooting = with_ambient(mesh, config, s)?;
     let mut gather_budget = budget.saturating_sub(shot_rays);
     let limit = super::no_limit();
@@ -63,6 +73,7 @@ pub(super) fn run_two_pass<C: RayCaster>(
     gather_budget = gather_budget.min(limit.get());
     let shot = Shot {
         shooting,
+        samples,
         rays: shot_rays,
         escaped_rays,
         unshot,
@@ -75,6 +86,8 @@ pub(super) fn run_two_pass<C: RayCaster>(
 /// unshot fraction and the steps shown so far.
 struct Shot {
     shooting: Estimate,
+    /// Its error samples (`None` with the ambient term, which they do not hold).
+    samples: Option<ShotSamples>,
     rays: u64,
     escaped_rays: u64,
     unshot: f64,
@@ -96,7 +109,7 @@ fn unbounded<C: RayCaster>(
     let mut gather_cap = u64::MAX;
     let mut stopped = false;
     let mut steps = 0;
-    let s = shoot(
+    let mut s = shoot(
         ctx,
         &shoot_config(config, u64::MAX, derive_seed(config.seed, 0)),
         &mut |p| {
@@ -122,6 +135,7 @@ fn unbounded<C: RayCaster>(
     )?;
     let (shot_rays, escaped_rays, unshot) =
         (s.stats.rays, s.stats.escaped_rays, unshot_fraction(&s));
+    let samples = shot_samples(config, &mut s);
     let shooting = with_ambient(ctx.mesh(), config, s)?;
     if stopped {
         return Ok(Solution {
@@ -137,6 +151,7 @@ fn unbounded<C: RayCaster>(
     }
     let shot = Shot {
         shooting,
+        samples,
         rays: shot_rays,
         escaped_rays,
         unshot,
@@ -165,26 +180,44 @@ fn finish<C: RayCaster>(
     let mesh = ctx.mesh();
     let Shot {
         shooting,
+        samples,
         rays: shot_rays,
         mut escaped_rays,
         unshot,
         steps,
     } = shot;
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
-    let gathered = if split {
+    let sketch = samples.as_ref().map(|s| &s.sketch[..]);
+    let mut gathers = Gathers::default();
+    let mut gather_samples = GatherSamples::default();
+    if split {
         // Half for the direct light, sized by what its samples really cost; the rest gathers.
-        split_with_budget(ctx, &shooting, None, gather_budget, key)?.estimate
+        let s = split_with_budget(ctx, &shooting, sketch, gather_budget, key)?;
+        let rays = s.estimate.rays();
+        gather_samples.add(s.image, &[&s.own_errors[0], &s.own_errors[1]], rays);
+        gathers.add(s.estimate, &s.inherited)?;
     } else {
-        let r = gather_round_from(
+        let (r, inherited) = gather_round_parts(
             ctx,
             &shooting,
+            sketch,
             Emission::Include,
             per_patch(mesh, gather_budget),
             key,
         )?;
         escaped_rays += r.escaped_rays;
-        r.estimate
-    };
+        let rays = r.estimate.rays();
+        gather_samples.add(r.sketch, &[&r.errors], rays);
+        gathers.add(r.estimate, &inherited)?;
+    }
+    let (gathered, face_correlation) = super::samples::gathered(
+        mesh,
+        samples.as_ref(),
+        shooting.variance(),
+        &gathers,
+        &gather_samples,
+        ctx.sampling() == crate::Sampler::Qmc,
+    )?;
     // The answer's work is everything it took: the shooting and the gathering.
     let rays = shot_rays + gathered.rays();
     let estimate = Estimate::new(
@@ -209,8 +242,14 @@ fn finish<C: RayCaster>(
         stop: budget_or_stopped(stopped),
         direct: None,
         sky_direct: None,
-        face_correlation: None,
+        face_correlation,
     })
+}
+
+/// The error samples of the shooting half (taken out of `s`), or `None` with the ambient term,
+/// whose spread of the unshot power they do not hold.
+fn shot_samples(config: &ScheduleConfig, s: &mut crate::shoot::Shooting) -> Option<ShotSamples> {
+    (!config.ambient).then(|| ShotSamples::take(s))
 }
 
 /// Two-pass without the split: shooting, then one gathering round.

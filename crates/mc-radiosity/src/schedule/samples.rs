@@ -1,0 +1,400 @@
+//! The variance of an estimate built from gathers of a shooting estimate, from error samples
+//! (issue 36, item 2): shared by the methods that gather from shooting (`two-pass`,
+//! `two-pass-split`, `progressive-gather`, `progressive-two-pass`, `combined`).
+//!
+//! A gather `G_i = [E_i] + rho_i (1/n) sum_k S(j_k)` (plus, split, the direct light) has two
+//! errors: its **own** (its rays and emitter samples given `S`, independent of everything
+//! else) and the one it **inherits** from `S`, `rho_i sum_j F̂_ij e^S_j`. Summing the latter as
+//! if the `e^S_j` were independent (`rho_i² sum_j F_ij² V_j`) ignores that shooting conserves
+//! power: its errors are negatively correlated between patches, and in a closed furnace of one
+//! patch per face a gather inherits about `-0.2 rho e^S_i`, a fifth of the independent sum.
+//! And under quasi-Monte Carlo rays the own part's independent-ray formula, drawn towards by
+//! each round's gain with one replicate difference a patch, overstates stratified rays several
+//! times on a face of one patch. Both made `two-pass` and the progressive gathers report
+//! 7-10 times their spread between seeds on faces of one patch (`cargo xtask calibrate`).
+//!
+//! So, as `combined` does:
+//!
+//! - shooting keeps [`SKETCHES`] error samples `z_g` per patch ([`ShotSamples`],
+//!   `Waves::sketch`: `sum_g z_gi z_gj` estimates the covariance of `e^S_i` and `e^S_j`), and
+//!   the gathers gather them with their own rays into their images `y_g` ([`GatherSamples`]):
+//!   `sum_g y_gi²` estimates the inherited variance with its correlation;
+//! - the gathers' own noise is measured by their replicates: per round and patch one signed
+//!   difference of the indirect gathering and one of the direct light
+//!   ([`Halves::error_of_mean`](crate::replicates::Halves)), squared and merged by rays as the
+//!   rounds are, the formula's shape over an input face taking the face's measured scale.
+//!
+//! The estimate `C_i = w_i S_i + (1 - w_i) G_i` (`combined`'s merge; `w = 0` for a gather
+//! alone) then has the variance ([`variance`])
+//!
+//! ```text
+//! V_i = (1 - w_i)² own_i + sum_g (w_i z_gi + (1 - w_i) y_gi)² + missed_i
+//! ```
+//!
+//! per channel, with `missed_i` the part of `S`'s variance the samples do not hold (lone rays
+//! of a roulette tail and of the late waves): the smaller of that part carried as the held part
+//! is over the scene, and the two parts summed as independent, `w_i² m_i + (1 - w_i)² phi H_i`
+//! (`m_i` the missed part of `S`'s variance, `phi` its share of the gathers' inherited variance
+//! `H_i`). The first is the smooth, conserving error's transfer and overstates a lone ray's
+//! error, one deposit that a gather averages away: at rho 0.999 on 864 patches, where nearly
+//! every late ray is alone in its wave, `combined`'s median patch reported twice its spread.
+//! The second ignores the cancellation of a furnace of one patch per face, where the first
+//! holds.
+//!
+//! **Degrees of freedom.** A face of one patch measures its own noise with one degree of
+//! freedom a round and part. An estimate `v̂` of `chi²_k / k` noise makes `z² = e² / v̂` about
+//! `k / (k - 2)` times too large on average (infinite for `k <= 2`), so where the gathers
+//! measured few differences a face's measured scale is drawn towards the scene's (the sums
+//! over every face) with the weight of `prior` faces of the rounds' degrees of freedom: the
+//! single gather of `two-pass` has one.
+
+use crate::replicates::{Row, SKETCHES, sample};
+use glam::DVec3;
+use mcrad_meshing::Mesh;
+
+/// The error samples of a shooting estimate: [`Row`]s `z_g` (W/m²) and the part of its
+/// variance they do not hold ((W/m²)², `Shooting::unsampled`), both merged over shooting
+/// passes as the estimate is (by rays).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct ShotSamples {
+    /// Per patch, the [`SKETCHES`] error samples per channel (W/m²).
+    pub sketch: Vec<Row>,
+    /// Per patch and channel, the variance the samples miss ((W/m²)²).
+    pub unsampled: Vec<DVec3>,
+    /// The share of the samples' variance of a face's total that the run keeps
+    /// (`Shooting::face_scale`: the stratification across the waves over many patches),
+    /// averaged over the passes by rays; dimensionless, 1 without faces of several patches.
+    pub face_scale: f64,
+}
+
+impl ShotSamples {
+    /// The samples of one shooting pass (taken out of it).
+    pub(crate) fn take(s: &mut crate::shoot::Shooting) -> ShotSamples {
+        ShotSamples {
+            sketch: std::mem::take(&mut s.sketch),
+            unsampled: std::mem::take(&mut s.unsampled),
+            face_scale: s.face_scale,
+        }
+    }
+
+    /// These samples merged with `next`'s, an independent pass merged with weight `w` on it.
+    pub(crate) fn merge(self, next: ShotSamples, w: f64) -> ShotSamples {
+        if self.sketch.is_empty() {
+            return next;
+        }
+        ShotSamples {
+            sketch: blend(self.sketch, &next.sketch, w),
+            unsampled: by_rays(&self.unsampled, &next.unsampled, w),
+            face_scale: (1.0 - w) * self.face_scale + w * next.face_scale,
+        }
+    }
+}
+
+/// What the gathers of a run measured, merged by rays as the gathers are: the images of the
+/// shooting's error samples through their rays, and the squares of their own replicate
+/// differences.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct GatherSamples {
+    /// Per patch, the image `y_g` of the shooting's samples (W/m², [`Row`]).
+    pub image: Vec<Row>,
+    /// Per patch and channel, the gathers' own noise measured ((W/m²)²).
+    pub measured: Vec<DVec3>,
+    /// Rays of the gathers so far, and the sum of their squares (the degrees of freedom).
+    rays: u64,
+    squares: f64,
+}
+
+impl GatherSamples {
+    /// Adds a gather of `rays` rays merged by rays into the gathers before it: `image` its
+    /// image of the shooting's samples, `errors` the signed replicate differences of its
+    /// independent parts (the indirect gathering's, the direct light's) per patch.
+    pub(crate) fn add(&mut self, image: Vec<Row>, errors: &[&[DVec3]], rays: u64) {
+        let n = image.len().max(errors.first().map_or(0, |e| e.len()));
+        let mut squares = vec![DVec3::ZERO; n];
+        for e in errors {
+            for (s, d) in squares.iter_mut().zip(e.iter()) {
+                *s += *d * *d;
+            }
+        }
+        self.rays += rays;
+        self.squares += (rays as f64).powi(2);
+        let w = rays as f64 / self.rays.max(1) as f64;
+        self.measured = if self.measured.is_empty() {
+            squares
+        } else {
+            by_rays(&self.measured, &squares, w)
+        };
+        self.image = if self.image.is_empty() {
+            image
+        } else {
+            blend(std::mem::take(&mut self.image), &image, w)
+        };
+    }
+
+    /// The degrees of freedom of a patch's measured noise per replicate difference: the
+    /// rounds' effective number, `(sum_k n_k)² / sum_k n_k²` (a round's own variance falls
+    /// as its rays grow while its weight grows with them: `n_k` is its share of the sum).
+    pub(crate) fn rounds(&self) -> f64 {
+        if self.squares > 0.0 {
+            (self.rays as f64).powi(2) / self.squares
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The shooting estimate's variance and samples, and the gathering estimate's, that
+/// [`variance`] reads.
+pub(crate) struct Parts<'a> {
+    /// The shooting estimate's samples.
+    pub shot: &'a ShotSamples,
+    /// The shooting estimate's variance per patch and channel ((W/m²)²).
+    pub shot_variance: &'a [DVec3],
+    /// The gathering estimate's whole variance by the formulas (own plus inherited as
+    /// independent, [`Gathers::estimate`](super::Gathers)).
+    pub gathered: &'a [DVec3],
+    /// Its own part by the independent-ray formula ([`Gathers::own`](super::Gathers)).
+    pub own: &'a [DVec3],
+    /// The gathers' samples.
+    pub gathers: &'a GatherSamples,
+    /// Whether the gathers' own noise is taken from their replicates (quasi-Monte Carlo
+    /// rays); otherwise the formula stands.
+    pub measured: bool,
+    /// The weight, in faces of the rounds' degrees of freedom, of the scene's measured scale
+    /// in a face's ([module](self)); 0: each face its own.
+    pub prior: f64,
+    /// The factor on the variance the gathers' image of the samples gives (the gathers sum
+    /// the samples over many patches, as a face's total does: [`ShotSamples::face_scale`]);
+    /// 1 to take the image as it is.
+    pub image_scale: f64,
+}
+
+/// The variance of `w S + (1 - w) G` per patch and channel ((W/m²)², [module](self)), `w`
+/// given per patch and channel by `weights` (all 0: the gathering estimate alone), and per
+/// face the factor of the correlation between its patches
+/// ([`factors_of`](crate::correlation::factors_of)). `None` when the samples do not fit the
+/// mesh (a shooting that kept none).
+pub(crate) fn variance(
+    mesh: &Mesh,
+    parts: &Parts<'_>,
+    weights: &[DVec3],
+) -> Option<(Vec<DVec3>, Vec<DVec3>)> {
+    let Parts {
+        shot,
+        shot_variance: shot_v,
+        gathered: whole,
+        own,
+        gathers,
+        measured,
+        prior,
+        image_scale,
+    } = *parts;
+    let image_scale = image_scale.max(0.0).sqrt();
+    let n = own.len();
+    let image = &gathers.image;
+    if shot.sketch.len() != n
+        || image.len() != n
+        || shot.unsampled.len() != n
+        || weights.len() != n
+        || (measured && gathers.measured.len() != n)
+    {
+        return None;
+    }
+    let measured = measured.then_some(&gathers.measured[..]);
+    let total = |v: &[DVec3]| v.iter().map(|x| x.element_sum()).sum::<f64>();
+    let share = |part: &[DVec3]| {
+        if total(shot_v) > 0.0 {
+            (total(part) / total(shot_v)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let phi = share(&shot.unsampled);
+    let mut sampled = vec![DVec3::ZERO; n];
+    let mut held = vec![DVec3::ZERO; n];
+    for i in 0..n {
+        for c in 0..3 {
+            let w = weights[i][c];
+            for g in 0..SKETCHES {
+                let (z, y) = (
+                    f64::from(shot.sketch[i][3 * g + c]),
+                    f64::from(image[i][3 * g + c]) * image_scale,
+                );
+                sampled[i][c] += (w * z + (1.0 - w) * y).powi(2);
+                held[i][c] += z * z;
+            }
+        }
+    }
+    // Per input face (its patches see nearly the same scene; one patch's samples alone would
+    // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
+    // noise measured against the formula's.
+    let faces = mesh
+        .patches()
+        .iter()
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let mut face_shot = vec![DVec3::ZERO; faces];
+    let mut face_held = vec![DVec3::ZERO; faces];
+    let mut face_unsampled = vec![DVec3::ZERO; faces];
+    let mut face_own = vec![DVec3::ZERO; faces];
+    let mut face_measured = vec![DVec3::ZERO; faces];
+    let mut face_patches = vec![0u32; faces];
+    for (i, p) in mesh.patches().iter().enumerate() {
+        let f = p.face as usize;
+        face_shot[f] += shot_v[i];
+        face_held[f] += held[i];
+        face_unsampled[f] += shot.unsampled[i];
+        face_own[f] += own[i];
+        face_patches[f] += 1;
+        if let Some(m) = measured {
+            face_measured[f] += m[i];
+        }
+    }
+    // The own noise's scale per face: measured over formula, drawn towards the scene's with
+    // the weight of `prior` faces of one patch's degrees of freedom.
+    let scene_scale = {
+        let (m, o): (DVec3, DVec3) = (face_measured.iter().sum(), face_own.iter().sum());
+        DVec3::new(ratio(m.x, o.x), ratio(m.y, o.y), ratio(m.z, o.z))
+    };
+    let rounds = gathers.rounds().max(1.0);
+    // Per face, the numerator and denominator of that scale.
+    let face_scale: Vec<(DVec3, DVec3)> = (0..faces)
+        .map(|f| {
+            let pull = prior / (rounds * f64::from(face_patches[f].max(1)));
+            let (m, o) = (face_measured[f], face_own[f]);
+            if pull > 0.0 {
+                (m + pull * scene_scale * o, (1.0 + pull) * o)
+            } else {
+                (m, o)
+            }
+        })
+        .collect();
+    // How the samples' part of `S`'s variance reaches the estimate, over the scene (a face
+    // of one patch holds 8 samples: its own ratio, in the denominator, made rare patches
+    // report thousands of times their spread).
+    let (ts, th): (DVec3, DVec3) = (sampled.iter().sum(), held.iter().sum());
+    let transfer = DVec3::new(ratio(ts.x, th.x), ratio(ts.y, th.y), ratio(ts.z, th.z));
+    let variance: Vec<DVec3> = (0..n)
+        .map(|i| {
+            let f = mesh.patches()[i].face as usize;
+            let mut v = DVec3::ZERO;
+            for c in 0..3 {
+                let w = weights[i][c];
+                let own_i = match measured {
+                    Some(_) if face_own[f][c] > 0.0 => {
+                        own[i][c] * face_scale[f].0[c] / face_scale[f].1[c]
+                    }
+                    Some(m) => m[i][c],
+                    None => own[i][c],
+                };
+                v[c] = (1.0 - w).powi(2) * own_i
+                    + if face_held[f][c] > 0.0 {
+                        let missed = (face_shot[f][c] - face_held[f][c])
+                            .max(0.0)
+                            .min(face_unsampled[f][c]);
+                        let share = ratio(missed, face_unsampled[f][c]);
+                        let missed = share * shot.unsampled[i][c];
+                        let inherited = (whole[i][c] - own[i][c]).max(0.0);
+                        let independent = w * w * missed + (1.0 - w).powi(2) * phi * inherited;
+                        sampled[i][c] + (transfer[c] * missed).min(independent)
+                    } else {
+                        let inherited = (whole[i][c] - own[i][c]).max(0.0);
+                        let unsampled = shot.unsampled[i][c];
+                        (1.0 - w).powi(2) * phi * inherited + w * w * unsampled + sampled[i][c]
+                    };
+            }
+            v
+        })
+        .collect();
+    // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
+    // of their variance as independent (the gathers' own noise, the samples' missed part).
+    let factors = crate::correlation::factors_of(
+        mesh,
+        |i, g| {
+            let (z, y) = (
+                sample(&shot.sketch[i], g),
+                sample(&image[i], g) * image_scale,
+            );
+            weights[i] * z + (DVec3::ONE - weights[i]) * y
+        },
+        |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
+        1.0,
+    );
+    Some((variance, factors))
+}
+
+/// `a / b`, 0 where `b` is not positive.
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 { a / b } else { 0.0 }
+}
+
+/// `(1 - w)² a + w² b` per patch and channel: variances of two independent estimates merged
+/// with weight `w` on the second.
+pub(crate) fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| *a * (1.0 - w).powi(2) + *b * (w * w))
+        .collect()
+}
+
+/// `(1 - w) a + w b`, sample by sample: error samples of two independent estimates merged
+/// with weight `w` on the second.
+pub(crate) fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
+    let w = w as f32;
+    for (a, b) in a.iter_mut().zip(b) {
+        for (a, b) in a.iter_mut().zip(b) {
+            *a = *a * (1.0 - w) + *b * w;
+        }
+    }
+    a
+}
+
+/// The weight of the scene's measured scale in a face's own noise for the methods whose
+/// gathers measure it with few degrees of freedom ([module](self)): as many faces of the
+/// rounds' degrees of freedom as [`PRIOR_PATCHES`](crate::replicates::PRIOR_PATCHES) (a face
+/// of one patch and one round takes a fifth of its own measure).
+pub(crate) const PRIOR_FACES: f64 = crate::replicates::PRIOR_PATCHES;
+
+/// The gathering estimate of `gathers` (merged by rays) with the variance [`variance`] gives it
+/// alone (`w = 0`), from the samples of the shooting estimate it gathers from (`shot`, and that
+/// estimate's variance `shot_variance`) and of the gathers; and the per-face correlation
+/// factors. Where the samples do not fit (a shooting that kept none, the ambient term), the
+/// gathers' estimate by the formulas and no factors.
+pub(crate) fn gathered(
+    mesh: &Mesh,
+    shot: Option<&ShotSamples>,
+    shot_variance: Option<&[DVec3]>,
+    gathers: &super::Gathers,
+    gather_samples: &GatherSamples,
+    measured: bool,
+) -> Result<(mcrad_combine::Estimate, Option<Vec<DVec3>>), crate::error::Error> {
+    let whole = gathers.estimate()?;
+    let (Some(shot), Some(shot_variance), Some(own)) = (
+        shot,
+        shot_variance,
+        gathers.own().and_then(|o| o.variance()),
+    ) else {
+        return Ok((whole, None));
+    };
+    let Some(gathered) = whole.variance() else {
+        return Ok((whole, None));
+    };
+    let parts = Parts {
+        shot,
+        shot_variance,
+        gathered,
+        own,
+        gathers: gather_samples,
+        measured,
+        prior: PRIOR_FACES,
+        image_scale: shot.face_scale,
+    };
+    let weights = vec![DVec3::ZERO; own.len()];
+    let Some((variance, factors)) = variance(mesh, &parts, &weights) else {
+        return Ok((whole, None));
+    };
+    let estimate =
+        mcrad_combine::Estimate::new(whole.radiosity().to_vec(), Some(variance), whole.rays())?;
+    Ok((estimate, Some(factors)))
+}
