@@ -34,7 +34,7 @@
 //! face's patches reading the same gathers), as the gains of `crate::replicates` are.
 //!
 //! Shooting's samples are its waves' replicate differences, scaled by the share of the
-//! per-wave variance the whole run keeps over the scene (`Waves::kappa`): a patch's rays
+//! per-wave variance the whole run keeps over the scene (`Waves::kappa_by_sources`): a patch's rays
 //! continue one sequence over the waves, stratified across them too, and over a whole face
 //! much more so than over one patch. So the samples' variance of a face's total takes
 //! `Waves::face_scale` as well, the same share measured on the faces' totals.

@@ -399,7 +399,7 @@ impl Waves {
                 w += waves;
             }
         }
-        let kappa = self.kappa();
+        let kappa = self.kappa_by_sources();
         if w > 0.0 && kappa > 0.0 {
             d / w / kappa
         } else {
@@ -446,9 +446,14 @@ impl Waves {
 }
 
 impl Waves {
-    /// `kappa` as [`Waves::kappa`] measures it, with the run's difference of each patch taken
-    /// apart by source patch. With `delta_ij` the run's replicate difference of what source
-    /// `i` put on patch `j` (W per channel), `D_j = |sum_i delta_ij|²`; the sources' sequences
+    /// `kappa = sum_j D_j / sum_j W_j`, the share of the per-wave variance the run keeps
+    /// (`D_j` the run's one replicate difference of patch `j` squared, `W_j` its waves'
+    /// summed; 1 before anything was measured), with the run's difference of each patch taken
+    /// apart by source patch. Used by the gains, the face scale and the error samples (whose
+    /// variance, scaled by the one-difference-per-patch `kappa`, made the gathering methods'
+    /// mean `z²` 1.6-2.3 on furnaces of one patch per face; 1.0-1.65 with this one). With
+    /// `delta_ij` the run's replicate difference of what source `i` put on patch `j` (W per
+    /// channel), `D_j = |sum_i delta_ij|²`; the sources' sequences
     /// are independent, so `E[D_j] = sum_i E[|delta_ij|²]`, which has a degree of freedom per
     /// (source, receiver) pair where `D_j` has one per receiver (5 in a furnace of one patch
     /// per face, where one run in 16 measured 2.4x the mean). Without a table of pairs,
@@ -484,19 +489,6 @@ impl Waves {
         if u > 0.0 { z / u } else { 1.0 }
     }
 
-    /// `kappa = sum_j D_j / sum_j W_j` ([`Waves::gains`]): the share of the per-wave variance
-    /// the run keeps; 1 before anything was measured.
-    fn kappa(&self) -> f64 {
-        let (mut d, mut w) = (0.0, 0.0);
-        for (j, t) in self.total.iter().enumerate() {
-            if self.model[j].0 > 0.0 {
-                d += t.variance_of_sum();
-                w += self.differences[j];
-            }
-        }
-        if w > 0.0 { d / w } else { 1.0 }
-    }
-
     /// The run's error samples (after the last [`Waves::end_wave`]), W per channel: per patch
     /// `sqrt(kappa) z_g`, `z_g` the wave differences of group `g` with what the later waves
     /// made of them. A wave's error `d_w` is power its patches then reflect: the later waves
@@ -512,7 +504,7 @@ impl Waves {
     /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
     /// Also returns the samples of the error power still unshot, summed over the patches.
     pub fn sketch(&self) -> (Vec<Row>, [DVec3; SKETCHES]) {
-        let k = self.kappa().sqrt();
+        let k = self.kappa_by_sources().sqrt();
         let mut pending = [DVec3::ZERO; SKETCHES];
         for row in &self.pending {
             for (g, p) in pending.iter_mut().enumerate() {
