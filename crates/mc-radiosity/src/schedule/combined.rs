@@ -293,7 +293,9 @@ fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<V
 /// `own_i sum_f measured / sum_f own`. A face of many patches measures it with many degrees
 /// of freedom; a face of one patch (`--no-subdivide`) with one per pass and part, where the
 /// formula (drawn towards by each round's own gain) overstated its stratified rays' noise
-/// about ten times (the slivers room of `cargo xtask calibrate`).
+/// about ten times (the slivers room of `cargo xtask calibrate`). So few degrees of freedom
+/// inflate `z²`: a face's measured scale is drawn towards the scene's with the weight of
+/// `PRIOR_OWN` patches.
 ///
 /// **What the samples miss**: rays alone in their replicate (a roulette tail's most of all)
 /// are shooting's error of the same transport, so it is taken to reach the combination as the
