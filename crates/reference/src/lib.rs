@@ -4,7 +4,7 @@
 //! `B_i = E_i + ρ_i Σ_j F_ij B_j` (radiosity `B` and emission `E` in W/m², per RGB channel).
 //! This crate computes one for scenes of up to about ten thousand patches (work and memory
 //! grow as the square of the patch count): the form factors `F_ij` ([`form_factors`]), then
-//! Gauss-Seidel to a residual `max |E + ρ F B - B| / max B` below `1e-9` ([`solve`]). The result
+//! Gauss-Seidel to a residual `|E + ρ F B - B|` below `1e-9` of each patch's own `B` ([`solve`]). The result
 //! is a [`combine::Estimate`](mcrad_combine::Estimate) without variance. Everything is a pure
 //! function of the mesh and the configuration: the shadow rays' jitter comes from
 //! [`Stream`](mcrad_random::Stream)s keyed by the pair, and the answer does not depend on the
@@ -106,7 +106,7 @@ pub use direct::{
 };
 pub use form_factor::point_polygon_form_factor;
 pub use matrix::{FormFactorStats, FormFactors, form_factors};
-pub use solve::{Solution, solve};
+pub use solve::{DIM_FLOOR, Solution, solve};
 
 use mcrad_combine::Estimate;
 use mcrad_meshing::Mesh;
@@ -132,7 +132,9 @@ pub struct ReferenceConfig {
     /// relative to its sum, in `(0, 1)`. Shadow rays converge slowly (on the Cornell box,
     /// halving this doubles the rays), hence a separate, looser target.
     pub visibility_tolerance: f64,
-    /// Target residual of the solve, `max_{i,c} |E + ρ F B - B| / max B`, `> 0`.
+    /// Target residual of the solve relative to each patch's own radiosity,
+    /// `max_{i,c} |E + ρ F B - B|_ic / max(B_ic, DIM_FLOOR max B)` ([`DIM_FLOOR`]),
+    /// `> 0`.
     pub residual: f64,
     /// Gauss-Seidel sweeps allowed before [`ReferenceError::NotConverged`].
     pub max_iterations: usize,
@@ -211,7 +213,7 @@ pub struct ReferenceStats {
     pub form_factors: FormFactorStats,
     /// Gauss-Seidel sweeps.
     pub iterations: usize,
-    /// Final residual relative to the largest radiosity.
+    /// Final residual relative to each patch's own radiosity ([`Solution::residual`]).
     pub residual: f64,
 }
 

@@ -5,7 +5,7 @@
 use super::common;
 
 use crate::SurfaceSampler;
-use common::{bvh, furnace, material, parallel_squares, quad};
+use common::{box_faces, bvh, furnace, material, parallel_squares, quad};
 use glam::{DVec3, Vec3};
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_random::Stream;
@@ -433,4 +433,72 @@ fn slow_convergence_is_an_error_not_a_wrong_answer() {
             assert!(err.to_string().contains("tolerance"), "{err}");
         }
     }
+}
+
+/// `(I - diag(ρ) F) B = E` solved directly (Gaussian elimination; the matrix is diagonally
+/// dominant, so without pivoting), one channel.
+fn dense_solve(mesh: &Mesh, factors: &FormFactors, channel: usize) -> Vec<f64> {
+    let n = mesh.patches().len();
+    let mut a = vec![vec![0.0f64; n + 1]; n];
+    for (i, p) in mesh.patches().iter().enumerate() {
+        let rho = f64::from(p.reflectance[channel]);
+        for j in 0..n {
+            a[i][j] = -rho * factors.get(i, j);
+        }
+        a[i][i] += 1.0;
+        a[i][n] = f64::from(p.emission[channel]);
+    }
+    for k in 0..n {
+        for i in k + 1..n {
+            let f = a[i][k] / a[k][k];
+            if f != 0.0 {
+                for j in k..=n {
+                    a[i][j] -= f * a[k][j];
+                }
+            }
+        }
+    }
+    let mut b = vec![0.0; n];
+    for i in (0..n).rev() {
+        let s: f64 = (i + 1..n).map(|j| a[i][j] * b[j]).sum();
+        b[i] = (a[i][n] - s) / a[i][i];
+    }
+    b
+}
+
+#[test]
+fn a_small_bright_light_leaves_no_dim_patch_short() {
+    // A 1 x 1 x 6 tunnel of reflectance 0.5 lit by one 0.25 x 0.25 patch of one end: the far
+    // end is about 1e-3 as bright as the light. Gauss-Seidel approaches the solution from
+    // below, so a residual judged against the light's radiosity left the far end short by
+    // about 1e-9 / 1e-3 of its own (a bias of the reference); judged against each patch's own
+    // radiosity, every patch is within 1e-8 of the direct solve of the same system.
+    let (mut positions, mut faces) = (Vec::new(), Vec::new());
+    box_faces(1.0, &mut positions, &mut faces, [1, 0, 0, 0, 0, 0]);
+    for p in &mut positions {
+        p.z *= 6.0;
+    }
+    let materials = vec![material("grey", 0.5, 0.0), material("lamp", 0.5, 1.0)];
+    let scene = Scene::new(positions, faces, materials).unwrap().0;
+    let mut mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.25)).unwrap();
+    // the end wall z = 0 (face 0) emits on its first patch only
+    let end: Vec<usize> = (0..mesh.patches().len())
+        .filter(|&i| mesh.patches()[i].face == 0)
+        .collect();
+    for &i in &end[1..] {
+        mesh.set_emission(i, Vec3::ZERO);
+    }
+    let f = factors(&mesh, 1e-6);
+    let solution = mcrad_reference::solve(&mesh, &f, 1e-9, 10_000).unwrap();
+    let exact = dense_solve(&mesh, &f, 0);
+    let dimmest = exact.iter().copied().fold(f64::INFINITY, f64::min);
+    assert!(dimmest < 2e-3 && dimmest > 0.0, "{dimmest}");
+    let worst = solution
+        .radiosity
+        .iter()
+        .zip(&exact)
+        .map(|(b, x)| (b.x - x).abs() / x)
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-8, "largest relative error {worst:e}");
+    assert!(solution.residual <= 1e-9, "{}", solution.residual);
 }
