@@ -493,12 +493,7 @@ fn pool_weights(
     let (Some(vf), Some(ve)) = (fresh.variance(), earlier.variance()) else {
         return Ok(None);
     };
-    let faces = mesh
-        .patches()
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
+    let faces = mesh.face_count();
     // Per face: leaves counted, sums of V_f, V_e and (X_f - X_e)².
     let mut sums = vec![(0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); faces];
     for (i, p) in mesh.patches().iter().enumerate() {

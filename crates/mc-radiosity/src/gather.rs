@@ -461,11 +461,7 @@ fn with_face_pooled(
     qmc: bool,
 ) -> Result<Estimate, Error> {
     let patches = mesh.patches();
-    let faces = patches
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
+    let faces = mesh.face_count();
     let (mut m2, mut dof) = (vec![DVec3::ZERO; faces], vec![0u64; faces]);
     let mut emitted = vec![DVec3::ZERO; faces];
     for (p, s) in patches.iter().zip(seen) {

@@ -87,12 +87,7 @@ fn at_level(mesh: &Mesh, level: Level, values: &[DVec3]) -> Vec<DVec3> {
     if level == Level::Patches {
         return values.to_vec();
     }
-    let faces = mesh
-        .patches()
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap();
+    let faces = mesh.face_count();
     let mut sum = vec![DVec3::ZERO; faces];
     let mut area = vec![0.0; faces];
     for (p, b) in mesh.patches().iter().zip(values) {

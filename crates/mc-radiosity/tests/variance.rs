@@ -338,12 +338,7 @@ fn combined_in_a_small_light_room_of_one_patch_per_face_reports_its_error() {
 /// `k_f sum a_i² V_i` ([`mcrad_mc_radiosity::Solution::face_correlation`]).
 fn face_spread_over_reported(method: Method, mesh: &Mesh, rays: u64, seeds: u64) -> (f64, f64) {
     let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch()).unwrap();
-    let faces = mesh
-        .patches()
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap();
+    let faces = mesh.face_count();
     let mut area = vec![0.0; faces];
     for p in mesh.patches() {
         area[p.face as usize] += p.area;

@@ -449,6 +449,17 @@ impl Mesh {
         &self.patches
     }
 
+    /// The length of a table indexed by input face ([`Patch::face`]): one more than the
+    /// largest face number of a patch (0 without patches). Faces that no patch comes from
+    /// get a row too.
+    pub fn face_count(&self) -> usize {
+        self.patches
+            .iter()
+            .map(|p| p.face as usize + 1)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// Sets the emitted radiosity `E` (W/m² per channel) of patch `patch` (mesh order), for a
     /// solver that turns light from elsewhere (lights without a surface) into the light a
     /// patch sends out. Panics if `patch` is out of range.

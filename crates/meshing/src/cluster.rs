@@ -63,11 +63,7 @@ impl Clusters {
             return clusters;
         }
         // Patches per face and side: only a face's single patch may join a cluster.
-        let faces = patches
-            .iter()
-            .map(|p| p.face as usize + 1)
-            .max()
-            .unwrap_or(0);
+        let faces = mesh.face_count();
         let mut per_face = vec![0u8; faces * 2];
         for p in patches {
             let k = p.face as usize * 2 + usize::from(p.back);

@@ -228,12 +228,7 @@ pub(crate) fn variance(
     // Per input face (its patches see nearly the same scene; one patch's samples alone would
     // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
     // noise measured against the formula's.
-    let faces = mesh
-        .patches()
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
+    let faces = mesh.face_count();
     let mut face_shot = vec![DVec3::ZERO; faces];
     let mut face_held = vec![DVec3::ZERO; faces];
     let mut face_unsampled = vec![DVec3::ZERO; faces];
