@@ -204,6 +204,7 @@ fn direct_with<C: RayCaster>(
                 replicate: t.halves.variance_of_mean(t.moments.n),
                 model: t.moments.variance_of_mean().element_sum(),
                 dof: 1.0,
+                deposits: 0.0,
             }),
             replicates::Toward::Formula,
         )

@@ -520,6 +520,7 @@ fn with_face_pooled(
                     replicate: s.halves.variance_of_mean(s.moments.n),
                     model: m.element_sum(),
                     dof: 1.0,
+                    deposits: 0.0,
                 }),
             replicates::Toward::Formula,
         )
@@ -917,6 +918,7 @@ pub fn gather_corners<C: RayCaster>(
                 replicate: s.halves.variance_of_mean(s.moments.n),
                 model: s.moments.variance_of_mean().element_sum(),
                 dof: 1.0,
+                deposits: 0.0,
             }),
             replicates::Toward::Formula,
         );

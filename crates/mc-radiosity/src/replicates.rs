@@ -40,7 +40,8 @@
 //! **Shooting measures more.** A shooting run's waves are independent given the waves before
 //! them, so each wave's even-odd difference is one more degree of freedom ([`Waves`]): a patch
 //! lit over many bounces measures its own gain with tens of them, and shooting's faces are
-//! drawn towards the scene's gain rather than the formula ([`Toward::Scene`]). A face of one
+//! drawn towards the gain of faces that received about as many deposits rather than the
+//! formula ([`Toward::Alike`]). A face of one
 //! patch (`--no-subdivide`) then reports its stratified error: in a closed furnace of one
 //! patch per face at rho 0.9 and 0.99 (`cargo xtask calibrate`, cases `furnace-*-faces`), the
 //! gain is a few percent, and `prr`'s spread between seeds over its reported variance went
@@ -193,6 +194,10 @@ pub(crate) struct Measure {
     /// The degrees of freedom of `replicate`: 1 for one difference, more for a sum of
     /// independent differences ([`Waves`]).
     pub dof: f64,
+    /// How many values it sums, in effect: `|sum x|² / sum |x|²` over its deposits (equal
+    /// deposits: their count), which sets how much stratification can gain
+    /// ([`Toward::Alike`]). 0 where not known.
+    pub deposits: f64,
 }
 
 /// Shooting's replicate differences wave by wave. A wave's even and odd rays are two
@@ -425,23 +430,30 @@ impl Waves {
     /// reported 2.5x its spread (issue 36, item 2): 1.4x from the carrying, the rest from the
     /// noise of a `kappa` of 5 degrees of freedom (one run in 16 reported 5x the others).
     /// The faces' gains
-    /// are then drawn towards the scene's, not towards the formula ([`Toward::Scene`]): with
-    /// tens of degrees of freedom a face measures gains of a few percent (a furnace of one
-    /// patch per face) that the formula's pull would multiply.
+    /// are then drawn towards those of the faces that received about as many deposits, not
+    /// towards the formula ([`Toward::Alike`]): with tens of degrees of freedom a face
+    /// measures gains of a few percent (a furnace of one patch per face) that the formula's
+    /// pull would multiply.
     pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
         // The run's share of the per-wave variance, measured over (source, receiver) pairs, and
         // what the later waves' carrying makes of the error.
         let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
         let measures = face.into_iter().enumerate().map(|(j, face)| {
             let (v, v2) = self.model[j];
+            let total = self.total[j].sum[0] + self.total[j].sum[1];
             Measure {
                 face,
                 replicate: (v > 0.0).then_some(kappa * self.differences[j]),
                 model: v,
                 dof: if v2 > 0.0 { v * v / v2 } else { 1.0 },
+                deposits: if v > 0.0 {
+                    total.length_squared() / v
+                } else {
+                    0.0
+                },
             }
         });
-        gains(measures, Toward::Scene)
+        gains(measures, Toward::Alike)
     }
 }
 
@@ -527,8 +539,28 @@ impl Waves {
 pub(crate) enum Toward {
     /// Gain 1, the independent-ray formula: for measures of one degree of freedom a patch.
     Formula,
-    /// The scene's gain, `sum q / sum v` over every measured item.
-    Scene,
+    /// The gain of the faces that received about as many deposits (per patch, within a
+    /// factor 2: [`Measure::deposits`]), `sum q / sum v` over them, itself drawn towards the
+    /// scene's with the weight of [`PRIOR_ALIKE`] degrees of freedom. Stratification gains
+    /// nothing on a patch that receives a deposit or two, and most where hundreds land: in a
+    /// room lit by a 1 cm² light the gain of its 0.25 m squares was 0.53, of its 1 cm squares
+    /// 0.99, and the scene's (0.54, the large squares' variance being most of the scene's)
+    /// made the 1 cm squares of one patch per face report 0.62 of their spread (issue 36).
+    Alike,
+}
+
+/// The degrees of freedom with which the scene's gain weighs in the gain of a class of faces
+/// that received about as many deposits ([`Toward::Alike`]).
+pub(crate) const PRIOR_ALIKE: f64 = 8.0;
+
+/// The class of an item that received `deposits` deposits ([`Toward::Alike`]): `floor(log2)`,
+/// below 1 in class 0.
+fn deposit_class(deposits: f64) -> usize {
+    if deposits >= 2.0 {
+        (deposits.log2().floor() as usize).min(63)
+    } else {
+        0
+    }
 }
 
 /// Each item's gain `g_f` ([module](self)), in the order of `items`.
@@ -536,21 +568,46 @@ pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) ->
     let items: Vec<Measure> = items.into_iter().collect();
     let n_faces = items.iter().map(|m| m.face as usize + 1).max().unwrap_or(0);
     let (mut q, mut v, mut dof) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0.0; n_faces]);
+    // per face: deposits summed over its measured patches, and their count
+    let (mut deposits, mut count) = (vec![0.0; n_faces], vec![0u32; n_faces]);
     for m in &items {
         if let Some(r) = m.replicate {
             let f = m.face as usize;
             q[f] += r;
             v[f] += m.model;
             dof[f] += m.dof;
+            deposits[f] += m.deposits;
+            count[f] += 1;
         }
     }
     let (q_all, v_all) = (q.iter().sum::<f64>(), v.iter().sum::<f64>());
-    let target = match toward {
-        Toward::Scene if v_all > 0.0 => q_all / v_all,
-        _ => 1.0,
+    let scene = if v_all > 0.0 { q_all / v_all } else { 1.0 };
+    // The target of each face: the formula's gain 1, or its class's.
+    let class_of = |f: usize| deposit_class(deposits[f] / f64::from(count[f].max(1)));
+    let targets: Vec<f64> = match toward {
+        Toward::Formula => vec![1.0; 64],
+        Toward::Alike => {
+            let (mut cq, mut cv, mut cdof) = ([0.0; 64], [0.0; 64], [0.0; 64]);
+            for f in (0..n_faces).filter(|&f| v[f] > 0.0) {
+                let c = class_of(f);
+                cq[c] += q[f];
+                cv[c] += v[f];
+                cdof[c] += dof[f];
+            }
+            (0..64)
+                .map(|c| {
+                    if cv[c] <= 0.0 || cdof[c] <= 0.0 {
+                        return scene;
+                    }
+                    let prior = PRIOR_ALIKE * cv[c] / cdof[c];
+                    (cq[c] + prior * scene) / (cv[c] + prior)
+                })
+                .collect()
+        }
     };
     let face_gain: Vec<f64> = (0..n_faces)
         .map(|f| {
+            let target = targets[class_of(f)];
             if dof[f] <= 0.0 || v[f] <= 0.0 {
                 return target;
             }
@@ -591,6 +648,45 @@ mod tests {
     }
 
     #[test]
+    fn a_face_of_few_deposits_is_drawn_towards_the_gain_of_its_like() {
+        // 50 faces of 100 deposits each measure gain 0.25 (most of the scene's variance), 50
+        // faces of one deposit measure gain 1 with one degree of freedom each: drawn towards
+        // the scene's gain (0.257) the latter would report 0.41 of their variance; towards
+        // their class's (0.897), 0.918.
+        let heavy = |face| Measure {
+            face,
+            replicate: Some(0.25),
+            model: 1.0,
+            dof: 20.0,
+            deposits: 100.0,
+        };
+        let light = |face| Measure {
+            face,
+            replicate: Some(0.01),
+            model: 0.01,
+            dof: 1.0,
+            deposits: 1.0,
+        };
+        let g = gains(
+            (0..100).map(|f| if f < 50 { heavy(f) } else { light(f) }),
+            Toward::Alike,
+        );
+        let scene = (50.0 * 0.25 + 50.0 * 0.01) / (50.0 + 50.0 * 0.01);
+        let prior = PRIOR_ALIKE * 0.5 / 50.0;
+        let class = (0.5 + prior * scene) / (0.5 + prior);
+        let face = (0.01 + 4.0 * 0.01 * class) / (0.01 + 4.0 * 0.01);
+        assert!(
+            (g[99] - face).abs() < 1e-12 && g[99] > 0.9,
+            "{} vs {face}",
+            g[99]
+        );
+        let prior = PRIOR_ALIKE * 50.0 / 1000.0;
+        let class = (12.5 + prior * scene) / (50.0 + prior);
+        let face = (0.25 + 4.0 / 20.0 * class) / (1.0 + 4.0 / 20.0);
+        assert!((g[0] - face).abs() < 1e-12, "{} vs {face}", g[0]);
+    }
+
+    #[test]
     fn a_face_gain_is_its_own_measure_drawn_towards_the_formula() {
         // Face 0 measures gain 0.25 over 100 patches, face 1 gain 0.25 over 1 patch.
         let measure = |face| Measure {
@@ -598,6 +694,7 @@ mod tests {
             replicate: Some(0.25),
             model: 1.0,
             dof: 1.0,
+            deposits: 0.0,
         };
         let g = gains(
             (0..101).map(|i| measure(u32::from(i == 100))),
