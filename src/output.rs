@@ -181,7 +181,8 @@ pub fn bake_line(summary: &serde_json::Value) -> String {
     let error = match &summary["texel_relative_error"] {
         serde_json::Value::Null => String::new(),
         e => format!(
-            "; texel relative error: median {}, 95th percentile {}",
+            "; texel relative error (Monte Carlo noise only, not the mesh's): median {}, \
+             95th percentile {}",
             percent(&e["median"]),
             percent(&e["p95"])
         ),
