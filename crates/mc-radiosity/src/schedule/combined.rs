@@ -357,6 +357,8 @@ fn combine(
         // corridor, spread / reported in target before and after).
         prior: PRIOR_OWN * gather_samples.rounds().max(1.0),
         image_scale: 1.0,
+        // its samples' part mixes shooting's own samples with the gathers' images
+        sample_prior: 0.0,
     };
     let Some((variance, factors)) = samples::variance(mesh, &parts, &weights) else {
         return Ok((merged, None));
