@@ -417,11 +417,11 @@ fn jittered_variance(cells: &[DVec3], m: usize, rows_together: &[bool]) -> DVec3
     };
     let at = |a: usize, b: usize| cells[a * m + b];
     let mut sum = DVec3::ZERO;
-    for a in 0..m {
+    for (a, &together) in rows_together.iter().enumerate().take(m) {
         for b in 0..m {
             sum += if b > 0 && b + 1 < m {
                 d2(at(a, b - 1), at(a, b), at(a, b + 1))
-            } else if rows_together[a] {
+            } else if together {
                 d2(at(a - 1, b), at(a, b), at(a + 1, b))
             } else {
                 let c = b.clamp(1, m - 2);
