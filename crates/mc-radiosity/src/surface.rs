@@ -111,6 +111,18 @@ impl<'m> SurfaceSampler<'m> {
         self.on_triangle(t, uniform_triangle(Vec2::new(v, u[1])))
     }
 
+    /// The triangle of `patch` (its index in the mesh) that [`point2`](Self::point2) puts a
+    /// point with first uniform `u0` on.
+    #[inline]
+    pub fn triangle_at(&self, patch: usize, u0: f32) -> usize {
+        let (first, count) = self.triangles(patch);
+        let mut t = first;
+        while t + 1 < first + count && u0 >= self.cdf[t] {
+            t += 1;
+        }
+        t
+    }
+
     /// The ray of `patch` from a point `u` of the unit 4-cube: a cosine-distributed direction
     /// from `u[0..2]` (Shirley and Chiu's concentric map lifted to the hemisphere) leaving the uniform point
     /// [`point2`](Self::point2)`(patch, u[2..4])`. Uniform `u` gives a uniform point and a cosine
