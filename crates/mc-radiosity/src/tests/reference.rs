@@ -440,20 +440,22 @@ fn slow_convergence_is_an_error_not_a_wrong_answer() {
 fn dense_solve(mesh: &Mesh, factors: &FormFactors, channel: usize) -> Vec<f64> {
     let n = mesh.patches().len();
     let mut a = vec![vec![0.0f64; n + 1]; n];
-    for (i, p) in mesh.patches().iter().enumerate() {
+    for (i, (p, row)) in mesh.patches().iter().zip(&mut a).enumerate() {
         let rho = f64::from(p.reflectance[channel]);
-        for j in 0..n {
-            a[i][j] = -rho * factors.get(i, j);
+        for (j, x) in row[..n].iter_mut().enumerate() {
+            *x = -rho * factors.get(i, j);
         }
-        a[i][i] += 1.0;
-        a[i][n] = f64::from(p.emission[channel]);
+        row[i] += 1.0;
+        row[n] = f64::from(p.emission[channel]);
     }
     for k in 0..n {
-        for i in k + 1..n {
-            let f = a[i][k] / a[k][k];
+        let (above, below) = a.split_at_mut(k + 1);
+        let pivot = &above[k];
+        for row in below {
+            let f = row[k] / pivot[k];
             if f != 0.0 {
-                for j in k..=n {
-                    a[i][j] -= f * a[k][j];
+                for (x, y) in row[k..].iter_mut().zip(&pivot[k..]) {
+                    *x -= f * y;
                 }
             }
         }
