@@ -48,6 +48,25 @@
 //!
 //! The schedule: the first pass shoots (an unbiased first solution), every later pass is a step
 //! from the solution so far, and the passes merge by their rays (as Algorithms 1-3 do).
+//!
+//! **The merge.** A step's error is `T e + o`: `T e` inherited from the solution's error `e`
+//! (`T = rho F` through the step's rays), `o` its own, independent of `e`. Merged with weight
+//! `w = n / (N + n)` (its rays over all so far), the solution's error becomes `(1 - w) e +
+//! w (T e + o)`, of variance
+//!
+//! ```text
+//! (1 - w)² V_j + w² (H_j + O_j) + 2 w (1 - w) C_j,    C_j = Cov(e_j, (T e)_j)
+//! ```
+//!
+//! with `H_j` the inherited variance above and `O_j` the sample variance of the step's rays.
+//! `F_jj = 0`, so under the same model (independent errors conditioned on conservation)
+//! `C_j = -rho_j a_j V_j (sum_i F_ji a_i V_i) / sum_i a_i² V_i`, 0 where the scene is open.
+//! In a furnace of one patch per face the inherited error is `-0.2 rho e_j` and cancels a
+//! fifth of the solution's own: the merge summed the steps' inherited parts as correlated with
+//! each other but independent of the solution's error, and reported 1.5x the spread there
+//! (spread / reported 0.69 at rho 0.9, 0.65 at 0.99; 0.97-0.98 with `C`). On a subdivided
+//! mesh `C` vanishes as the correction does, and the recursion keeps every step's own noise
+//! and inherited part in `V` for the next step to inherit.
 
 use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution};
 use crate::context::Context;
