@@ -96,6 +96,8 @@ pub(crate) fn run<C: RayCaster>(
     let min_pass = 2 * mesh.patches().len() as u64;
     let mut passes = Doubling::at_least(config, min_pass);
     let mut run = Progressive::default();
+    // The standard deviation of the steps' inherited parts merged by rays (see `Step::merge_into`).
+    let mut inherited_sd = vec![DVec3::ZERO; mesh.patches().len()];
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let k = run.steps as u64;
         let merged = match run.merged.take() {
@@ -114,7 +116,7 @@ pub(crate) fn run<C: RayCaster>(
                     StreamKey::new(config.seed).derive(GATHER_TAG + k),
                 )?;
                 run.rays += s.rays;
-                s.merge_into(&solution)?
+                s.merge_into(&solution, &mut inherited_sd)?
             }
         };
         if !run.replace(merged, &mut passes, observer)? {
@@ -147,8 +149,15 @@ impl Step {
     /// The step merged by rays into `solution` (the input it started from): with `w = n /
     /// (N + n)` its share of the rays, `B = (1 - w) B + w R` and, the step's error being `T e
     /// + o` (`T e` inherited, `o` its own),
-    /// `V = (1 - w)² V + w² (inherited + own) + 2 w (1 - w) cross`.
-    fn merge_into(self, solution: &Estimate) -> Result<Estimate, Error> {
+    /// `V = (1 - w)² V + w² (inherited + own) + 2 w (1 - w) C`, with `C` the covariance of
+    /// `T e` with `e`: the conservation's `cross`, plus `sqrt(inherited) sd` with `sd` the
+    /// standard deviation of the earlier steps' inherited parts merged by rays (`inherited_sd`,
+    /// updated here), as if the inherited parts were one error (module documentation).
+    fn merge_into(
+        self,
+        solution: &Estimate,
+        inherited_sd: &mut [DVec3],
+    ) -> Result<Estimate, Error> {
         let v = solution.variance().ok_or(EstimateError::MissingVariance)?;
         let total = solution.rays() + self.rays;
         let w = self.rays as f64 / total.max(1) as f64;
@@ -161,9 +170,12 @@ impl Step {
         let variance = v
             .iter()
             .zip(self.own.iter().zip(&self.inherited))
-            .zip(&self.cross)
-            .map(|((v, (o, h)), c)| {
-                ((1.0 - w) * (1.0 - w) * *v + w * w * (*o + *h) + 2.0 * w * (1.0 - w) * *c)
+            .zip(self.cross.iter().zip(inherited_sd.iter_mut()))
+            .map(|((v, (o, h)), (c, sd))| {
+                let h_sd = h.max(DVec3::ZERO).sqrt();
+                let c = *c + h_sd * *sd;
+                *sd = (1.0 - w) * *sd + w * h_sd;
+                ((1.0 - w) * (1.0 - w) * *v + w * w * (*o + *h) + 2.0 * w * (1.0 - w) * c)
                     .max(DVec3::ZERO)
             })
             .collect();
