@@ -489,7 +489,9 @@ fn shoot_on_one_patch_per_face_reports_its_error() {
 /// `schedule::bidirectional`): spread / reported 0.361 on main, 0.685 with the variance
 /// conditioned on the conservation. And merged by rays into the solution it started from,
 /// that inherited error cancels `0.2 rho` of the solution's own, which the merge summed as
-/// independent (rho 0.9 / 0.99 here: 0.71 / 0.67); with the covariance, 1.02 / 1.01. 64
+/// independent (rho 0.9 / 0.99 here: 0.71 / 0.67); with the covariance, 0.94 / 0.91 (1.02 /
+/// 1.01 without the inherited parts' correlation between steps, which the open Cornell box
+/// needs). 64
 /// seeds at 1e5 rays, the pooled ratio over 6 correlated patches (about 63 × 5 degrees of
 /// freedom, a relative error near 8%) within `[0.8, 1.25]`, about 2.5 standard errors of 1
 /// and 4 above what the merge made of it.

@@ -59,15 +59,18 @@
 //! ```
 //!
 //! with `H_j` the inherited variance above and `O_j` the sample variance of the step's rays.
-//! `F_jj = 0`, so under the same model (independent errors conditioned on conservation)
-//! `C_j = -rho_j a_j V_j (sum_i F_ji a_i V_i) / sum_i a_i² V_i`, 0 where the scene is open.
-//! In a furnace of one patch per face the inherited error is `-0.2 rho e_j` and cancels a
-//! fifth of the solution's own: the merge summed the steps' inherited parts as correlated with
-//! each other but independent of the solution's error, and reported 1.5x the spread there
-//! (spread / reported 0.69 at rho 0.9, 0.65 at 0.99; 0.97-0.98 with `C`). On a subdivided
-//! mesh `C` vanishes as the correction does, and the recursion keeps every step's own noise
-//! and inherited part in `V` for the next step to inherit.
-
+//! `C_j` has two parts. Conservation: `F_jj = 0`, so under the model above (independent
+//! errors conditioned on conservation) `rho_j sum_i F_ji Cov(e_i, e_j) = -rho_j a_j V_j
+//! (sum_i F_ji a_i V_i) / sum_i a_i² V_i`, 0 where the scene is open. And the earlier steps'
+//! inherited parts, which `e` holds and which are the smooth part of the error, taken as one
+//! error with `T e`: `sqrt(H_j) sd_j`, `sd_j` their standard deviations merged by rays (this
+//! alone is what the merge did before: the steps' inherited parts summed as correlated, the
+//! rest as independent). In a furnace of one patch per face the inherited error is `-0.2 rho
+//! e_j`, cancelling a fifth of the solution's own error, and without the first part the merge
+//! reported 1.5x the spread there (spread / reported 0.69 at rho 0.9, 0.65 at 0.99; 0.90 and
+//! 0.89 with it, 0.97-0.98 with the first part alone, which leaves the open Cornell box of one
+//! patch per face reporting 0.67 of its spread). On a subdivided mesh the first part vanishes.
+//!
 use super::{Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution};
 use crate::context::Context;
 use crate::error::Error;
