@@ -150,8 +150,8 @@ struct Step {
 
 impl Step {
     /// The step merged by rays into `solution` (the input it started from): with `w = n /
-    /// (N + n)` its share of the rays, `B = (1 - w) B + w R` and, the step's error being `T e
-    /// + o` (`T e` inherited, `o` its own),
+    /// (N + n)` its share of the rays, `B = (1 - w) B + w R` and, the step's error being
+    /// `T e + o` (`T e` inherited, `o` its own),
     /// `V = (1 - w)² V + w² (inherited + own) + 2 w (1 - w) C`, with `C` the covariance of
     /// `T e` with `e`: the conservation's `cross`, plus `sqrt(inherited) sd` with `sd` the
     /// standard deviation of the earlier steps' inherited parts merged by rays (`inherited_sd`,
