@@ -486,24 +486,36 @@ fn shoot_on_one_patch_per_face_reports_its_error() {
     );
 }
 
-/// Issue 36, item 2: `bidirectional` on a furnace of one patch per face. Each step inherits
+/// Issue 36, item 2: `bidirectional` on furnaces of one patch per face. Each step inherits
 /// the error of its input, `rho sum_i F_ji e_i`, whose variance was the independent formula
 /// `rho² sum_i F_ji² V_i`; the input conserves power, so a face's gather of the other five
 /// inherits `-0.2 rho` of the face's own error, a fifth of that variance (module
-/// `schedule::bidirectional`). Spread / reported 0.361 on main, 0.685 with the variance
-/// conditioned on the conservation. Same test and bounds as above.
+/// `schedule::bidirectional`): spread / reported 0.361 on main, 0.685 with the variance
+/// conditioned on the conservation. And merged by rays into the solution it started from,
+/// that inherited error cancels `0.2 rho` of the solution's own, which the merge summed as
+/// independent (rho 0.9 / 0.99 here: 0.71 / 0.67); with the covariance, 0.94 / 0.91 (1.02 /
+/// 1.01 without the inherited parts' correlation between steps, which the open Cornell box
+/// needs). 64
+/// seeds at 1e5 rays, the pooled ratio over 6 correlated patches (about 63 × 5 degrees of
+/// freedom, a relative error near 8%) within `[0.8, 1.25]`, about 2.5 standard errors of 1
+/// and 4 above what the merge made of it.
 #[test]
 fn bidirectional_on_one_patch_per_face_reports_its_error() {
-    let ratio = spread_over_reported(
-        Method::Bidirectional,
-        &calibration_furnace(0.9),
-        200_000,
-        16,
-    );
-    assert!(
-        (0.67..=1.5).contains(&ratio),
-        "spread / reported {ratio:.3}"
-    );
+    let failures: Vec<String> = [0.9, 0.99]
+        .into_iter()
+        .map(|rho| {
+            let ratio = spread_over_reported(
+                Method::Bidirectional,
+                &calibration_furnace(rho),
+                100_000,
+                64,
+            );
+            (rho, ratio)
+        })
+        .filter(|(_, ratio)| !(0.8..=1.25).contains(ratio))
+        .map(|(rho, ratio)| format!("rho {rho}: spread / reported {ratio:.3}"))
+        .collect();
+    assert!(failures.is_empty(), "{failures:#?}");
 }
 
 /// Issue 36, item 2: the methods that gather from a shooting solution (`two-pass`,
