@@ -83,11 +83,7 @@ impl<'m> SurfaceSampler<'m> {
     /// area, the other two a point in it.
     #[inline]
     pub fn point(&self, patch: usize, u: [f32; 3]) -> Vec3 {
-        let (first, count) = self.triangles(patch);
-        let mut t = first;
-        while t + 1 < first + count && u[0] >= self.cdf[t] {
-            t += 1;
-        }
+        let t = self.triangle_at(patch, u[0]);
         self.on_triangle(t, uniform_triangle(Vec2::new(u[1], u[2])))
     }
 
@@ -96,11 +92,8 @@ impl<'m> SurfaceSampler<'m> {
     /// the triangle with the second (so stratified pairs give stratified points).
     #[inline]
     pub fn point2(&self, patch: usize, u: [f32; 2]) -> Vec3 {
-        let (first, count) = self.triangles(patch);
-        let mut t = first;
-        while t + 1 < first + count && u[0] >= self.cdf[t] {
-            t += 1;
-        }
+        let first = self.triangles(patch).0;
+        let t = self.triangle_at(patch, u[0]);
         let low = if t == first { 0.0 } else { self.cdf[t - 1] };
         let width = self.cdf[t] - low;
         let v = if width > 0.0 {

@@ -238,9 +238,6 @@ pub(crate) fn variance(
     // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
     // noise measured against the formula's.
     let faces = mesh.face_count();
-    if sample_prior > 0.0 {
-        shrink_samples(mesh, &mut sampled, whole, own, sample_prior);
-    }
     let mut face_shot = vec![DVec3::ZERO; faces];
     let mut face_held = vec![DVec3::ZERO; faces];
     let mut face_unsampled = vec![DVec3::ZERO; faces];
@@ -257,6 +254,9 @@ pub(crate) fn variance(
         if let Some(m) = measured {
             face_measured[f] += m[i];
         }
+    }
+    if sample_prior > 0.0 {
+        shrink_samples(mesh, &mut sampled, whole, own, &face_patches, sample_prior);
     }
     // The own noise's scale per face: measured over formula, drawn towards the scene's with
     // the weight of `prior` faces of one patch's degrees of freedom.
@@ -334,25 +334,28 @@ pub(crate) fn variance(
 /// Draws each patch's samples' part of a gather's variance (`sampled`: `[SKETCHES]` degrees
 /// of freedom at most) towards its inherited variance by the independent formula
 /// (`whole - own`) times the scene's ratio of the two, with the weight of `prior` patches
-/// spread over the patches of its face: `(s_i + (prior / n_f) r h_i) / (1 + prior / n_f)`,
+/// spread over the `n_f` patches of its face (`face_patches`): `(s_i + (prior / n_f) r h_i) / (1 + prior / n_f)`,
 /// `r = sum s / sum h` per channel. The formula's shape is wrong by the correlation of the
 /// shooting's errors, which the scene's ratio puts right where the patches are alike (a
 /// closed furnace of one patch per face: about a fifth); its noise is that of the scene's
 /// samples, not one patch's (module, "Degrees of freedom": `z²` about `k / (k - 2)` too large
 /// from a variance of `k` degrees of freedom).
-fn shrink_samples(mesh: &Mesh, sampled: &mut [DVec3], whole: &[DVec3], own: &[DVec3], prior: f64) {
+fn shrink_samples(
+    mesh: &Mesh,
+    sampled: &mut [DVec3],
+    whole: &[DVec3],
+    own: &[DVec3],
+    face_patches: &[u32],
+    prior: f64,
+) {
     let inherited = |i: usize| (whole[i] - own[i]).max(DVec3::ZERO);
     let (s, h): (DVec3, DVec3) = (
         sampled.iter().sum(),
         (0..sampled.len()).map(inherited).sum(),
     );
     let r = DVec3::new(ratio(s.x, h.x), ratio(s.y, h.y), ratio(s.z, h.z));
-    let mut patches = vec![0u32; mesh.face_count()];
-    for p in mesh.patches() {
-        patches[p.face as usize] += 1;
-    }
     for (i, p) in mesh.patches().iter().enumerate() {
-        let pull = prior / f64::from(patches[p.face as usize].max(1));
+        let pull = prior / f64::from(face_patches[p.face as usize].max(1));
         sampled[i] = (sampled[i] + pull * r * inherited(i)) / (1.0 + pull);
     }
 }
