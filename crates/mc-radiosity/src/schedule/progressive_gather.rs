@@ -4,14 +4,13 @@
 //! shooting's error samples gathered by the gathers' rays, and the gathers' own noise from
 //! their replicates, merged over the rounds as the gathers are ([`samples`](super::samples)).
 
-use super::samples::{GatherSamples, ShotSamples};
+use super::samples::{GatherRun, ShotSamples};
 use super::{
-    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, per_patch,
-    shoot_config, unshot_fraction, with_ambient,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, per_patch, shoot_config,
+    unshot_fraction, with_ambient,
 };
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_parts};
 use crate::shoot::shoot;
 use mcrad_random::{StreamKey, derive_seed};
 use mcrad_raycast::RayCaster;
@@ -60,33 +59,17 @@ pub(crate) fn run<C: RayCaster>(
         ..config.clone()
     });
     // Every gather inherits the same shooting noise: their inherited parts add as correlated.
-    let mut gathers = Gathers::default();
+    let mut gathers = GatherRun::default();
     let mut face_correlation = None;
-    // Their images of the shooting's samples and their own noise measured.
-    let mut gather_samples = GatherSamples::default();
     let qmc = ctx.sampling() == crate::Sampler::Qmc;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + run.steps as u64);
-        let (r, inherited) = gather_round_parts(
-            ctx,
-            &shooting,
-            samples.as_ref().map(|s| &s.sketch[..]),
-            Emission::Include,
-            per_patch(mesh, budget),
-            key,
-        )?;
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
-        gather_samples.add(r.sketch, &[&r.errors], r.estimate.rays());
-        gathers.add(r.estimate, &inherited)?;
-        let (estimate, factors) = super::samples::gathered(
-            mesh,
-            samples.as_ref(),
-            shooting.variance(),
-            &gathers,
-            &gather_samples,
-            qmc,
-        )?;
+        let per = per_patch(mesh, budget);
+        let (rays, escaped) = gathers.round(ctx, &shooting, samples.as_ref(), per, key)?;
+        run.rays += rays;
+        run.escaped_rays += escaped;
+        let (estimate, factors) =
+            gathers.estimate(mesh, samples.as_ref(), shooting.variance(), qmc)?;
         face_correlation = factors;
         if !run.replace(estimate, &mut passes, observer)? {
             break;

@@ -5,14 +5,13 @@
 //! gathers' rays, and the gathers' own noise from their replicates, merged over the passes as
 //! the gathers are ([`samples`](super::samples)).
 
-use super::samples::{GatherSamples, ShotSamples};
+use super::samples::{GatherRun, ShotSamples};
 use super::{
-    Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
-    per_patch, with_ambient,
+    Doubling, GATHER_TAG, Observer, Progressive, ScheduleConfig, Solution, accumulate, per_patch,
+    with_ambient,
 };
 use crate::context::Context;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_parts};
 use mcrad_combine::Estimate;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
@@ -30,11 +29,10 @@ pub(crate) fn run<C: RayCaster>(
     let mut passes = Doubling::at_least(config, min_pass);
     let mut shooting: Option<Estimate> = None;
     let mut run = Progressive::default();
-    let mut gathers = Gathers::default();
-    // The shooting's error samples merged as its passes are (`None` with the ambient term),
-    // the gathers' images of them and their own noise measured.
+    // The gathers, their images of the shooting's samples and their own noise measured.
+    let mut gathers = GatherRun::default();
+    // The shooting's error samples merged as its passes are (`None` with the ambient term).
     let mut samples: Option<ShotSamples> = None;
-    let mut gather_samples = GatherSamples::default();
     let mut face_correlation = None;
     let qmc = ctx.sampling() == crate::Sampler::Qmc;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
@@ -52,27 +50,13 @@ pub(crate) fn run<C: RayCaster>(
             (_, new) => new,
         };
         let key = StreamKey::new(config.seed).derive(GATHER_TAG + k);
-        let (r, inherited) = gather_round_parts(
-            ctx,
-            &refined,
-            samples.as_ref().map(|s| &s.sketch[..]),
-            Emission::Include,
-            per_patch(mesh, budget / 2),
-            key,
-        )?;
-        run.rays += r.estimate.rays();
-        run.escaped_rays += r.escaped_rays;
         // The gathers inherit from nested merges of the same shooting passes.
-        gather_samples.add(r.sketch, &[&r.errors], r.estimate.rays());
-        gathers.add(r.estimate, &inherited)?;
-        let (estimate, factors) = super::samples::gathered(
-            mesh,
-            samples.as_ref(),
-            refined.variance(),
-            &gathers,
-            &gather_samples,
-            qmc,
-        )?;
+        let per = per_patch(mesh, budget / 2);
+        let (rays, escaped) = gathers.round(ctx, &refined, samples.as_ref(), per, key)?;
+        run.rays += rays;
+        run.escaped_rays += escaped;
+        let (estimate, factors) =
+            gathers.estimate(mesh, samples.as_ref(), refined.variance(), qmc)?;
         shooting = Some(refined);
         face_correlation = factors;
         if !run.replace(estimate, &mut passes, observer)? {

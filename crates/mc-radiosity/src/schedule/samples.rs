@@ -392,12 +392,81 @@ pub(crate) fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
 /// of one patch and one round takes a fifth of its own measure).
 pub(crate) const PRIOR_FACES: f64 = crate::replicates::PRIOR_PATCHES;
 
+/// The gathers of a run from one shooting (or from nested merges of its passes), merged by
+/// rays ([`Gathers`](super::Gathers)), with their images of the shooting's error samples and
+/// their own noise measured ([`GatherSamples`]): what [`gathered`] reads.
+#[derive(Default)]
+pub(crate) struct GatherRun {
+    gathers: super::Gathers,
+    samples: GatherSamples,
+}
+
+impl GatherRun {
+    /// Adds a gather: its estimate (with its whole variance by the formulas), the part of
+    /// that variance it inherits from the shooting, its image of the shooting's samples and
+    /// the signed replicate differences of its independent parts.
+    pub(crate) fn add(
+        &mut self,
+        estimate: mcrad_combine::Estimate,
+        inherited: &[DVec3],
+        image: Vec<Row>,
+        errors: &[&[DVec3]],
+    ) -> Result<(), crate::error::Error> {
+        self.samples.add(image, errors, estimate.rays());
+        self.gathers.add(estimate, inherited)
+    }
+
+    /// Gathers one round (emission included) from `shooting` with `rays_per_patch` rays a
+    /// patch, its rays keyed by `key`, carrying `shot`'s samples; returns the rays it cast
+    /// and how many escaped.
+    pub(crate) fn round<C: mcrad_raycast::RayCaster>(
+        &mut self,
+        ctx: &crate::context::Context<C>,
+        shooting: &mcrad_combine::Estimate,
+        shot: Option<&ShotSamples>,
+        rays_per_patch: u32,
+        key: mcrad_random::StreamKey,
+    ) -> Result<(u64, u64), crate::error::Error> {
+        let (r, inherited) = crate::gather::gather_round_parts(
+            ctx,
+            shooting,
+            shot.map(|s| &s.sketch[..]),
+            crate::gather::Emission::Include,
+            rays_per_patch,
+            key,
+        )?;
+        let (rays, escaped) = (r.estimate.rays(), r.escaped_rays);
+        self.add(r.estimate, &inherited, r.sketch, &[&r.errors])?;
+        Ok((rays, escaped))
+    }
+
+    /// The gathers' estimate with the variance [`gathered`] gives it, from `shot`'s samples
+    /// and the variance of the shooting they gathered from (`shot_variance`); `measured`:
+    /// the own noise from the replicates (quasi-Monte Carlo rays).
+    pub(crate) fn estimate(
+        &self,
+        mesh: &Mesh,
+        shot: Option<&ShotSamples>,
+        shot_variance: Option<&[DVec3]>,
+        measured: bool,
+    ) -> Result<(mcrad_combine::Estimate, Option<Vec<DVec3>>), crate::error::Error> {
+        gathered(
+            mesh,
+            shot,
+            shot_variance,
+            &self.gathers,
+            &self.samples,
+            measured,
+        )
+    }
+}
+
 /// The gathering estimate of `gathers` (merged by rays) with the variance [`variance`] gives it
 /// alone (`w = 0`), from the samples of the shooting estimate it gathers from (`shot`, and that
 /// estimate's variance `shot_variance`) and of the gathers; and the per-face correlation
 /// factors. Where the samples do not fit (a shooting that kept none, the ambient term), the
 /// gathers' estimate by the formulas and no factors.
-pub(crate) fn gathered(
+fn gathered(
     mesh: &Mesh,
     shot: Option<&ShotSamples>,
     shot_variance: Option<&[DVec3]>,

@@ -8,15 +8,14 @@
 //! independent by the formulas, both overstated the error 7-8 times on faces of one patch
 //! (`cargo xtask calibrate`, cases `furnace-*-faces` and `slivers`).
 
-use super::samples::{GatherSamples, ShotSamples};
+use super::samples::{GatherRun, ShotSamples};
 use super::{
-    GATHER_TAG, Gathers, Observer, ScheduleConfig, Solution, Step, budget_or_stopped, per_patch,
+    GATHER_TAG, Observer, ScheduleConfig, Solution, Step, budget_or_stopped, per_patch,
     shoot_config, unshot_fraction, with_ambient,
 };
 use crate::context::Context;
 use crate::direct::split_with_budget;
 use crate::error::Error;
-use crate::gather::{Emission, gather_round_parts};
 use crate::method::StopReason;
 use crate::shoot::shoot;
 use glam::DVec3;
@@ -187,35 +186,21 @@ fn finish<C: RayCaster>(
         steps,
     } = shot;
     let key = StreamKey::new(config.seed).derive(GATHER_TAG);
-    let sketch = samples.as_ref().map(|s| &s.sketch[..]);
-    let mut gathers = Gathers::default();
-    let mut gather_samples = GatherSamples::default();
+    let mut gathers = GatherRun::default();
     if split {
         // Half for the direct light, sized by what its samples really cost; the rest gathers.
+        let sketch = samples.as_ref().map(|s| &s.sketch[..]);
         let s = split_with_budget(ctx, &shooting, sketch, gather_budget, key)?;
-        let rays = s.estimate.rays();
-        gather_samples.add(s.image, &[&s.own_errors[0], &s.own_errors[1]], rays);
-        gathers.add(s.estimate, &s.inherited)?;
+        let errors = [&s.own_errors[0][..], &s.own_errors[1][..]];
+        gathers.add(s.estimate, &s.inherited, s.image, &errors)?;
     } else {
-        let (r, inherited) = gather_round_parts(
-            ctx,
-            &shooting,
-            sketch,
-            Emission::Include,
-            per_patch(mesh, gather_budget),
-            key,
-        )?;
-        escaped_rays += r.escaped_rays;
-        let rays = r.estimate.rays();
-        gather_samples.add(r.sketch, &[&r.errors], rays);
-        gathers.add(r.estimate, &inherited)?;
+        let per = per_patch(mesh, gather_budget);
+        escaped_rays += gathers.round(ctx, &shooting, samples.as_ref(), per, key)?.1;
     }
-    let (gathered, face_correlation) = super::samples::gathered(
+    let (gathered, face_correlation) = gathers.estimate(
         mesh,
         samples.as_ref(),
         shooting.variance(),
-        &gathers,
-        &gather_samples,
         ctx.sampling() == crate::Sampler::Qmc,
     )?;
     // The answer's work is everything it took: the shooting and the gathering.
