@@ -1,5 +1,5 @@
 //! `cargo xtask calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
-//! [--sampler random|qmc] [--out FILE]`: are the per-patch variances every Monte Carlo method reports true, and are
+//! [--sampler random|qmc] [--out FILE] [--per-patch DIR]`: are the per-patch variances every Monte Carlo method reports true, and are
 //! its answers unbiased? (issue 16, item 6.)
 //!
 //! Cases are built in code ([`CASES`]): closed furnaces (a closed box, every face emitting `E`

@@ -27,6 +27,12 @@
 //! reported half its error: its reflected light moved with its own error (correlation 0.98
 //! over 64 seeds).
 //!
+//! Where a patch's samples all agree on what is a rare event for it (none of its sky rays
+//! leave through a window it sees through a few percent of its hemisphere; a sun's shadow edge
+//! crosses it between its points), the jittered estimate is 0 in exactly the runs whose error
+//! is largest; [`pass_variance`] then takes the sky's variance in part from the patches around
+//! and gives a patch a light's shadow edge crosses at least a crossed cell's mean square error.
+//!
 //! The sky ([`mcrad_scene_io::Sky`]) joins the same pass: at each point its own rays
 //! (`crate::sky`: cosine for a uniform sky, cosine and the map's luminance by the balance
 //! heuristic for a map) add their estimate of `H_sky` to the point's irradiance, so its
