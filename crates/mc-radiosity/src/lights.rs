@@ -538,7 +538,7 @@ const SKY_OWN: f64 = 8.0;
 /// - the sky: its scoring rays are rare events (a Poisson count) unless at least
 ///   [`SKY_OWN`] of the patch's `r` rays are in the minority (scored, or did not); then the
 ///   variance is the mean of the patch's own estimate and `S² q (1 - q) / r`, with `q` the
-///   mean share of scoring rays of the patches `N(i)` of the same face that share a corner
+///   mean share of scoring rays of the patches `N(i)` of the same face (and side) that share a corner
 ///   with `i` (`i` left out: it does not move with the patch's own error; where none of them
 ///   scored, of the rest of the face) and `S` the value of one scoring ray (`pi L` for a
 ///   uniform sky; pooled over `N(i)` and `i`): the variance of the count expected there, not
@@ -556,27 +556,25 @@ fn pass_variance<C: RayCaster>(
     let patches = mesh.patches();
     let positions = mesh.positions();
     // patches of a face by corner position
-    let mut at: std::collections::HashMap<(u32, [u32; 3]), Vec<usize>> =
+    let mut at: std::collections::HashMap<(usize, [u32; 3]), Vec<usize>> =
         std::collections::HashMap::new();
-    let key = |face: u32, c: u32| {
-        let p = positions[c as usize];
-        (face, [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+    // a side of a face: the back of a two-sided face sees another half-space
+    let side = |p: &mcrad_meshing::Patch| 2 * p.face as usize + usize::from(p.back);
+    let key = |patch: &mcrad_meshing::Patch, c: u32| {
+        let x = positions[c as usize];
+        (side(patch), [x.x.to_bits(), x.y.to_bits(), x.z.to_bits()])
     };
     for (i, p) in patches.iter().enumerate() {
         for &c in mesh.corners(p) {
-            at.entry(key(p.face, c)).or_default().push(i);
+            at.entry(key(p, c)).or_default().push(i);
         }
     }
     // per input face, the sum of its patches' shares of scoring sky rays, their count, the
     // sky's sum over their rays and the rays that scored
-    let faces = patches
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
+    let faces = patches.iter().map(|p| side(p) + 1).max().unwrap_or(0);
     let mut face_sky = vec![(0.0, 0.0, DVec3::ZERO, 0.0); faces];
     for (p, m) in patches.iter().zip(moments) {
-        let f = &mut face_sky[p.face as usize];
+        let f = &mut face_sky[side(p)];
         f.0 += m.sky_scored / m.sky_rays.max(1.0);
         f.1 += 1.0;
         f.2 += m.sky * m.sky_rays;
@@ -597,7 +595,7 @@ fn pass_variance<C: RayCaster>(
             let mut around: Vec<usize> = mesh
                 .corners(&patches[i])
                 .iter()
-                .flat_map(|&c| at[&key(patches[i].face, c)].iter().copied())
+                .flat_map(|&c| at[&key(&patches[i], c)].iter().copied())
                 .filter(|&j| j != i)
                 .collect();
             around.sort_unstable();
@@ -639,7 +637,7 @@ fn pass_variance<C: RayCaster>(
                 around.iter().map(|&j| share(j)).sum::<f64>() / around.len() as f64
             } else {
                 // none of them scored either: the rest of the face, if any of it did
-                let (shares, count, face_sum, face_scored) = face_sky[patches[i].face as usize];
+                let (shares, count, face_sum, face_scored) = face_sky[side(&patches[i])];
                 (sum, scored) = (face_sum, face_scored);
                 if count > 1.0 {
                     (shares - share(i)) / (count - 1.0)
