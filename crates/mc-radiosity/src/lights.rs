@@ -535,11 +535,11 @@ const SKY_OWN: f64 = 8.0;
 /// lit by a sun, a window seen through a few percent of the hemisphere), so the runs whose
 /// error is largest reported the least: mean `z²` 6-24 in the calibration's `window` room,
 /// where 881 of 940 patches had a run whose 64 sky rays all missed the window. So:
-/// - the sky: its scoring rays are rare events (a Poisson count) unless at least
-///   [`SKY_OWN`] of the patch's `r` rays are in the minority (scored, or did not); then the
+/// - the sky: where fewer than [`SKY_OWN`] of the patch's `r` rays are in the minority
+///   (scored, or did not), its scoring rays are rare events (a Poisson count) and the
 ///   variance is the mean of the patch's own estimate and `S² q (1 - q) / r`, with `q` the
-///   mean share of scoring rays of the patches `N(i)` of the same face (and side) that share a corner
-///   with `i` (`i` left out: it does not move with the patch's own error; where none of them
+///   mean share of scoring rays of the patches `N(i)` of the same side of the same face that
+///   share a corner with `i` (`i` left out: it does not move with the patch's own error; where none of them
 ///   scored, of the rest of the face) and `S` the value of one scoring ray (`pi L` for a
 ///   uniform sky; pooled over `N(i)` and `i`): the variance of the count expected there, not
 ///   only of the one drawn. Otherwise (or without neighbours) the patch's own estimate.
