@@ -1,5 +1,5 @@
 //! `cargo xtask calibrate [--seeds K] [--rays N] [--cases a,b] [--methods m,n] [--limit S]
-//! [--sampler random|qmc] [--out FILE]`: are the per-patch variances every Monte Carlo method reports true, and are
+//! [--sampler random|qmc] [--out FILE] [--per-patch DIR]`: are the per-patch variances every Monte Carlo method reports true, and are
 //! its answers unbiased? (issue 16, item 6.)
 //!
 //! Cases are built in code ([`CASES`]): closed furnaces (a closed box, every face emitting `E`
@@ -739,6 +739,9 @@ pub struct Options {
     /// The reference solver's form-factor tolerance (`--reference-tolerance`), relative to a
     /// row's sum; a power bias below it passes whatever the standard error.
     pub reference_tolerance: f64,
+    /// Where to write per-patch figures, one CSV per (case, method) ([`per_patch_csv`];
+    /// `--per-patch DIR`), if anywhere.
+    pub per_patch: Option<PathBuf>,
 }
 
 /// The arguments of `cargo xtask calibrate`.
@@ -769,6 +772,10 @@ pub struct CalibrateArgs {
     /// below it passes whatever the standard error (tighter to judge biases of 1e-5)
     #[arg(long, value_name = "T", default_value_t = target::POWER_TOLERANCE)]
     pub reference_tolerance: f64,
+    /// A directory (relative to the workspace) to write per-patch figures to, one CSV per
+    /// case and method: which patches carry the z²
+    #[arg(long, value_name = "DIR")]
+    pub per_patch: Option<PathBuf>,
 }
 
 impl Options {
@@ -806,6 +813,7 @@ impl Options {
             out: root.join(&args.out),
             sampler: args.sampler.unwrap_or_default(),
             reference_tolerance: args.reference_tolerance,
+            per_patch: args.per_patch.as_ref().map(|d| root.join(d)),
         };
         if o.seeds < 2 || o.rays == 0 || o.limit.is_nan() || o.limit <= 0.0 {
             bail!("calibrate needs --seeds >= 2, --rays >= 1 and --limit > 0");
@@ -829,8 +837,9 @@ pub struct RunResult {
 
 /// How one run ended.
 enum Outcome {
-    /// It finished (budget spent or converged).
-    Done(RunResult, StopReason),
+    /// It finished (budget spent or converged), with the lights' pass's direct irradiance per
+    /// patch (W/m², a lit case's; `None` otherwise).
+    Done(RunResult, StopReason, Option<Vec<DVec3>>),
     /// The observer stopped it at the time limit.
     Stopped,
     /// It returned an error.
@@ -909,13 +918,17 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
                     (b, v)
                 }
             };
-            (radiosity, variance, a.stats.rays, stop)
+            let direct = match target {
+                Target::Lit(..) => a.direct.clone(),
+                _ => None,
+            };
+            (radiosity, variance, a.stats.rays, stop, direct)
         })
     }));
     let secs = start.elapsed().as_secs_f64();
     let outcome = match result {
-        Ok(Ok((_, _, _, StopReason::Stopped))) => Outcome::Stopped,
-        Ok(Ok((radiosity, variance, rays, stop))) => Outcome::Done(
+        Ok(Ok((_, _, _, StopReason::Stopped, _))) => Outcome::Stopped,
+        Ok(Ok((radiosity, variance, rays, stop, direct))) => Outcome::Done(
             RunResult {
                 radiosity,
                 variance,
@@ -923,6 +936,7 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
                 converged: stop == StopReason::Converged,
             },
             stop,
+            direct,
         ),
         Ok(Err(e)) => Outcome::Failed(e.to_string()),
         Err(payload) => Outcome::Panicked(
@@ -1188,6 +1202,8 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
             ..Default::default()
         };
         reference_config.reference.tolerance = o.reference_tolerance;
+        // the reference's direct irradiance of the lights per patch (a lit case's)
+        let mut reference_direct: Option<Vec<DVec3>> = None;
         let mut exact: Option<Vec<DVec3>> = match case.exact {
             Exact::Furnace => Some(
                 mesh.patches()
@@ -1209,7 +1225,10 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                     start.elapsed().as_secs_f64()
                 );
                 match r {
-                    Ok(s) => Some(s.estimate.radiosity().to_vec()),
+                    Ok(s) => {
+                        reference_direct = s.direct.clone();
+                        Some(s.estimate.radiosity().to_vec())
+                    }
                     Err(e) => {
                         eprintln!("warning: no reference for {}: {e}", case.name);
                         None
@@ -1229,6 +1248,7 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
         };
         for &method in &o.methods {
             let mut runs = Vec::new();
+            let mut directs = Vec::new();
             let mut notes = Vec::new();
             let (mut seconds, mut ended) = (0.0, 0usize);
             let (mut converged, mut stopped) = (0usize, false);
@@ -1243,9 +1263,10 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                 seconds += secs;
                 ended += 1;
                 match outcome {
-                    Outcome::Done(r, stop) => {
+                    Outcome::Done(r, stop, d) => {
                         converged += usize::from(stop == StopReason::Converged);
                         runs.push(r);
+                        directs.push(d);
                     }
                     Outcome::Stopped => {
                         notes.push(format!(
@@ -1266,6 +1287,18 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
                 notes.push(format!("converged early: {converged}"));
             }
             let stats = statistics(&runs, exact.as_deref(), &areas, o.rays * case.rays_factor);
+            if let (Some(dir), Grain::Patches) = (&o.per_patch, case.grain) {
+                let path = dir.join(format!("{}-{method}.csv", case.name));
+                let csv = per_patch_csv(
+                    &mesh,
+                    &runs,
+                    &directs,
+                    exact.as_deref(),
+                    reference_direct.as_deref(),
+                );
+                std::fs::write(&path, csv)
+                    .with_context(|| format!("could not write {}", path.display()))?;
+            }
             eprintln!(
                 "  {method}: {}/{} runs, {:.2} s per run",
                 runs.len(),
@@ -1284,6 +1317,76 @@ fn measure_all(o: &Options) -> Result<Vec<Row>> {
         }
     }
     Ok(rows)
+}
+
+/// Per-patch figures of `runs` of one (case, method) on `mesh` as CSV, one row per patch, the
+/// green channel's (W/m², (W/m²)²): `exact`; the runs' `mean`, their sample variance `spread`
+/// and the mean `reported` variance; `z2` the mean of `z² = (B - exact)² / var` over the runs
+/// and `z2_max` its largest, with that run's index `worst`; `bias_se`, `(mean - exact)` in
+/// standard errors `sqrt(spread / K)`. For a lit case also the lights' pass's `rho H` (its mean
+/// over the runs, `pass_mean`, and spread, `pass_spread`) and the reference's, `ref_direct`;
+/// and `pass_worst`, the pass's `rho H` in the run `worst`. Which patches carry a case's mean
+/// z², and whether it is the method's variance, a bias, or the reference.
+fn per_patch_csv(
+    mesh: &Mesh,
+    runs: &[RunResult],
+    directs: &[Option<Vec<DVec3>>],
+    exact: Option<&[DVec3]>,
+    reference_direct: Option<&[DVec3]>,
+) -> String {
+    let mut out = String::from(
+        "patch,face,x,y,z,area,exact,mean,spread,reported,z2,z2_max,worst,bias_se,\
+         pass_mean,pass_spread,pass_worst,ref_direct\n",
+    );
+    let k = runs.len() as f64;
+    let c = 1;
+    for (i, p) in mesh.patches().iter().enumerate() {
+        let rho = f64::from(p.reflectance[c]);
+        let values: Vec<f64> = runs.iter().map(|r| r.radiosity[i][c]).collect();
+        let mean = values.iter().sum::<f64>() / k;
+        let spread = values.iter().map(|b| (b - mean).powi(2)).sum::<f64>() / (k - 1.0).max(1.0);
+        let reported = runs
+            .iter()
+            .filter_map(|r| r.variance.as_ref().map(|v| v[i][c]))
+            .sum::<f64>()
+            / k;
+        let ex = exact.map_or(f64::NAN, |e| e[i][c]);
+        let z2: Vec<f64> = runs
+            .iter()
+            .map(|r| {
+                r.variance
+                    .as_ref()
+                    .map_or(f64::NAN, |v| (r.radiosity[i][c] - ex).powi(2) / v[i][c])
+            })
+            .collect();
+        let (worst, z2_max) = z2
+            .iter()
+            .copied()
+            .enumerate()
+            .fold((0, f64::NEG_INFINITY), |a, b| if b.1 > a.1 { b } else { a });
+        let pass: Vec<f64> = directs
+            .iter()
+            .map(|d| d.as_ref().map_or(f64::NAN, |d| rho * d[i][c]))
+            .collect();
+        let pass_mean = pass.iter().sum::<f64>() / k;
+        let pass_spread =
+            pass.iter().map(|h| (h - pass_mean).powi(2)).sum::<f64>() / (k - 1.0).max(1.0);
+        let _ = writeln!(
+            out,
+            "{i},{},{:.4},{:.4},{:.4},{:.6},{ex:.6e},{mean:.6e},{spread:.4e},{reported:.4e},\
+             {:.4},{z2_max:.4},{worst},{:.3},{pass_mean:.6e},{pass_spread:.4e},{:.6e},{:.6e}",
+            p.face,
+            p.centroid.x,
+            p.centroid.y,
+            p.centroid.z,
+            p.area,
+            z2.iter().sum::<f64>() / k,
+            (mean - ex) / (spread / k).sqrt(),
+            pass.get(worst).copied().unwrap_or(f64::NAN),
+            reference_direct.map_or(f64::NAN, |d| rho * d[i][c]),
+        );
+    }
+    out
 }
 
 /// Collapses repeated messages (the same error on every seed) into one with a count.
@@ -1776,6 +1879,7 @@ mod tests {
             out: "calibration.md".into(),
             sampler: None,
             reference_tolerance: target::POWER_TOLERANCE,
+            per_patch: None,
         };
         let o = Options::parse(dir.path(), &args).unwrap();
         for r in measure(&o).unwrap() {
@@ -1804,6 +1908,7 @@ mod tests {
             out: "calibration.md".into(),
             sampler: None,
             reference_tolerance: target::POWER_TOLERANCE,
+            per_patch: None,
         };
         let o = Options::parse(dir, &args).unwrap();
         let rows = measure(&o).unwrap();

@@ -33,7 +33,8 @@ pub(crate) fn rays_per_point(sky: Option<&Sky>) -> u32 {
 
 /// An estimate of the sky's irradiance at `x` (on `patch`, unit normal `normal`, the mesh's
 /// frame: the sky is at infinity, so no offset applies), W/m² per channel, from
-/// [`rays_per_point`] rays reaching `far` along their direction.
+/// [`rays_per_point`] rays reaching `far` along their direction; and how many of those rays
+/// left the scene (scored).
 pub(crate) fn irradiance<C: RayCaster>(
     sky: &Sky,
     patch: usize,
@@ -42,7 +43,7 @@ pub(crate) fn irradiance<C: RayCaster>(
     caster: &C,
     far: f64,
     rng: &mut Stream,
-) -> DVec3 {
+) -> (DVec3, u32) {
     let n = normal.as_dvec3();
     let (t, b) = n.any_orthonormal_pair();
     let from = SurfacePoint::new(x, normal, patch as u32);
@@ -63,12 +64,14 @@ pub(crate) fn irradiance<C: RayCaster>(
         (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
     };
     let mut h = DVec3::ZERO;
+    let mut scored = 0;
     match sky {
         Sky::Uniform(l) => {
             for k in 0..SKY_PAIRS {
                 let w = cosine(strata(k, rng));
                 if n.dot(w) > 0.0 && open(w) {
                     h += *l * PI;
+                    scored += 1;
                 }
             }
         }
@@ -81,6 +84,7 @@ pub(crate) fn irradiance<C: RayCaster>(
                     let pdf = cos / PI + map.pdf(w);
                     if open(w) {
                         h += map.radiance(w) * (cos / pdf);
+                        scored += 1;
                     }
                 }
                 // by the map
@@ -89,10 +93,11 @@ pub(crate) fn irradiance<C: RayCaster>(
                     if cos > 0.0 && open(s.direction) {
                         let pdf = cos / PI + s.pdf;
                         h += map.radiance(s.direction) * (cos / pdf);
+                        scored += 1;
                     }
                 }
             }
         }
     }
-    h / f64::from(SKY_PAIRS)
+    (h / f64::from(SKY_PAIRS), scored)
 }
