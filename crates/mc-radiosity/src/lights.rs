@@ -775,39 +775,12 @@ mod tests {
     /// A 2 x 2 square facing up (reflectance 0.5), with `blocker` a 0.5 x 1 square 0.4 above
     /// it facing down, one patch each, lit by `lights` and `sky`.
     fn lit_square(lights: Vec<Light>, sky: Option<Sky>, blocker: bool) -> Mesh {
-        let mut positions = vec![
-            Vec3::new(0.0, 0.0, 0.0),
-            Vec3::new(0.0, 0.0, 2.0),
-            Vec3::new(2.0, 0.0, 2.0),
-            Vec3::new(2.0, 0.0, 0.0),
-        ];
-        let mut faces = vec![Face {
-            vertices: vec![0, 1, 2, 3],
-            material: 0,
-            source: 0,
-        }];
+        let (x, z) = (Vec3::X, Vec3::Z);
+        let mut rects = vec![(Vec3::ZERO, z * 2.0, x * 2.0)];
         if blocker {
-            positions.extend([
-                Vec3::new(0.5, 0.4, 0.5),
-                Vec3::new(1.0, 0.4, 0.5),
-                Vec3::new(1.0, 0.4, 1.5),
-                Vec3::new(0.5, 0.4, 1.5),
-            ]);
-            faces.push(Face {
-                vertices: vec![4, 5, 6, 7],
-                material: 0,
-                source: 1,
-            });
+            rects.push((Vec3::new(0.5, 0.4, 0.5), x * 0.5, z));
         }
-        let grey = Material {
-            name: "grey".into(),
-            reflectance: Vec3::splat(0.5),
-            emission: Vec3::ZERO,
-        };
-        let scene = Scene::new_lit_sky(positions, faces, vec![grey], lights, sky)
-            .unwrap()
-            .0;
-        Mesh::build(&scene, Subdivision::None).unwrap()
+        rect_scene(&rects, lights, sky, Subdivision::None)
     }
 
     /// Spread between 64 seeds of patch 0's `rho H` over the mean variance the pass reports
@@ -915,8 +888,13 @@ mod tests {
     }
 
     /// Rectangles `(corner, u, v)` facing `u x v`, one face each (material 0, grey 0.5),
-    /// lit by `lights` and `sky`, meshed with patches of at most 0.25.
-    fn rect_scene(rects: &[(Vec3, Vec3, Vec3)], lights: Vec<Light>, sky: Option<Sky>) -> Mesh {
+    /// lit by `lights` and `sky`, meshed by `subdivision`.
+    fn rect_scene(
+        rects: &[(Vec3, Vec3, Vec3)],
+        lights: Vec<Light>,
+        sky: Option<Sky>,
+        subdivision: Subdivision,
+    ) -> Mesh {
         let mut positions = Vec::new();
         let mut faces = Vec::new();
         for (k, &(p, u, v)) in rects.iter().enumerate() {
@@ -936,7 +914,7 @@ mod tests {
         let scene = Scene::new_lit_sky(positions, faces, vec![grey], lights, sky)
             .unwrap()
             .0;
-        Mesh::build(&scene, Subdivision::MaxEdge(0.25)).unwrap()
+        Mesh::build(&scene, subdivision).unwrap()
     }
 
     /// Over `seeds` seeds of the pass (`rays` asked), against the reference's direct light
@@ -1009,7 +987,12 @@ mod tests {
             ), // x > hole
         ];
         let sky = Sky::Uniform(DVec3::new(1.0, 2.0, 3.0));
-        let mesh = rect_scene(&rects, Vec::new(), Some(sky.clone()));
+        let mesh = rect_scene(
+            &rects,
+            Vec::new(),
+            Some(sky.clone()),
+            Subdivision::MaxEdge(0.25),
+        );
         let bvh = mesh.caster().unwrap();
         let reference = mcrad_reference::sky_irradiance(&mesh, &bvh, &sky);
         let exact: Vec<DVec3> = reference
@@ -1054,7 +1037,7 @@ mod tests {
             irradiance: DVec3::splat(100.0),
             diameter: mcrad_scene_io::DEFAULT_SUN_DIAMETER,
         });
-        let mesh = rect_scene(&rects, vec![sun.clone()], None);
+        let mesh = rect_scene(&rects, vec![sun.clone()], None, Subdivision::MaxEdge(0.25));
         let bvh = mesh.caster().unwrap();
         let reference = mcrad_reference::direct_irradiance(&mesh, &bvh, std::slice::from_ref(&sun));
         let exact: Vec<DVec3> = reference
