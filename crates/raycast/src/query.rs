@@ -45,6 +45,12 @@ struct QueryLanes {
 }
 
 impl Query {
+    /// The length of the query (infinite: a ray).
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> f32 {
+        self.len
+    }
+
     /// The query from `origin` along the unit `dir` for `t` in `(0, len)` (`len` infinite: a
     /// ray), with windows of half-width `window_start` and `window_end` at its ends.
     #[inline(always)]

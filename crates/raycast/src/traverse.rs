@@ -95,6 +95,17 @@ impl Stack for [Entry] {
 pub(crate) trait NodeTest: Copy {
     /// The test of `node`.
     fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32);
+
+    /// The children of `node` that are inner nodes (not leaves, not empty), as a mask (bit `i`
+    /// for child `i`): those whose item has the [`LEAF`] bit clear.
+    #[inline(always)]
+    fn inner(self, node: &Node) -> u32 {
+        let mut mask = 0;
+        for (i, &item) in node.items.iter().enumerate() {
+            mask |= u32::from(item & LEAF == 0) << i;
+        }
+        mask
+    }
 }
 
 /// The node test on four children at a time, with SSE on x86_64 (scalar elsewhere).
@@ -193,6 +204,21 @@ impl NodeTest for Avx2 {
         };
         (enter_out, mask)
     }
+
+    #[inline(always)]
+    fn inner(self, node: &Node) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect`; each load reads 8 of the 16 items of `node` (in bounds,
+        // any alignment accepted by `loadu`).
+        #[allow(unsafe_code)]
+        let leaves = unsafe {
+            // the sign bit of an item is the LEAF bit
+            let lo = _mm256_loadu_ps(node.items[..8].as_ptr().cast::<f32>());
+            let hi = _mm256_loadu_ps(node.items[8..].as_ptr().cast::<f32>());
+            _mm256_movemask_ps(lo) as u32 | (_mm256_movemask_ps(hi) as u32) << 8
+        };
+        !leaves & 0xffff
+    }
 }
 
 /// The node test on all sixteen children at once, with AVX-512F. Only [`Avx512::detect`]
@@ -255,6 +281,19 @@ impl NodeTest for Avx512 {
             _mm512_cmp_ps_mask::<_CMP_LE_OQ>(enter, leave) as u32
         };
         (enter_out, mask)
+    }
+
+    #[inline(always)]
+    fn inner(self, node: &Node) -> u32 {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect`; the load reads the 16 items of `node` (64 bytes, in
+        // bounds, any alignment accepted by `loadu`).
+        #[allow(unsafe_code)]
+        unsafe {
+            // items below 2^31 as signed integers: the LEAF bit clear
+            let items = _mm512_loadu_si512(node.items.as_ptr().cast());
+            _mm512_cmpge_epi32_mask(items, _mm512_setzero_si512()) as u32
+        }
     }
 }
 
@@ -516,9 +555,24 @@ impl Walk {
     }
 }
 
-/// Any hit: `true` as soon as `leaves.any` is for a packet reached. Children are visited in
-/// slot order (sorting them costs more than an earlier exit saves). `stack` as for
+/// Any hit: `true` as soon as `leaves.any` is for a packet reached. `stack` as for
 /// [`closest`].
+///
+/// Children are not sorted by distance: any blocker will do. The child visited next is the
+/// first inner node the ray enters (in slot order), or the first leaf when it enters no inner
+/// node; the others are pushed in slot order (popped last slot first). Every one of them is
+/// prefetched at once, the one visited next first, so that its lines do not queue behind the
+/// others'. Going down an inner node first gives the packets of the leaves met on the way
+/// time to arrive before they are tested.
+///
+/// Measured against other orders in one process, alternating chunks of 5k segment pairs of the
+/// Embree comparison's rooms (median ratio over chunks): the first leaf or node in slot order
+/// instead is 2% slower on the 100k room; the nearest child first (the closest-hit order)
+/// visits 16% fewer nodes and 6% fewer packets and is 23% slower; the children that hold an
+/// end point of the segment first, 15% fewer nodes, 8-14% slower; the last child first
+/// (Embree's order) and the pushed children popped first slot first, 6-7% more packets, 1-3%
+/// slower; prefetching only the two or four children popped first (and the next one at each
+/// pop), 3-6% slower.
 #[inline(always)]
 pub(crate) fn any(
     isa: impl NodeTest,
@@ -529,10 +583,10 @@ pub(crate) fn any(
     leaves: &mut impl LeafTest,
 ) -> bool {
     let mut sp = 0;
-    let mut next = Some((ray.tmin, 0u32));
+    let mut next = Some(0u32);
     loop {
         let item = match next.take() {
-            Some((_, item)) => item,
+            Some(item) => item,
             None => {
                 if sp == 0 {
                     return false;
@@ -549,23 +603,24 @@ pub(crate) fn any(
         }
         let node = &nodes[item as usize];
         let (_, mut mask) = isa.intersect(node, ray, ray.tmax);
-        // any blocker will do: children in slot order, no sorting
         if mask == 0 {
             continue;
         }
-        let i = mask.trailing_zeros() as usize;
-        mask &= mask - 1;
+        let inner = mask & isa.inner(node);
+        let pick = if inner != 0 { inner } else { mask };
+        let i = pick.trailing_zeros() as usize & (WIDTH - 1);
+        mask &= !(1 << i);
         let first = node.items[i];
         prefetch_item(nodes, packs, first);
         while mask != 0 {
-            let i = mask.trailing_zeros() as usize;
+            let i = mask.trailing_zeros() as usize & (WIDTH - 1);
             mask &= mask - 1;
             let item = node.items[i];
             prefetch_item(nodes, packs, item);
             *stack.at(sp) = (0.0, item);
             sp += 1;
         }
-        next = Some((0.0, first));
+        next = Some(first);
     }
 }
 

@@ -160,11 +160,12 @@ impl Packet {
     /// Lane `j`.
     #[inline(always)]
     pub(crate) fn lane(&self, j: usize) -> Lane {
-        let (v0, e1, e2) = (&self.v0, &self.e1, &self.e2);
+        // (through arrays: `Vec4`'s indexing was not inlined)
+        let at = |v: &[Vec4; 3]| Vec3A::new(v[0].to_array()[j], v[1].to_array()[j], v[2].to_array()[j]);
         Lane {
-            v0: Vec3A::new(v0[0][j], v0[1][j], v0[2][j]),
-            e1: Vec3A::new(e1[0][j], e1[1][j], e1[2][j]),
-            e2: Vec3A::new(e2[0][j], e2[1][j], e2[2][j]),
+            v0: at(&self.v0),
+            e1: at(&self.e1),
+            e2: at(&self.e2),
         }
     }
 }
