@@ -970,8 +970,9 @@ mod tests {
             let normal = (b - a).cross(c - a).normalize();
             SurfacePoint::new(a + (b - a) * u + (c - a) * v, normal, i as u32)
         };
-        let pairs: Vec<(SurfacePoint, SurfacePoint)> =
-            (0..20_000).map(|k| (point(2 * k), point(2 * k + 1))).collect();
+        let pairs: Vec<(SurfacePoint, SurfacePoint)> = (0..20_000)
+            .map(|k| (point(2 * k), point(2 * k + 1)))
+            .collect();
         for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
             let bvh = Bvh::build(&tris, &ids).unwrap().with_simd(simd);
             assert!(bvh.wide.packets.len() > FEW_PACKETS);

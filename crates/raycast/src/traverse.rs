@@ -572,7 +572,7 @@ impl Walk {
 /// end point of the segment first, 15% fewer nodes, 8-14% slower; the last child first
 /// (Embree's order) and the pushed children popped first slot first, 6-7% more packets, 1-3%
 /// slower; prefetching only the two or four children popped first (and the next one at each
-/// pop), 3-6% slower.
+/// pop), 3-7% slower.
 #[inline(always)]
 pub(crate) fn any(
     isa: impl NodeTest,

@@ -161,7 +161,8 @@ impl Packet {
     #[inline(always)]
     pub(crate) fn lane(&self, j: usize) -> Lane {
         // (through arrays: `Vec4`'s indexing was not inlined)
-        let at = |v: &[Vec4; 3]| Vec3A::new(v[0].to_array()[j], v[1].to_array()[j], v[2].to_array()[j]);
+        let at =
+            |v: &[Vec4; 3]| Vec3A::new(v[0].to_array()[j], v[1].to_array()[j], v[2].to_array()[j]);
         Lane {
             v0: at(&self.v0),
             e1: at(&self.e1),

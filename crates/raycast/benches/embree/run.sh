@@ -36,7 +36,7 @@ for line in open(sys.argv[1]):
     elif w[0] == 'MCAGREE' and w[2] in ('closest:', 'closest-same-line:'):
         m = re.search(r'= ([0-9.]+)%', line)
         agree[(w[1], w[2])] = (m.group(1) if m else '?') + '%'
-q_short = {'closest': 'closest', 'occluded': 'occluded', 'closest-sorted-by-source': 'closest-sorted'}
+q_short = {'closest': 'closest', 'occluded': 'occluded', 'closest-sorted-by-source': 'closest-sorted', 'occluded-facing': 'occl-facing'}
 hdr = ['scene', 'query']
 for th in ('1', '2'):
     hdr += [f'mcrad{th}T', f'batch{th}T', f'lifted{th}T', f'Embree{th}T', f'obvhs{th}T', f'm/E{th}T', f'b/E{th}T', f'l/E{th}T']
@@ -55,7 +55,8 @@ for (scene, query), d in rows.items():
     out.append(r)
 wid = [max(len(x[i]) for x in out) for i in range(len(hdr))]
 print('Mrays/s (wall, median of rounds with >=90% CPU efficiency); m/E, b/E, l/E = median per-round mcrad/Embree, mcrad-batch/Embree, mcrad-lifted/Embree')
-print('lifted = mcrad closest_hit on the very rays Embree gets: Ray::from_surface(file origin 1e-3 above src, unit ccw normal, dir, src)')
+print('lifted = mcrad on the very rays Embree gets: closest, Ray::from_surface(file origin 1e-3 above src, unit ccw normal, dir, src); occluded, SurfacePoint::free of both lifted ends')
+print('occl-facing = occlusion of the pairs whose ends face each other (the end triangles block neither engine)')
 for r in out:
     print('  '.join(x.rjust(wid[i]) for i, x in enumerate(r)))
 print()
