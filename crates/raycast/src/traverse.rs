@@ -100,11 +100,18 @@ pub(crate) trait NodeTest: Copy {
     /// for child `i`): those whose item has the [`LEAF`] bit clear.
     #[inline(always)]
     fn inner(self, node: &Node) -> u32 {
-        let mut mask = 0;
-        for (i, &item) in node.items.iter().enumerate() {
-            mask |= u32::from(item & LEAF == 0) << i;
+        // the LEAF bit is the sign bit: four items at a time as the signs of floats
+        let mut leaves = 0;
+        for (q, four) in node.items.chunks_exact(4).enumerate() {
+            let bits = Vec4::new(
+                f32::from_bits(four[0]),
+                f32::from_bits(four[1]),
+                f32::from_bits(four[2]),
+                f32::from_bits(four[3]),
+            );
+            leaves |= bits.is_negative_bitmask() << (4 * q);
         }
-        mask
+        !leaves & ((1 << WIDTH) - 1)
     }
 }
 
@@ -628,6 +635,36 @@ pub(crate) fn any(
 mod tests {
     use super::*;
     use obvhs::aabb::Aabb;
+
+    /// The three node tests find the same inner children: those whose item is a node index
+    /// (not a leaf, not an empty slot).
+    #[test]
+    fn inner_children_are_the_node_items_on_every_instruction_set() {
+        let mut next = crate::testing::uniforms(5);
+        for _ in 0..1000 {
+            let mut node = Node::empty();
+            let mut expected = 0;
+            for (i, item) in node.items.iter_mut().enumerate() {
+                let r = next();
+                *item = if r < 0.3 {
+                    u32::MAX
+                } else if r < 0.6 {
+                    crate::wide::LEAF | (next() * (1 << 29) as f32) as u32
+                } else {
+                    expected |= 1 << i;
+                    (next() * (1u32 << 31) as f32) as u32 & !LEAF
+                };
+            }
+            assert_eq!(Sse.inner(&node), expected);
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx2) = Avx2::detect() {
+                assert_eq!(avx2.inner(&node), expected);
+                if let Some(avx512) = Avx512::detect() {
+                    assert_eq!(avx512.inner(&node), expected);
+                }
+            }
+        }
+    }
 
     /// Every node test finds the children that an `f64` slab test finds (where that is not
     /// within rounding of a box's edge), and the fused ones (AVX2, AVX-512) the very same
