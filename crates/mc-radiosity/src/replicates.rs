@@ -212,14 +212,15 @@ pub(crate) struct Measure {
 /// understate it on that account.)
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Waves {
-    /// This wave's sums per patch.
-    wave: Vec<Halves>,
+    /// Per patch, its entry in `wave` in this wave ([`NO_SLOT`]: no deposit yet).
+    slot: Vec<u32>,
+    /// This wave's sums of the patches that received a deposit, in the order of their first:
+    /// the patch, its sums per replicate and its `sum x²` (channels summed). A wave reaches
+    /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
+    /// a patch, not 56.
+    wave: Vec<(u32, Halves, f64)>,
     /// The run's sums per patch.
     total: Vec<Halves>,
-    /// This wave's `sum x²` per patch (channels summed).
-    wave_squares: Vec<f64>,
-    /// Patches that received a deposit in this wave.
-    touched: Vec<u32>,
     /// `sum_w |d_w|²` per patch.
     differences: Vec<f64>,
     /// `sum_w v_w` and `sum_w v_w²` per patch.
@@ -233,9 +234,12 @@ pub(crate) struct Waves {
     /// Per patch, the error power of each group not yet shot (W per channel): a deposit's
     /// error is power the patch reflects, so it travels on with the patch's next rays.
     pending: Vec<Row>,
-    /// Per patch, the error power each of its rays carries in this wave (`None` where it
-    /// carries none: most of all the emitters' first wave, the largest, carries nothing).
-    per_ray: Vec<Option<Row>>,
+    /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
+    /// power; most of all the emitters' first wave, the largest, carries nothing).
+    carrier: Vec<u32>,
+    /// The error power each ray of a carrying patch carries in this wave, in patch order
+    /// (sparse as `wave` is: only patches that shoot in the wave carry).
+    carried: Vec<Row>,
     /// Per patch, the input face it lies on ([`Waves::face_scale`]).
     face: Vec<u32>,
     /// Per face, this wave's difference `sum_{j in f} d_wj` (W per channel), and the faces
@@ -252,6 +256,9 @@ pub(crate) struct Waves {
     /// without what the later waves carried ([`Waves::carry_factor`]).
     raw: Vec<Row>,
 }
+
+/// No entry: a patch without a deposit, or without carried error, in this wave ([`Waves`]).
+const NO_SLOT: u32 = u32::MAX;
 
 /// The signs `s_ik = ±1` of source patch `i` in the [`SKETCHES`] projections of
 /// [`Waves::kappa_by_sources`], per channel (flat as a [`Row`]): a fixed hash of `i`, so the
@@ -276,16 +283,16 @@ impl Waves {
             face_differences: vec![0.0; faces],
             projected: vec![ZERO_ROW; patches],
             raw: vec![ZERO_ROW; patches],
-            wave: vec![Halves::default(); patches],
+            slot: vec![NO_SLOT; patches],
+            wave: Vec::new(),
             total: vec![Halves::default(); patches],
-            wave_squares: vec![0.0; patches],
-            touched: Vec::new(),
             differences: vec![0.0; patches],
             model: vec![(0.0, 0.0); patches],
             sketch: vec![ZERO_ROW; patches],
             closed: 0,
             pending: vec![ZERO_ROW; patches],
-            per_ray: vec![None; patches],
+            carrier: vec![NO_SLOT; patches],
+            carried: Vec::new(),
         }
     }
 
@@ -293,18 +300,20 @@ impl Waves {
     /// its samples and is spread over them (a patch casting none keeps it, as it keeps its
     /// unshot power).
     pub fn begin_wave(&mut self, counts: &[u64]) {
-        for (((sketch, pending), per_ray), &n) in self
+        self.carried.clear();
+        for (((sketch, pending), carrier), &n) in self
             .sketch
             .iter_mut()
             .zip(&mut self.pending)
-            .zip(&mut self.per_ray)
+            .zip(&mut self.carrier)
             .zip(counts)
         {
-            *per_ray = None;
+            *carrier = NO_SLOT;
             if n > 0 && *pending != ZERO_ROW {
                 let share = 1.0 / n as f32;
                 add_row(sketch, pending);
-                *per_ray = Some(pending.map(|z| z * share));
+                *carrier = self.carried.len() as u32;
+                self.carried.push(pending.map(|z| z * share));
                 *pending = ZERO_ROW;
             }
         }
@@ -313,7 +322,10 @@ impl Waves {
     /// The error power each ray of patch `i` carries in this wave (`None`: none).
     #[inline]
     pub fn per_ray(&self, i: usize) -> Option<Row> {
-        self.per_ray[i]
+        match self.carrier[i] {
+            NO_SLOT => None,
+            s => Some(self.carried[s as usize]),
+        }
     }
 
     /// A ray carrying error power `q` ([`Waves::per_ray`]) kept a share `rho` (per channel) of
@@ -333,10 +345,19 @@ impl Waves {
     /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
-        if self.wave_squares[j] == 0.0 {
-            self.touched.push(j as u32);
-        }
-        self.wave[j].push(r, x * scale.unwrap_or(1.0));
+        let entry = match self.slot[j] {
+            NO_SLOT => {
+                self.slot[j] = self.wave.len() as u32;
+                self.wave.push((j as u32, Halves::default(), 0.0));
+                self.wave.last_mut()
+            }
+            s => self.wave.get_mut(s as usize),
+        };
+        let Some((_, halves, squares)) = entry else {
+            return;
+        };
+        halves.push(r, x * scale.unwrap_or(1.0));
+        *squares += x.length_squared();
         // The difference as the run's totals take it (a lone ray's value too).
         let y = x * scale.unwrap_or(1.0);
         let y = if r == 0 { y } else { -y };
@@ -351,31 +372,40 @@ impl Waves {
             add_sample(&mut self.pending[j], self.closed % SKETCHES, d);
             add_sample(&mut self.raw[j], self.closed % SKETCHES, d);
         }
-        self.wave_squares[j] += x.length_squared();
     }
 
     /// Closes a wave: its differences join the sums.
     pub fn end_wave(&mut self) {
         self.closed += 1;
-        for j in self.touched.drain(..) {
+        for (j, wave, v) in self.wave.drain(..) {
             let j = j as usize;
-            let v = self.wave_squares[j];
-            self.differences[j] += self.wave[j].variance_of_sum();
+            self.slot[j] = NO_SLOT;
+            self.differences[j] += wave.variance_of_sum();
             self.model[j].0 += v;
             self.model[j].1 += v * v;
-            self.total[j] = self.total[j].merge(self.wave[j]);
+            self.total[j] = self.total[j].merge(wave);
             let f = self.face[j] as usize;
             if self.face_wave[f] == DVec3::ZERO {
                 self.face_touched.push(f as u32);
             }
-            self.face_wave[f] += self.wave[j].sum[0] - self.wave[j].sum[1];
-            self.wave[j] = Halves::default();
-            self.wave_squares[j] = 0.0;
+            self.face_wave[f] += wave.sum[0] - wave.sum[1];
         }
         for f in self.face_touched.drain(..) {
             let d = std::mem::take(&mut self.face_wave[f as usize]);
             self.face_differences[f as usize] += d.length_squared();
         }
+    }
+
+    /// Ends the run (after the last [`Waves::end_wave`]): frees what only the waves need
+    /// (the per-wave sums, the carried error power, the per-face sums of a wave), before the
+    /// gains and the samples are measured, the run's peak of memory.
+    pub fn end_run(&mut self) {
+        for v in [&mut self.slot, &mut self.carrier, &mut self.face_touched] {
+            *v = Vec::new();
+        }
+        self.wave = Vec::new();
+        self.carried = Vec::new();
+        self.face_wave = Vec::new();
     }
 
     /// How much less of the per-wave variance a face's total keeps than a patch's: `kappa_F /
@@ -434,11 +464,11 @@ impl Waves {
     /// towards the formula ([`Toward::Alike`]): with tens of degrees of freedom a face
     /// measures gains of a few percent (a furnace of one patch per face) that the formula's
     /// pull would multiply.
-    pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
+    pub fn gains(&self, face: impl Iterator<Item = u32> + Clone) -> Vec<f64> {
         // The run's share of the per-wave variance, measured over (source, receiver) pairs, and
         // what the later waves' carrying makes of the error.
         let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
-        let measures = face.into_iter().enumerate().map(|(j, face)| {
+        let measures = face.enumerate().map(move |(j, face)| {
             let (v, v2) = self.model[j];
             let total = self.total[j].sum[0] + self.total[j].sum[1];
             Measure {
@@ -515,22 +545,24 @@ impl Waves {
     /// `sum_g (sum_j c_j z_gj)²` with up to [`SKETCHES`] degrees of freedom. A gather from
     /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
     /// Also returns the samples of the error power still unshot, summed over the patches.
-    pub fn sketch(&self) -> (Vec<Row>, [DVec3; SKETCHES]) {
+    pub fn sketch(self) -> (Vec<Row>, [DVec3; SKETCHES]) {
         let k = self.kappa_by_sources().sqrt();
-        let mut pending = [DVec3::ZERO; SKETCHES];
-        for row in &self.pending {
-            for (g, p) in pending.iter_mut().enumerate() {
+        // The rows are made in place of the samples, the rest goes first.
+        let (mut rows, pending) = {
+            let waves = self;
+            (waves.sketch, waves.pending)
+        };
+        let mut sums = [DVec3::ZERO; SKETCHES];
+        for row in &pending {
+            for (g, p) in sums.iter_mut().enumerate() {
                 *p += sample(row, g) * k;
             }
         }
         let k = k as f32;
-        let rows = self
-            .sketch
-            .iter()
-            .zip(&self.pending)
-            .map(|(row, pending)| std::array::from_fn(|x| (row[x] + pending[x]) * k))
-            .collect();
-        (rows, pending)
+        for (row, pending) in rows.iter_mut().zip(&pending) {
+            *row = std::array::from_fn(|x| (row[x] + pending[x]) * k);
+        }
+        (rows, sums)
     }
 }
 
@@ -564,13 +596,18 @@ fn deposit_class(deposits: f64) -> usize {
 }
 
 /// Each item's gain `g_f` ([module](self)), in the order of `items`.
-pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) -> Vec<f64> {
-    let items: Vec<Measure> = items.into_iter().collect();
-    let n_faces = items.iter().map(|m| m.face as usize + 1).max().unwrap_or(0);
+/// The measures are read three times over (`items` is cloned), not collected: 48 bytes an
+/// item less at shooting's peak of memory.
+pub(crate) fn gains(items: impl Iterator<Item = Measure> + Clone, toward: Toward) -> Vec<f64> {
+    let n_faces = items
+        .clone()
+        .map(|m| m.face as usize + 1)
+        .max()
+        .unwrap_or(0);
     let (mut q, mut v, mut dof) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0.0; n_faces]);
     // per face: deposits summed over its measured patches, and their count
     let (mut deposits, mut count) = (vec![0.0; n_faces], vec![0u32; n_faces]);
-    for m in &items {
+    for m in items.clone() {
         if let Some(r) = m.replicate {
             let f = m.face as usize;
             q[f] += r;
@@ -615,7 +652,7 @@ pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) ->
             (q[f] + prior * target) / (v[f] + prior)
         })
         .collect();
-    items.iter().map(|m| face_gain[m.face as usize]).collect()
+    items.map(|m| face_gain[m.face as usize]).collect()
 }
 
 /// `v * gain` per patch: the variances scaled by their gains.

@@ -397,17 +397,6 @@ pub fn shoot<C: RayCaster>(
             counts
         };
         let jobs = wave_jobs(&counts, &cast);
-        // Each replicate's deposits scaled to the whole wave: a patch casting an odd number
-        // of rays gives one replicate a ray more, a difference of mean `rho p` on the patches
-        // its rays reach that is no error (crate::replicates, `Waves::push`).
-        let halves: Vec<Option<[f64; 2]>> = counts
-            .iter()
-            .zip(&cast)
-            .map(|(&n, &a)| replicate_scale(a, n))
-            .collect();
-        for (c, n) in cast.iter_mut().zip(&counts) {
-            *c += n;
-        }
         if let Some(waves) = waves.as_mut() {
             waves.begin_wave(&counts);
         }
@@ -431,7 +420,12 @@ pub fn shoot<C: RayCaster>(
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {
                 let p = per_ray[job.patch as usize];
-                let scale = halves[job.patch as usize];
+                // Each replicate's deposits scaled to the whole wave: a patch casting an odd
+                // number of rays gives one replicate a ray more, a difference of mean `rho p`
+                // on the patches its rays reach that is no error (crate::replicates,
+                // `Waves::push`). Made per job, not held per patch.
+                let i = job.patch as usize;
+                let scale = replicate_scale(cast[i], counts[i]);
                 // The error power this job's rays carry, if any.
                 let carried = waves.as_ref().and_then(|w| w.per_ray(job.patch as usize));
                 let signs = crate::replicates::source_signs(job.patch as usize);
@@ -473,6 +467,9 @@ pub fn shoot<C: RayCaster>(
                 stats.rays += hits.len() as u64;
             }
         }
+        for (c, n) in cast.iter_mut().zip(&counts) {
+            *c += n;
+        }
         stats.waves += 1;
         if let Some(waves) = waves.as_mut() {
             waves.end_wave();
@@ -497,6 +494,9 @@ pub fn shoot<C: RayCaster>(
     // What the waves needed goes before the replicates' gains are measured (the run's peak).
     drop(per_ray);
     drop(cast);
+    if let Some(waves) = waves.as_mut() {
+        waves.end_run();
+    }
     if let Some(waves) = waves.as_ref().filter(|_| ctx.sampling() == Sampler::Qmc) {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure, wave by wave (crate::replicates).
