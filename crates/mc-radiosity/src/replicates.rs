@@ -242,10 +242,11 @@ pub(crate) struct Waves {
     carried: Vec<Row>,
     /// Per patch, the input face it lies on ([`Waves::face_scale`]).
     face: Vec<u32>,
-    /// Per face, this wave's difference `sum_{j in f} d_wj` (W per channel), and the faces
-    /// it touched.
-    face_wave: Vec<DVec3>,
-    face_touched: Vec<u32>,
+    /// Per face, its entry in `face_wave` in this wave ([`NO_SLOT`]: none yet).
+    face_slot: Vec<u32>,
+    /// This wave's difference `sum_{j in f} d_wj` (W per channel) of the faces it touched, in
+    /// the order of their first deposit (sparse as `wave` is).
+    face_wave: Vec<(u32, DVec3)>,
     /// Per face, `sum_w |sum_{j in f} d_wj|²`.
     face_differences: Vec<f64>,
     /// Per patch, the run's differences projected over the source patches: sample `k` is
@@ -278,8 +279,8 @@ impl Waves {
         let faces = face.iter().map(|&f| f as usize + 1).max().unwrap_or(0);
         Waves {
             face,
-            face_wave: vec![DVec3::ZERO; faces],
-            face_touched: Vec::new(),
+            face_slot: vec![NO_SLOT; faces],
+            face_wave: Vec::new(),
             face_differences: vec![0.0; faces],
             projected: vec![ZERO_ROW; patches],
             raw: vec![ZERO_ROW; patches],
@@ -385,13 +386,20 @@ impl Waves {
             self.model[j].1 += v * v;
             self.total[j] = self.total[j].merge(wave);
             let f = self.face[j] as usize;
-            if self.face_wave[f] == DVec3::ZERO {
-                self.face_touched.push(f as u32);
+            let s = match self.face_slot[f] {
+                NO_SLOT => {
+                    self.face_slot[f] = self.face_wave.len() as u32;
+                    self.face_wave.push((f as u32, DVec3::ZERO));
+                    self.face_wave.len() - 1
+                }
+                s => s as usize,
+            };
+            if let Some((_, d)) = self.face_wave.get_mut(s) {
+                *d += wave.sum[0] - wave.sum[1];
             }
-            self.face_wave[f] += wave.sum[0] - wave.sum[1];
         }
-        for f in self.face_touched.drain(..) {
-            let d = std::mem::take(&mut self.face_wave[f as usize]);
+        for (f, d) in self.face_wave.drain(..) {
+            self.face_slot[f as usize] = NO_SLOT;
             self.face_differences[f as usize] += d.length_squared();
         }
     }
@@ -400,7 +408,7 @@ impl Waves {
     /// (the per-wave sums, the carried error power, the per-face sums of a wave), before the
     /// gains and the samples are measured, the run's peak of memory.
     pub fn end_run(&mut self) {
-        for v in [&mut self.slot, &mut self.carrier, &mut self.face_touched] {
+        for v in [&mut self.slot, &mut self.carrier, &mut self.face_slot] {
             *v = Vec::new();
         }
         self.wave = Vec::new();
