@@ -606,7 +606,12 @@ fn deposit_class(deposits: f64) -> usize {
 /// Each item's gain `g_f` ([module](self)), in the order of `items`.
 /// The measures are read three times over (`items` is cloned), not collected: 48 bytes an
 /// item less at shooting's peak of memory.
-pub(crate) fn gains(items: impl Iterator<Item = Measure> + Clone, toward: Toward) -> Vec<f64> {
+pub(crate) fn gains<I>(items: I, toward: Toward) -> Vec<f64>
+where
+    I: IntoIterator<Item = Measure>,
+    I::IntoIter: Clone,
+{
+    let items = items.into_iter();
     let n_faces = items
         .clone()
         .map(|m| m.face as usize + 1)
@@ -673,6 +678,61 @@ pub(crate) fn scale(variance: &mut [DVec3], gains: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bytes `w` holds on the heap (its arrays' capacities).
+    fn heap_bytes(w: &Waves) -> usize {
+        fn b<T>(v: &Vec<T>) -> usize {
+            v.capacity() * size_of::<T>()
+        }
+        b(&w.slot)
+            + b(&w.wave)
+            + b(&w.total)
+            + b(&w.differences)
+            + b(&w.model)
+            + b(&w.sketch)
+            + b(&w.pending)
+            + b(&w.carrier)
+            + b(&w.carried)
+            + b(&w.face)
+            + b(&w.face_slot)
+            + b(&w.face_wave)
+            + b(&w.face_differences)
+            + b(&w.projected)
+            + b(&w.raw)
+    }
+
+    #[test]
+    fn waves_hold_480_bytes_a_patch_and_sum_each_wave_apart() {
+        // Memory per element (issue 35): the run's sums and error samples are dense (468 bytes
+        // a patch, 12 a face), a wave's sums sparse.
+        let n = 1000;
+        let mut w = Waves::new((0..n as u32).collect());
+        assert_eq!(heap_bytes(&w), 480 * n);
+        let signs = source_signs(0);
+        let x = DVec3::new(1.0, 2.0, 3.0);
+        let mut counts = vec![0u64; n];
+        counts[0] = 4;
+        w.begin_wave(&counts);
+        // A zero deposit first, then one of each replicate, on patch 7.
+        w.push(7, 0, DVec3::ZERO, Some(1.0), &signs);
+        w.push(7, 0, x, Some(1.0), &signs);
+        w.push(7, 1, 0.5 * x, Some(1.0), &signs);
+        w.end_wave();
+        let (d, v) = ((0.5 * x).length_squared(), 1.25 * x.length_squared());
+        assert_eq!(w.differences[7], d);
+        assert_eq!(w.model[7], (v, v * v));
+        assert_eq!(w.face_differences[7], d);
+        assert_eq!(w.differences.iter().sum::<f64>(), d);
+        // The next wave starts from nothing.
+        w.begin_wave(&counts);
+        w.push(7, 1, x, Some(1.0), &signs);
+        w.end_wave();
+        assert_eq!(w.differences[7], d + x.length_squared());
+        assert_eq!(w.total[7].sum, [x, 1.5 * x]);
+        assert_eq!(w.face_differences[7], d + x.length_squared());
+        w.end_run();
+        assert_eq!(heap_bytes(&w), 468 * n);
+    }
 
     #[test]
     fn halves_measure_the_variance_of_a_mean_and_of_a_sum() {
