@@ -9,8 +9,9 @@ use mcrad_scene_io::Scene;
 /// Bytes per element (patch) at a solve's peak, all it holds per element together: the patch
 /// and its triangles, the BVH, the sampler, the method's per-patch state (shooting's sums and
 /// replicates, gathering's, the estimates of the steps and the refinement) and the
-/// allocator's slack. Measured peaks are 640 to 950 bytes per element on the generated atrium
-/// and the uniform Cornell box at 10^5 to 10^6 elements (docs/memory.md): this bounds them.
+/// allocator's slack. Measured peak RSS on the generated atrium (docs/atrium.md, "Memory and
+/// scale"): 957 bytes per element at 10^6 elements, 900 at 10^7 (most of it shooting's error
+/// samples, 468 bytes a patch): this bounds them.
 pub const BYTES_PER_ELEMENT: u64 = 1_100;
 
 /// Bytes of a process before its scene: code, thread stacks, the allocator's arenas.
