@@ -225,14 +225,20 @@ pub(crate) struct Waves {
     differences: Vec<f64>,
     /// `sum_w v_w` and `sum_w v_w²` per patch.
     model: Vec<(f64, f64)>,
-    /// Per patch, the differences `d_w` summed over the waves of each group (wave `w` in
-    /// group `w mod SKETCHES`), with what the later waves' rays carried there, as far as the
-    /// patch's last shot: the rest is in `pending`.
+    /// Per patch, its entry in the rows `sketch`, `pending`, `projected` and `raw`
+    /// ([`NO_SLOT`]: no deposit yet, its rows all zero). Rows are made for the patches that
+    /// receive a deposit only, in the order of their first: a run of fewer rays than
+    /// patches leaves most without (384 bytes each).
+    row: Vec<u32>,
+    /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
+    /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
+    /// as the patch's last shot: the rest is in `pending`.
     sketch: Vec<Row>,
     /// Waves closed.
     closed: usize,
-    /// Per patch, the error power of each group not yet shot (W per channel): a deposit's
-    /// error is power the patch reflects, so it travels on with the patch's next rays.
+    /// Per patch with a row, the error power of each group not yet shot (W per channel): a
+    /// deposit's error is power the patch reflects, so it travels on with the patch's next
+    /// rays.
     pending: Vec<Row>,
     /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
     /// power; most of all the emitters' first wave, the largest, carries nothing).
@@ -249,13 +255,22 @@ pub(crate) struct Waves {
     face_wave: Vec<(u32, DVec3)>,
     /// Per face, `sum_w |sum_{j in f} d_wj|²`.
     face_differences: Vec<f64>,
-    /// Per patch, the run's differences projected over the source patches: sample `k` is
-    /// `sum_w sum_i s_ik d_wij` ([`Waves::kappa_by_sources`]), `s_ik = ±1` the signs of
-    /// source `i` ([`source_signs`]).
+    /// Per patch with a row, the run's differences projected over the source patches:
+    /// sample `k` is `sum_w sum_i s_ik d_wij` ([`Waves::kappa_by_sources`]), `s_ik = ±1` the
+    /// signs of source `i` ([`source_signs`]).
     projected: Vec<Row>,
-    /// Per patch, the differences `d_w` summed over the waves of each group as in `sketch`,
-    /// without what the later waves carried ([`Waves::carry_factor`]).
+    /// Per patch with a row, the differences `d_w` summed over the waves of each group as in
+    /// `sketch`, without what the later waves carried ([`Waves::carry_factor`]).
     raw: Vec<Row>,
+}
+
+/// The row of entry `slot` of `rows` (all zero for [`NO_SLOT`]).
+#[inline]
+fn row_at(rows: &[Row], slot: u32) -> &Row {
+    match slot {
+        NO_SLOT => &ZERO_ROW,
+        s => &rows[s as usize],
+    }
 }
 
 /// No entry: a patch without a deposit, or without carried error, in this wave ([`Waves`]).
@@ -282,16 +297,17 @@ impl Waves {
             face_slot: vec![NO_SLOT; faces],
             face_wave: Vec::new(),
             face_differences: vec![0.0; faces],
-            projected: vec![ZERO_ROW; patches],
-            raw: vec![ZERO_ROW; patches],
+            row: vec![NO_SLOT; patches],
+            projected: Vec::new(),
+            raw: Vec::new(),
             slot: vec![NO_SLOT; patches],
             wave: Vec::new(),
             total: vec![Halves::default(); patches],
             differences: vec![0.0; patches],
             model: vec![(0.0, 0.0); patches],
-            sketch: vec![ZERO_ROW; patches],
+            sketch: Vec::new(),
             closed: 0,
-            pending: vec![ZERO_ROW; patches],
+            pending: Vec::new(),
             carrier: vec![NO_SLOT; patches],
             carried: Vec::new(),
         }
@@ -302,14 +318,15 @@ impl Waves {
     /// unshot power).
     pub fn begin_wave(&mut self, counts: &[u64]) {
         self.carried.clear();
-        for (((sketch, pending), carrier), &n) in self
-            .sketch
-            .iter_mut()
-            .zip(&mut self.pending)
-            .zip(&mut self.carrier)
-            .zip(counts)
-        {
+        for ((carrier, &row), &n) in self.carrier.iter_mut().zip(&self.row).zip(counts) {
             *carrier = NO_SLOT;
+            if row == NO_SLOT {
+                continue;
+            }
+            let (sketch, pending) = (
+                &mut self.sketch[row as usize],
+                &mut self.pending[row as usize],
+            );
             if n > 0 && *pending != ZERO_ROW {
                 let share = 1.0 / n as f32;
                 add_row(sketch, pending);
@@ -334,7 +351,8 @@ impl Waves {
     /// (and its samples when `j` next shoots or the run ends).
     #[inline]
     pub fn carry(&mut self, q: &Row, j: usize, rho: Vec3) {
-        add_row_scaled(&mut self.pending[j], q, rho);
+        let r = self.row_of(j);
+        add_row_scaled(&mut self.pending[r], q, rho);
     }
 
     /// Adds a deposit `x` (W per channel) of replicate `r` on patch `j`, `scale` the factor
@@ -363,16 +381,47 @@ impl Waves {
         let y = x * scale.unwrap_or(1.0);
         let y = if r == 0 { y } else { -y };
         let y = [y.x as f32, y.y as f32, y.z as f32];
-        for ((a, s), k) in self.projected[j].iter_mut().zip(signs).zip(0..) {
+        let row = self.row_of(j);
+        for ((a, s), k) in self.projected[row].iter_mut().zip(signs).zip(0..) {
             *a += *s * y[k % 3];
         }
         if let Some(s) = scale {
             // This wave's difference of the scaled replicates joins its group's pending error
             // power at once: the wave's rays are shot, and the group is the wave's.
             let d = if r == 0 { x * s } else { -x * s };
-            add_sample(&mut self.pending[j], self.closed % SKETCHES, d);
-            add_sample(&mut self.raw[j], self.closed % SKETCHES, d);
+            add_sample(&mut self.pending[row], self.closed % SKETCHES, d);
+            add_sample(&mut self.raw[row], self.closed % SKETCHES, d);
         }
+    }
+
+    /// The entry of patch `j` in the rows, made (all zero) at its first deposit. The rows
+    /// grow by an eighth at a time, not double: at most an eighth of them, and never more
+    /// than one a patch, are held unused.
+    fn row_of(&mut self, j: usize) -> usize {
+        if self.row[j] == NO_SLOT {
+            let len = self.sketch.len();
+            if len == self.sketch.capacity() {
+                let more = (len / 8).max(1024).min(self.row.len() - len).max(1);
+                for rows in [
+                    &mut self.sketch,
+                    &mut self.pending,
+                    &mut self.projected,
+                    &mut self.raw,
+                ] {
+                    rows.reserve_exact(more);
+                }
+            }
+            for rows in [
+                &mut self.sketch,
+                &mut self.pending,
+                &mut self.projected,
+                &mut self.raw,
+            ] {
+                rows.push(ZERO_ROW);
+            }
+            self.row[j] = len as u32;
+        }
+        self.row[j] as usize
     }
 
     /// Closes a wave: its differences join the sums.
@@ -513,7 +562,8 @@ impl Waves {
     /// row of [`SKETCHES`] × 3 adds per deposit.
     fn kappa_by_sources(&self) -> f64 {
         let (mut d, mut w) = (0.0, 0.0);
-        for (j, row) in self.projected.iter().enumerate() {
+        for (j, &slot) in self.row.iter().enumerate() {
+            let row = row_at(&self.projected, slot);
             if self.model[j].0 > 0.0 {
                 d += (0..SKETCHES)
                     .map(|g| sample(row, g).length_squared())
@@ -530,7 +580,12 @@ impl Waves {
     /// ([`Waves::sketch`]) and `u_gj` without. 1 before anything was measured.
     fn carry_factor(&self) -> f64 {
         let (mut z, mut u) = (0.0, 0.0);
-        for ((row, pending), raw) in self.sketch.iter().zip(&self.pending).zip(&self.raw) {
+        for &slot in &self.row {
+            let (row, pending, raw) = (
+                row_at(&self.sketch, slot),
+                row_at(&self.pending, slot),
+                row_at(&self.raw, slot),
+            );
             for g in 0..SKETCHES {
                 z += (sample(row, g) + sample(pending, g)).length_squared();
                 u += sample(raw, g).length_squared();
@@ -555,21 +610,26 @@ impl Waves {
     /// Also returns the samples of the error power still unshot, summed over the patches.
     pub fn sketch(self) -> (Vec<Row>, [DVec3; SKETCHES]) {
         let k = self.kappa_by_sources().sqrt();
-        // The rows are made in place of the samples, the rest goes first.
-        let (mut rows, pending) = {
+        // What the samples need, the rest goes first.
+        let (slots, sketch, pending) = {
             let waves = self;
-            (waves.sketch, waves.pending)
+            (waves.row, waves.sketch, waves.pending)
         };
         let mut sums = [DVec3::ZERO; SKETCHES];
-        for row in &pending {
+        for &slot in &slots {
+            let row = row_at(&pending, slot);
             for (g, p) in sums.iter_mut().enumerate() {
                 *p += sample(row, g) * k;
             }
         }
         let k = k as f32;
-        for (row, pending) in rows.iter_mut().zip(&pending) {
-            *row = std::array::from_fn(|x| (row[x] + pending[x]) * k);
-        }
+        let rows = slots
+            .iter()
+            .map(|&slot| {
+                let (row, pending) = (row_at(&sketch, slot), row_at(&pending, slot));
+                std::array::from_fn(|x| (row[x] + pending[x]) * k)
+            })
+            .collect();
         (rows, sums)
     }
 }
@@ -685,6 +745,7 @@ mod tests {
             v.capacity() * size_of::<T>()
         }
         b(&w.slot)
+            + b(&w.row)
             + b(&w.wave)
             + b(&w.total)
             + b(&w.differences)
@@ -702,12 +763,13 @@ mod tests {
     }
 
     #[test]
-    fn waves_hold_480_bytes_a_patch_and_sum_each_wave_apart() {
-        // Memory per element (issue 35): the run's sums and error samples are dense (468 bytes
-        // a patch, 12 a face), a wave's sums sparse.
-        let n = 1000;
+    fn waves_hold_100_bytes_a_patch_and_rows_where_deposits_land() {
+        // Memory per element (issue 35): the run's sums are dense (88 bytes a patch, 12 a
+        // face), the error samples' rows (384) made at a patch's first deposit, a wave's sums
+        // sparse.
+        let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());
-        assert_eq!(heap_bytes(&w), 480 * n);
+        assert_eq!(heap_bytes(&w), 100 * n);
         let signs = source_signs(0);
         let x = DVec3::new(1.0, 2.0, 3.0);
         let mut counts = vec![0u64; n];
@@ -730,8 +792,11 @@ mod tests {
         assert_eq!(w.differences[7], d + x.length_squared());
         assert_eq!(w.total[7].sum, [x, 1.5 * x]);
         assert_eq!(w.face_differences[7], d + x.length_squared());
+        // One patch with rows, room for 1024.
+        assert_eq!((w.sketch.len(), w.sketch.capacity()), (1, 1024));
+        assert_eq!(w.row.iter().filter(|&&r| r != NO_SLOT).count(), 1);
         w.end_run();
-        assert_eq!(heap_bytes(&w), 468 * n);
+        assert_eq!(heap_bytes(&w), 88 * n + 4 * 96 * 1024);
     }
 
     #[test]
