@@ -212,46 +212,114 @@ pub(crate) struct Measure {
 /// understate it on that account.)
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Waves {
-    /// This wave's sums per patch.
-    wave: Vec<Halves>,
+    /// Per patch, its entry in `wave` in this wave ([`NO_SLOT`]: no deposit yet).
+    slot: Vec<u32>,
+    /// This wave's sums of the patches that received a deposit, in the order of their first:
+    /// the patch, its sums per replicate and its `sum x²` (channels summed). A wave reaches
+    /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
+    /// a patch, not 56.
+    wave: Vec<(u32, Halves, f64)>,
     /// The run's sums per patch.
     total: Vec<Halves>,
-    /// This wave's `sum x²` per patch (channels summed).
-    wave_squares: Vec<f64>,
-    /// Patches that received a deposit in this wave.
-    touched: Vec<u32>,
     /// `sum_w |d_w|²` per patch.
     differences: Vec<f64>,
     /// `sum_w v_w` and `sum_w v_w²` per patch.
     model: Vec<(f64, f64)>,
-    /// Per patch, the differences `d_w` summed over the waves of each group (wave `w` in
-    /// group `w mod SKETCHES`), with what the later waves' rays carried there, as far as the
-    /// patch's last shot: the rest is in `pending`.
-    sketch: Vec<Row>,
+    /// Per patch, its entry in the rows `sketch`, `pending`, `projected` and `raw`
+    /// ([`NO_SLOT`]: no deposit yet, its rows all zero). Rows are made for the patches that
+    /// receive a deposit only, in the order of their first: a run of fewer rays than
+    /// patches leaves most without (384 bytes each).
+    row: Vec<u32>,
+    /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
+    /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
+    /// as the patch's last shot: the rest is in `pending`.
+    sketch: Rows,
     /// Waves closed.
     closed: usize,
-    /// Per patch, the error power of each group not yet shot (W per channel): a deposit's
-    /// error is power the patch reflects, so it travels on with the patch's next rays.
-    pending: Vec<Row>,
-    /// Per patch, the error power each of its rays carries in this wave (`None` where it
-    /// carries none: most of all the emitters' first wave, the largest, carries nothing).
-    per_ray: Vec<Option<Row>>,
+    /// Per patch with a row, the error power of each group not yet shot (W per channel): a
+    /// deposit's error is power the patch reflects, so it travels on with the patch's next
+    /// rays.
+    pending: Rows,
+    /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
+    /// power; most of all the emitters' first wave, the largest, carries nothing).
+    carrier: Vec<u32>,
+    /// The error power each ray of a carrying patch carries in this wave, in patch order
+    /// (sparse as `wave` is: only patches that shoot in the wave carry).
+    carried: Vec<Row>,
     /// Per patch, the input face it lies on ([`Waves::face_scale`]).
     face: Vec<u32>,
-    /// Per face, this wave's difference `sum_{j in f} d_wj` (W per channel), and the faces
-    /// it touched.
-    face_wave: Vec<DVec3>,
-    face_touched: Vec<u32>,
+    /// Per face, its entry in `face_wave` in this wave ([`NO_SLOT`]: none yet).
+    face_slot: Vec<u32>,
+    /// This wave's difference `sum_{j in f} d_wj` (W per channel) of the faces it touched, in
+    /// the order of their first deposit (sparse as `wave` is).
+    face_wave: Vec<(u32, DVec3)>,
     /// Per face, `sum_w |sum_{j in f} d_wj|²`.
     face_differences: Vec<f64>,
-    /// Per patch, the run's differences projected over the source patches: sample `k` is
-    /// `sum_w sum_i s_ik d_wij` ([`Waves::kappa_by_sources`]), `s_ik = ±1` the signs of
-    /// source `i` ([`source_signs`]).
-    projected: Vec<Row>,
-    /// Per patch, the differences `d_w` summed over the waves of each group as in `sketch`,
-    /// without what the later waves carried ([`Waves::carry_factor`]).
-    raw: Vec<Row>,
+    /// Per patch with a row, the run's differences projected over the source patches:
+    /// sample `k` is `sum_w sum_i s_ik d_wij` ([`Waves::kappa_by_sources`]), `s_ik = ±1` the
+    /// signs of source `i` ([`source_signs`]).
+    projected: Rows,
+    /// Per patch with a row, the differences `d_w` summed over the waves of each group as in
+    /// `sketch`, without what the later waves carried ([`Waves::carry_factor`]).
+    raw: Rows,
 }
+
+/// Rows in blocks of [`ROW_BLOCK`], each made whole and never moved: the store grows without
+/// copies, and so without the freed copies a growing array leaves in the allocator's heap
+/// (grown an eighth at a time, four arrays of rows held 350 MB more at the peak of a 1M
+/// run of 2e7 rays than the arrays they replaced).
+#[derive(Debug, Clone, Default)]
+struct Rows {
+    blocks: Vec<Vec<Row>>,
+}
+
+/// Rows in a block of [`Rows`] (384 KiB).
+const ROW_BLOCK: usize = 4096;
+
+impl Rows {
+    /// The number of rows.
+    fn len(&self) -> usize {
+        self.blocks
+            .last()
+            .map_or(0, |b| (self.blocks.len() - 1) * ROW_BLOCK + b.len())
+    }
+
+    /// Appends a row of zeros.
+    fn push_zero(&mut self) {
+        match self.blocks.last_mut() {
+            Some(block) if block.len() < ROW_BLOCK => block.push(ZERO_ROW),
+            _ => {
+                let mut block = Vec::with_capacity(ROW_BLOCK);
+                block.push(ZERO_ROW);
+                self.blocks.push(block);
+            }
+        }
+    }
+
+    /// Row `i` (`i < len`).
+    #[inline]
+    fn get(&self, i: usize) -> &Row {
+        &self.blocks[i / ROW_BLOCK][i % ROW_BLOCK]
+    }
+
+    /// Row `i` (`i < len`), to change.
+    #[inline]
+    fn get_mut(&mut self, i: usize) -> &mut Row {
+        &mut self.blocks[i / ROW_BLOCK][i % ROW_BLOCK]
+    }
+}
+
+/// The row of entry `slot` of `rows` (all zero for [`NO_SLOT`]).
+#[inline]
+fn row_at(rows: &Rows, slot: u32) -> &Row {
+    match slot {
+        NO_SLOT => &ZERO_ROW,
+        s => rows.get(s as usize),
+    }
+}
+
+/// No entry: a patch without a deposit, or without carried error, in this wave ([`Waves`]).
+const NO_SLOT: u32 = u32::MAX;
 
 /// The signs `s_ik = ±1` of source patch `i` in the [`SKETCHES`] projections of
 /// [`Waves::kappa_by_sources`], per channel (flat as a [`Row`]): a fixed hash of `i`, so the
@@ -271,21 +339,22 @@ impl Waves {
         let faces = face.iter().map(|&f| f as usize + 1).max().unwrap_or(0);
         Waves {
             face,
-            face_wave: vec![DVec3::ZERO; faces],
-            face_touched: Vec::new(),
+            face_slot: vec![NO_SLOT; faces],
+            face_wave: Vec::new(),
             face_differences: vec![0.0; faces],
-            projected: vec![ZERO_ROW; patches],
-            raw: vec![ZERO_ROW; patches],
-            wave: vec![Halves::default(); patches],
+            row: vec![NO_SLOT; patches],
+            projected: Rows::default(),
+            raw: Rows::default(),
+            slot: vec![NO_SLOT; patches],
+            wave: Vec::new(),
             total: vec![Halves::default(); patches],
-            wave_squares: vec![0.0; patches],
-            touched: Vec::new(),
             differences: vec![0.0; patches],
             model: vec![(0.0, 0.0); patches],
-            sketch: vec![ZERO_ROW; patches],
+            sketch: Rows::default(),
             closed: 0,
-            pending: vec![ZERO_ROW; patches],
-            per_ray: vec![None; patches],
+            pending: Rows::default(),
+            carrier: vec![NO_SLOT; patches],
+            carried: Vec::new(),
         }
     }
 
@@ -293,18 +362,21 @@ impl Waves {
     /// its samples and is spread over them (a patch casting none keeps it, as it keeps its
     /// unshot power).
     pub fn begin_wave(&mut self, counts: &[u64]) {
-        for (((sketch, pending), per_ray), &n) in self
-            .sketch
-            .iter_mut()
-            .zip(&mut self.pending)
-            .zip(&mut self.per_ray)
-            .zip(counts)
-        {
-            *per_ray = None;
+        self.carried.clear();
+        for ((carrier, &row), &n) in self.carrier.iter_mut().zip(&self.row).zip(counts) {
+            *carrier = NO_SLOT;
+            if row == NO_SLOT {
+                continue;
+            }
+            let (sketch, pending) = (
+                self.sketch.get_mut(row as usize),
+                self.pending.get_mut(row as usize),
+            );
             if n > 0 && *pending != ZERO_ROW {
                 let share = 1.0 / n as f32;
                 add_row(sketch, pending);
-                *per_ray = Some(pending.map(|z| z * share));
+                *carrier = self.carried.len() as u32;
+                self.carried.push(pending.map(|z| z * share));
                 *pending = ZERO_ROW;
             }
         }
@@ -313,7 +385,10 @@ impl Waves {
     /// The error power each ray of patch `i` carries in this wave (`None`: none).
     #[inline]
     pub fn per_ray(&self, i: usize) -> Option<Row> {
-        self.per_ray[i]
+        match self.carrier[i] {
+            NO_SLOT => None,
+            s => Some(self.carried[s as usize]),
+        }
     }
 
     /// A ray carrying error power `q` ([`Waves::per_ray`]) kept a share `rho` (per channel) of
@@ -321,7 +396,8 @@ impl Waves {
     /// (and its samples when `j` next shoots or the run ends).
     #[inline]
     pub fn carry(&mut self, q: &Row, j: usize, rho: Vec3) {
-        add_row_scaled(&mut self.pending[j], q, rho);
+        let r = self.row_of(j);
+        add_row_scaled(self.pending.get_mut(r), q, rho);
     }
 
     /// Adds a deposit `x` (W per channel) of replicate `r` on patch `j`, `scale` the factor
@@ -333,49 +409,92 @@ impl Waves {
     /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
-        if self.wave_squares[j] == 0.0 {
-            self.touched.push(j as u32);
-        }
-        self.wave[j].push(r, x * scale.unwrap_or(1.0));
+        let entry = match self.slot[j] {
+            NO_SLOT => {
+                self.slot[j] = self.wave.len() as u32;
+                self.wave.push((j as u32, Halves::default(), 0.0));
+                self.wave.last_mut()
+            }
+            s => self.wave.get_mut(s as usize),
+        };
+        let Some((_, halves, squares)) = entry else {
+            return;
+        };
+        halves.push(r, x * scale.unwrap_or(1.0));
+        *squares += x.length_squared();
         // The difference as the run's totals take it (a lone ray's value too).
         let y = x * scale.unwrap_or(1.0);
         let y = if r == 0 { y } else { -y };
         let y = [y.x as f32, y.y as f32, y.z as f32];
-        for ((a, s), k) in self.projected[j].iter_mut().zip(signs).zip(0..) {
+        let row = self.row_of(j);
+        for ((a, s), k) in self.projected.get_mut(row).iter_mut().zip(signs).zip(0..) {
             *a += *s * y[k % 3];
         }
         if let Some(s) = scale {
             // This wave's difference of the scaled replicates joins its group's pending error
             // power at once: the wave's rays are shot, and the group is the wave's.
             let d = if r == 0 { x * s } else { -x * s };
-            add_sample(&mut self.pending[j], self.closed % SKETCHES, d);
-            add_sample(&mut self.raw[j], self.closed % SKETCHES, d);
+            add_sample(self.pending.get_mut(row), self.closed % SKETCHES, d);
+            add_sample(self.raw.get_mut(row), self.closed % SKETCHES, d);
         }
-        self.wave_squares[j] += x.length_squared();
+    }
+
+    /// The entry of patch `j` in the rows, made (all zero) at its first deposit.
+    fn row_of(&mut self, j: usize) -> usize {
+        if self.row[j] == NO_SLOT {
+            let len = self.sketch.len();
+            for rows in [
+                &mut self.sketch,
+                &mut self.pending,
+                &mut self.projected,
+                &mut self.raw,
+            ] {
+                rows.push_zero();
+            }
+            self.row[j] = len as u32;
+        }
+        self.row[j] as usize
     }
 
     /// Closes a wave: its differences join the sums.
     pub fn end_wave(&mut self) {
         self.closed += 1;
-        for j in self.touched.drain(..) {
+        for (j, wave, v) in self.wave.drain(..) {
             let j = j as usize;
-            let v = self.wave_squares[j];
-            self.differences[j] += self.wave[j].variance_of_sum();
+            self.slot[j] = NO_SLOT;
+            self.differences[j] += wave.variance_of_sum();
             self.model[j].0 += v;
             self.model[j].1 += v * v;
-            self.total[j] = self.total[j].merge(self.wave[j]);
+            self.total[j] = self.total[j].merge(wave);
             let f = self.face[j] as usize;
-            if self.face_wave[f] == DVec3::ZERO {
-                self.face_touched.push(f as u32);
+            let s = match self.face_slot[f] {
+                NO_SLOT => {
+                    self.face_slot[f] = self.face_wave.len() as u32;
+                    self.face_wave.push((f as u32, DVec3::ZERO));
+                    self.face_wave.len() - 1
+                }
+                s => s as usize,
+            };
+            if let Some((_, d)) = self.face_wave.get_mut(s) {
+                *d += wave.sum[0] - wave.sum[1];
             }
-            self.face_wave[f] += self.wave[j].sum[0] - self.wave[j].sum[1];
-            self.wave[j] = Halves::default();
-            self.wave_squares[j] = 0.0;
         }
-        for f in self.face_touched.drain(..) {
-            let d = std::mem::take(&mut self.face_wave[f as usize]);
+        for (f, d) in self.face_wave.drain(..) {
+            self.face_slot[f as usize] = NO_SLOT;
             self.face_differences[f as usize] += d.length_squared();
         }
+    }
+
+    /// Ends the run (after the last [`Waves::end_wave`]): frees what only the waves need
+    /// (the per-wave sums, the carried error power, the per-face sums of a wave), before the
+    /// gains and the samples are measured, the run's peak of memory.
+    pub fn end_run(&mut self) {
+        for v in [&mut self.slot, &mut self.carrier, &mut self.face_slot] {
+            *v = Vec::new();
+        }
+        self.wave = Vec::new();
+        self.carried = Vec::new();
+        self.face_wave = Vec::new();
     }
 
     /// How much less of the per-wave variance a face's total keeps than a patch's: `kappa_F /
@@ -434,11 +553,11 @@ impl Waves {
     /// towards the formula ([`Toward::Alike`]): with tens of degrees of freedom a face
     /// measures gains of a few percent (a furnace of one patch per face) that the formula's
     /// pull would multiply.
-    pub fn gains(&self, face: impl IntoIterator<Item = u32>) -> Vec<f64> {
+    pub fn gains(&self, face: impl Iterator<Item = u32> + Clone) -> Vec<f64> {
         // The run's share of the per-wave variance, measured over (source, receiver) pairs, and
         // what the later waves' carrying makes of the error.
         let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
-        let measures = face.into_iter().enumerate().map(|(j, face)| {
+        let measures = face.enumerate().map(move |(j, face)| {
             let (v, v2) = self.model[j];
             let total = self.total[j].sum[0] + self.total[j].sum[1];
             Measure {
@@ -475,7 +594,8 @@ impl Waves {
     /// row of [`SKETCHES`] × 3 adds per deposit.
     fn kappa_by_sources(&self) -> f64 {
         let (mut d, mut w) = (0.0, 0.0);
-        for (j, row) in self.projected.iter().enumerate() {
+        for (j, &slot) in self.row.iter().enumerate() {
+            let row = row_at(&self.projected, slot);
             if self.model[j].0 > 0.0 {
                 d += (0..SKETCHES)
                     .map(|g| sample(row, g).length_squared())
@@ -492,7 +612,12 @@ impl Waves {
     /// ([`Waves::sketch`]) and `u_gj` without. 1 before anything was measured.
     fn carry_factor(&self) -> f64 {
         let (mut z, mut u) = (0.0, 0.0);
-        for ((row, pending), raw) in self.sketch.iter().zip(&self.pending).zip(&self.raw) {
+        for &slot in &self.row {
+            let (row, pending, raw) = (
+                row_at(&self.sketch, slot),
+                row_at(&self.pending, slot),
+                row_at(&self.raw, slot),
+            );
             for g in 0..SKETCHES {
                 z += (sample(row, g) + sample(pending, g)).length_squared();
                 u += sample(raw, g).length_squared();
@@ -515,22 +640,29 @@ impl Waves {
     /// `sum_g (sum_j c_j z_gj)²` with up to [`SKETCHES`] degrees of freedom. A gather from
     /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
     /// Also returns the samples of the error power still unshot, summed over the patches.
-    pub fn sketch(&self) -> (Vec<Row>, [DVec3; SKETCHES]) {
+    pub fn sketch(self) -> (Vec<Row>, [DVec3; SKETCHES]) {
         let k = self.kappa_by_sources().sqrt();
-        let mut pending = [DVec3::ZERO; SKETCHES];
-        for row in &self.pending {
-            for (g, p) in pending.iter_mut().enumerate() {
+        // What the samples need, the rest goes first.
+        let (slots, sketch, pending) = {
+            let waves = self;
+            (waves.row, waves.sketch, waves.pending)
+        };
+        let mut sums = [DVec3::ZERO; SKETCHES];
+        for &slot in &slots {
+            let row = row_at(&pending, slot);
+            for (g, p) in sums.iter_mut().enumerate() {
                 *p += sample(row, g) * k;
             }
         }
         let k = k as f32;
-        let rows = self
-            .sketch
+        let rows = slots
             .iter()
-            .zip(&self.pending)
-            .map(|(row, pending)| std::array::from_fn(|x| (row[x] + pending[x]) * k))
+            .map(|&slot| {
+                let (row, pending) = (row_at(&sketch, slot), row_at(&pending, slot));
+                std::array::from_fn(|x| (row[x] + pending[x]) * k)
+            })
             .collect();
-        (rows, pending)
+        (rows, sums)
     }
 }
 
@@ -564,13 +696,23 @@ fn deposit_class(deposits: f64) -> usize {
 }
 
 /// Each item's gain `g_f` ([module](self)), in the order of `items`.
-pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) -> Vec<f64> {
-    let items: Vec<Measure> = items.into_iter().collect();
-    let n_faces = items.iter().map(|m| m.face as usize + 1).max().unwrap_or(0);
+/// The measures are read three times over (`items` is cloned), not collected: 48 bytes an
+/// item less at shooting's peak of memory.
+pub(crate) fn gains<I>(items: I, toward: Toward) -> Vec<f64>
+where
+    I: IntoIterator<Item = Measure>,
+    I::IntoIter: Clone,
+{
+    let items = items.into_iter();
+    let n_faces = items
+        .clone()
+        .map(|m| m.face as usize + 1)
+        .max()
+        .unwrap_or(0);
     let (mut q, mut v, mut dof) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0.0; n_faces]);
     // per face: deposits summed over its measured patches, and their count
     let (mut deposits, mut count) = (vec![0.0; n_faces], vec![0u32; n_faces]);
-    for m in &items {
+    for m in items.clone() {
         if let Some(r) = m.replicate {
             let f = m.face as usize;
             q[f] += r;
@@ -615,7 +757,7 @@ pub(crate) fn gains(items: impl IntoIterator<Item = Measure>, toward: Toward) ->
             (q[f] + prior * target) / (v[f] + prior)
         })
         .collect();
-    items.iter().map(|m| face_gain[m.face as usize]).collect()
+    items.map(|m| face_gain[m.face as usize]).collect()
 }
 
 /// `v * gain` per patch: the variances scaled by their gains.
@@ -628,6 +770,78 @@ pub(crate) fn scale(variance: &mut [DVec3], gains: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bytes `v` holds on the heap.
+    fn b<T>(v: &Vec<T>) -> usize {
+        v.capacity() * size_of::<T>()
+    }
+
+    /// The bytes `r` holds on the heap.
+    fn rows_bytes(r: &Rows) -> usize {
+        b(&r.blocks) + r.blocks.iter().map(b).sum::<usize>()
+    }
+
+    /// The bytes `w` holds on the heap (its arrays' capacities).
+    fn heap_bytes(w: &Waves) -> usize {
+        let rows = rows_bytes;
+        b(&w.slot)
+            + b(&w.row)
+            + b(&w.wave)
+            + b(&w.total)
+            + b(&w.differences)
+            + b(&w.model)
+            + rows(&w.sketch)
+            + rows(&w.pending)
+            + b(&w.carrier)
+            + b(&w.carried)
+            + b(&w.face)
+            + b(&w.face_slot)
+            + b(&w.face_wave)
+            + b(&w.face_differences)
+            + rows(&w.projected)
+            + rows(&w.raw)
+    }
+
+    #[test]
+    fn waves_hold_100_bytes_a_patch_and_rows_where_deposits_land() {
+        // Memory per element (issue 35): the run's sums are dense (88 bytes a patch, 12 a
+        // face), the error samples' rows (384) made at a patch's first deposit, a wave's sums
+        // sparse.
+        let n = 5000;
+        let mut w = Waves::new((0..n as u32).collect());
+        assert_eq!(heap_bytes(&w), 100 * n);
+        let signs = source_signs(0);
+        let x = DVec3::new(1.0, 2.0, 3.0);
+        let mut counts = vec![0u64; n];
+        counts[0] = 4;
+        w.begin_wave(&counts);
+        // A zero deposit first, then one of each replicate, on patch 7.
+        w.push(7, 0, DVec3::ZERO, Some(1.0), &signs);
+        w.push(7, 0, x, Some(1.0), &signs);
+        w.push(7, 1, 0.5 * x, Some(1.0), &signs);
+        w.end_wave();
+        let (d, v) = ((0.5 * x).length_squared(), 1.25 * x.length_squared());
+        assert_eq!(w.differences[7], d);
+        assert_eq!(w.model[7], (v, v * v));
+        assert_eq!(w.face_differences[7], d);
+        assert_eq!(w.differences.iter().sum::<f64>(), d);
+        // The next wave starts from nothing.
+        w.begin_wave(&counts);
+        w.push(7, 1, x, Some(1.0), &signs);
+        w.end_wave();
+        assert_eq!(w.differences[7], d + x.length_squared());
+        assert_eq!(w.total[7].sum, [x, 1.5 * x]);
+        assert_eq!(w.face_differences[7], d + x.length_squared());
+        // One patch with rows: one block of each.
+        assert_eq!(w.row.iter().filter(|&&r| r != NO_SLOT).count(), 1);
+        let rows = [&w.sketch, &w.pending, &w.projected, &w.raw];
+        let row_bytes: usize = rows.iter().map(|r| rows_bytes(r)).sum();
+        assert!(rows.iter().all(|r| r.len() == 1 && r.blocks.len() == 1));
+        // (a block's rows, and the list of blocks: room for 4)
+        assert!(row_bytes <= 4 * (size_of::<Row>() * ROW_BLOCK + 4 * size_of::<Vec<Row>>()));
+        w.end_run();
+        assert_eq!(heap_bytes(&w), 88 * n + row_bytes);
+    }
 
     #[test]
     fn halves_measure_the_variance_of_a_mean_and_of_a_sum() {

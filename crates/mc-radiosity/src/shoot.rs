@@ -267,6 +267,9 @@ struct Job {
     chunk: u32,
     rays: u32,
     first: u64,
+    /// The power of each of its rays (W per channel): the patch's unshot power over its rays
+    /// in the wave (held per job, not per patch).
+    power: DVec3,
 }
 
 #[inline]
@@ -344,7 +347,6 @@ pub fn shoot<C: RayCaster>(
         extrapolated: DVec3::ZERO,
         stop: StopReason::BudgetSpent,
     };
-    let mut per_ray = vec![DVec3::ZERO; patches.len()];
     let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
@@ -396,25 +398,17 @@ pub fn shoot<C: RayCaster>(
             stats.finishing_rays += counts.iter().sum::<u64>();
             counts
         };
-        let jobs = wave_jobs(&counts, &cast);
-        // Each replicate's deposits scaled to the whole wave: a patch casting an odd number
-        // of rays gives one replicate a ray more, a difference of mean `rho p` on the patches
-        // its rays reach that is no error (crate::replicates, `Waves::push`).
-        let halves: Vec<Option<[f64; 2]>> = counts
-            .iter()
-            .zip(&cast)
-            .map(|(&n, &a)| replicate_scale(a, n))
-            .collect();
-        for (c, n) in cast.iter_mut().zip(&counts) {
-            *c += n;
-        }
+        let mut jobs = wave_jobs(&counts, &cast);
         if let Some(waves) = waves.as_mut() {
             waves.begin_wave(&counts);
         }
-        for (i, &n) in counts.iter().enumerate() {
+        for job in &mut jobs {
+            let i = job.patch as usize;
+            job.power = unshot[i] / counts[i] as f64;
+        }
+        for (u, &n) in unshot.iter_mut().zip(&counts) {
             if n > 0 {
-                per_ray[i] = unshot[i] / n as f64;
-                unshot[i] = DVec3::ZERO;
+                *u = DVec3::ZERO;
             }
         }
         for batch in batches(&jobs) {
@@ -430,8 +424,13 @@ pub fn shoot<C: RayCaster>(
             ctx.check_cancelled()?;
             // Fold in job order: the sums do not depend on the thread count.
             for (job, hits) in batch.iter().zip(&hits) {
-                let p = per_ray[job.patch as usize];
-                let scale = halves[job.patch as usize];
+                let p = job.power;
+                // Each replicate's deposits scaled to the whole wave: a patch casting an odd
+                // number of rays gives one replicate a ray more, a difference of mean `rho p`
+                // on the patches its rays reach that is no error (crate::replicates,
+                // `Waves::push`). Made per job, not held per patch.
+                let i = job.patch as usize;
+                let scale = replicate_scale(cast[i], counts[i]);
                 // The error power this job's rays carry, if any.
                 let carried = waves.as_ref().and_then(|w| w.per_ray(job.patch as usize));
                 let signs = crate::replicates::source_signs(job.patch as usize);
@@ -473,6 +472,9 @@ pub fn shoot<C: RayCaster>(
                 stats.rays += hits.len() as u64;
             }
         }
+        for (c, n) in cast.iter_mut().zip(&counts) {
+            *c += n;
+        }
         stats.waves += 1;
         if let Some(waves) = waves.as_mut() {
             waves.end_wave();
@@ -495,8 +497,10 @@ pub fn shoot<C: RayCaster>(
     }
     stats.unshot = unshot.iter().sum();
     // What the waves needed goes before the replicates' gains are measured (the run's peak).
-    drop(per_ray);
     drop(cast);
+    if let Some(waves) = waves.as_mut() {
+        waves.end_run();
+    }
     if let Some(waves) = waves.as_ref().filter(|_| ctx.sampling() == Sampler::Qmc) {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure, wave by wave (crate::replicates).
@@ -744,6 +748,7 @@ fn wave_jobs(counts: &[u64], cast: &[u64]) -> Vec<Job> {
                 chunk: chunk as u32,
                 rays,
                 first: before + chunk * JOB_RAYS,
+                power: DVec3::ZERO,
             });
         }
     }

@@ -113,8 +113,15 @@ pub struct Patch {
     pub back: bool,
     first_corner: u32,
     corner_count: u32,
+    /// Its triangles are a fan over its corners: `corner_count - 2` of them from here.
     first_triangle: u32,
-    triangle_count: u32,
+}
+
+impl Patch {
+    /// The number of its triangles: a fan over its corners.
+    fn triangle_count(&self) -> usize {
+        (self.corner_count as usize).saturating_sub(2)
+    }
 }
 
 /// The radiosity mesh. Invariants (see [`Mesh::validate`]): every patch has >= 3 corners and >= 1
@@ -426,7 +433,6 @@ impl Mesh {
             first_corner,
             corner_count: corners.len() as u32,
             first_triangle,
-            triangle_count: (corners.len() - 2) as u32,
         });
     }
 
@@ -522,7 +528,7 @@ impl Mesh {
     /// The triangles of `patch` (a fan over its corners).
     pub fn patch_triangles(&self, patch: &Patch) -> &[[u32; 3]] {
         let s = patch.first_triangle as usize;
-        &self.triangles[s..s + patch.triangle_count as usize]
+        &self.triangles[s..s + patch.triangle_count()]
     }
 
     /// The index in [`Mesh::triangles`] of the first triangle of `patch` (its triangles are
@@ -563,7 +569,7 @@ impl Mesh {
     /// Checks the invariants; returns a description of the first violation.
     pub fn validate(&self) -> Result<(), String> {
         for (i, p) in self.patches.iter().enumerate() {
-            if p.corner_count < 3 || p.triangle_count < 1 {
+            if p.corner_count < 3 {
                 return Err(format!("patch {i} has {} corners", p.corner_count));
             }
             if !(p.area.is_finite() && p.area > 0.0) {
@@ -572,8 +578,9 @@ impl Mesh {
             if (p.normal.length() - 1.0).abs() > 1e-4 {
                 return Err(format!("patch {i} has normal {}", p.normal));
             }
-            if self.patch_triangles(p).len() != p.triangle_count as usize
-                || self.triangle_patch[p.first_triangle as usize] != i as u32
+            let s = p.first_triangle as usize;
+            if s + p.triangle_count() > self.triangles.len()
+                || self.triangle_patch.get(s) != Some(&(i as u32))
             {
                 return Err(format!("patch {i} triangles are not its own"));
             }

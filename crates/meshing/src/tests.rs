@@ -218,3 +218,11 @@ fn a_patch_limit_refuses_before_cutting_a_face_that_alone_exceeds_it() {
         MeshError::PatchLimit { limit: 1 }
     );
 }
+
+#[test]
+fn a_patch_takes_80_bytes() {
+    // Every element of a solve holds one (issue 35, memory per element): area, four vectors,
+    // face and material, its side, its corners and its first triangle (their count follows
+    // from its corners').
+    assert_eq!(size_of::<crate::Patch>(), 80);
+}

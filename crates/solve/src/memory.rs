@@ -9,8 +9,10 @@ use mcrad_scene_io::Scene;
 /// Bytes per element (patch) at a solve's peak, all it holds per element together: the patch
 /// and its triangles, the BVH, the sampler, the method's per-patch state (shooting's sums and
 /// replicates, gathering's, the estimates of the steps and the refinement) and the
-/// allocator's slack. Measured peaks are 640 to 950 bytes per element on the generated atrium
-/// and the uniform Cornell box at 10^5 to 10^6 elements (docs/memory.md): this bounds them.
+/// allocator's slack. Measured peak RSS on the generated atrium at 2e6 rays (docs/atrium.md,
+/// "Memory and scale"): 638 bytes per element at 10^6 elements, 524 at 10^7, which this
+/// bounds. The error samples grow with the rays (up to 384 bytes a patch in shooting, more in
+/// the gathering): at 20 rays per element the 10^6-element atrium peaked at 1,744, over it.
 pub const BYTES_PER_ELEMENT: u64 = 1_100;
 
 /// Bytes of a process before its scene: code, thread stacks, the allocator's arenas.
