@@ -523,6 +523,32 @@ impl Task for Closest<'_> {
     }
 }
 
+impl CanonicalSegment {
+    /// The query of this segment, the node ray its traversal follows and that ray's start
+    /// `shift` behind the origin (canonical units): as in `Closest`, the traversal starts
+    /// behind the origin so that the boxes of crossings in the window around it are entered
+    /// whatever the rounding, and a blocker reports `shift` (below the node ray's `tmax`).
+    #[inline(always)]
+    fn traversal(&self) -> (Query, NodeRay, f32) {
+        let CanonicalSegment {
+            origin,
+            dir,
+            len,
+            window_start,
+            window_end,
+        } = *self;
+        let q = Query::new(origin, dir, len, window_start, window_end);
+        let shift = 2.0 * window_start;
+        let r = NodeRay::new(
+            origin - dir * shift,
+            dir,
+            0.0,
+            len + window_end + 2.0 * shift,
+        );
+        (q, r, shift)
+    }
+}
+
 /// Whether a triangle with neither id `ia` nor `ib` blocks the canonical segment `segment`.
 struct Blocked<'a> {
     segment: &'a CanonicalSegment,
@@ -538,22 +564,7 @@ impl Task for Blocked<'_> {
 
     #[inline(always)]
     fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
-        let CanonicalSegment {
-            origin,
-            dir,
-            len,
-            window_start,
-            window_end,
-        } = *self.segment;
-        let q = Query::new(origin, dir, len, window_start, window_end);
-        // as in `Closest`: start behind the origin; any blocker reports `shift` (< tmax)
-        let shift = 2.0 * window_start;
-        let r = NodeRay::new(
-            origin - dir * shift,
-            dir,
-            0.0,
-            len + window_end + 2.0 * shift,
-        );
+        let (q, r, shift) = self.segment.traversal();
         let Wide { nodes, packets, .. } = &bvh.wide;
         let mut leaves = Leaves {
             packets,
@@ -886,21 +897,7 @@ mod tests {
         type Out = bool;
 
         fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
-            let CanonicalSegment {
-                origin,
-                dir,
-                len,
-                window_start,
-                window_end,
-            } = *self.segment;
-            let q = Query::new(origin, dir, len, window_start, window_end);
-            let shift = 2.0 * window_start;
-            let r = NodeRay::new(
-                origin - dir * shift,
-                dir,
-                0.0,
-                len + window_end + 2.0 * shift,
-            );
+            let (q, r, shift) = self.segment.traversal();
             let Wide { nodes, packets, .. } = &bvh.wide;
             let mut blockers = Blockers(Leaves {
                 packets,
