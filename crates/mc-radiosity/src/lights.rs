@@ -917,6 +917,15 @@ mod tests {
         Mesh::build(&scene, subdivision).unwrap()
     }
 
+    /// `rho_i H_i` per patch (W/m²): the light the patches reflect of irradiance `H`.
+    fn reflected(mesh: &Mesh, irradiance: &[DVec3]) -> Vec<DVec3> {
+        irradiance
+            .iter()
+            .zip(mesh.patches())
+            .map(|(h, p)| *h * p.reflectance.as_dvec3())
+            .collect()
+    }
+
     /// Over `seeds` seeds of the pass (`rays` asked), against the reference's direct light
     /// `exact` (`rho H`), on the patches `judged`: the mean `z²` of the entries (patch,
     /// channel) with a reported variance, and how many entries reported a variance of 0 with
@@ -995,12 +1004,7 @@ mod tests {
         );
         let bvh = mesh.caster().unwrap();
         let reference = mcrad_reference::sky_irradiance(&mesh, &bvh, &sky);
-        let exact: Vec<DVec3> = reference
-            .irradiance
-            .iter()
-            .zip(mesh.patches())
-            .map(|(h, p)| *h * p.reflectance.as_dvec3())
-            .collect();
+        let exact = reflected(&mesh, &reference.irradiance);
         let floor: Vec<usize> = (0..mesh.patches().len())
             .filter(|&i| mesh.patches()[i].face == 0)
             .collect();
@@ -1040,12 +1044,7 @@ mod tests {
         let mesh = rect_scene(&rects, vec![sun.clone()], None, Subdivision::MaxEdge(0.25));
         let bvh = mesh.caster().unwrap();
         let reference = mcrad_reference::direct_irradiance(&mesh, &bvh, std::slice::from_ref(&sun));
-        let exact: Vec<DVec3> = reference
-            .irradiance
-            .iter()
-            .zip(mesh.patches())
-            .map(|(h, p)| *h * p.reflectance.as_dvec3())
-            .collect();
+        let exact = reflected(&mesh, &reference.irradiance);
         // the patches the edge crosses
         let crossed: Vec<usize> = (0..mesh.patches().len())
             .filter(|&i| mesh.patches()[i].face == 0 && exact[i].x > 1.0 && exact[i].x < 49.0)

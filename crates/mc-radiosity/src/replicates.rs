@@ -409,17 +409,11 @@ impl Waves {
     /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
-        let entry = match self.slot[j] {
-            NO_SLOT => {
-                self.slot[j] = self.wave.len() as u32;
-                self.wave.push((j as u32, Halves::default(), 0.0));
-                self.wave.last_mut()
-            }
-            s => self.wave.get_mut(s as usize),
-        };
-        let Some((_, halves, squares)) = entry else {
-            return;
-        };
+        if self.slot[j] == NO_SLOT {
+            self.slot[j] = self.wave.len() as u32;
+            self.wave.push((j as u32, Halves::default(), 0.0));
+        }
+        let (_, halves, squares) = &mut self.wave[self.slot[j] as usize];
         halves.push(r, x * scale.unwrap_or(1.0));
         *squares += x.length_squared();
         // The difference as the run's totals take it (a lone ray's value too).
