@@ -49,7 +49,7 @@ use crate::context::{Context, Sampler};
 use crate::control::Control;
 use crate::direct::CosineLight;
 use crate::error::Error;
-use crate::jobs::{PATCH_GATHER, Seen, VERTEX_GATHER, jobs, look, look_with, run};
+use crate::jobs::{PATCH_GATHER, Seen, Tally, VERTEX_GATHER, fold, look, look_with};
 use crate::method::StopReason;
 use crate::replicates::{self, Measure};
 use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
@@ -342,12 +342,18 @@ fn round_parts<C: RayCaster>(
         return Err(Error::TooFewRays(rays_per_patch));
     }
     let patches = mesh.patches();
+    // Without the control variate, none: every patch's is the default (no control).
     let controls = match ctx.coverage() {
         Some(coverage) => coverage.controls(patches.len(), rays_per_patch),
-        None => vec![Control::default(); patches.len()],
+        None => Vec::new(),
     };
-    let jobs = jobs(patches.len(), rays_per_patch);
-    let seen = run(patches.len(), &jobs, |job| {
+    let control = |i: usize| controls.get(i).copied().unwrap_or_default();
+    // Per patch what the gathering reads of its rays, and the image of the input's error
+    // samples, taken as the jobs come.
+    let mut seen: Vec<Tally> = Vec::with_capacity(patches.len());
+    let mut image: Vec<crate::replicates::Row> =
+        Vec::with_capacity(if sketch.is_some() { patches.len() } else { 0 });
+    let gathered = |job: &crate::jobs::Job| {
         if ctx.cancelled() {
             return Seen::default();
         }
@@ -358,7 +364,7 @@ fn round_parts<C: RayCaster>(
             job.chunk,
         );
         let ray = || rays.ray(sampler, job.item as usize);
-        let beta = controls[job.item as usize].beta;
+        let beta = control(job.item as usize).beta;
         let inherit = input_variance.map(|v| (v, patches));
         match light {
             None if sketch.is_none() => look(job.rays, caster, input, inherit, beta, ray),
@@ -383,12 +389,19 @@ fn round_parts<C: RayCaster>(
                 |r, h| light.share(job.item as usize, r, h),
             ),
         }
+    };
+    fold(patches.len(), rays_per_patch, gathered, |i, s| {
+        if sketch.is_some() {
+            let rho = patches[i].reflectance / s.moments.n.max(1) as f32;
+            image.push(crate::replicates::scaled(&s.sketch, rho));
+        }
+        seen.push(Tally::from(&s));
     });
     ctx.check_cancelled()?;
     if let Some(coverage) = ctx.coverage() {
         coverage.learn(seen.iter().zip(&controls).map(|(s, c)| {
             let n = s.moments.n;
-            let hits = n - s.escaped - s.back_faces;
+            let hits = n - u64::from(s.escaped) - u64::from(s.back_faces);
             // The mean of `x` over the hits: the rays' mean of `h (x - beta)` times `n / hits`,
             // plus `beta`.
             let hit_mean = if hits > 0 {
@@ -402,10 +415,10 @@ fn round_parts<C: RayCaster>(
     let inherited = patches
         .iter()
         .zip(&seen)
-        .zip(&controls)
-        .map(|((p, s), c)| {
+        .enumerate()
+        .map(|(i, (p, s))| {
             let rho = p.reflectance.as_dvec3();
-            rho * rho * (s.inherited_mean() + c.offset_variance)
+            rho * rho * (s.inherited_mean + control(i).offset_variance)
         })
         .collect();
     let mut round = finish(
@@ -415,16 +428,7 @@ fn round_parts<C: RayCaster>(
         emission,
         patches.len() as u64 * rays_per_patch as u64,
     )?;
-    if sketch.is_some() {
-        round.sketch = patches
-            .iter()
-            .zip(&seen)
-            .map(|(p, s)| {
-                let rho = p.reflectance / s.moments.n.max(1) as f32;
-                crate::replicates::scaled(&s.sketch, rho)
-            })
-            .collect();
-    }
+    round.sketch = image;
     let qmc = ctx.sampling() == Sampler::Qmc;
     round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool, qmc)?;
     Ok((round, inherited))
@@ -455,7 +459,7 @@ fn round_parts<C: RayCaster>(
 /// below their true variance (the median column of `cargo xtask calibrate`).
 fn with_face_pooled(
     mesh: &Mesh,
-    seen: &[Seen],
+    seen: &[Tally],
     estimate: Estimate,
     pool: Option<&mut EmittedPool>,
     qmc: bool,
@@ -468,7 +472,7 @@ fn with_face_pooled(
         let f = p.face as usize;
         m2[f] += s.moments.m2;
         dof[f] += s.moments.n.saturating_sub(1);
-        emitted[f] += s.emitted_m2();
+        emitted[f] += s.emitted_m2;
     }
     // Per face, the sample variance of the values seen, its emission part the run's so far.
     let mut face_variance: Vec<DVec3> = (0..faces)
@@ -481,7 +485,7 @@ fn with_face_pooled(
         })
         .collect();
     // Every ray's emission is recorded where the input's variance is known (`inherit`).
-    let tracked = seen.iter().all(|s| s.inherit_rays == s.moments.n);
+    let tracked = seen.iter().all(|s| s.tracked);
     if let Some(pool) = pool.filter(|_| tracked) {
         pool.m2.resize(faces, DVec3::ZERO);
         pool.dof.resize(faces, 0);
@@ -549,7 +553,7 @@ fn with_face_pooled(
 /// none where `controls` is shorter).
 fn finish(
     materials: impl Iterator<Item = (Vec3, Vec3)>,
-    seen: &[Seen],
+    seen: &[Tally],
     controls: &[Control],
     emission: Emission,
     rays: u64,
@@ -567,10 +571,10 @@ fn finish(
         radiosity.push(own + rho * (s.moments.mean + c.offset));
         errors.push(rho * s.halves.error_of_mean(s.moments.n));
         variance.push(
-            rho * rho * (s.moments.variance_of_mean() + s.inherited_mean() + c.offset_variance),
+            rho * rho * (s.moments.variance_of_mean() + s.inherited_mean + c.offset_variance),
         );
-        escaped_rays += s.escaped;
-        back_face_hits += s.back_faces;
+        escaped_rays += u64::from(s.escaped);
+        back_face_hits += u64::from(s.back_faces);
     }
     Ok(GatherRound {
         sketch: Vec::new(),
@@ -865,8 +869,8 @@ pub fn gather_corners<C: RayCaster>(
             Frame::from_normal(normal)
         })
         .collect();
-    let jobs = jobs(groups.len(), rays_per_vertex);
-    let seen = run(groups.len(), &jobs, |job| {
+    let mut seen: Vec<Tally> = Vec::with_capacity(groups.len());
+    let gathered = |job: &crate::jobs::Job| {
         if ctx.cancelled() {
             return Seen::default();
         }
@@ -889,6 +893,9 @@ pub fn gather_corners<C: RayCaster>(
                 exclude: NO_ID,
             }
         })
+    };
+    fold(groups.len(), rays_per_vertex, gathered, |_, s| {
+        seen.push(Tally::from(&s))
     });
     ctx.check_cancelled()?;
     let round = finish(

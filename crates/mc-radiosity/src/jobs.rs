@@ -239,34 +239,80 @@ fn disc_form_factor(ray: &Ray, hit: &Hit, patch: &Patch) -> f64 {
     patch.area * cos_i * cos_j / (std::f64::consts::PI * r2 + patch.area)
 }
 
-/// Runs `jobs` in parallel and merges each item's chunks in chunk order.
-pub(crate) fn run<F: Fn(&Job) -> Seen + Sync + Send>(
+/// Jobs [`fold`] runs at once: their results are all it holds besides the caller's (a job's
+/// [`Seen`] is about 300 bytes; a block of them, 5 MB).
+const BLOCK_JOBS: usize = 1 << 14;
+
+/// Runs the [`jobs`] of `items` items with `per_item` rays each, in parallel, a block of
+/// about [`BLOCK_JOBS`] jobs at a time, and hands each item's chunks, merged in chunk order,
+/// to `take` in item order, as they come: nothing is held per job beyond a block (the
+/// gatherers keep per item only what they read, [`Tally`]). Same answer on any number of
+/// threads: the blocks and the merge order do not depend on them.
+pub(crate) fn fold<F: Fn(&Job) -> Seen + Sync + Send>(
     items: usize,
-    jobs: &[Job],
+    per_item: u32,
     f: F,
-) -> Vec<Seen> {
-    let mut seen: Vec<Seen> = jobs.par_iter().map(f).collect();
-    // Jobs item by item, every item from 0 on with a job ([`jobs`]): an item's slot is at or
-    // before its first job's, so its chunks fold into it in place, without a second vector.
-    let dense = jobs.first().is_none_or(|j| j.item == 0)
-        && jobs
-            .windows(2)
-            .all(|w| w[1].item >= w[0].item && w[1].item - w[0].item <= 1)
-        && jobs.last().is_none_or(|j| j.item as usize + 1 == items);
-    if dense {
-        for (k, job) in jobs.iter().enumerate() {
-            let item = job.item as usize;
-            let first = k == 0 || jobs[k - 1].item != job.item;
-            let acc = if first { Seen::default() } else { seen[item] };
-            seen[item] = acc.merge(seen[k]);
+    mut take: impl FnMut(usize, Seen),
+) {
+    let chunks = per_item.div_ceil(JOB_RAYS).max(1) as usize;
+    let block_items = (BLOCK_JOBS / chunks).max(1);
+    let mut first = 0;
+    while first < items {
+        let last = (first + block_items).min(items);
+        let block: Vec<Job> = jobs(last - first, per_item)
+            .into_iter()
+            .map(|j| Job {
+                item: j.item + first as u32,
+                ..j
+            })
+            .collect();
+        let seen: Vec<Seen> = block.par_iter().map(&f).collect();
+        // Jobs item by item, chunk by chunk: an item's chunks are consecutive.
+        let mut jobs = block.iter().zip(seen).peekable();
+        for item in first..last {
+            let mut acc = Seen::default();
+            while let Some((_, s)) = jobs.next_if(|(j, _)| j.item as usize == item) {
+                acc = acc.merge(s);
+            }
+            take(item, acc);
         }
-        seen.truncate(items);
-        seen.resize(items, Seen::default());
-        return seen;
+        first = last;
     }
-    let mut out = vec![Seen::default(); items];
-    for (job, s) in jobs.iter().zip(seen) {
-        out[job.item as usize] = out[job.item as usize].merge(s);
+}
+
+/// What an item's rays saw, reduced to what the gatherers read of it after the fold: a
+/// [`Seen`] without its error samples' sums (taken as they come), with the inherited and
+/// emission sums turned into [`Seen::inherited_mean`] and [`Seen::emitted_m2`]. 168 bytes
+/// where a `Seen` takes 296.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Tally {
+    /// The rays' values ([`Seen::moments`]).
+    pub moments: Moments,
+    /// Rays that hit nothing (at most the item's rays, a `u32`).
+    pub escaped: u32,
+    /// Rays whose first hit was a back face.
+    pub back_faces: u32,
+    /// Every ray recorded the inherited noise and the emission (`inherit_rays == n`).
+    pub tracked: bool,
+    /// [`Seen::inherited_mean`], (W/m²)².
+    pub inherited_mean: DVec3,
+    /// [`Seen::emitted_m2`], (W/m²)².
+    pub emitted_m2: DVec3,
+    /// [`Seen::halves`].
+    pub halves: Halves,
+}
+
+impl From<&Seen> for Tally {
+    fn from(s: &Seen) -> Tally {
+        Tally {
+            moments: s.moments,
+            // An item's counts are at most its rays, a `u32`.
+            escaped: u32::try_from(s.escaped).unwrap_or(u32::MAX),
+            back_faces: u32::try_from(s.back_faces).unwrap_or(u32::MAX),
+            tracked: s.inherit_rays == s.moments.n,
+            inherited_mean: s.inherited_mean(),
+            emitted_m2: s.emitted_m2(),
+            halves: s.halves,
+        }
     }
-    out
 }
