@@ -56,7 +56,7 @@ use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rej
 use crate::surface::Rays;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
-use mcrad_meshing::{CornerGroups, Mesh};
+use mcrad_meshing::{CornerGroups, Mesh, Patch};
 use mcrad_random::StreamKey;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
 use std::ops::ControlFlow;
@@ -348,11 +348,20 @@ fn round_parts<C: RayCaster>(
         None => Vec::new(),
     };
     let control = |i: usize| controls.get(i).copied().unwrap_or_default();
-    // Per patch what the gathering reads of its rays, and the image of the input's error
-    // samples, taken as the jobs come.
-    let mut seen: Vec<Tally> = Vec::with_capacity(patches.len());
+    // What the round keeps per patch, made as the jobs come (nothing per job): its answer,
+    // the noise it inherits, the image of the input's error samples, its input face's sums
+    // and what the face pooling reads of it ([`Own`]); with the control variate, what the
+    // coverage learns.
+    let n = patches.len();
+    let mut out = Finish::with_capacity(n);
+    let mut inherited: Vec<DVec3> = Vec::with_capacity(n);
     let mut image: Vec<crate::replicates::Row> =
-        Vec::with_capacity(if sketch.is_some() { patches.len() } else { 0 });
+        Vec::with_capacity(if sketch.is_some() { n } else { 0 });
+    let mut faces = FaceSums::new(mesh.face_count());
+    let mut own: Vec<Own> = Vec::with_capacity(n);
+    let coverage = ctx.coverage();
+    let mut learned: Vec<(u64, u64, DVec3)> =
+        Vec::with_capacity(if coverage.is_some() { n } else { 0 });
     let gathered = |job: &crate::jobs::Job| {
         if ctx.cancelled() {
             return Seen::default();
@@ -390,48 +399,92 @@ fn round_parts<C: RayCaster>(
             ),
         }
     };
-    fold(patches.len(), rays_per_patch, gathered, |i, s| {
+    fold(n, rays_per_patch, gathered, |i, s| {
+        let (p, c) = (&patches[i], control(i));
         if sketch.is_some() {
-            let rho = patches[i].reflectance / s.moments.n.max(1) as f32;
+            let rho = p.reflectance / s.moments.n.max(1) as f32;
             image.push(crate::replicates::scaled(&s.sketch, rho));
         }
-        seen.push(Tally::from(&s));
-    });
-    ctx.check_cancelled()?;
-    if let Some(coverage) = ctx.coverage() {
-        coverage.learn(seen.iter().zip(&controls).map(|(s, c)| {
-            let n = s.moments.n;
-            let hits = n - u64::from(s.escaped) - u64::from(s.back_faces);
+        let t = Tally::from(&s);
+        if coverage.is_some() {
+            let n = t.moments.n;
+            let hits = n - u64::from(t.escaped) - u64::from(t.back_faces);
             // The mean of `x` over the hits: the rays' mean of `h (x - beta)` times `n / hits`,
             // plus `beta`.
             let hit_mean = if hits > 0 {
-                c.beta + s.moments.mean * (n as f64 / hits as f64)
+                c.beta + t.moments.mean * (n as f64 / hits as f64)
             } else {
                 DVec3::ZERO
             };
-            (n, hits, hit_mean)
-        }));
+            learned.push((n, hits, hit_mean));
+        }
+        let rho = p.reflectance.as_dvec3();
+        inherited.push(rho * rho * (t.inherited_mean + c.offset_variance));
+        out.push((p.reflectance, p.emission), &t, c, emission);
+        faces.push(p.face, &t);
+        own.push(Own::of(&t));
+    });
+    ctx.check_cancelled()?;
+    if let Some(coverage) = coverage {
+        coverage.learn(learned.into_iter());
     }
-    let inherited = patches
-        .iter()
-        .zip(&seen)
-        .enumerate()
-        .map(|(i, (p, s))| {
-            let rho = p.reflectance.as_dvec3();
-            rho * rho * (s.inherited_mean + control(i).offset_variance)
-        })
-        .collect();
-    let mut round = finish(
-        patches.iter().map(|p| (p.reflectance, p.emission)),
-        &seen,
-        &controls,
-        emission,
-        patches.len() as u64 * rays_per_patch as u64,
-    )?;
+    let mut round = out.done(n as u64 * rays_per_patch as u64)?;
     round.sketch = image;
     let qmc = ctx.sampling() == Sampler::Qmc;
-    round.estimate = with_face_pooled(mesh, &seen, round.estimate, pool, qmc)?;
+    round.estimate = with_face_pooled(mesh, &own, faces, round.estimate, pool, qmc)?;
     Ok((round, inherited))
+}
+
+/// What the face pooling ([`with_face_pooled`]) reads of a patch's rays: 48 bytes where a
+/// [`Tally`] takes 168.
+#[derive(Debug, Clone, Copy)]
+struct Own {
+    /// Rays cast.
+    n: u64,
+    /// The rays' own variance of their mean, [`Moments::variance_of_mean`](crate::jobs::Moments), (W/m²)².
+    own: DVec3,
+    /// The replicates' estimate of it ([`Halves::variance_of_mean`](crate::replicates::Halves)).
+    replicate: Option<f64>,
+}
+
+impl Own {
+    fn of(t: &Tally) -> Own {
+        Own {
+            n: t.moments.n,
+            own: t.moments.variance_of_mean(),
+            replicate: t.halves.variance_of_mean(t.moments.n),
+        }
+    }
+}
+
+/// Per input face the sums [`with_face_pooled`] pools: the patches' sums of squared
+/// deviations ((W/m²)²), their degrees of freedom, the emission's part of them, added patch
+/// by patch in mesh order; and whether every ray recorded the emission ([`Tally::tracked`]).
+struct FaceSums {
+    m2: Vec<DVec3>,
+    dof: Vec<u64>,
+    emitted: Vec<DVec3>,
+    tracked: bool,
+}
+
+impl FaceSums {
+    fn new(faces: usize) -> FaceSums {
+        FaceSums {
+            m2: vec![DVec3::ZERO; faces],
+            dof: vec![0; faces],
+            emitted: vec![DVec3::ZERO; faces],
+            tracked: true,
+        }
+    }
+
+    /// Adds a patch of face `face`.
+    fn push(&mut self, face: u32, t: &Tally) {
+        let f = face as usize;
+        self.m2[f] += t.moments.m2;
+        self.dof[f] += t.moments.n.saturating_sub(1);
+        self.emitted[f] += t.emitted_m2;
+        self.tracked &= t.tracked;
+    }
 }
 
 /// A patch's sampling variance from all the patches of its input face:
@@ -459,21 +512,20 @@ fn round_parts<C: RayCaster>(
 /// below their true variance (the median column of `cargo xtask calibrate`).
 fn with_face_pooled(
     mesh: &Mesh,
-    seen: &[Tally],
+    own: &[Own],
+    faces: FaceSums,
     estimate: Estimate,
     pool: Option<&mut EmittedPool>,
     qmc: bool,
 ) -> Result<Estimate, Error> {
     let patches = mesh.patches();
-    let faces = mesh.face_count();
-    let (mut m2, mut dof) = (vec![DVec3::ZERO; faces], vec![0u64; faces]);
-    let mut emitted = vec![DVec3::ZERO; faces];
-    for (p, s) in patches.iter().zip(seen) {
-        let f = p.face as usize;
-        m2[f] += s.moments.m2;
-        dof[f] += s.moments.n.saturating_sub(1);
-        emitted[f] += s.emitted_m2;
-    }
+    let FaceSums {
+        m2,
+        dof,
+        emitted,
+        tracked,
+    } = faces;
+    let faces = m2.len();
     // Per face, the sample variance of the values seen, its emission part the run's so far.
     let mut face_variance: Vec<DVec3> = (0..faces)
         .map(|f| {
@@ -485,7 +537,6 @@ fn with_face_pooled(
         })
         .collect();
     // Every ray's emission is recorded where the input's variance is known (`inherit`).
-    let tracked = seen.iter().all(|s| s.tracked);
     if let Some(pool) = pool.filter(|_| tracked) {
         pool.m2.resize(faces, DVec3::ZERO);
         pool.dof.resize(faces, 0);
@@ -500,32 +551,25 @@ fn with_face_pooled(
     let Some(variance) = estimate.variance() else {
         return Ok(estimate);
     };
-    // The sampling variance each patch reports (before `rho²`): the face's, or its own.
-    let model: Vec<DVec3> = patches
-        .iter()
-        .zip(seen)
-        .map(|(p, s)| {
-            let f = p.face as usize;
-            if dof[f] <= s.moments.n.saturating_sub(1) || s.moments.n == 0 {
-                s.moments.variance_of_mean()
-            } else {
-                face_variance[f].max(DVec3::ZERO) / s.moments.n as f64
-            }
-        })
-        .collect();
+    // The sampling variance each patch reports (before `rho²`): the face's, or its own
+    // (made where read, twice, rather than held).
+    let model = |p: &Patch, o: &Own| {
+        let f = p.face as usize;
+        if dof[f] <= o.n.saturating_sub(1) || o.n == 0 {
+            o.own
+        } else {
+            face_variance[f].max(DVec3::ZERO) / o.n as f64
+        }
+    };
     let gains = if qmc {
         replicates::gains(
-            patches
-                .iter()
-                .zip(seen)
-                .zip(&model)
-                .map(|((p, s), m)| Measure {
-                    face: p.face,
-                    replicate: s.halves.variance_of_mean(s.moments.n),
-                    model: m.element_sum(),
-                    dof: 1.0,
-                    deposits: 0.0,
-                }),
+            patches.iter().zip(own).map(|(p, o)| Measure {
+                face: p.face,
+                replicate: o.replicate,
+                model: model(p, o).element_sum(),
+                dof: 1.0,
+                deposits: 0.0,
+            }),
             replicates::Toward::Formula,
         )
     } else {
@@ -533,12 +577,12 @@ fn with_face_pooled(
     };
     let variance = patches
         .iter()
-        .zip(seen)
+        .zip(own)
         .zip(variance)
-        .zip(model.iter().zip(&gains))
-        .map(|(((p, s), v), (m, g))| {
+        .zip(&gains)
+        .map(|(((p, o), v), g)| {
             let rho = p.reflectance.as_dvec3();
-            (*v + rho * rho * (*m * *g - s.moments.variance_of_mean())).max(DVec3::ZERO)
+            (*v + rho * rho * (model(p, o) * *g - o.own)).max(DVec3::ZERO)
         })
         .collect();
     Ok(Estimate::new(
@@ -558,31 +602,60 @@ fn finish(
     emission: Emission,
     rays: u64,
 ) -> Result<GatherRound, Error> {
-    let (mut radiosity, mut variance) = (Vec::with_capacity(seen.len()), Vec::new());
-    let mut errors = Vec::with_capacity(seen.len());
-    let (mut escaped_rays, mut back_face_hits) = (0, 0);
-    for (i, ((rho, e), s)) in materials.zip(seen).enumerate() {
+    let mut out = Finish::with_capacity(seen.len());
+    for (i, (m, s)) in materials.zip(seen).enumerate() {
+        out.push(m, s, controls.get(i).copied().unwrap_or_default(), emission);
+    }
+    out.done(rays)
+}
+
+/// A [`GatherRound`] made item by item ([`finish`]).
+struct Finish {
+    radiosity: Vec<DVec3>,
+    variance: Vec<DVec3>,
+    errors: Vec<DVec3>,
+    escaped_rays: u64,
+    back_face_hits: u64,
+}
+
+impl Finish {
+    fn with_capacity(n: usize) -> Finish {
+        Finish {
+            radiosity: Vec::with_capacity(n),
+            variance: Vec::with_capacity(n),
+            errors: Vec::with_capacity(n),
+            escaped_rays: 0,
+            back_face_hits: 0,
+        }
+    }
+
+    /// Adds the next item, of reflectance `rho` and emission `e`, its rays `s`, its control `c`:
+    /// `[E] + rho (mean + offset)` and `rho² (s²/n + collisions + offset variance)`.
+    fn push(&mut self, (rho, e): (Vec3, Vec3), s: &Tally, c: Control, emission: Emission) {
         let rho = rho.as_dvec3();
         let own = match emission {
             Emission::Include => e.as_dvec3(),
             Emission::Exclude => DVec3::ZERO,
         };
-        let c = controls.get(i).copied().unwrap_or_default();
-        radiosity.push(own + rho * (s.moments.mean + c.offset));
-        errors.push(rho * s.halves.error_of_mean(s.moments.n));
-        variance.push(
+        self.radiosity.push(own + rho * (s.moments.mean + c.offset));
+        self.errors.push(rho * s.halves.error_of_mean(s.moments.n));
+        self.variance.push(
             rho * rho * (s.moments.variance_of_mean() + s.inherited_mean + c.offset_variance),
         );
-        escaped_rays += u64::from(s.escaped);
-        back_face_hits += u64::from(s.back_faces);
+        self.escaped_rays += u64::from(s.escaped);
+        self.back_face_hits += u64::from(s.back_faces);
     }
-    Ok(GatherRound {
-        sketch: Vec::new(),
-        errors,
-        estimate: Estimate::new(radiosity, Some(variance), rays)?,
-        escaped_rays,
-        back_face_hits,
-    })
+
+    /// The round of the items pushed, `rays` rays in all.
+    fn done(self, rays: u64) -> Result<GatherRound, Error> {
+        Ok(GatherRound {
+            sketch: Vec::new(),
+            errors: self.errors,
+            estimate: Estimate::new(self.radiosity, Some(self.variance), rays)?,
+            escaped_rays: self.escaped_rays,
+            back_face_hits: self.back_face_hits,
+        })
+    }
 }
 
 /// Settings of a Jacobi gathering run ([`gather`]).

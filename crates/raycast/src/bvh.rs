@@ -235,8 +235,11 @@ impl Bvh {
             .collect();
         let pad = frame.max_lift(bounds.0, bounds.1) as f32;
         let bvh2 = build_bvh2_padded(&canonical, preset.params(), pad);
-        let wide = Wide::new(&bvh2, &canonical, ids);
-        drop(bvh2);
+        let collapsed = Wide::collapse(&bvh2, &canonical, ids);
+        // The binary BVH and the triangles go before the wide one is joined and copied onto
+        // its pages (about 115 bytes a triangle less at the build's peak).
+        drop((bvh2, canonical));
+        let wide = collapsed.assemble();
         if wide.packets.len() > wide::MAX_PACKETS {
             return Err(BuildError::TooManyTriangles {
                 slots: wide.packets.len() * LANES,

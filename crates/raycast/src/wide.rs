@@ -207,6 +207,39 @@ struct Part {
     stack: usize,
 }
 
+/// A wide BVH collapsed but not yet joined ([`Wide::collapse`]): the top nodes, and the
+/// subtrees below them with the top node each goes into, in a fixed order.
+pub(crate) struct Collapsed {
+    top: Part,
+    parts: Vec<(usize, Part)>,
+}
+
+impl Collapsed {
+    /// The wide BVH: the parts joined into the top, in order, each freed as it is joined, in
+    /// arrays reserved to their final size, then copied onto their pages.
+    pub(crate) fn assemble(self) -> Wide {
+        let Collapsed {
+            top: mut wide,
+            parts,
+        } = self;
+        let nodes: usize = parts
+            .iter()
+            .map(|(_, p)| p.nodes.len().saturating_sub(1))
+            .sum();
+        let packets: usize = parts.iter().map(|(_, p)| p.packets.len()).sum();
+        wide.nodes.reserve_exact(nodes);
+        wide.packets.reserve_exact(packets);
+        for (node, part) in parts {
+            wide.join(node, part);
+        }
+        Wide {
+            nodes: Pages::copy_of(&wide.nodes),
+            packets: Pages::copy_of(&wide.packets),
+            stack: wide.stack,
+        }
+    }
+}
+
 /// What the collapse decided for a binary node, from the [`Costs`] of its subtree (the optimal
 /// collapse of Ylitie, Karras and Laine 2017, "Efficient incoherent ray traversal on GPUs
 /// through compressed wide BVHs"). 19 bytes, 38 MB for the two million binary nodes of a
@@ -431,7 +464,15 @@ impl Wide {
     /// `bvh2.primitive_indices`, built on the current rayon pool: the top nodes in breadth-
     /// first order until there is work for every thread, then the subtrees below them in
     /// parallel, joined in a fixed order (the result does not depend on the thread count).
+    #[cfg(test)]
     pub(crate) fn new(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Wide {
+        Wide::collapse(bvh2, tris, ids).assemble()
+    }
+
+    /// The parts of [`Wide::new`]: what needs `bvh2` and `tris`, so that a caller may free
+    /// them (and the collapse's plans go) before [`Collapsed::assemble`] joins the parts and
+    /// copies them onto their pages.
+    pub(crate) fn collapse(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Collapsed {
         let plans = plan(bvh2);
         let collapse = Collapse {
             bvh2,
@@ -441,7 +482,7 @@ impl Wide {
         };
         let mut wide = Part {
             nodes: vec![Node::empty()],
-            packets: Vec::with_capacity(tris.len() / 2 + 1),
+            packets: Vec::new(),
             stack: 0,
         };
         // breadth first over the top (the order of `todo` is fixed: no thread count in it)
@@ -458,18 +499,11 @@ impl Wide {
             collapse.fill(&mut wide, pending, &mut next);
             todo.extend(next.drain(..));
         }
-        let parts: Vec<Part> = todo
+        let parts: Vec<(usize, Part)> = todo
             .par_iter()
-            .map(|&pending| collapse.part(pending))
+            .map(|&pending| (pending.node, collapse.part(pending)))
             .collect();
-        for (pending, part) in todo.iter().zip(parts) {
-            wide.join(pending.node, part);
-        }
-        Wide {
-            nodes: Pages::copy_of(&wide.nodes),
-            packets: Pages::copy_of(&wide.packets),
-            stack: wide.stack,
-        }
+        Collapsed { top: wide, parts }
     }
 
     /// Bytes held by nodes and packets.
