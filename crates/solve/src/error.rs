@@ -45,18 +45,20 @@ pub enum Error {
     /// budget's [`crate::Budget::memory`]: refused before any work.
     #[error(
         "the solve would need about {} of memory at its peak ({elements} elements of about \
-         {per_element} bytes, and the scene's {}), more than the {} it may use: give it more \
-         memory, or a coarser mesh or fewer patches",
+         {per_element} bytes at its ray budget, and the scene's {}), more than the {} it may \
+         use: give it more memory, fewer rays, or a coarser mesh or fewer patches",
         crate::memory::show_bytes(*estimate),
         crate::memory::show_bytes(*scene_bytes),
-        crate::memory::show_bytes(*limit),
-        per_element = crate::memory::BYTES_PER_ELEMENT
+        crate::memory::show_bytes(*limit)
     )]
     Memory {
         /// The estimated peak (bytes).
         estimate: u64,
         /// The most elements the plan makes.
         elements: u64,
+        /// The estimate's bytes per element at the ray budget
+        /// ([`MemoryEstimate::per_element`](crate::MemoryEstimate::per_element)).
+        per_element: u64,
         /// The scene's own bytes.
         scene_bytes: u64,
         /// The memory allowed (bytes).

@@ -25,7 +25,7 @@
 //! fit in the time left at the speed measured so far cap the rest of the run.
 //!
 //! **Memory** is bounded before the work: [`Problem::memory_estimate`] bounds the peak from the
-//! face count and the mesh plan, and a problem whose estimate exceeds [`Budget::memory`] is
+//! face count, the mesh plan, the method and the ray budget ([`peak_bytes`]), and a problem whose estimate exceeds [`Budget::memory`] is
 //! refused ([`Error::Memory`]) before anything is meshed.
 //!
 //! **A continued run** ([`Problem::resume`]) is an independent piece with its own random
@@ -55,7 +55,10 @@ mod stats;
 pub use closure::{CLOSURE_SIGMAS, Closure};
 pub use error::Error;
 pub use mcrad_mc_radiosity::DEFAULT_RAYS;
-pub use memory::{BYTES_FIXED, BYTES_PER_ELEMENT, MemoryEstimate};
+pub use memory::{
+    BYTES_FIXED, BYTES_PER_ELEMENT, BYTES_PER_GATHERED, BYTES_PER_REACHED, MemoryEstimate,
+    gather_rays_per_element, peak_bytes,
+};
 pub use pipeline::{Answer, Observer, Progress, solve};
 pub use problem::{AfterSolve, Budget, Input, MeshPlan, Problem, Settings};
 pub use state::{RunState, piece_seed};

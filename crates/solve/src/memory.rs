@@ -1,22 +1,62 @@
-//! The memory a solve will need at its peak, estimated before any work from the face count and
-//! the mesh plan: [`Problem::memory_estimate`], held to [`Budget::memory`].
+//! The memory a solve will need at its peak, estimated before any work from the face count,
+//! the mesh plan, the method and the ray budget: [`Problem::memory_estimate`], held to
+//! [`Budget::memory`].
 
 use crate::problem::Input;
 use crate::{MeshPlan, Problem};
+use mcrad_mc_radiosity::Method;
 use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_scene_io::Scene;
 
-/// Bytes per element (patch) at a solve's peak, all it holds per element together: the patch
-/// and its triangles, the BVH, the sampler, the method's per-patch state (shooting's sums and
-/// replicates, gathering's, the estimates of the steps and the refinement) and the
-/// allocator's slack. Measured peak RSS on the generated atrium at 2e6 rays (docs/atrium.md,
-/// "Memory and scale"): 638 bytes per element at 10^6 elements, 524 at 10^7, which this
-/// bounds. The error samples grow with the rays (up to 384 bytes a patch in shooting, more in
-/// the gathering): at 20 rays per element the 10^6-element atrium peaked at 1,744, over it.
-pub const BYTES_PER_ELEMENT: u64 = 1_100;
+/// Bytes per element (patch) a solve holds whatever its rays: the patch and its triangles,
+/// the BVH and its build, the adaptive hierarchy, the sampler, the method's per-patch sums
+/// (shooting's, the steps', the refinement's pooled estimate) and the allocator's slack.
+/// Measured peak RSS on the generated atrium of 10^6 elements at 2e6 rays
+/// (docs/atrium.md, "Memory and scale"): 628 bytes per element, of which about 40 are the
+/// error samples of the patches reached ([`BYTES_PER_REACHED`]) and 66 the fixed part.
+pub const BYTES_PER_ELEMENT: u64 = 600;
+
+/// Bytes per element a shooting ray's first deposit adds: its error samples (four rows of
+/// 24 `f32`, 384 bytes, in blocks that never move), made only for patches a deposit lands
+/// on, so at most `min(elements, rays)` of them.
+pub const BYTES_PER_REACHED: u64 = 400;
+
+/// Bytes per element a gathering pass adds (the gathers' images of the shooting's error
+/// samples, the shooting's samples they gather from, their own error samples, the pooling's
+/// inputs and the combination's per-patch arrays): measured with [`BYTES_PER_ELEMENT`] and
+/// [`BYTES_PER_REACHED`] at 2e7 rays on the 10^6-element atrium, 1,460 bytes per element in
+/// all. A method gathers on a mesh of `P` patches only with at least
+/// [`gather_rays_per_element`] `P` rays, so at most `min(elements, rays / k)` elements.
+pub const BYTES_PER_GATHERED: u64 = 600;
 
 /// Bytes of a process before its scene: code, thread stacks, the allocator's arenas.
 pub const BYTES_FIXED: u64 = 64 << 20;
+
+/// The fewest rays per patch with which `method` gathers at every patch (`k`): 8 for
+/// `combined` (its passes pay for 2 emitter samples and 2 gathering rays a patch and a
+/// shooting share, else it shoots alone), 2 for the others (a gathering round casts at least
+/// two rays a patch).
+pub fn gather_rays_per_element(method: Method) -> u64 {
+    match method {
+        Method::Combined => 8,
+        _ => 2,
+    }
+}
+
+/// The memory model's peak in bytes for a solve of `elements` elements (patches) and at most
+/// `rays` rays (`u64::MAX`: no limit, a time budget) by `method`, beside `scene_bytes` of
+/// scene: [`BYTES_FIXED`] + scene + `elements` [`BYTES_PER_ELEMENT`] +
+/// `min(elements, rays)` [`BYTES_PER_REACHED`] + `min(elements, rays / k)`
+/// [`BYTES_PER_GATHERED`] (`k`: [`gather_rays_per_element`]). Nondecreasing in each argument.
+pub fn peak_bytes(elements: u64, rays: u64, method: Method, scene_bytes: u64) -> u64 {
+    let reached = elements.min(rays);
+    let gathered = elements.min(rays / gather_rays_per_element(method));
+    BYTES_FIXED
+        .saturating_add(scene_bytes)
+        .saturating_add(elements.saturating_mul(BYTES_PER_ELEMENT))
+        .saturating_add(reached.saturating_mul(BYTES_PER_REACHED))
+        .saturating_add(gathered.saturating_mul(BYTES_PER_GATHERED))
+}
 
 /// What [`Problem::memory_estimate`] found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -28,14 +68,30 @@ pub struct MemoryEstimate {
     pub elements: u64,
     /// The scene's own arrays (faces, vertex indices, positions, texture pixels), in bytes.
     pub scene_bytes: u64,
-    /// The estimated peak of the whole solve in bytes: [`BYTES_FIXED`], the scene, and
-    /// [`BYTES_PER_ELEMENT`] per element. An upper estimate, not a measurement.
+    /// The rays the estimate assumes: the budget's ([`Budget::total_rays`](crate::Budget::total_rays);
+    /// `u64::MAX` under a time budget alone, when every element is taken to be reached and
+    /// gathered).
+    pub rays: u64,
+    /// The estimated peak of the whole solve in bytes, [`peak_bytes`] of the above. An upper
+    /// estimate, not a measurement.
     pub bytes: u64,
+}
+
+impl MemoryEstimate {
+    /// The estimate's bytes per element beyond the fixed part and the scene (0 without
+    /// elements).
+    pub fn per_element(&self) -> u64 {
+        self.bytes
+            .saturating_sub(BYTES_FIXED + self.scene_bytes)
+            .checked_div(self.elements)
+            .unwrap_or(0)
+    }
 }
 
 impl Problem<'_> {
     /// An upper estimate of the memory this solve needs at its peak (bytes), computed from the
-    /// face count and the mesh plan before anything is meshed: [`crate::solve`] refuses a
+    /// face count, the mesh plan, the method and the ray budget ([`peak_bytes`]; a time
+    /// budget without rays is taken as unlimited rays) before anything is meshed: [`crate::solve`] refuses a
     /// problem whose estimate exceeds [`Budget::memory`](crate::Budget::memory)
     /// ([`Error::Memory`](crate::Error::Memory)). Linear in the faces; no allocation beyond
     /// the scene's.
@@ -48,13 +104,12 @@ impl Problem<'_> {
                 None => (0, 0),
             },
         };
-        let bytes = BYTES_FIXED
-            .saturating_add(scene_bytes)
-            .saturating_add(elements.saturating_mul(BYTES_PER_ELEMENT));
+        let rays = self.budget.total_rays();
         MemoryEstimate {
             elements,
             scene_bytes,
-            bytes,
+            rays,
+            bytes: peak_bytes(elements, rays, self.settings.method, scene_bytes),
         }
     }
 }

@@ -237,6 +237,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             return Err(Error::Memory {
                 estimate: estimate.bytes,
                 elements: estimate.elements,
+                per_element: estimate.per_element(),
                 scene_bytes: estimate.scene_bytes,
                 limit,
             });
