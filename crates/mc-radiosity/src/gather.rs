@@ -441,7 +441,7 @@ fn round_parts<C: RayCaster>(
 struct Own {
     /// Rays cast.
     n: u64,
-    /// The rays' own variance of their mean, [`Moments::variance_of_mean`](crate::jobs::Moments), (W/m²)².
+    /// The rays' own variance of their mean (`Moments::variance_of_mean`), (W/m²)².
     own: DVec3,
     /// The replicates' estimate of it ([`Halves::variance_of_mean`](crate::replicates::Halves)).
     replicate: Option<f64>,

@@ -246,7 +246,7 @@ const BLOCK_JOBS: usize = 1 << 14;
 /// Runs the [`jobs`] of `items` items with `per_item` rays each, in parallel, a block of
 /// about [`BLOCK_JOBS`] jobs at a time, and hands each item's chunks, merged in chunk order,
 /// to `take` in item order, as they come: nothing is held per job beyond a block (the
-/// gatherers keep per item only what they read, [`Tally`]). Same answer on any number of
+/// gatherers keep per item only what they read of it). Same answer on any number of
 /// threads: the blocks and the merge order do not depend on them.
 pub(crate) fn fold<F: Fn(&Job) -> Seen + Sync + Send>(
     items: usize,
@@ -282,8 +282,8 @@ pub(crate) fn fold<F: Fn(&Job) -> Seen + Sync + Send>(
 
 /// What an item's rays saw, reduced to what the gatherers read of it after the fold: a
 /// [`Seen`] without its error samples' sums (taken as they come), with the inherited and
-/// emission sums turned into [`Seen::inherited_mean`] and [`Seen::emitted_m2`]. 168 bytes
-/// where a `Seen` takes 296.
+/// emission sums turned into [`Seen::inherited_mean`] and [`Seen::emitted_m2`] (168 bytes
+/// where a `Seen` takes 296).
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Tally {
     /// The rays' values ([`Seen::moments`]).
@@ -313,6 +313,68 @@ impl From<&Seen> for Tally {
             inherited_mean: s.inherited_mean(),
             emitted_m2: s.emitted_m2(),
             halves: s.halves,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A job's made-up result: a few values that depend on its item and chunk.
+    fn seen_of(job: &Job) -> Seen {
+        let mut s = Seen {
+            escaped: u64::from(job.chunk),
+            inherit_rays: u64::from(job.rays),
+            ..Seen::default()
+        };
+        for t in 0..job.rays.min(5) {
+            let x = DVec3::splat(f64::from(job.item) * 0.37 + f64::from(job.chunk) - f64::from(t));
+            s.moments.push(x);
+            s.halves.push(replicate(u64::from(t)), x);
+            s.inherited += x;
+            s.sketch[t as usize] += x.x as f32;
+        }
+        s
+    }
+
+    /// `fold` hands every item, in order, the merge of its chunks in chunk order, bit for bit
+    /// the serial merge of [`jobs`], whether an item's chunks fill many blocks or a block holds
+    /// many items, on 1 and 3 threads.
+    #[test]
+    fn fold_merges_each_items_chunks_in_order_on_any_thread_count() {
+        for (items, per_item) in [
+            (BLOCK_JOBS * 2 + 7, 2),
+            (5, JOB_RAYS * 3 + 11),
+            (3, JOB_RAYS * (BLOCK_JOBS as u32 + 2)),
+            (0, 8),
+        ] {
+            let mut expected = vec![Seen::default(); items];
+            for job in jobs(items, per_item) {
+                let i = job.item as usize;
+                expected[i] = expected[i].merge(seen_of(&job));
+            }
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut got = Vec::new();
+                pool.install(|| {
+                    fold(items, per_item, seen_of, |i, s| {
+                        assert_eq!(i, got.len(), "items in order");
+                        got.push(s);
+                    })
+                });
+                assert_eq!(got.len(), items);
+                for (g, e) in got.iter().zip(&expected) {
+                    assert_eq!(g.moments, e.moments);
+                    assert_eq!(g.halves, e.halves);
+                    assert_eq!(g.inherited, e.inherited);
+                    assert_eq!(g.sketch, e.sketch);
+                    assert_eq!((g.escaped, g.inherit_rays), (e.escaped, e.inherit_rays));
+                }
+            }
         }
     }
 }
