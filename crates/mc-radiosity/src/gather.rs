@@ -1017,7 +1017,7 @@ pub fn gather_corners<C: RayCaster>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::jobs::{JOB_RAYS, Moments};
+    use crate::jobs::{JOB_RAYS, Moments, jobs};
 
     #[test]
     fn moments_merge_like_one_pass() {
