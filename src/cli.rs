@@ -173,6 +173,12 @@ pub struct Solve {
     /// Render the solution: .png (tone-mapped sRGB) or .exr (linear radiance, W/(m² sr)).
     #[arg(long, value_name = "F.png|F.exr")]
     pub image: Option<PathBuf>,
+    /// Render the solution's estimated relative error per pixel (.exr, with the camera, size
+    /// and samples of --image): red the total, green the Monte Carlo noise, blue the mesh's
+    /// discretization (the total is their root sum of squares); 0 where a ray sees no surface,
+    /// 1e30 where no light reached one.
+    #[arg(long, value_name = "F.exr")]
+    pub error_image: Option<PathBuf>,
     /// Write the mesh with baked per-vertex radiosity (COLOR_0, and exact values in `_RADIOSITY`).
     #[arg(long, value_name = "F.glb")]
     pub gltf: Option<PathBuf>,
