@@ -47,9 +47,9 @@ pub struct Bake {
     /// about half a 1024 x 1024 lightmap.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub texel: Option<f32>,
-    /// Stop the solve once the 95th percentile (by area) of the patches' relative standard
-    /// error of incident irradiance is at most E (e.g. 0.02), or at --rays/--time, whichever
-    /// comes first. Methods without variances ignore it.
+    /// Stop the solve once the 95th percentile (by area) of the patches' relative error of
+    /// incident irradiance, noise and mesh (root sum of squares), is at most E (e.g. 0.02),
+    /// or at --rays/--time, whichever comes first. Methods without variances ignore it.
     #[arg(long, value_name = "E", value_parser = parse_fraction)]
     pub target_error: Option<f64>,
     /// Bake into vertex colours (COLOR_0 on the scene's own vertices, split where flat parts

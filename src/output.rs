@@ -377,7 +377,14 @@ pub fn write_error_image(
         lights: Vec::new(),
         sky_rays: 0,
     };
-    let image = render(mesh, bvh, &camera, Shading::Flat(&shown), &settings, &|_| {})?;
+    let image = render(
+        mesh,
+        bvh,
+        &camera,
+        Shading::Flat(&shown),
+        &settings,
+        &|_| {},
+    )?;
     write_exr(&image, path)?;
     Ok(())
 }

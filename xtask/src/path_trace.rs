@@ -171,10 +171,12 @@ pub fn run_image_error(args: &ImageErrorArgs) -> Result<()> {
             args.emitter_fraction,
         )?;
         println!(
-            "reported median {:.4} p95 {:.4}; measured median {:.4} p95 {:.4}; p95 ratio \
-             reported/measured {:.2}; pixels {}",
+            "reported median {:.4} p95 {:.4} (noise p95 {:.4}, mesh p95 {:.4}); measured median \
+             {:.4} p95 {:.4}; p95 ratio reported/measured {:.2}; pixels {}",
             c.reported_median,
             c.reported_p95,
+            c.second_p95,
+            c.third_p95,
             c.measured_median,
             c.measured_p95,
             c.reported_p95 / c.measured_p95,

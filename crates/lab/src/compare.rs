@@ -257,7 +257,8 @@ pub fn relative_noise(
 
 /// A render's reported error per pixel against the error measured on it (the check of
 /// issue 35 item 6): over the pixels [`image_error`] scores where the report is positive
-/// (pixels that see a surface), the median and 95th percentile of each.
+/// (pixels that see a surface), the median and 95th percentile of each, and the 95th
+/// percentiles of the report's other two channels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ErrorCheck {
     /// Pixels counted.
@@ -270,6 +271,10 @@ pub struct ErrorCheck {
     pub measured_median: f64,
     /// The measured relative error's 95th percentile.
     pub measured_p95: f64,
+    /// The 95th percentile of the report's second channel (`--error-image`: the noise part).
+    pub second_p95: f64,
+    /// The 95th percentile of the report's third channel (`--error-image`: the mesh part).
+    pub third_p95: f64,
 }
 
 /// [`ErrorCheck`] of `actual` against `reference` (standard error `reference_error` per pixel
@@ -293,6 +298,7 @@ pub fn error_check(
         same_size(e, reference)?;
     }
     let (mut said, mut seen) = (Vec::new(), Vec::new());
+    let (mut second, mut third) = (Vec::new(), Vec::new());
     for i in scored_pixels(reference, emitter_fraction) {
         let r = f64::from(reported.pixels[i].x);
         let sum = reference.pixels[i].as_dvec3().element_sum();
@@ -302,6 +308,8 @@ pub fn error_check(
         let (a, b) = (actual.pixels[i].as_dvec3(), reference.pixels[i].as_dvec3());
         let noise = reference_error.map_or(0.0, |e| e.pixels[i].as_dvec3().length_squared());
         said.push(r);
+        second.push(f64::from(reported.pixels[i].y));
+        third.push(f64::from(reported.pixels[i].z));
         seen.push(((a - b).length_squared() - noise).max(0.0).sqrt() / sum);
     }
     let quantile = |v: &mut Vec<f64>, q: f64| {
@@ -318,6 +326,8 @@ pub fn error_check(
         reported_p95: quantile(&mut said, 0.95),
         measured_median: quantile(&mut seen, 0.5),
         measured_p95: quantile(&mut seen, 0.95),
+        second_p95: quantile(&mut second, 0.95),
+        third_p95: quantile(&mut third, 0.95),
     })
 }
 

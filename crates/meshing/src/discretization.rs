@@ -226,7 +226,11 @@ mod tests {
                 assert!(e.x > 0.5 * exact - 1e-9 && e.x < exact + 1e-9, "{p}: {e}");
             } else {
                 interior += 1;
-                assert!((e.x - exact).abs() < 1e-6 * exact, "{p}: {} vs {exact}", e.x);
+                assert!(
+                    (e.x - exact).abs() < 1e-6 * exact,
+                    "{p}: {} vs {exact}",
+                    e.x
+                );
             }
         }
         assert_eq!(interior, 36);

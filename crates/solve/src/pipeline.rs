@@ -13,8 +13,8 @@ use mcrad_mc_radiosity::{
     pool, pool_correlation, refine, run_cancellable,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, CornerGroups, DEFAULT_CLUSTER_CONE_DEGREES,
-    DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
+    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, CornerGroups,
+    DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
