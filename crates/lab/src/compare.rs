@@ -302,7 +302,7 @@ pub fn error_check(
     for i in scored_pixels(reference, emitter_fraction) {
         let r = f64::from(reported.pixels[i].x);
         let sum = reference.pixels[i].as_dvec3().element_sum();
-        if !(r > 0.0) || !(sum > 0.0) {
+        if r.is_nan() || sum.is_nan() || r <= 0.0 || sum <= 0.0 {
             continue;
         }
         let (a, b) = (actual.pixels[i].as_dvec3(), reference.pixels[i].as_dvec3());
