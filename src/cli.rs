@@ -47,9 +47,9 @@ pub struct Bake {
     /// about half a 1024 x 1024 lightmap.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub texel: Option<f32>,
-    /// Stop the solve once the 95th percentile (by area) of the patches' relative standard
-    /// error of incident irradiance is at most E (e.g. 0.02), or at --rays/--time, whichever
-    /// comes first. Methods without variances ignore it.
+    /// Stop the solve once the 95th percentile (by area) of the patches' relative error of
+    /// incident irradiance, noise and mesh (root sum of squares), is at most E (e.g. 0.02),
+    /// or at --rays/--time, whichever comes first. Methods without variances ignore it.
     #[arg(long, value_name = "E", value_parser = parse_fraction)]
     pub target_error: Option<f64>,
     /// Bake into vertex colours (COLOR_0 on the scene's own vertices, split where flat parts
@@ -173,6 +173,12 @@ pub struct Solve {
     /// Render the solution: .png (tone-mapped sRGB) or .exr (linear radiance, W/(m² sr)).
     #[arg(long, value_name = "F.png|F.exr")]
     pub image: Option<PathBuf>,
+    /// Render the solution's estimated relative error per pixel (.exr, with the camera, size
+    /// and samples of --image): red the total, green the Monte Carlo noise, blue the mesh's
+    /// discretization (the total is their root sum of squares); 0 where a ray sees no surface,
+    /// 1e30 where no light reached one.
+    #[arg(long, value_name = "F.exr")]
+    pub error_image: Option<PathBuf>,
     /// Write the mesh with baked per-vertex radiosity (COLOR_0, and exact values in `_RADIOSITY`).
     #[arg(long, value_name = "F.glb")]
     pub gltf: Option<PathBuf>,

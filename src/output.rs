@@ -42,6 +42,14 @@ pub fn check(args: &Solve) -> Result<()> {
     if let Some(path) = &args.image {
         image_format(path)?;
     }
+    if let Some(path) = &args.error_image
+        && image_format(path)? != ImageFormat::Exr
+    {
+        bail!(
+            "--error-image {}: the file name must end in .exr",
+            path.display()
+        );
+    }
     if let Some(path) = &args.gltf {
         let ext = path
             .extension()
@@ -152,9 +160,14 @@ pub fn bake(
         None => None,
     };
     let error = baked.texel_error.map(|e| {
+        let part = |s: mcrad_bake::ErrorSpread| {
+            serde_json::json!({
+                "median": finite(s.median), "p95": finite(s.p95), "max": finite(s.max)
+            })
+        };
         serde_json::json!({
             "texels": e.texels, "median": finite(e.median), "p95": finite(e.p95),
-            "max": finite(e.max)
+            "max": finite(e.max), "noise": part(e.noise), "mesh": part(e.mesh)
         })
     });
     Ok(serde_json::json!({
@@ -181,10 +194,12 @@ pub fn bake_line(summary: &serde_json::Value) -> String {
     let error = match &summary["texel_relative_error"] {
         serde_json::Value::Null => String::new(),
         e => format!(
-            "; texel relative error (Monte Carlo noise only, not the mesh's): median {}, \
-             95th percentile {}",
+            "; texel relative error (noise and mesh): median {}, 95th percentile {} \
+             (noise {}, mesh {})",
             percent(&e["median"]),
-            percent(&e["p95"])
+            percent(&e["p95"]),
+            percent(&e["noise"]["p95"]),
+            percent(&e["mesh"]["p95"])
         ),
     };
     let out = summary["out"].as_str().unwrap_or("?");
@@ -277,6 +292,101 @@ pub struct Lighting<'a> {
     /// draws it per sample with shadow rays instead of from the solution; `None` draws the
     /// solution only.
     pub direct: Option<&'a [DVec3]>,
+}
+
+/// The relative error of every patch's incident irradiance, `(noise, mesh)`: the noise its
+/// relative standard error (`relative_error` of `B`, `E`, `Var B`), the mesh its
+/// discretization error ([`Mesh::discretization_error`] of the part of `H = (B - E) / rho`
+/// that is interpolated, `drawn`, with `Var H = Var B / rho²` as its noise) relative to its
+/// whole `H`. Both infinite where no light reached a patch that has an error.
+pub fn patch_errors(
+    mesh: &Mesh,
+    radiosity: &[DVec3],
+    variance: &[DVec3],
+    drawn: &[DVec3],
+    crease: f32,
+) -> Vec<(f64, f64)> {
+    let patches = mesh.patches();
+    let rho = |p: &mcrad_meshing::Patch| p.reflectance.as_dvec3();
+    let per = |x: f64, r: f64| if r > 1e-6 { x / r } else { 0.0 };
+    let h: Vec<DVec3> = patches
+        .iter()
+        .zip(drawn)
+        .map(|(p, &b)| mcrad_bake::incident(b, p.emission.as_dvec3(), rho(p)))
+        .collect();
+    let var_h: Vec<DVec3> = patches
+        .iter()
+        .zip(variance)
+        .map(|(p, v)| {
+            let r = rho(p) * rho(p);
+            DVec3::new(per(v.x, r.x), per(v.y, r.y), per(v.z, r.z))
+        })
+        .collect();
+    let groups = mesh.corner_groups(crease);
+    let e = mesh.discretization_error(&h, Some(&var_h), &groups);
+    patches
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let e_noise =
+                mcrad_combine::relative_error(radiosity[i], p.emission.as_dvec3(), variance[i]);
+            let full = mcrad_bake::incident(radiosity[i], p.emission.as_dvec3(), rho(p));
+            let e_mesh = mcrad_combine::relative_error(full, DVec3::ZERO, e[i] * e[i]);
+            (e_noise, e_mesh)
+        })
+        .collect()
+}
+
+/// Writes `--error-image`: each pixel the mean over its samples of the relative error
+/// ([`patch_errors`]) of the patch a sample sees, red the total `sqrt(noise² + mesh²)`, green
+/// the noise, blue the mesh (flat per patch, through the camera of `--image`); nothing
+/// without variances.
+#[allow(clippy::too_many_arguments)]
+pub fn write_error_image(
+    args: &Solve,
+    mesh: &Mesh,
+    bvh: &Bvh,
+    radiosity: &[DVec3],
+    variance: Option<&[DVec3]>,
+    direct: Option<&[DVec3]>,
+    file_camera: Option<mcrad_scene_io::Camera>,
+) -> Result<()> {
+    let (Some(path), Some(variance)) = (&args.error_image, variance) else {
+        return Ok(());
+    };
+    let drawn = without_direct(mesh, radiosity, direct);
+    // as radiosity, so the render's radiance (B / pi) is the error itself
+    let shown: Vec<DVec3> = patch_errors(mesh, radiosity, variance, &drawn, args.crease)
+        .into_iter()
+        .map(|(noise, mesh_part)| {
+            let finite = |x: f64| if x.is_finite() { x.min(1e30) } else { 1e30 };
+            std::f64::consts::PI
+                * DVec3::new(
+                    finite(noise.hypot(mesh_part)),
+                    finite(noise),
+                    finite(mesh_part),
+                )
+        })
+        .collect();
+    let camera = camera(args, file_camera, mesh, bvh)?;
+    let settings = RenderSettings {
+        width: args.size.0,
+        height: args.size.1,
+        samples_per_pixel: args.spp,
+        sky: None,
+        lights: Vec::new(),
+        sky_rays: 0,
+    };
+    let image = render(
+        mesh,
+        bvh,
+        &camera,
+        Shading::Flat(&shown),
+        &settings,
+        &|_| {},
+    )?;
+    write_exr(&image, path)?;
+    Ok(())
 }
 
 /// The seconds `--image` will take (0 without one): the render of an image an eighth of the

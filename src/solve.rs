@@ -360,6 +360,15 @@ fn finish(
         scenery.camera,
         bar,
     )?;
+    crate::output::write_error_image(
+        args,
+        mesh,
+        &answer.bvh,
+        estimate.radiosity(),
+        estimate.variance(),
+        direct.as_deref(),
+        scenery.camera,
+    )?;
     let render_seconds = render.elapsed().as_secs_f64();
     let baked = match (&args.bake, kept) {
         (Some(target), Some(loaded)) => {

@@ -314,7 +314,7 @@ fn an_obj_scene_is_baked_into_a_new_gltf_document() {
 }
 
 #[test]
-fn target_error_stops_the_solve_and_stats_report_the_texel_error() {
+fn target_error_stops_the_solve_and_stats_report_the_texel_error_with_its_parts() {
     let dir = tempfile::tempdir().unwrap();
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.gltf");
     let run = |target: &str, stats: &str| {
@@ -362,6 +362,22 @@ fn target_error_stops_the_solve_and_stats_report_the_texel_error() {
         );
         // texels take their patches' errors and weigh them by area, as the stop does
         assert_eq!(p95 <= target * 1.05, below, "{e}");
+        // the total is the root sum of squares of the noise and the mesh per texel, each
+        // reported finite and no larger than the total
+        for part in ["noise", "mesh"] {
+            for q in ["median", "p95"] {
+                let x = e[part][q].as_f64().unwrap();
+                assert!(
+                    x.is_finite() && x >= 0.0 && x <= e[q].as_f64().unwrap() + 1e-12,
+                    "{e}"
+                );
+            }
+        }
+        let (n, m) = (
+            e["noise"]["p95"].as_f64().unwrap(),
+            e["mesh"]["p95"].as_f64().unwrap(),
+        );
+        assert!(p95 >= n.max(m) - 1e-12, "{e}");
     }
 }
 

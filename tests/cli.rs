@@ -936,3 +936,55 @@ fn max_memory_refuses_a_scene_that_would_not_fit() {
     let o = mcrad(&["solve", "scenes/cornell-box.obj", "--max-memory", "3X"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
+
+/// `--error-image`: per pixel the relative error of what it sees, red the total, green the
+/// noise, blue the mesh. The box seen through its open front: nearly every pixel sees a
+/// surface and is positive, every one finite, the total at least each part, and the mesh's
+/// part shows (the blocks' shadows and contact lines on a coarse uniform mesh). A `.png` is
+/// refused before the solve.
+#[test]
+fn an_error_image_reports_noise_and_mesh_per_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    let exr = path(dir.path(), "e.exr");
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--rays",
+        "3e5",
+        "--mesh",
+        "uniform",
+        "--threads",
+        "2",
+        "--size",
+        "32x32",
+        "--spp",
+        "4",
+        "--camera",
+        "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
+        "--error-image",
+        &exr,
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let image = mcrad_render::read_exr(Path::new(&exr)).unwrap();
+    assert_eq!((image.width, image.height), (32, 32));
+    let (mut seen, mut mesh_seen) = (0, 0);
+    for p in &image.pixels {
+        assert!(p.is_finite() && p.min_element() >= 0.0, "{p}");
+        assert!(p.x >= p.y * 0.999 && p.x >= p.z * 0.999, "{p}");
+        seen += usize::from(p.x > 0.0);
+        mesh_seen += usize::from(p.z > 0.0);
+    }
+    assert!(
+        seen > 32 * 32 * 9 / 10 && mesh_seen > 32,
+        "{seen} {mesh_seen}"
+    );
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--error-image",
+        &path(dir.path(), "e.png"),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--error-image"), "{}", stderr(&o));
+}

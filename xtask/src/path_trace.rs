@@ -125,6 +125,10 @@ pub struct ImageErrorArgs {
     /// sun-lit floor can be that bright)
     #[arg(long, value_name = "F", default_value_t = mcrad_lab::compare::EMITTER_FRACTION)]
     pub emitter_fraction: f32,
+    /// The render's reported relative error per pixel (`mcrad solve --error-image`): prints
+    /// its median and 95th percentile against the measured error's
+    #[arg(long, value_name = "ERROR.exr")]
+    pub reported: Option<String>,
 }
 
 /// `image-error IMAGE.exr REFERENCE.exr [DIFFERENCE.png] [--reference-error E.exr]`.
@@ -157,5 +161,27 @@ pub fn run_image_error(args: &ImageErrorArgs) -> Result<()> {
         "img_rel {:.4} dark_third {:.4} pixels {}",
         e.relative, e.dark_third, e.pixels
     );
+    if let Some(reported) = &args.reported {
+        let reported = read(reported)?;
+        let c = mcrad_lab::compare::error_check(
+            &image,
+            &reference,
+            noise.as_ref(),
+            &reported,
+            args.emitter_fraction,
+        )?;
+        println!(
+            "reported median {:.4} p95 {:.4} (noise p95 {:.4}, mesh p95 {:.4}); measured median \
+             {:.4} p95 {:.4}; p95 ratio reported/measured {:.2}; pixels {}",
+            c.reported_median,
+            c.reported_p95,
+            c.second_p95,
+            c.third_p95,
+            c.measured_median,
+            c.measured_p95,
+            c.reported_p95 / c.measured_p95,
+            c.pixels
+        );
+    }
     Ok(())
 }

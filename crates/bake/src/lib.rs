@@ -312,20 +312,53 @@ fn sky_at<C: RayCaster>(
     h / f64::from(m * m)
 }
 
-/// How uncertain the baked texels are: over the covered texels, the relative standard error of
-/// each texel's irradiance, taken as that of its patch ([`relative_error`]; interpolation only
-/// lowers it). Percentiles count texels, so they weigh surfaces by their lightmap area.
+/// How uncertain the baked texels are: over the covered texels, the relative error of each
+/// texel's irradiance, taken as that of its patch: the root sum of squares of the Monte Carlo
+/// noise (the relative standard error of `H`, [`relative_error`]; interpolation only lowers
+/// it) and the mesh's discretization (the patch's [`Mesh::discretization_error`] of `H`
+/// relative to its `H`, noise floor subtracted):
+/// `total = sqrt(noise² + mesh²)`. Percentiles count texels, so they weigh surfaces by their
+/// lightmap area.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TexelError {
     /// Texels counted (covered texels whose patch has a variance).
     pub texels: usize,
-    /// The median relative standard error (dimensionless; infinite for texels no light
+    /// The median total relative error (dimensionless; infinite for texels no light
     /// reached).
+    pub median: f64,
+    /// The 95th percentile of the total.
+    pub p95: f64,
+    /// The largest total.
+    pub max: f64,
+    /// The distribution of the noise part alone.
+    pub noise: ErrorSpread,
+    /// The distribution of the mesh (discretization) part alone.
+    pub mesh: ErrorSpread,
+}
+
+/// The median, 95th percentile and largest of one part of the texels' relative errors
+/// (dimensionless), over the texels of [`TexelError`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorSpread {
+    /// The median.
     pub median: f64,
     /// The 95th percentile.
     pub p95: f64,
     /// The largest.
     pub max: f64,
+}
+
+impl ErrorSpread {
+    /// The spread of `errors`, each counted once; zeros when empty.
+    fn of(errors: &[f64]) -> ErrorSpread {
+        let ones = vec![1.0; errors.len()];
+        let q = |q: f64| weighted_quantile(errors, &ones, q).unwrap_or(0.0);
+        ErrorSpread {
+            median: q(0.5),
+            p95: q(0.95),
+            max: errors.iter().copied().fold(0.0, f64::max),
+        }
+    }
 }
 
 pub use mcrad_combine::{relative_error, weighted_quantile};
@@ -521,26 +554,51 @@ pub fn bake<C: RayCaster>(
         }
         None
     };
-    let errors_of = |patches_seen: &[u32]| -> Option<TexelError> {
-        let variance = input.variance?;
-        let errors: Vec<f64> = patches_seen
+    // per patch: the relative noise and mesh errors of its (full) incident irradiance
+    let patch_errors: Option<Vec<(f64, f64)>> = input.variance.map(|variance| {
+        // the variance of the interpolated H: Var B / rho² per channel
+        let var_h: Vec<DVec3> = patches
             .iter()
-            .map(|&p| {
-                let i = p as usize;
-                relative_error(
-                    input.radiosity[i],
-                    patches[i].emission.as_dvec3(),
-                    variance[i],
-                )
+            .zip(variance)
+            .map(|(p, v)| {
+                let rho = p.reflectance.as_dvec3();
+                let per = |var: f64, r: f64| if r > 1e-6 { var / (r * r) } else { 0.0 };
+                DVec3::new(per(v.x, rho.x), per(v.y, rho.y), per(v.z, rho.z))
             })
             .collect();
-        let ones = vec![1.0; errors.len()];
-        let q = |q: f64| weighted_quantile(&errors, &ones, q).unwrap_or(0.0);
+        let groups = mesh.corner_groups(mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES);
+        let e = mesh.discretization_error(&h, Some(&var_h), &groups);
+        patches
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let noise = relative_error(input.radiosity[i], p.emission.as_dvec3(), variance[i]);
+                let full = incident(
+                    input.radiosity[i],
+                    p.emission.as_dvec3(),
+                    p.reflectance.as_dvec3(),
+                );
+                (noise, relative_error(full, DVec3::ZERO, e[i] * e[i]))
+            })
+            .collect()
+    });
+    let errors_of = |patches_seen: &[u32]| -> Option<TexelError> {
+        let per_patch = patch_errors.as_ref()?;
+        let (mut noise, mut mesh_part, mut total) = (Vec::new(), Vec::new(), Vec::new());
+        for &p in patches_seen {
+            let (n, m) = per_patch[p as usize];
+            noise.push(n);
+            mesh_part.push(m);
+            total.push(n.hypot(m));
+        }
+        let all = ErrorSpread::of(&total);
         Some(TexelError {
-            texels: errors.len(),
-            median: q(0.5),
-            p95: q(0.95),
-            max: errors.iter().copied().fold(0.0, f64::max),
+            texels: total.len(),
+            median: all.median,
+            p95: all.p95,
+            max: all.max,
+            noise: ErrorSpread::of(&noise),
+            mesh: ErrorSpread::of(&mesh_part),
         })
     };
     if options.vertex_colors {

@@ -255,6 +255,82 @@ pub fn relative_noise(
     })
 }
 
+/// A render's reported error per pixel against the error measured on it (the check of
+/// issue 35 item 6): over the pixels [`image_error`] scores where the report is positive
+/// (pixels that see a surface), the median and 95th percentile of each, and the 95th
+/// percentiles of the report's other two channels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorCheck {
+    /// Pixels counted.
+    pub pixels: usize,
+    /// The reported relative error's median (dimensionless).
+    pub reported_median: f64,
+    /// The reported relative error's 95th percentile.
+    pub reported_p95: f64,
+    /// The measured relative error's median.
+    pub measured_median: f64,
+    /// The measured relative error's 95th percentile.
+    pub measured_p95: f64,
+    /// The 95th percentile of the report's second channel (`--error-image`: the noise part).
+    pub second_p95: f64,
+    /// The 95th percentile of the report's third channel (`--error-image`: the mesh part).
+    pub third_p95: f64,
+}
+
+/// [`ErrorCheck`] of `actual` against `reference` (standard error `reference_error` per pixel
+/// and channel, subtracted) for the reported relative error `reported` (its first channel,
+/// per pixel). The measured error of a pixel is in the convention of the reported one
+/// (`sqrt(sum_c δ_c²) / sum_c R_c`, as `relative_error` of `mcrad-combine`):
+///
+/// `m = sqrt( max(0, sum_c (I_c - R_c)² - sum_c σ_c²) ) / sum_c R_c`,
+///
+/// the reference's noise taken out of each pixel's squared difference on average.
+pub fn error_check(
+    actual: &Image,
+    reference: &Image,
+    reference_error: Option<&Image>,
+    reported: &Image,
+    emitter_fraction: f32,
+) -> Result<ErrorCheck, CompareError> {
+    same_size(actual, reference)?;
+    same_size(reported, reference)?;
+    if let Some(e) = reference_error {
+        same_size(e, reference)?;
+    }
+    let (mut said, mut seen) = (Vec::new(), Vec::new());
+    let (mut second, mut third) = (Vec::new(), Vec::new());
+    for i in scored_pixels(reference, emitter_fraction) {
+        let r = f64::from(reported.pixels[i].x);
+        let sum = reference.pixels[i].as_dvec3().element_sum();
+        if r.is_nan() || sum.is_nan() || r <= 0.0 || sum <= 0.0 {
+            continue;
+        }
+        let (a, b) = (actual.pixels[i].as_dvec3(), reference.pixels[i].as_dvec3());
+        let noise = reference_error.map_or(0.0, |e| e.pixels[i].as_dvec3().length_squared());
+        said.push(r);
+        second.push(f64::from(reported.pixels[i].y));
+        third.push(f64::from(reported.pixels[i].z));
+        seen.push(((a - b).length_squared() - noise).max(0.0).sqrt() / sum);
+    }
+    let quantile = |v: &mut Vec<f64>, q: f64| {
+        v.sort_by(f64::total_cmp);
+        if v.is_empty() {
+            0.0
+        } else {
+            v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
+        }
+    };
+    Ok(ErrorCheck {
+        pixels: said.len(),
+        reported_median: quantile(&mut said, 0.5),
+        reported_p95: quantile(&mut said, 0.95),
+        measured_median: quantile(&mut seen, 0.5),
+        measured_p95: quantile(&mut seen, 0.95),
+        second_p95: quantile(&mut second, 0.95),
+        third_p95: quantile(&mut third, 0.95),
+    })
+}
+
 /// The emitter mask's usual fraction: a pixel whose luminance, or a neighbour's, is at least
 /// half the reference's brightest sees an emitter and is left out of the image error.
 pub const EMITTER_FRACTION: f32 = 0.5;

@@ -17,6 +17,7 @@ mod adaptive;
 mod alpha;
 mod build;
 mod cluster;
+mod discretization;
 mod reconstruct;
 mod seams;
 mod smooth;

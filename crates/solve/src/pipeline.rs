@@ -13,8 +13,8 @@ use mcrad_mc_radiosity::{
     pool, pool_correlation, refine, run_cancellable,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES,
-    DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
+    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, CornerGroups,
+    DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
@@ -409,6 +409,10 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let mut failure: Option<Error> = None;
     let never = AtomicBool::new(false);
     let cancel = problem.cancel.unwrap_or(&never);
+    // the corner groups the target's mesh error needs, once
+    let groups = budget
+        .target_error
+        .map(|_| mesh.corner_groups(mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES));
     let result = run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
         let seconds = start.elapsed().as_secs_f64();
         complete_steps = step.variance.is_some();
@@ -433,7 +437,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         let flow = observer(&progress);
         let target = match (budget.target_error, step.variance.is_some()) {
             (Some(target), true) => match run.answer(&estimate) {
-                Ok(answer) => error_p95(&mesh, &answer) <= target,
+                Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
                 Err(e) => {
                     failure = Some(e);
                     return ControlFlow::Break(());
@@ -609,17 +613,45 @@ fn schedule_config(settings: &Settings, budget: &Budget) -> ScheduleConfig {
     }
 }
 
-/// The 95th percentile by area of the patches' relative standard error of incident irradiance
-/// ([`relative_error`]): what a target error holds a solve to. Infinite without variances.
-fn error_p95(mesh: &Mesh, answer: &Estimate) -> f64 {
+/// The 95th percentile by area of the patches' relative error of incident irradiance `H`:
+/// per patch the root sum of squares of the noise (its relative standard error,
+/// [`relative_error`]) and the mesh's discretization ([`Mesh::discretization_error`] of
+/// `H = (B - E) / rho`, its noise floor subtracted, relative to `H`; left out without
+/// `groups`): what a target error holds a solve to. Infinite without variances.
+fn error_p95(mesh: &Mesh, answer: &Estimate, groups: Option<&CornerGroups>) -> f64 {
     let Some(variance) = answer.variance() else {
         return f64::INFINITY;
     };
     let patches = mesh.patches();
+    let per = |x: f64, r: f64| if r > 1e-6 { x / r } else { 0.0 };
+    let (h, var_h): (Vec<DVec3>, Vec<DVec3>) = patches
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let rho = p.reflectance.as_dvec3();
+            let r = (answer.radiosity()[i] - p.emission.as_dvec3()).max(DVec3::ZERO);
+            let v = variance[i];
+            (
+                DVec3::new(per(r.x, rho.x), per(r.y, rho.y), per(r.z, rho.z)),
+                DVec3::new(
+                    per(v.x, rho.x * rho.x),
+                    per(v.y, rho.y * rho.y),
+                    per(v.z, rho.z * rho.z),
+                ),
+            )
+        })
+        .unzip();
+    let discretization = groups.map(|g| mesh.discretization_error(&h, Some(&var_h), g));
     let errors: Vec<f64> = patches
         .iter()
         .enumerate()
-        .map(|(i, p)| relative_error(answer.radiosity()[i], p.emission.as_dvec3(), variance[i]))
+        .map(|(i, p)| {
+            let noise = relative_error(answer.radiosity()[i], p.emission.as_dvec3(), variance[i]);
+            let mesh_part = discretization
+                .as_ref()
+                .map_or(0.0, |e| relative_error(h[i], DVec3::ZERO, e[i] * e[i]));
+            noise.hypot(mesh_part)
+        })
         .collect();
     let areas: Vec<f64> = patches.iter().map(|p| p.area).collect();
     weighted_quantile(&errors, &areas, 0.95).unwrap_or(f64::INFINITY)

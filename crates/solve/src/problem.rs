@@ -155,8 +155,11 @@ pub struct Budget {
     /// When the clock of `seconds` started (e.g. before loading the scene); `None`: when
     /// [`crate::solve`] starts.
     pub since: Option<Instant>,
-    /// Stop once the 95th percentile by area of the patches' relative standard error of
-    /// incident irradiance is at most this (a fraction, `> 0`); progressive methods only.
+    /// Stop once the 95th percentile by area of the patches' relative error of incident
+    /// irradiance is at most this (a fraction, `> 0`); progressive methods only. The error
+    /// counts the Monte Carlo noise (the relative standard error) and the mesh's
+    /// discretization ([`mcrad_meshing::Mesh::discretization_error`]) as a root sum of
+    /// squares, so a target below the mesh's own error runs to the rays or seconds.
     pub target_error: Option<f64>,
     /// The most memory the solve may take at its peak (bytes, the whole process's); `None`: no
     /// limit. A problem whose estimate ([`Problem::memory_estimate`]) exceeds it is refused
