@@ -109,6 +109,11 @@ pub struct GatherRound {
     /// their gathered image per patch, `rho_i (1/n) sum_k z_g[j_k]`, the error the round
     /// inherits from its input, sample by sample; empty otherwise.
     pub(crate) sketch: Vec<crate::replicates::Row>,
+    /// Where `sketch` is: per patch, the replicates' estimate of the variance of its image
+    /// over the round's rays, summed over the samples ((W/m²)² per channel,
+    /// `rho_i² / n_i²` times [`Seen::sketch_variance`]): the part of the round's own noise
+    /// that comes from the input's error, which the image holds too; empty otherwise.
+    pub(crate) sketch_variance: Vec<DVec3>,
     /// Per patch, the replicates' signed error sample of the round's own noise (W/m² per
     /// channel, `rho_i` times [`Halves::error_of_mean`](crate::replicates::Halves) of the
     /// values its rays saw): mean zero given the input, its square unbiased for the variance
@@ -416,6 +421,14 @@ fn round_parts<C: RayCaster>(
         patches.len() as u64 * rays_per_patch as u64,
     )?;
     if sketch.is_some() {
+        round.sketch_variance = patches
+            .iter()
+            .zip(&seen)
+            .map(|(p, s)| {
+                let rho = p.reflectance.as_dvec3() / s.moments.n.max(1) as f64;
+                rho * rho * s.sketch_variance
+            })
+            .collect();
         round.sketch = patches
             .iter()
             .zip(&seen)
@@ -574,6 +587,7 @@ fn finish(
     }
     Ok(GatherRound {
         sketch: Vec::new(),
+        sketch_variance: Vec::new(),
         errors,
         estimate: Estimate::new(radiosity, Some(variance), rays)?,
         escaped_rays,
