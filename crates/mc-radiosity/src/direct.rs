@@ -607,6 +607,7 @@ pub(crate) fn split_with_budget<C: RayCaster>(
         estimate: join_split(patches, &indirect.estimate, &direct.estimate)?,
         inherited,
         image: indirect.sketch,
+        image_variance: indirect.sketch_variance,
         own_errors: [indirect.errors, direct.errors],
     })
 }
@@ -624,6 +625,11 @@ pub(crate) struct Split {
     /// channel): the indirect gathering's and the direct light's, independent of each other
     /// and of the shooting estimate, each of mean zero with one degree of freedom.
     pub own_errors: [Vec<DVec3>; 2],
+    /// Per patch, the replicates' variance of `image` over the indirect gathering's rays,
+    /// summed over the samples ((W/m²)² per channel; empty without samples): the part of the
+    /// indirect gathering's own noise that its input's error makes, which `image` holds
+    /// too.
+    pub image_variance: Vec<DVec3>,
 }
 
 #[cfg(test)]

@@ -109,6 +109,11 @@ pub struct GatherRound {
     /// their gathered image per patch, `rho_i (1/n) sum_k z_g[j_k]`, the error the round
     /// inherits from its input, sample by sample; empty otherwise.
     pub(crate) sketch: Vec<crate::replicates::Row>,
+    /// Where `sketch` is: per patch, the replicates' estimate of the variance of its image
+    /// over the round's rays, summed over the samples ((W/m²)² per channel,
+    /// `rho_i² / n_i²` times [`Seen::sketch_variance`]): the part of the round's own noise
+    /// that comes from the input's error, which the image holds too; empty otherwise.
+    pub(crate) sketch_variance: Vec<DVec3>,
     /// Per patch, the replicates' signed error sample of the round's own noise (W/m² per
     /// channel, `rho_i` times [`Halves::error_of_mean`](crate::replicates::Halves) of the
     /// values its rays saw): mean zero given the input, its square unbiased for the variance
@@ -357,6 +362,8 @@ fn round_parts<C: RayCaster>(
     let mut inherited: Vec<DVec3> = Vec::with_capacity(n);
     let mut image: Vec<crate::replicates::Row> =
         Vec::with_capacity(if sketch.is_some() { n } else { 0 });
+    let mut image_variance: Vec<DVec3> =
+        Vec::with_capacity(if sketch.is_some() { n } else { 0 });
     let mut faces = FaceSums::new(mesh.face_count());
     let mut own: Vec<Own> = Vec::with_capacity(n);
     let coverage = ctx.coverage();
@@ -404,6 +411,8 @@ fn round_parts<C: RayCaster>(
         if sketch.is_some() {
             let rho = p.reflectance / s.moments.n.max(1) as f32;
             image.push(crate::replicates::scaled(&s.sketch, rho));
+            let rho = p.reflectance.as_dvec3() / s.moments.n.max(1) as f64;
+            image_variance.push(rho * rho * s.sketch_variance);
         }
         let t = Tally::from(&s);
         if coverage.is_some() {
@@ -430,6 +439,7 @@ fn round_parts<C: RayCaster>(
     }
     let mut round = out.done(n as u64 * rays_per_patch as u64)?;
     round.sketch = image;
+    round.sketch_variance = image_variance;
     let qmc = ctx.sampling() == Sampler::Qmc;
     round.estimate = with_face_pooled(mesh, &own, faces, round.estimate, pool, qmc)?;
     Ok((round, inherited))
@@ -650,6 +660,7 @@ impl Finish {
     fn done(self, rays: u64) -> Result<GatherRound, Error> {
         Ok(GatherRound {
             sketch: Vec::new(),
+            sketch_variance: Vec::new(),
             errors: self.errors,
             estimate: Estimate::new(self.radiosity, Some(self.variance), rays)?,
             escaped_rays: self.escaped_rays,

@@ -332,6 +332,8 @@ pub fn shoot<C: RayCaster>(
     // sequence, wave by wave (crate::replicates).
     // Kept under either sampler: their error samples (`Waves::sketch`) serve both.
     let mut waves = Some(Waves::new(patches.iter().map(|p| p.face).collect()));
+    // Rays alone in their replicate, waiting for their pair (`replicates::LoneRays`).
+    let mut lone = replicates::LoneRays::default();
     let mut stats = ShootStats {
         rays: 0,
         waves: 0,
@@ -394,8 +396,17 @@ pub fn shoot<C: RayCaster>(
                 extrapolate = true;
                 break;
             }
+            let held: Vec<bool> = unshot.iter().map(|u| total(*u) > 0.0).collect();
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
+            if let Some(waves) = waves.as_mut() {
+                // The error power pending with the power the roulette dropped goes with it.
+                for (i, (&held, &n)) in held.iter().zip(&counts).enumerate() {
+                    if held && n == 0 {
+                        waves.drop_pending(i);
+                    }
+                }
+            }
             counts
         };
         let mut jobs = wave_jobs(&counts, &cast);
@@ -431,12 +442,19 @@ pub fn shoot<C: RayCaster>(
                 // `Waves::push`). Made per job, not held per patch.
                 let i = job.patch as usize;
                 let scale = replicate_scale(cast[i], counts[i]);
-                // The error power this job's rays carry, if any.
-                let carried = waves.as_ref().and_then(|w| w.per_ray(job.patch as usize));
                 let signs = crate::replicates::source_signs(job.patch as usize);
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
+                if let Some(waves) = waves.as_mut() {
+                    // The error power the rays carry, if any, goes on with them
+                    // (`Waves::ray`).
+                    let rho = |j: usize| patches[j].reflectance;
+                    for (t, &h) in hits.iter().enumerate() {
+                        let front = (h != MISS && h & BACK == 0).then_some(h as usize);
+                        waves.ray(i, job.first + t as u64, front, rho);
+                    }
+                }
                 for (t, &h) in hits.iter().enumerate() {
                     if h == MISS {
                         escaped += 1;
@@ -449,19 +467,25 @@ pub fn shoot<C: RayCaster>(
                         reflected[j] += kept;
                         unshot[j] += kept;
                         squares[j] += kept * kept;
-                        if scale.is_none() {
-                            unsampled[j] += kept * kept;
-                        }
                         if let Some(waves) = waves.as_mut() {
                             let r = replicate(job.first + t as u64);
                             waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
-                            if let Some(q) = &carried {
-                                waves.carry(q, j, patches[j].reflectance);
-                            }
+                        } else if scale.is_none() {
+                            unsampled[j] += kept * kept;
                         }
                         kept_sum += kept;
                         kept_squares += kept * kept;
                         absorbed += p - kept;
+                    }
+                }
+                if let (None, [h], Some(waves)) = (scale, hits.as_slice(), waves.as_mut()) {
+                    // A ray alone in its replicate: paired with the patch's next lone ray of
+                    // the other replicate (`replicates::LoneRays`), or left to the formula.
+                    let front = (*h != MISS && *h & BACK == 0).then_some(*h);
+                    let rho = |j: u32| patches[j as usize].reflectance.as_dvec3();
+                    let r = replicate(job.first);
+                    if let Some((j, kept)) = lone.ray(job.patch, r, front, p, waves, rho) {
+                        unsampled[j as usize] += kept * kept;
                     }
                 }
                 returning.add(p, hits.len() as f64, kept_sum, kept_squares);
@@ -496,6 +520,9 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
+        unsampled[j as usize] += kept * kept;
+    }
     // What the waves needed goes before the replicates' gains are measured (the run's peak).
     drop(cast);
     if let Some(waves) = waves.as_mut() {
@@ -509,7 +536,7 @@ pub fn shoot<C: RayCaster>(
         replicates::scale(&mut unsampled, &gains);
     }
     let face_scale = waves.as_ref().map_or(1.0, Waves::face_scale);
-    let (mut sketch, pending) = waves.map(|w| w.sketch()).unwrap_or_default();
+    let (mut sketch, pending, dropped) = waves.map(|w| w.sketch()).unwrap_or_default();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
         // The extrapolation `reflected_i (1 + x)`, `x = |U| r / ((1 - r) sum reflected)`, is
@@ -552,6 +579,36 @@ pub fn shoot<C: RayCaster>(
     // The roulette's net power, a random surplus or deficit that the later bounces spread over
     // every patch: take it out of the reflected light (see the module documentation).
     let scale = roulette_correction(&stats);
+    if !extrapolate && stats.unshot == DVec3::ZERO {
+        // A finished run: the error power left pending (on patches that will not shoot again:
+        // the roulette dropped their power, or the carry of `Waves::ray` reached them after
+        // their last shot) and the roulette's dropped error power have a future the samples
+        // lack. The roulette's correction `s = kept / actual` restores dropped power over the
+        // scene as the light reflected so far, so an error `e` there moves patch `i`'s
+        // reflected power by `reflected_i e / actual` (before `s`): so it is added, which
+        // also gives the samples the total over the scene that shooting conserves (without it,
+        // `sum_i z_i = -(r / (1 - r)) e` in a closed scene of reflectance `r`).
+        let actual = stats.emitted - stats.unshot + stats.roulette;
+        let per = |d: DVec3| {
+            DVec3::new(
+                if actual.x > 0.0 { d.x / actual.x } else { 0.0 },
+                if actual.y > 0.0 { d.y / actual.y } else { 0.0 },
+                if actual.z > 0.0 { d.z / actual.z } else { 0.0 },
+            )
+        };
+        let shift: Vec<DVec3> = dropped
+            .iter()
+            .zip(&pending)
+            .map(|(d, p)| per(*d + *p))
+            .collect();
+        if shift.iter().any(|s| *s != DVec3::ZERO) {
+            for (row, q) in sketch.iter_mut().zip(&reflected) {
+                for (g, shift) in shift.iter().enumerate() {
+                    crate::replicates::add_sample(row, g, *q * *shift);
+                }
+            }
+        }
+    }
     for (r, q) in reflected.iter_mut().zip(&mut squares) {
         *r *= scale;
         *q *= scale * scale;

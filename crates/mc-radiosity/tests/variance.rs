@@ -146,19 +146,25 @@ fn combined_on_one_patch_per_face_reports_its_error() {
     assert!((0.5..=2.0).contains(&ratio), "spread / reported {ratio:.3}");
 }
 
-/// Issue 36: `combined` on the rho 0.99 furnace of one patch per face. Its shooting passes end
-/// in a roulette tail whose rays are alone in their replicate: their variance (`unsampled`)
-/// was summed as independent of the rest, and its share of the gathers' inherited variance
-/// added as such, while the error samples show the combination cancelling most of the
-/// shooting's error (a gather inherits about `-0.2 rho` of a face's own): spread / reported
-/// 0.21 (0.069 on main, which summed everything as independent; `cargo xtask calibrate`).
-/// Now the part the samples miss reaches the combination as the part they hold does: 0.735
-/// here (0.202 before). Same test and bounds as above (`[1/2, 2]`, about 3 standard errors
-/// of 1, 16 seeds).
+/// Issue 36: `combined` on the rho 0.99 furnace of one patch per face. Its shooting passes
+/// cast under a ray a patch a wave and end in a roulette: each ray carried its patch's whole
+/// error on to one patch (noise the later waves' differences already hold: the samples held
+/// 1.18 times the shooting's error, and the carry factor measured from them could not lower
+/// the gains, 1.44 times), the lone rays' error was left to the formula, and the gathers'
+/// own noise counted again what their images of the samples hold: spread / reported 0.659
+/// over 64 seeds (`cargo xtask calibrate`), 0.56 at 2e4 rays. Now a patch casting few rays
+/// carries its error over where its last 16 went, lone rays are paired into the samples,
+/// the error left pending at the run's end gets its future, and the images' own noise is
+/// taken out of the gathers': 0.93. 64 seeds at 2e5 rays: the pooled ratio over 6 patches
+/// correlated by conservation (a relative standard error near 10%) must lie within
+/// `[0.75, 1.33]`.
 #[test]
 fn combined_on_one_patch_per_face_at_rho_0_99_reports_its_error() {
-    let ratio = furnace_ratio(Method::Combined, 0.99, Subdivision::None, 16);
-    assert!((0.5..=2.0).contains(&ratio), "spread / reported {ratio:.3}");
+    let ratio = furnace_ratio(Method::Combined, 0.99, Subdivision::None, 64);
+    assert!(
+        (0.75..=1.33).contains(&ratio),
+        "spread / reported {ratio:.3}"
+    );
 }
 
 /// Issue 36: `combined` on a subdivided rho 0.99 furnace (edges of 1/8, 384 patches), where
@@ -184,9 +190,11 @@ fn combined_on_a_subdivided_rho_0_99_furnace_reports_its_error() {
 /// That part went through the samples' transfer to the combination, which is the smooth,
 /// conserving error's; a lone ray's error is one deposit that a gather averages away: the
 /// median patch reported twice its spread (0.501 here). Now the smaller of that transfer and
-/// the independent sum: 0.750. 16 seeds at 2e5 rays: the median over the patches of each
-/// one's spread / reported (red channel; 15 degrees of freedom each, over the median of
-/// `chi²(15) / 15`, 0.956) must lie within the calibration's target `[0.67, 1.5]`.
+/// the independent sum: 0.750; `cargo xtask calibrate` at 64 seeds, 0.557. The gathers' own
+/// noise, measured from the values their rays saw, held again what their images of the
+/// shooting's samples hold (in a furnace, all of it): taken out, 0.96. 16 seeds at 2e5 rays:
+/// the median over the patches of each one's spread / reported (red channel; 15 degrees of
+/// freedom each, over the median of `chi²(15) / 15`, 0.956) must lie within `[0.8, 1.25]`.
 #[test]
 fn combined_on_a_subdivided_rho_0_999_furnace_reports_its_error() {
     let material = mcrad_scene_io::Material {
@@ -209,7 +217,7 @@ fn combined_on_a_subdivided_rho_0_999_furnace_reports_its_error() {
     ratios.sort_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2] / 0.956;
     assert!(
-        (0.67..=1.5).contains(&median),
+        (0.8..=1.25).contains(&median),
         "median spread / reported {median:.3}"
     );
 }

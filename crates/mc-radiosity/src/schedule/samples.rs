@@ -102,7 +102,9 @@ impl ShotSamples {
 pub(crate) struct GatherSamples {
     /// Per patch, the image `y_g` of the shooting's samples (W/m², [`Row`]).
     pub image: Vec<Row>,
-    /// Per patch and channel, the gathers' own noise measured ((W/m²)²).
+    /// Per patch and channel, the gathers' own noise measured ((W/m²)²), less what their
+    /// images hold of it where the caller says so ([`GatherSamples::add`]); a patch's may be
+    /// negative (the difference of two estimates), its face's sum is what counts.
     pub measured: Vec<DVec3>,
     /// Rays of the gathers so far, and the sum of their squares (the degrees of freedom).
     rays: u64,
@@ -112,14 +114,19 @@ pub(crate) struct GatherSamples {
 impl GatherSamples {
     /// Adds a gather of `rays` rays merged by rays into the gathers before it: `image` its
     /// image of the shooting's samples, `errors` the signed replicate differences of its
-    /// independent parts (the indirect gathering's, the direct light's) per patch.
-    pub(crate) fn add(&mut self, image: Vec<Row>, errors: &[&[DVec3]], rays: u64) {
+    /// independent parts (the indirect gathering's, the direct light's) per patch, `held`
+    /// (empty, or per patch) the part of their squares' expectation that `image` holds
+    /// already, taken out of the measured noise.
+    pub(crate) fn add(&mut self, image: Vec<Row>, errors: &[&[DVec3]], held: &[DVec3], rays: u64) {
         let n = image.len().max(errors.first().map_or(0, |e| e.len()));
         let mut squares = vec![DVec3::ZERO; n];
         for e in errors {
             for (s, d) in squares.iter_mut().zip(e.iter()) {
                 *s += *d * *d;
             }
+        }
+        for (s, h) in squares.iter_mut().zip(held) {
+            *s -= *h;
         }
         self.rays += rays;
         self.squares += (rays as f64).powi(2);
@@ -262,7 +269,7 @@ pub(crate) fn variance(
     // the weight of `prior` faces of one patch's degrees of freedom.
     let scene_scale = {
         let (m, o): (DVec3, DVec3) = (face_measured.iter().sum(), face_own.iter().sum());
-        DVec3::new(ratio(m.x, o.x), ratio(m.y, o.y), ratio(m.z, o.z))
+        DVec3::new(ratio(m.x, o.x), ratio(m.y, o.y), ratio(m.z, o.z)).max(DVec3::ZERO)
     };
     let rounds = gathers.rounds().max(1.0);
     // Per face, the numerator and denominator of that scale.
@@ -295,7 +302,8 @@ pub(crate) fn variance(
                     Some(m) => m[i][c],
                     None => own[i][c],
                 };
-                v[c] = (1.0 - w).powi(2) * own_i
+                // (Measured less what the images hold, a face's estimate can fall below 0.)
+                v[c] = (1.0 - w).powi(2) * own_i.max(0.0)
                     + if face_held[f][c] > 0.0 {
                         let missed = (face_shot[f][c] - face_held[f][c])
                             .max(0.0)
@@ -412,7 +420,7 @@ impl GatherRun {
         image: Vec<Row>,
         errors: &[&[DVec3]],
     ) -> Result<(), crate::error::Error> {
-        self.samples.add(image, errors, estimate.rays());
+        self.samples.add(image, errors, &[], estimate.rays());
         self.gathers.add(estimate, inherited)
     }
 
