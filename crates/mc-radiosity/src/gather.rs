@@ -362,8 +362,7 @@ fn round_parts<C: RayCaster>(
     let mut inherited: Vec<DVec3> = Vec::with_capacity(n);
     let mut image: Vec<crate::replicates::Row> =
         Vec::with_capacity(if sketch.is_some() { n } else { 0 });
-    let mut image_variance: Vec<DVec3> =
-        Vec::with_capacity(if sketch.is_some() { n } else { 0 });
+    let mut image_variance: Vec<DVec3> = Vec::with_capacity(if sketch.is_some() { n } else { 0 });
     let mut faces = FaceSums::new(mesh.face_count());
     let mut own: Vec<Own> = Vec::with_capacity(n);
     let coverage = ctx.coverage();

@@ -103,11 +103,13 @@ pub(crate) fn points_per_patch(budget: u64, patches: usize, rays: usize) -> u32 
 const FIRST_POINTS: u32 = 4;
 
 /// Points a patch of a time-budgeted pass's second round: `m²` (`m >= 2`) with the first
-/// round's `4` at most 64 in all, as many as fit in `allowed` seconds at the first round's speed
+/// round's `4` at most 64 in all and at most `cap` (what the ray budget gives,
+/// [`points_per_patch`]), as many as fit in `allowed` seconds at the first round's speed
 /// (`took` seconds for 4 points); 0 when fewer than 4 fit.
-fn more_points(allowed: f64, took: f64) -> u32 {
+fn more_points(allowed: f64, took: f64, cap: u32) -> u32 {
     let fit = (allowed - took) / took * f64::from(FIRST_POINTS);
-    let m = fit.max(0.0).sqrt().floor().min(7.0) as u32;
+    let room = f64::from(cap.saturating_sub(FIRST_POINTS)).sqrt().floor();
+    let m = fit.max(0.0).sqrt().floor().min(7.0).min(room) as u32;
     if m < 2 { 0 } else { m * m }
 }
 
@@ -156,13 +158,18 @@ pub(crate) fn light_mesh<C: RayCaster>(
         }
         Ok(moments)
     };
+    // What the ray budget gives (64 without one).
+    let cap = points_per_patch(config.rays, patches.len(), per_point);
     let (n, moments) = match config.lights_seconds {
-        Some(allowed) if config.rays == u64::MAX => {
-            // A time budget: 4 points a patch, then the most that fit in what is left.
+        Some(allowed) if cap > FIRST_POINTS => {
+            // A time budget, with or without a ray budget: 4 points a patch, then the most
+            // that fit in what is left, never more than the ray budget gives. (Sized by a
+            // ray budget of `--rays 1e12` alone, with `--time 30`, the pass cast 256 points
+            // a patch, minutes on the atrium, before the clock was read.)
             let clock = std::time::Instant::now();
             let first = round(FIRST_POINTS, 0)?;
             let took = clock.elapsed().as_secs_f64().max(1e-9);
-            let more = more_points(allowed, took);
+            let more = more_points(allowed, took, cap);
             if more == 0 {
                 (FIRST_POINTS, first)
             } else {
@@ -175,10 +182,7 @@ pub(crate) fn light_mesh<C: RayCaster>(
                 (FIRST_POINTS + more, merged)
             }
         }
-        _ => {
-            let n = points_per_patch(config.rays, patches.len(), per_point);
-            (n, round(n, 0)?)
-        }
+        _ => (cap, round(cap, 0)?),
     };
     let probe = CornerProbe {
         mesh,
@@ -1067,11 +1071,15 @@ mod tests {
     #[test]
     fn the_second_round_takes_what_the_first_rounds_speed_fits() {
         // 4 points took 0.1 s of 1 s: 36 more fit (6²); of 10 s, capped at 49 (7², 53 in all).
-        assert_eq!(more_points(1.0, 0.1), 36);
-        assert_eq!(more_points(10.0, 0.1), 49);
+        assert_eq!(more_points(1.0, 0.1, 64), 36);
+        assert_eq!(more_points(10.0, 0.1, 64), 49);
         // fewer than 4 more fit, or the time is gone: none
-        assert_eq!(more_points(0.15, 0.1), 0);
-        assert_eq!(more_points(0.0, 0.1), 0);
+        assert_eq!(more_points(0.15, 0.1, 64), 0);
+        assert_eq!(more_points(0.0, 0.1, 64), 0);
+        // a ray budget that gives 20 (or 8, 6) points a patch: 16 (4, none) more at most
+        assert_eq!(more_points(10.0, 0.1, 20), 16);
+        assert_eq!(more_points(10.0, 0.1, 8), 4);
+        assert_eq!(more_points(10.0, 0.1, 6), 0);
     }
 
     #[test]

@@ -74,10 +74,10 @@ pub struct ScheduleConfig {
     /// of its own from the same points (cosine for a uniform sky; cosine and the map's
     /// luminance combined by the balance heuristic for a map), joins their `rho H`.
     pub sky: Option<mcrad_scene_io::Sky>,
-    /// Without a ray budget (`rays == u64::MAX`, a time budget), the seconds (`> 0`) the
-    /// lights' direct-light pass may take: it casts 4 points a patch, then as many more (up to
-    /// 64 in all) as its speed says fit. `None`: 64 points a patch. Ignored under a ray budget
-    /// (a quarter of it at most).
+    /// Under a time budget, the seconds (`> 0`) the lights' direct-light pass may take: it
+    /// casts 4 points a patch, then as many more (up to 64 in all) as its speed says fit, and
+    /// never more than a ray budget, if there is one too, gives (a quarter of it at most).
+    /// `None`: the ray budget's points alone (64 a patch without one).
     pub lights_seconds: Option<f64>,
 }
 

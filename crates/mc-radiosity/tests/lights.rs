@@ -233,6 +233,32 @@ fn a_time_budget_sizes_the_lights_pass_to_its_time() {
         "{saved} rays fewer, expected {}",
         (64 - 4) * patches
     );
+    // With a ray budget too (`--rays N --time S`), the time still sizes the pass: a budget
+    // that gives 256 points a patch alone (16² at 4 x 256 rays a patch) gives 4 under a time
+    // of 0.
+    let big = 4 * 256 * patches;
+    let with_rays = |lights_seconds: Option<f64>| {
+        let config = ScheduleConfig {
+            rays: big,
+            seed: 0,
+            lights: scene.lights().to_vec(),
+            lights_seconds,
+            ..Default::default()
+        };
+        let mut seen = None;
+        let _ = run(Method::Combined, &mesh, &bvh, &config, &mut |step| {
+            seen = Some(step.rays);
+            ControlFlow::Break(())
+        });
+        seen.expect("a first step")
+    };
+    // (the first pass's share of a finite budget moves by a few rays a patch with the pass's)
+    let saved = with_rays(None).abs_diff(with_rays(Some(0.0)));
+    assert!(
+        saved.abs_diff((256 - 4) * patches) <= 8 * patches,
+        "{saved} rays fewer, expected {}",
+        (256 - 4) * patches
+    );
     let means: Vec<DVec3> = (0..4).map(|seed| first_step(seed, Some(0.0)).1).collect();
     let mean = means.iter().sum::<DVec3>() / 4.0;
     let var = means
