@@ -732,7 +732,7 @@ impl Waves {
     /// The run's error samples (after the last [`Waves::end_wave`]), W per channel: per patch
     /// `sqrt(kappa) z_g`, `z_g` the wave differences of group `g` with what the later waves
     /// made of them. A wave's error `d_w` is power its patches then reflect: the later waves
-    /// shoot it with their rays ([`Waves::carry`]), so `z_g = sum_{w in g} (I + K + K² + ...)
+    /// shoot it with their rays ([`Waves::ray`]), so `z_g = sum_{w in g} (I + K + K² + ...)
     /// d_w` as the run's own error is, `K` the transport of the rays cast (without it, in a
     /// closed furnace of one patch per face the samples overstated the error by about
     /// `1 / (1 - rho F)² = 1.4` at rho 0.9). The `d_w` are
