@@ -245,23 +245,19 @@ pub(crate) fn look_with<C: RayCaster>(
     seen
 }
 
-/// `sum_g |a_g - b_g|² 4 n_0 n_1 / n²` ([`Seen::sketch_variance`]) of a sum of samples over
-/// `n` rays, `odd` the odd rays' part of `all`: unbiased for the variance of the sum per
-/// channel, summed over the samples; 0 below two rays.
+/// The replicates' variance of a sum of samples over `n` rays, per channel and summed over
+/// the samples ([`Seen::sketch_variance`]), `odd` the odd rays' part of `all`: `n²` times
+/// the square of [`Halves::error_of_mean`] of each sample's split, unbiased for the
+/// variance of the sum; 0 below two rays.
 fn replicate_variance(all: &Row, odd: &Row, n: u64) -> DVec3 {
-    let (n0, n1) = (n.div_ceil(2) as f64, (n / 2) as f64);
-    if n1 == 0.0 {
-        return DVec3::ZERO;
-    }
-    let n = n as f64;
-    let mut v = DVec3::ZERO;
-    for g in 0..crate::replicates::SKETCHES {
-        let b = crate::replicates::sample(odd, g);
-        let a = crate::replicates::sample(all, g) - b;
-        let d = a * (n / (2.0 * n0)) - b * (n / (2.0 * n1));
-        v += d * d;
-    }
-    v * (4.0 * n0 * n1 / (n * n))
+    (0..crate::replicates::SKETCHES)
+        .map(|g| {
+            let b = crate::replicates::sample(odd, g);
+            let a = crate::replicates::sample(all, g) - b;
+            let e = Halves { sum: [a, b] }.error_of_mean(n) * n as f64;
+            e * e
+        })
+        .sum()
 }
 
 /// The form factor from the ray's origin to the patch `hit` hit, as from a point to a disc of

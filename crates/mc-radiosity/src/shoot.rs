@@ -544,13 +544,6 @@ pub fn shoot<C: RayCaster>(
         // by `z_i (1 + x) + reflected_i x (dU / |U| - sum z / sum reflected)`.
         let (u, so_far): (DVec3, DVec3) = (unshot.iter().sum(), reflected.iter().sum());
         let x = scale - DVec3::ONE;
-        let ratio = |a: DVec3, b: DVec3| {
-            DVec3::new(
-                if b.x > 0.0 { a.x / b.x } else { 0.0 },
-                if b.y > 0.0 { a.y / b.y } else { 0.0 },
-                if b.z > 0.0 { a.z / b.z } else { 0.0 },
-            )
-        };
         let mut sums = [DVec3::ZERO; crate::replicates::SKETCHES];
         for row in &sketch {
             for (g, s) in sums.iter_mut().enumerate() {
@@ -589,17 +582,10 @@ pub fn shoot<C: RayCaster>(
         // also gives the samples the total over the scene that shooting conserves (without it,
         // `sum_i z_i = -(r / (1 - r)) e` in a closed scene of reflectance `r`).
         let actual = stats.emitted - stats.unshot + stats.roulette;
-        let per = |d: DVec3| {
-            DVec3::new(
-                if actual.x > 0.0 { d.x / actual.x } else { 0.0 },
-                if actual.y > 0.0 { d.y / actual.y } else { 0.0 },
-                if actual.z > 0.0 { d.z / actual.z } else { 0.0 },
-            )
-        };
         let shift: Vec<DVec3> = dropped
             .iter()
             .zip(&pending)
-            .map(|(d, p)| per(*d + *p))
+            .map(|(d, p)| ratio(*d + *p, actual))
             .collect();
         if shift.iter().any(|s| *s != DVec3::ZERO) {
             for (row, q) in sketch.iter_mut().zip(&reflected) {
@@ -634,6 +620,15 @@ pub fn shoot<C: RayCaster>(
         unsampled,
         face_scale,
     })
+}
+
+/// `a / b` per channel, 0 where `b` is not positive (no power to measure against).
+fn ratio(a: DVec3, b: DVec3) -> DVec3 {
+    DVec3::new(
+        if b.x > 0.0 { a.x / b.x } else { 0.0 },
+        if b.y > 0.0 { a.y / b.y } else { 0.0 },
+        if b.z > 0.0 { a.z / b.z } else { 0.0 },
+    )
 }
 
 /// The factors `n / (2 n_r)` that scale the deposits of replicate `r` of a patch's `n` rays in a
