@@ -24,11 +24,18 @@
 //! radiosity of [`Mesh::corner_radiosity`] ties them to the coarse edge so shading is
 //! continuous across it.
 
-use crate::build::{Mesh, MeshError, PatchTemplate, Subdivision};
+use crate::build::{
+    Mesh, MeshError, PatchTemplate, Subdivision, checked_max_edge, local_origin, local_positions,
+    max_coordinate, resolved_size_at,
+};
+use crate::subdivide::{Cutter, Target};
 use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Scene, SceneTextures};
+use rayon::prelude::*;
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 /// One leaf element: a triangle (3 corners) or a convex quad (4), counter-clockwise from its
 /// front, with the template of its input face.
@@ -196,7 +203,7 @@ impl AdaptiveMesh {
         bounds: AdaptiveBounds,
     ) -> Result<AdaptiveMesh, MeshError> {
         bounds.check()?;
-        let coarse = Mesh::build(scene, start)?;
+        let (leaves, origin, resolved, kept) = start_leaves(scene, start)?;
         // one template a material (its factors: a textured face's patches multiply them anew);
         // each leaf names its face itself
         let templates: Vec<PatchTemplate> = scene
@@ -211,27 +218,7 @@ impl AdaptiveMesh {
                 two_sided: scene.is_two_sided(m as u32),
             })
             .collect();
-        let mut leaves = Vec::with_capacity(coarse.patches().len());
-        for patch in coarse.patches() {
-            let c = coarse.corners(patch);
-            let mut corners = [Vec3::ZERO; 4];
-            for (k, &v) in c.iter().enumerate() {
-                corners[k] = coarse.positions()[v as usize];
-            }
-            leaves.push(Leaf {
-                corners,
-                count: c.len() as u8,
-                depth: 0,
-                template: patch.material,
-                face: patch.face,
-                back: patch.back,
-            });
-        }
         let textures = scene.textures().cloned();
-        // the leaves hold all of the start mesh: drop it before building the leaves' own
-        let (origin, resolved, kept) =
-            (coarse.origin(), coarse.resolved_size(), coarse.kept_whole());
-        drop(coarse);
         let mut mesh = build_mesh(origin, &templates, &leaves, textures.clone());
         mesh.set_kept_whole(kept);
         let start = match start {
@@ -250,6 +237,18 @@ impl AdaptiveMesh {
                 splits: Vec::new(),
             },
         })
+    }
+
+    /// The number of leaves [`AdaptiveMesh::new`] starts with for the same arguments (the
+    /// patches of [`Mesh::build`] with `start`, counted without building them), or its error.
+    pub fn start_len(
+        scene: &Scene,
+        start: Subdivision,
+        bounds: AdaptiveBounds,
+    ) -> Result<usize, MeshError> {
+        bounds.check()?;
+        let count = Mesh::count_patches(scene, start)?;
+        Ok(usize::try_from(count).unwrap_or(usize::MAX))
     }
 
     /// The adaptive mesh that `history` records, made anew from `scene` within `bounds`: the
@@ -548,36 +547,248 @@ fn split_leaf(leaf: &Leaf, plan: Plan, min_size: f64) -> Option<Vec<Leaf>> {
     ((sum - parent_area).abs() <= 1e-3 * parent_area).then_some(children)
 }
 
-/// The mesh of `leaves`: vertices shared where corners are equal as `f32`.
+/// The leaves of the start mesh of `scene` cut by `start` (the patches [`Mesh::build`] makes,
+/// in its order, without the patches' areas, normals and textures), the local frame's origin,
+/// the start's resolved size ([`Mesh::resolved_size`]) and its faces kept whole. Faces are cut
+/// in parallel in blocks of [`START_BLOCK`] (a point a block makes on a face edge is computed
+/// from the edge's ends, as another block would: the same leaves on any thread count). Errors
+/// as [`Mesh::build`]'s.
+fn start_leaves(
+    scene: &Scene,
+    start: Subdivision,
+) -> Result<(Vec<Leaf>, Vec3, f64, usize), MeshError> {
+    let max_edge = checked_max_edge(scene, start)?;
+    let origin = local_origin(scene);
+    let positions = local_positions(scene, origin);
+    let coordinate = max_coordinate(&positions);
+    let min_size = resolved_size_at(coordinate);
+    let blocks: Vec<(Vec<Leaf>, f64, usize)> = scene
+        .faces()
+        .par_chunks(START_BLOCK)
+        .map(|faces| {
+            let mut sink = LeafSink {
+                base: &positions,
+                extra: Vec::new(),
+                leaves: Vec::new(),
+            };
+            let mut cutter = Cutter::keeping_whole_below(min_size);
+            for face in faces {
+                let material = &scene.materials()[face.material as usize];
+                let template = PatchTemplate {
+                    reflectance: material.reflectance,
+                    emission: material.emission,
+                    face: face.source,
+                    material: face.material,
+                    two_sided: scene.is_two_sided(face.material),
+                };
+                match max_edge {
+                    None => sink.push_patch(&face.vertices, &template),
+                    Some(l) => cutter.cut_face(&mut sink, &face.vertices, l, &template),
+                }
+            }
+            let extra = max_coordinate(&sink.extra);
+            (sink.leaves, extra, cutter.kept_whole())
+        })
+        .collect();
+    let count = blocks.iter().map(|b| b.0.len()).sum();
+    let mut leaves = Vec::with_capacity(count);
+    let (mut coordinate, mut kept) = (coordinate, 0);
+    for (part, extra, k) in blocks {
+        leaves.extend_from_slice(&part);
+        coordinate = coordinate.max(extra);
+        kept += k;
+    }
+    Ok((leaves, origin, resolved_size_at(coordinate), kept))
+}
+
+/// Faces a block of [`start_leaves`] cuts.
+const START_BLOCK: usize = 1 << 14;
+
+/// Where [`start_leaves`] cuts a block of faces: the scene's positions (local frame), the
+/// points it adds, the leaves it makes.
+struct LeafSink<'a> {
+    base: &'a [Vec3],
+    extra: Vec<Vec3>,
+    leaves: Vec<Leaf>,
+}
+
+impl LeafSink<'_> {
+    fn leaf(&self, corners: &[u32], t: &PatchTemplate, back: bool) -> Leaf {
+        let mut c = [Vec3::ZERO; 4];
+        let count = corners.len() as u8;
+        for (k, &v) in corners.iter().enumerate() {
+            c[k] = self.position(v);
+        }
+        Leaf {
+            corners: c,
+            count,
+            depth: 0,
+            template: t.material,
+            face: t.face,
+            back,
+        }
+    }
+}
+
+impl Target for LeafSink<'_> {
+    fn position(&self, i: u32) -> Vec3 {
+        let i = i as usize;
+        match self.base.get(i) {
+            Some(&p) => p,
+            None => self.extra[i - self.base.len()],
+        }
+    }
+
+    fn push_position(&mut self, p: Vec3) -> u32 {
+        self.extra.push(p);
+        (self.base.len() + self.extra.len() - 1) as u32
+    }
+
+    fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate) {
+        let front = self.leaf(corners, t, false);
+        self.leaves.push(front);
+        if t.two_sided {
+            // the back side's corners: the front's first, then the rest in reverse
+            let mut own: Vec<u32> = corners.to_vec();
+            own[1..].reverse();
+            let back = self.leaf(&own, t, true);
+            self.leaves.push(back);
+        }
+    }
+}
+
+/// Buckets of [`build_mesh`]'s vertex sharing (a fixed number: the same mesh on any thread
+/// count).
+const VERTEX_BUCKETS: usize = 64;
+
+/// Leaves per block of [`build_mesh`]'s vertex sharing.
+const LEAF_BLOCK: usize = 1 << 14;
+
+/// The key of a corner: its coordinates' bits, `-0` as `+0`.
+fn vertex_key(p: Vec3) -> [u32; 3] {
+    p.to_array().map(|c| (c + 0.0).to_bits())
+}
+
+/// The bucket of a key: a multiplicative hash's top bits.
+fn vertex_bucket(k: &[u32; 3]) -> usize {
+    let h = (u64::from(k[0]) | (u64::from(k[1]) << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ u64::from(k[2]).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize % VERTEX_BUCKETS
+}
+
+/// A fast hash of corner keys (the keys are no one's input to attack).
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for chunk in bytes.chunks(8) {
+            let mut b = [0u8; 8];
+            b[..chunk.len()].copy_from_slice(chunk);
+            self.0 = (self.0.rotate_left(5) ^ u64::from_le_bytes(b))
+                .wrapping_mul(0x51_7CC1_B727_220A_95);
+        }
+    }
+}
+
+/// The mesh of `leaves`: vertices shared where corners are equal as `f32`, numbered in the
+/// order their first corner comes (leaf by leaf, corner by corner); leaf `i` (not a back side)
+/// is a patch followed by its back side when its template is two-sided. Made in parallel on
+/// rayon's pool: the corners are shared bucket by bucket (a bucket's first corner of each
+/// position found in corner order), the patches' areas, normals and textures computed at once.
 fn build_mesh(
     origin: Vec3,
     templates: &[PatchTemplate],
     leaves: &[Leaf],
     textures: Option<Arc<SceneTextures>>,
 ) -> Mesh {
+    // corner k of leaf i is slot 4 i + k; first[slot]: the slot of the first corner at its
+    // position
+    let lists: Vec<Vec<Vec<u32>>> = leaves
+        .par_chunks(LEAF_BLOCK)
+        .enumerate()
+        .map(|(b, block)| {
+            let mut out = vec![Vec::new(); VERTEX_BUCKETS];
+            for (j, leaf) in block.iter().enumerate() {
+                if leaf.back {
+                    continue;
+                }
+                let slot = 4 * (b * LEAF_BLOCK + j);
+                for (k, &p) in leaf.corners().iter().enumerate() {
+                    out[vertex_bucket(&vertex_key(p))].push((slot + k) as u32);
+                }
+            }
+            out
+        })
+        .collect();
+    let first: Vec<AtomicU32> = (0..4 * leaves.len())
+        .into_par_iter()
+        .map(|_| AtomicU32::new(u32::MAX))
+        .collect();
+    (0..VERTEX_BUCKETS).into_par_iter().for_each(|bucket| {
+        let len: usize = lists.iter().map(|l| l[bucket].len()).sum();
+        let mut seen: HashMap<[u32; 3], u32, BuildHasherDefault<KeyHasher>> =
+            HashMap::with_capacity_and_hasher(len, BuildHasherDefault::default());
+        for list in &lists {
+            for &slot in &list[bucket] {
+                let p = leaves[slot as usize / 4].corners[slot as usize % 4];
+                let f = *seen.entry(vertex_key(p)).or_insert(slot);
+                first[slot as usize].store(f, Ordering::Relaxed);
+            }
+        }
+    });
+    drop(lists);
+    let mut first: Vec<u32> = first.into_par_iter().map(AtomicU32::into_inner).collect();
+    // in corner order: a first corner is a new vertex, the others take their first's (its
+    // slot in `first` now holds its vertex)
     let mut mesh = Mesh::empty(origin, textures);
-    // the arrays at their final size, so that no growth or shrinking copies them
     let corner_count: usize = leaves.iter().map(|l| usize::from(l.count)).sum();
-    mesh.reserve_exact(leaves.len(), corner_count, corner_count - 2 * leaves.len());
-    let mut vertex: HashMap<[u32; 3], u32> = HashMap::with_capacity(leaves.len());
-    let mut corners = Vec::with_capacity(4);
-    for leaf in leaves {
+    let mut corners = Vec::with_capacity(corner_count);
+    let mut patch_leaf: Vec<u32> = Vec::with_capacity(leaves.len());
+    for (i, leaf) in leaves.iter().enumerate() {
         if leaf.back {
             // pushed with its front (the template is two-sided)
             continue;
         }
-        corners.clear();
-        for &p in leaf.corners() {
-            let key = p.to_array().map(|c| (c + 0.0).to_bits());
-            let v = *vertex.entry(key).or_insert_with(|| mesh.push_position(p));
+        let start = corners.len();
+        for (k, &p) in leaf.corners().iter().enumerate() {
+            let slot = 4 * i + k;
+            let f = first[slot] as usize;
+            let v = if f == slot {
+                mesh.push_position(p)
+            } else {
+                first[f]
+            };
+            first[slot] = v;
             corners.push(v);
         }
+        patch_leaf.push(i as u32);
+        if templates[leaf.template as usize].two_sided {
+            corners.push(corners[start]);
+            for k in (start + 1..corners.len() - 1).rev() {
+                corners.push(corners[k]);
+            }
+            patch_leaf.push(i as u32 | BACK);
+        }
+    }
+    drop(first);
+    let count = patch_leaf.len();
+    mesh.set_polygons(corners, count, |p| {
+        let i = (patch_leaf[p] & !BACK) as usize;
+        let leaf = &leaves[i];
         let template = PatchTemplate {
             face: leaf.face,
             ..templates[leaf.template as usize]
         };
-        mesh.push_patch(&corners, &template);
-    }
+        (usize::from(leaf.count), patch_leaf[p] & BACK != 0, template)
+    });
     mesh.shrink_to_fit();
     mesh
 }
+
+/// The flag of a back side in [`build_mesh`]'s patch list.
+const BACK: u32 = 1 << 31;

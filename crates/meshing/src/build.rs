@@ -3,6 +3,7 @@
 use crate::subdivide::Cutter;
 use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Scene, SceneTextures};
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// How faces become patches.
@@ -161,29 +162,11 @@ impl Mesh {
         subdivision: Subdivision,
         max_patches: usize,
     ) -> Result<Mesh, MeshError> {
-        let max_edge = match subdivision {
-            Subdivision::None => None,
-            Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => Some(l),
-            Subdivision::MaxEdge(l) => return Err(MeshError::BadMaxEdge(l)),
-        };
-        if let Some(l) = max_edge {
-            let estimate = estimate_patches(scene, l);
-            if estimate > MAX_PATCHES {
-                return Err(MeshError::TooManyPatches {
-                    max_edge: l,
-                    estimate,
-                    limit: MAX_PATCHES,
-                });
-            }
-        }
+        let max_edge = checked_max_edge(scene, subdivision)?;
         let origin = local_origin(scene);
         let mut mesh = Mesh {
             origin,
-            positions: scene
-                .positions()
-                .iter()
-                .map(|p| (p.as_dvec3() - origin.as_dvec3()).as_vec3())
-                .collect(),
+            positions: local_positions(scene, origin),
             corners: Vec::new(),
             triangles: Vec::new(),
             triangle_patch: Vec::new(),
@@ -223,6 +206,32 @@ impl Mesh {
         Ok(mesh)
     }
 
+    /// The number of patches [`Mesh::build`] makes of `scene` with `subdivision` (a two-sided
+    /// face's back sides counted), without building it: the same cuts counted face by face,
+    /// in parallel on rayon's pool. Errors as [`Mesh::build`]'s.
+    pub fn count_patches(scene: &Scene, subdivision: Subdivision) -> Result<u64, MeshError> {
+        let max_edge = checked_max_edge(scene, subdivision)?;
+        let sides = |face: &mcrad_scene_io::Face| 1 + u64::from(scene.is_two_sided(face.material));
+        let Some(l) = max_edge else {
+            return Ok(scene.faces().par_iter().map(sides).sum());
+        };
+        let positions = local_positions(scene, local_origin(scene));
+        let min_size = resolved_size_at(max_coordinate(&positions));
+        Ok(scene
+            .faces()
+            .par_iter()
+            .map_init(Vec::new, |pos, face| {
+                pos.clear();
+                pos.extend(
+                    face.vertices
+                        .iter()
+                        .map(|&v| positions[v as usize].as_dvec3()),
+                );
+                sides(face) * crate::subdivide::count_face(pos, l, min_size)
+            })
+            .sum())
+    }
+
     /// A mesh without vertices or patches (to be filled by `push_position`/`push_patch`) whose
     /// local frame has its origin at world point `origin`, its patches textured by `textures`.
     pub(crate) fn empty(origin: Vec3, textures: Option<Arc<SceneTextures>>) -> Mesh {
@@ -243,12 +252,7 @@ impl Mesh {
     /// local frame (0 for a mesh without vertices). Uniform cuts keep a face whole rather than
     /// cut it below this, adaptive splits refuse to go below it.
     pub fn resolved_size(&self) -> f64 {
-        let coordinate = self
-            .positions
-            .iter()
-            .map(|p| f64::from(p.abs().max_element()))
-            .fold(0.0, f64::max);
-        coordinate * f64::from(f32::EPSILON) * F32_SPACINGS_PER_PATCH
+        resolved_size_at(max_coordinate(&self.positions))
     }
 
     /// The patches smaller than [`Mesh::resolved_size`] (whole slivers): their count and their
@@ -274,15 +278,6 @@ impl Mesh {
     /// Sets the count [`Mesh::kept_whole`] reports (an adaptive mesh carries its start's).
     pub(crate) fn set_kept_whole(&mut self, n: usize) {
         self.kept_whole = n;
-    }
-
-    /// Reserves room for exactly `patches` more patches of `corners` corners and `triangles`
-    /// triangles in all.
-    pub(crate) fn reserve_exact(&mut self, patches: usize, corners: usize, triangles: usize) {
-        self.patches.reserve_exact(patches);
-        self.corners.reserve_exact(corners);
-        self.triangles.reserve_exact(triangles);
-        self.triangle_patch.reserve_exact(triangles);
     }
 
     /// Releases the arrays' spare capacity.
@@ -321,6 +316,75 @@ impl Mesh {
         if t.two_sided {
             self.push_back_side();
         }
+    }
+
+    /// Sets the mesh's patches to `count` polygons over its positions, made in parallel on
+    /// rayon's pool, as [`Mesh::push_patch`] would push them one by one: `corners` holds
+    /// each patch's corner vertices in patch order (a back side's as
+    /// [`Mesh::push_patch`] makes them from its front's) and `side(i)` gives patch `i`'s
+    /// corner count, whether it is the back side of patch `i - 1`, and its template.
+    pub(crate) fn set_polygons(
+        &mut self,
+        corners: Vec<u32>,
+        count: usize,
+        side: impl Fn(usize) -> (usize, bool, PatchTemplate) + Sync,
+    ) {
+        // patch i's corners start at first[i]; its triangles (a fan of count - 2) at
+        // first[i] - 2 i
+        let mut first = Vec::with_capacity(count + 1);
+        let mut at = 0u32;
+        for i in 0..count {
+            first.push(at);
+            at += side(i).0 as u32;
+        }
+        first.push(at);
+        let front = |i: usize, t: &PatchTemplate| {
+            let (s, e) = (first[i] as usize, first[i + 1] as usize);
+            self.front_patch(&corners[s..e], t, first[i], first[i] - 2 * i as u32)
+        };
+        let patches: Vec<Patch> = (0..count)
+            .into_par_iter()
+            .with_min_len(1 << 12)
+            .map(|i| {
+                let (_, back, t) = side(i);
+                if back && i > 0 {
+                    let f = front(i - 1, &t);
+                    Patch {
+                        normal: -f.normal,
+                        back: true,
+                        first_corner: first[i],
+                        first_triangle: first[i] - 2 * i as u32,
+                        ..f
+                    }
+                } else {
+                    front(i, &t)
+                }
+            })
+            .collect();
+        let triangle_count = at as usize - 2 * count;
+        let mut triangles = Vec::with_capacity(triangle_count);
+        let mut triangle_patch = Vec::with_capacity(triangle_count);
+        for (i, p) in patches.iter().enumerate() {
+            if p.back {
+                // the front's triangles, each turned over
+                let f = &patches[i - 1];
+                let s = f.first_triangle as usize;
+                for k in s..s + f.triangle_count() {
+                    let t: [u32; 3] = triangles[k];
+                    triangles.push([t[0], t[2], t[1]]);
+                }
+            } else {
+                let c = &corners[first[i] as usize..first[i + 1] as usize];
+                for w in c[1..].windows(2) {
+                    triangles.push([c[0], w[0], w[1]]);
+                }
+            }
+            triangle_patch.extend(std::iter::repeat_n(i as u32, p.triangle_count()));
+        }
+        self.corners = corners;
+        self.triangles = triangles;
+        self.triangle_patch = triangle_patch;
+        self.patches = patches;
     }
 
     /// Appends the back side of the last patch (see [`Patch::back`]).
@@ -385,6 +449,25 @@ impl Mesh {
         let first_corner = self.corners.len() as u32;
         let first_triangle = self.triangles.len() as u32;
         self.corners.extend_from_slice(corners);
+        for w in corners[1..].windows(2) {
+            self.triangles.push([corners[0], w[0], w[1]]);
+            self.triangle_patch.push(id);
+        }
+        let patch = self.front_patch(corners, t, first_corner, first_triangle);
+        self.patches.push(patch);
+    }
+
+    /// The patch of corners `corners` (vertex indices, counter-clockwise) and template `t`
+    /// whose corners and triangles start at `first_corner` and `first_triangle`: its area,
+    /// normal and centroid from the mesh's positions, its reflectance and emission from the
+    /// template (times the texture's mean over it).
+    pub(crate) fn front_patch(
+        &self,
+        corners: &[u32],
+        t: &PatchTemplate,
+        first_corner: u32,
+        first_triangle: u32,
+    ) -> Patch {
         let p0 = self.positions[corners[0] as usize].as_dvec3();
         let mut area2 = DVec3::ZERO; // twice the vector area
         let mut moment = DVec3::ZERO; // sum of (twice triangle area) * triangle centroid
@@ -398,8 +481,6 @@ impl Mesh {
             area2 += c;
             doubled_areas += c.length();
             moment += c.length() * (p0 + p1 + p2) / 3.0;
-            self.triangles.push([corners[0], w[0], w[1]]);
-            self.triangle_patch.push(id);
         }
         let normal = area2.normalize_or_zero();
         // a textured face: the material's factors times the texture's mean over this patch
@@ -417,7 +498,7 @@ impl Mesh {
         {
             area *= f64::from(coverage.max(MIN_COVERAGE));
         }
-        self.patches.push(Patch {
+        Patch {
             area,
             normal: normal.as_vec3(),
             centroid: if doubled_areas > 0.0 {
@@ -433,7 +514,7 @@ impl Mesh {
             first_corner,
             corner_count: corners.len() as u32,
             first_triangle,
-        });
+        }
     }
 
     /// The world positions of vertices `corners` (texture mappings are in world
@@ -611,9 +692,58 @@ pub(crate) struct PatchTemplate {
     pub two_sided: bool,
 }
 
+/// The largest coordinate magnitude of `positions` (0 for none), in parallel.
+pub(crate) fn max_coordinate(positions: &[Vec3]) -> f64 {
+    positions
+        .par_iter()
+        .with_min_len(1 << 14)
+        .map(|p| f64::from(p.abs().max_element()))
+        .reduce(|| 0.0, f64::max)
+}
+
+/// [`Mesh::resolved_size`] of a mesh whose largest coordinate magnitude is `coordinate`.
+pub(crate) fn resolved_size_at(coordinate: f64) -> f64 {
+    coordinate * f64::from(f32::EPSILON) * F32_SPACINGS_PER_PATCH
+}
+
+/// `scene`'s positions in the local frame of origin `origin` (see [`Mesh::origin`]).
+pub(crate) fn local_positions(scene: &Scene, origin: Vec3) -> Vec<Vec3> {
+    scene
+        .positions()
+        .par_iter()
+        .with_min_len(1 << 14)
+        .map(|p| (p.as_dvec3() - origin.as_dvec3()).as_vec3())
+        .collect()
+}
+
+/// The maximum edge of `subdivision` (`None` for one patch per face), checked as
+/// [`Mesh::build`] checks it: a positive finite length, and a cut of `scene` of at most
+/// [`MAX_PATCHES`] patches by [`estimate_patches`].
+pub(crate) fn checked_max_edge(
+    scene: &Scene,
+    subdivision: Subdivision,
+) -> Result<Option<f32>, MeshError> {
+    let max_edge = match subdivision {
+        Subdivision::None => None,
+        Subdivision::MaxEdge(l) if l.is_finite() && l > 0.0 => Some(l),
+        Subdivision::MaxEdge(l) => return Err(MeshError::BadMaxEdge(l)),
+    };
+    if let Some(l) = max_edge {
+        let estimate = estimate_patches(scene, l);
+        if estimate > MAX_PATCHES {
+            return Err(MeshError::TooManyPatches {
+                max_edge: l,
+                estimate,
+                limit: MAX_PATCHES,
+            });
+        }
+    }
+    Ok(max_edge)
+}
+
 /// The origin of the local frame of `scene`'s mesh (see [`Mesh::origin`]): the bounding box's
 /// centre rounded to a multiple of the smallest power of two `>=` its diagonal.
-fn local_origin(scene: &Scene) -> Vec3 {
+pub(crate) fn local_origin(scene: &Scene) -> Vec3 {
     let b = scene.bounds();
     let centre = (b.min.as_dvec3() + b.max.as_dvec3()) / 2.0;
     let diagonal = b.diagonal();

@@ -1,8 +1,32 @@
 //! Uniform subdivision of faces into patches that share their edge points.
 
 use crate::build::{Mesh, PatchTemplate};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use std::collections::HashMap;
+
+/// What a [`Cutter`] cuts into: vertices it reads and appends, patches it appends (a [`Mesh`],
+/// or the leaves of an adaptive mesh's start).
+pub(crate) trait Target {
+    /// Position of vertex `i`.
+    fn position(&self, i: u32) -> Vec3;
+    /// Appends a vertex and returns its index.
+    fn push_position(&mut self, p: Vec3) -> u32;
+    /// Appends a convex planar polygon patch of corners `corners` (counter-clockwise), and
+    /// right after it its back side when the template is two-sided.
+    fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate);
+}
+
+impl Target for Mesh {
+    fn position(&self, i: u32) -> Vec3 {
+        Mesh::position(self, i)
+    }
+    fn push_position(&mut self, p: Vec3) -> u32 {
+        Mesh::push_position(self, p)
+    }
+    fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate) {
+        Mesh::push_patch(self, corners, t);
+    }
+}
 
 /// Cuts faces into patches, remembering the points it made on face edges so that a neighbouring
 /// face cutting the same edge into the same number of pieces reuses them.
@@ -40,13 +64,19 @@ impl Cutter {
     /// Whether a polygon of `area` cut into `pieces` would have pieces below the minimum size;
     /// counts it when it is to be kept whole.
     fn keep_whole(&mut self, area: f64, pieces: u32) -> bool {
-        let keep = pieces > 1 && area / f64::from(pieces) < self.min_size * self.min_size;
+        let keep = keeps_whole(area, pieces, self.min_size);
         self.kept_whole += usize::from(keep);
         keep
     }
 
     /// Cuts one face (corner indices counter-clockwise) into patches of `mesh`.
-    pub fn cut_face(&mut self, mesh: &mut Mesh, corners: &[u32], max_edge: f32, t: &PatchTemplate) {
+    pub fn cut_face(
+        &mut self,
+        mesh: &mut impl Target,
+        corners: &[u32],
+        max_edge: f32,
+        t: &PatchTemplate,
+    ) {
         let pos: Vec<DVec3> = corners
             .iter()
             .map(|&i| mesh.position(i).as_dvec3())
@@ -67,7 +97,7 @@ impl Cutter {
 
     /// The point `k/n` of the way from vertex `a` to vertex `b`, computed the same way from
     /// either end so both faces of an edge get the same vertex.
-    fn edge_point(&mut self, mesh: &mut Mesh, a: u32, b: u32, k: u32, n: u32) -> u32 {
+    fn edge_point(&mut self, mesh: &mut impl Target, a: u32, b: u32, k: u32, n: u32) -> u32 {
         if k == 0 {
             return a;
         }
@@ -90,7 +120,7 @@ impl Cutter {
     /// Cuts triangle `abc` into `n²` similar triangles, `n` set by its longest edge.
     fn cut_triangle(
         &mut self,
-        mesh: &mut Mesh,
+        mesh: &mut impl Target,
         [a, b, c]: [u32; 3],
         max_edge: f32,
         t: &PatchTemplate,
@@ -100,9 +130,8 @@ impl Cutter {
             mesh.position(b).as_dvec3(),
             mesh.position(c).as_dvec3(),
         );
-        let longest = pa.distance(pb).max(pb.distance(pc)).max(pc.distance(pa));
-        let n = pieces(longest, max_edge);
-        if self.keep_whole((pb - pa).cross(pc - pa).length() / 2.0, n * n) {
+        let (n, area) = triangle_cut(pa, pb, pc, max_edge);
+        if self.keep_whole(area, n * n) {
             mesh.push_patch(&[a, b, c], t);
             return;
         }
@@ -144,12 +173,9 @@ impl Cutter {
     }
 
     /// Cuts a convex quad `v0 v1 v2 v3` into an `n_u × n_v` bilinear grid of quads.
-    fn cut_quad(&mut self, mesh: &mut Mesh, v: [u32; 4], max_edge: f32, t: &PatchTemplate) {
+    fn cut_quad(&mut self, mesh: &mut impl Target, v: [u32; 4], max_edge: f32, t: &PatchTemplate) {
         let p = v.map(|i| mesh.position(i).as_dvec3());
-        let nu = pieces(p[0].distance(p[1]).max(p[3].distance(p[2])), max_edge);
-        let nv = pieces(p[0].distance(p[3]).max(p[1].distance(p[2])), max_edge);
-        let area =
-            ((p[1] - p[0]).cross(p[2] - p[0]) + (p[2] - p[0]).cross(p[3] - p[0])).length() / 2.0;
+        let (nu, nv, area) = quad_cut(&p, max_edge);
         if self.keep_whole(area, nu * nv) {
             mesh.push_patch(&v, t);
             return;
@@ -183,6 +209,57 @@ impl Cutter {
             }
         }
     }
+}
+
+/// Whether a polygon of `area` (scene units²) cut into `pieces` would have pieces below
+/// `min_size` (`sqrt(area)`, scene units): it is then kept whole.
+fn keeps_whole(area: f64, pieces: u32, min_size: f64) -> bool {
+    pieces > 1 && area / f64::from(pieces) < min_size * min_size
+}
+
+/// The pieces per edge `n` that triangle `abc` is cut into (`n²` triangles, by its longest
+/// edge) and its area (scene units²).
+fn triangle_cut(pa: DVec3, pb: DVec3, pc: DVec3, max_edge: f32) -> (u32, f64) {
+    let longest = pa.distance(pb).max(pb.distance(pc)).max(pc.distance(pa));
+    (
+        pieces(longest, max_edge),
+        (pb - pa).cross(pc - pa).length() / 2.0,
+    )
+}
+
+/// The grid `n_u × n_v` that convex quad `p` is cut into and its area (scene units²).
+fn quad_cut(p: &[DVec3; 4], max_edge: f32) -> (u32, u32, f64) {
+    let nu = pieces(p[0].distance(p[1]).max(p[3].distance(p[2])), max_edge);
+    let nv = pieces(p[0].distance(p[3]).max(p[1].distance(p[2])), max_edge);
+    let area = ((p[1] - p[0]).cross(p[2] - p[0]) + (p[2] - p[0]).cross(p[3] - p[0])).length() / 2.0;
+    (nu, nv, area)
+}
+
+/// The patches (one side) [`Cutter::cut_face`] makes of a face of corner positions `pos`
+/// (counter-clockwise, in the mesh's local frame, as `f64` from its `f32` positions) with
+/// edges of at most `max_edge`, keeping whole what would be cut below `min_size`; without
+/// making them.
+pub(crate) fn count_face(pos: &[DVec3], max_edge: f32, min_size: f64) -> u64 {
+    let pieces_or_whole = |area: f64, pieces: u32| {
+        if keeps_whole(area, pieces, min_size) {
+            1
+        } else {
+            u64::from(pieces)
+        }
+    };
+    if let [p0, p1, p2, p3] = *pos
+        && is_convex(pos)
+    {
+        let (nu, nv, area) = quad_cut(&[p0, p1, p2, p3], max_edge);
+        return pieces_or_whole(area, nu * nv);
+    }
+    pos[1..]
+        .windows(2)
+        .map(|w| {
+            let (n, area) = triangle_cut(pos[0], w[0], w[1], max_edge);
+            pieces_or_whole(area, n * n)
+        })
+        .sum()
 }
 
 /// True when the polygon turns the same way at every corner (strictly convex, any winding).

@@ -719,9 +719,8 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
         scene.faces().len(),
         plan_bounds(scene, settings).max_patches,
     );
-    let fits = |mesh: &AdaptiveMesh, share: usize| {
-        mesh.len().saturating_sub(faces) <= asked / share
-            && mesh.len() <= bounds.max_patches.min(affordable)
+    let fits = |len: usize, share: usize| {
+        len.saturating_sub(faces) <= asked / share && len <= bounds.max_patches.min(affordable)
     };
     let mesh_error = |start: Subdivision| {
         move |source| Error::Mesh {
@@ -732,21 +731,19 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
             },
         }
     };
+    // Each start is counted before it is built: only the one taken is built.
     let diagonal = scene.bounds().diagonal() as f32;
     let coarse = Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION);
-    let mut mesh = AdaptiveMesh::new(scene, coarse, bounds).map_err(mesh_error(coarse))?;
-    // a start that does not fit goes before the next is built (never two at once)
-    if !fits(&mesh, START_SHARE) {
-        drop(mesh);
-        let uniform = Subdivision::default_for(scene);
-        mesh = AdaptiveMesh::new(scene, uniform, bounds).map_err(mesh_error(uniform))?;
-    }
-    if !fits(&mesh, 1) {
-        drop(mesh);
-        mesh = AdaptiveMesh::new(scene, Subdivision::None, bounds)
-            .map_err(mesh_error(Subdivision::None))?;
-    }
-    Ok(mesh)
+    let uniform = Subdivision::default_for(scene);
+    let count = |start| AdaptiveMesh::start_len(scene, start, bounds).map_err(mesh_error(start));
+    let start = if fits(count(coarse)?, START_SHARE) {
+        coarse
+    } else if fits(count(uniform)?, 1) {
+        uniform
+    } else {
+        Subdivision::None
+    };
+    AdaptiveMesh::new(scene, start, bounds).map_err(mesh_error(start))
 }
 
 /// The adaptive mesh `mesh` ([`adaptive_start`]) refined with a quarter of the ray budget and
