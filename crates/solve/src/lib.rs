@@ -62,4 +62,4 @@ pub use memory::{
 pub use pipeline::{Answer, Observer, Progress, solve};
 pub use problem::{AfterSolve, Budget, Input, MeshPlan, Problem, Settings};
 pub use state::{RunState, piece_seed};
-pub use stats::{ClusterStats, RefinementRound, RunStats};
+pub use stats::{ClusterStats, RefinementRound, RunStats, SetupPhases};

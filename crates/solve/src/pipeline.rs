@@ -4,7 +4,7 @@ use crate::clusters::{Groups, PoolCounts, pool_clusters};
 use crate::problem::Input;
 use crate::state::Identity;
 use crate::stats::ClusterStats;
-use crate::stats::RefinementRound;
+use crate::stats::{RefinementRound, SetupPhases};
 use crate::{Budget, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed};
 use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
@@ -268,6 +268,9 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
+    let mut phases = SetupPhases::default();
+    let meshing = Instant::now();
+    let mut refined_at: Option<Instant> = None;
     let (mesh, mut refinement, history) = match (problem.input, scene, settings.mesh, history) {
         (Input::Mesh(mesh), ..) => (mesh.clone(), None, None),
         (_, None, ..) => return Err(Error::SceneTaken),
@@ -285,8 +288,12 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             let start = adaptive_start(scene, settings, config.rays)?;
             // meshed: a scene handed over goes before the refinement builds its casters
             drop(owned.take());
+            refined_at = Some(Instant::now());
+            let refine_seconds = budget
+                .seconds
+                .map(|t| refine_share(t, clock.elapsed().as_secs_f64()));
             let (mesh, refined, history) =
-                adaptive_refine(start, settings, &budget, &config, &mut warnings)?;
+                adaptive_refine(start, settings, refine_seconds, &config, &mut warnings)?;
             if config.rays != u64::MAX {
                 // The method gets what the refinement left, and at least half the budget.
                 config.rays = config
@@ -321,6 +328,13 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             (mesh, None, None)
         }
     };
+    match refined_at {
+        Some(at) => {
+            phases.mesh_seconds = (at - meshing).as_secs_f64();
+            phases.refine_seconds = at.elapsed().as_secs_f64();
+        }
+        None => phases.mesh_seconds = meshing.elapsed().as_secs_f64(),
+    }
     drop(owned.take());
     warnings.extend(sliver_warning(&mesh));
     // the refinement's caster when it is over the final mesh (the same a build gives), else
@@ -329,10 +343,12 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         .as_mut()
         .and_then(|r| r.caster.take())
         .and_then(|c| Arc::try_unwrap(c).ok());
+    let casting = Instant::now();
     let bvh = match reused {
         Some(bvh) => bvh,
         None => mesh.caster()?,
     };
+    phases.caster_seconds = casting.elapsed().as_secs_f64();
     let back = mesh.back_face_offset();
     let patch: Vec<u32> = mesh
         .patches()
@@ -352,6 +368,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     }
     // Small neighbouring faces share one estimate of irradiance (the adaptive plan only: a
     // fixed mesh is solved as given).
+    let clustering = Instant::now();
     let clusters = match (problem.input, settings.mesh) {
         (Input::Scene(_) | Input::SceneOnce(_), MeshPlan::Adaptive { .. }) if !deterministic => {
             Clusters::build(
@@ -364,11 +381,14 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         _ => Clusters::default(),
     };
+    phases.clusters_seconds = clustering.elapsed().as_secs_f64();
     // The caller's work after the solve, timed now that the mesh and caster exist.
+    let timing = Instant::now();
     let after_seconds = match (problem.after, budget.seconds) {
         (Some(after), Some(_)) if !deterministic => (after.0)(&mesh, &bvh).max(0.0),
         _ => 0.0,
     };
+    phases.after_seconds = timing.elapsed().as_secs_f64();
     let setup_seconds = clock.elapsed().as_secs_f64();
     // Under a time budget the lights' direct-light pass takes a quarter of the time left at
     // most (64 points a patch of a large mesh could take it all).
@@ -549,6 +569,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         unshot_fraction: (!cancelled).then_some(solution.unshot_fraction),
         stop: solution.stop,
         setup_seconds,
+        setup: phases,
         sampler: settings.sampler,
         refinement: refinement
             .as_ref()
@@ -747,12 +768,12 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
 }
 
 /// The adaptive mesh `mesh` ([`adaptive_start`]) refined with a quarter of the ray budget and
-/// of the time (`config`: the run's schedule, with the scene's lights and sky), as a mesh, the
-/// refinement and its history.
+/// `seconds` of the time ([`refine_share`]; `config`: the run's schedule, with the scene's
+/// lights and sky), as a mesh, the refinement and its history.
 fn adaptive_refine(
     mut mesh: AdaptiveMesh,
     settings: &Settings,
-    budget: &Budget,
+    seconds: Option<f64>,
     config: &ScheduleConfig,
     warnings: &mut Vec<String>,
 ) -> Result<(Mesh, Refined, History), Error> {
@@ -763,7 +784,7 @@ fn adaptive_refine(
         } else {
             (rays / 4).max(1)
         },
-        seconds: budget.seconds.map(|t| t / 4.0),
+        seconds,
         seed: settings.seed,
         lights: config.lights.clone(),
         sky: config.sky.clone(),
@@ -784,6 +805,13 @@ fn adaptive_refine(
     }
     let history = mesh.history().clone();
     Ok((mesh.into_mesh(), refined, history))
+}
+
+/// The refinement's share of a time budget of `seconds` of which `elapsed` are spent
+/// (loading and the start mesh, on the budget's clock): a quarter of the time left, none when
+/// none is left. The method then takes the time left after the refinement.
+fn refine_share(seconds: f64, elapsed: f64) -> f64 {
+    ((seconds - elapsed) / 4.0).max(0.0)
 }
 
 /// The finer start (the diagonal / 40) is taken when it holds at most `1 / START_SHARE` of the
@@ -832,4 +860,33 @@ fn rays_that_fit(left: f64, seconds: f64, rays: u64, after: After) -> u64 {
         return 0;
     }
     (room / (1.0 + p)).min(u64::MAX as f64) as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_refinement_takes_a_quarter_of_the_time_left_after_the_setup() {
+        // 20 s of a 60 s budget spent loading and meshing: 10 s for the refinement
+        assert_eq!(refine_share(60.0, 20.0), 10.0);
+        assert_eq!(refine_share(60.0, 0.0), 15.0);
+        // a setup that took the whole budget leaves the refinement nothing
+        assert_eq!(refine_share(20.0, 27.0), 0.0);
+        assert_eq!(refine_share(20.0, 20.0), 0.0);
+    }
+
+    #[test]
+    fn the_method_fits_its_rays_in_the_time_left_after_the_renders() {
+        // 1e6 rays took 1 s: 10 s left, 2 s of them the render's, fill 97% of 8 s
+        let after = After {
+            seconds: 2.0,
+            probe_per_ray: 0.0,
+        };
+        let fits = rays_that_fit(10.0, 1.0, 1_000_000, after);
+        assert!(fits.abs_diff((TIME_FILL * 8.0 * 1e6) as u64) <= 1, "{fits}");
+        // the render alone takes the time left: no more rays
+        assert_eq!(rays_that_fit(1.5, 1.0, 1_000_000, after), 0);
+        assert_eq!(rays_that_fit(0.0, 1.0, 1_000_000, After::default()), 0);
+    }
 }

@@ -40,6 +40,8 @@ pub struct RunStats {
     /// it before loading the scene) to the start of the method: loading, meshing, refining and
     /// building the ray caster (s).
     pub setup_seconds: f64,
+    /// Where `setup_seconds` after loading went, phase by phase.
+    pub setup: SetupPhases,
     /// How the rays were drawn, written as [`Sampler::name`]: `random` or `qmc`.
     #[serde(serialize_with = "by_name")]
     pub sampler: Sampler,
@@ -57,6 +59,26 @@ pub struct RunStats {
     /// pooling over them did; absent where none formed (every mesh but an adaptive one's).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub clusters: Option<ClusterStats>,
+}
+
+/// The phases of a solve's setup after loading, wall-clock seconds each: what
+/// [`RunStats::setup_seconds`] holds beside the loading (which the caller times: the CLI's
+/// `load_seconds`).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct SetupPhases {
+    /// The mesh before any refinement: an adaptive mesh's start (its candidates counted, the
+    /// one taken built), a replayed history, or a fixed mesh (s).
+    pub mesh_seconds: f64,
+    /// An adaptive mesh's refinement: its ray caster (built again after each round that
+    /// splits), the pilot shooting and the rounds (s); 0 for a fixed mesh.
+    pub refine_seconds: f64,
+    /// The ray caster over the final mesh, where the refinement's could not be reused (s).
+    pub caster_seconds: f64,
+    /// The clusters of small faces (s).
+    pub clusters_seconds: f64,
+    /// Timing the caller's work after the solve ([`crate::Problem::after`]: the CLI renders
+    /// `--image` at an eighth of its size), under a time budget (s).
+    pub after_seconds: f64,
 }
 
 /// Clusters of small faces ([`mcrad_meshing::Clusters`]) and the answer's pooling over them:
@@ -162,6 +184,7 @@ mod tests {
             unshot_fraction: Some(0.01),
             stop: StopReason::BudgetSpent,
             setup_seconds: 0.1,
+            setup: SetupPhases::default(),
             sampler: Sampler::Qmc,
             refinement: None,
             clusters: None,
