@@ -779,7 +779,8 @@ fn estimate_patches(scene: &Scene, max_edge: f32) -> u64 {
     let p = scene.positions();
     scene
         .faces()
-        .iter()
+        .par_iter()
+        .with_min_len(1 << 12)
         .map(|f| {
             let longest = f
                 .vertices
@@ -790,5 +791,5 @@ fn estimate_patches(scene: &Scene, max_edge: f32) -> u64 {
             let n = (longest / l).ceil().max(1.0);
             ((f.vertices.len() - 2) as f64 * n * n).min(u64::MAX as f64 / 2.0) as u64
         })
-        .fold(0u64, |a, b| a.saturating_add(b))
+        .reduce(|| 0, u64::saturating_add)
 }

@@ -84,6 +84,8 @@ pub struct Scene {
     sky: Option<crate::Sky>,
     /// Per material: two-sided (empty when every face is one-sided).
     two_sided: Vec<bool>,
+    /// [`Scene::bounds`], computed once (the faces and positions never change).
+    bounds: Bounds,
 }
 
 impl Scene {
@@ -217,7 +219,13 @@ impl Scene {
                 first_source,
             });
         }
+        // A scene has at least one face, so the box is never empty.
+        let bounds = used_bounds(&positions, &kept).unwrap_or(Bounds {
+            min: Vec3::ZERO,
+            max: Vec3::ZERO,
+        });
         let scene = Scene {
+            bounds,
             positions,
             faces: kept,
             materials,
@@ -310,11 +318,7 @@ impl Scene {
 
     /// Bounding box of the vertices used by the faces, in scene units.
     pub fn bounds(&self) -> Bounds {
-        // A scene has at least one face, so the box is never empty.
-        used_bounds(&self.positions, &self.faces).unwrap_or(Bounds {
-            min: Vec3::ZERO,
-            max: Vec3::ZERO,
-        })
+        self.bounds
     }
 
     fn vector_area2(&self, face: &Face) -> DVec3 {
