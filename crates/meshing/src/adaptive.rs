@@ -55,6 +55,16 @@ pub(crate) struct Leaf {
 }
 
 impl Leaf {
+    /// A placeholder (no corners).
+    const EMPTY: Leaf = Leaf {
+        corners: [Vec3::ZERO; 4],
+        count: 0,
+        depth: 0,
+        template: 0,
+        face: 0,
+        back: false,
+    };
+
     fn corners(&self) -> &[Vec3] {
         &self.corners[..self.count as usize]
     }
@@ -562,42 +572,75 @@ fn start_leaves(
     let positions = local_positions(scene, origin);
     let coordinate = max_coordinate(&positions);
     let min_size = resolved_size_at(coordinate);
-    let blocks: Vec<(Vec<Leaf>, f64, usize)> = scene
-        .faces()
-        .par_chunks(START_BLOCK)
+    let template = |face: &mcrad_scene_io::Face| {
+        let material = &scene.materials()[face.material as usize];
+        PatchTemplate {
+            reflectance: material.reflectance,
+            emission: material.emission,
+            face: face.source,
+            material: face.material,
+            two_sided: scene.is_two_sided(face.material),
+        }
+    };
+    // Each block's leaves, counted first, are cut into its own part of one array (no block
+    // holds an array of its own: freed on worker threads, those would stay resident).
+    let blocks: Vec<&[mcrad_scene_io::Face]> = scene.faces().chunks(START_BLOCK).collect();
+    let counts: Vec<usize> = blocks
+        .par_iter()
         .map(|faces| {
+            let mut pos = Vec::new();
+            faces
+                .iter()
+                .map(|face| {
+                    let sides = 1 + usize::from(scene.is_two_sided(face.material));
+                    let Some(l) = max_edge else { return sides };
+                    pos.clear();
+                    pos.extend(
+                        face.vertices
+                            .iter()
+                            .map(|&v| positions[v as usize].as_dvec3()),
+                    );
+                    sides * crate::subdivide::count_face(&pos, l, min_size) as usize
+                })
+                .sum()
+        })
+        .collect();
+    let mut leaves = vec![Leaf::EMPTY; counts.iter().sum()];
+    let mut parts = Vec::with_capacity(blocks.len());
+    let mut rest = &mut leaves[..];
+    for &n in &counts {
+        let (part, after) = rest.split_at_mut(n);
+        parts.push(part);
+        rest = after;
+    }
+    let cut: Vec<(f64, usize, bool)> = blocks
+        .into_par_iter()
+        .zip(parts)
+        .map(|(faces, part)| {
+            let expected = part.len();
             let mut sink = LeafSink {
                 base: &positions,
                 extra: Vec::new(),
-                leaves: Vec::new(),
+                out: part,
+                filled: 0,
             };
             let mut cutter = Cutter::keeping_whole_below(min_size);
             for face in faces {
-                let material = &scene.materials()[face.material as usize];
-                let template = PatchTemplate {
-                    reflectance: material.reflectance,
-                    emission: material.emission,
-                    face: face.source,
-                    material: face.material,
-                    two_sided: scene.is_two_sided(face.material),
-                };
                 match max_edge {
-                    None => sink.push_patch(&face.vertices, &template),
-                    Some(l) => cutter.cut_face(&mut sink, &face.vertices, l, &template),
+                    None => sink.push_patch(&face.vertices, &template(face)),
+                    Some(l) => cutter.cut_face(&mut sink, &face.vertices, l, &template(face)),
                 }
             }
             let extra = max_coordinate(&sink.extra);
-            (sink.leaves, extra, cutter.kept_whole())
+            (extra, cutter.kept_whole(), sink.filled == expected)
         })
         .collect();
-    let count = blocks.iter().map(|b| b.0.len()).sum();
-    let mut leaves = Vec::with_capacity(count);
-    let (mut coordinate, mut kept) = (coordinate, 0);
-    for (part, extra, k) in blocks {
-        leaves.extend_from_slice(&part);
-        coordinate = coordinate.max(extra);
-        kept += k;
+    if cut.iter().any(|c| !c.2) {
+        // the counts and the cuts disagree (they share their rules: never expected)
+        return Err(MeshError::StartCount);
     }
+    let coordinate = cut.iter().map(|c| c.0).fold(coordinate, f64::max);
+    let kept = cut.iter().map(|c| c.1).sum();
     Ok((leaves, origin, resolved_size_at(coordinate), kept))
 }
 
@@ -609,10 +652,20 @@ const START_BLOCK: usize = 1 << 14;
 struct LeafSink<'a> {
     base: &'a [Vec3],
     extra: Vec<Vec3>,
-    leaves: Vec<Leaf>,
+    /// The block's part of the leaves, filled up to `filled`.
+    out: &'a mut [Leaf],
+    filled: usize,
 }
 
 impl LeafSink<'_> {
+    /// Puts `leaf` in the block's next place (one past its end is counted, not written).
+    fn push(&mut self, leaf: Leaf) {
+        if let Some(place) = self.out.get_mut(self.filled) {
+            *place = leaf;
+        }
+        self.filled += 1;
+    }
+
     fn leaf(&self, corners: &[u32], t: &PatchTemplate, back: bool) -> Leaf {
         let mut c = [Vec3::ZERO; 4];
         let count = corners.len() as u8;
@@ -646,13 +699,13 @@ impl Target for LeafSink<'_> {
 
     fn push_patch(&mut self, corners: &[u32], t: &PatchTemplate) {
         let front = self.leaf(corners, t, false);
-        self.leaves.push(front);
+        self.push(front);
         if t.two_sided {
             // the back side's corners: the front's first, then the rest in reverse
             let mut own: Vec<u32> = corners.to_vec();
             own[1..].reverse();
             let back = self.leaf(&own, t, true);
-            self.leaves.push(back);
+            self.push(back);
         }
     }
 }
@@ -706,43 +759,71 @@ fn build_mesh(
     leaves: &[Leaf],
     textures: Option<Arc<SceneTextures>>,
 ) -> Mesh {
-    // corner k of leaf i is slot 4 i + k; first[slot]: the slot of the first corner at its
-    // position
-    let lists: Vec<Vec<Vec<u32>>> = leaves
+    // corner k of leaf i is slot 4 i + k, sorted into buckets (each bucket's slots in
+    // order, in one array: no block holds arrays of its own)
+    let bucket_counts: Vec<[usize; VERTEX_BUCKETS]> = leaves
         .par_chunks(LEAF_BLOCK)
+        .map(|block| {
+            let mut counts = [0usize; VERTEX_BUCKETS];
+            for leaf in block.iter().filter(|l| !l.back) {
+                for &p in leaf.corners() {
+                    counts[vertex_bucket(&vertex_key(p))] += 1;
+                }
+            }
+            counts
+        })
+        .collect();
+    let total: usize = bucket_counts.iter().flatten().sum();
+    let mut slots = vec![0u32; total];
+    let mut bucket_ranges = Vec::with_capacity(VERTEX_BUCKETS);
+    let mut block_parts: Vec<Vec<&mut [u32]>> = bucket_counts
+        .iter()
+        .map(|_| Vec::with_capacity(VERTEX_BUCKETS))
+        .collect();
+    let (mut rest, mut at) = (&mut slots[..], 0);
+    for bucket in 0..VERTEX_BUCKETS {
+        let start = at;
+        for (b, counts) in bucket_counts.iter().enumerate() {
+            let (part, after) = rest.split_at_mut(counts[bucket]);
+            block_parts[b].push(part);
+            rest = after;
+            at += counts[bucket];
+        }
+        bucket_ranges.push(start..at);
+    }
+    leaves
+        .par_chunks(LEAF_BLOCK)
+        .zip(block_parts)
         .enumerate()
-        .map(|(b, block)| {
-            let mut out = vec![Vec::new(); VERTEX_BUCKETS];
+        .for_each(|(b, (block, mut parts))| {
+            let mut filled = [0usize; VERTEX_BUCKETS];
             for (j, leaf) in block.iter().enumerate() {
                 if leaf.back {
                     continue;
                 }
                 let slot = 4 * (b * LEAF_BLOCK + j);
                 for (k, &p) in leaf.corners().iter().enumerate() {
-                    out[vertex_bucket(&vertex_key(p))].push((slot + k) as u32);
+                    let bucket = vertex_bucket(&vertex_key(p));
+                    parts[bucket][filled[bucket]] = (slot + k) as u32;
+                    filled[bucket] += 1;
                 }
             }
-            out
-        })
-        .collect();
-    let first: Vec<AtomicU32> = (0..4 * leaves.len())
+        });
+    // first[slot]: the slot of the first corner at its position
+    let mut first: Vec<AtomicU32> = (0..4 * leaves.len())
         .into_par_iter()
         .map(|_| AtomicU32::new(u32::MAX))
         .collect();
-    (0..VERTEX_BUCKETS).into_par_iter().for_each(|bucket| {
-        let len: usize = lists.iter().map(|l| l[bucket].len()).sum();
+    bucket_ranges.into_par_iter().for_each(|range| {
         let mut seen: HashMap<[u32; 3], u32, BuildHasherDefault<KeyHasher>> =
-            HashMap::with_capacity_and_hasher(len, BuildHasherDefault::default());
-        for list in &lists {
-            for &slot in &list[bucket] {
-                let p = leaves[slot as usize / 4].corners[slot as usize % 4];
-                let f = *seen.entry(vertex_key(p)).or_insert(slot);
-                first[slot as usize].store(f, Ordering::Relaxed);
-            }
+            HashMap::with_capacity_and_hasher(range.len(), BuildHasherDefault::default());
+        for &slot in &slots[range] {
+            let p = leaves[slot as usize / 4].corners[slot as usize % 4];
+            let f = *seen.entry(vertex_key(p)).or_insert(slot);
+            first[slot as usize].store(f, Ordering::Relaxed);
         }
     });
-    drop(lists);
-    let mut first: Vec<u32> = first.into_par_iter().map(AtomicU32::into_inner).collect();
+    drop(slots);
     // in corner order: a first corner is a new vertex, the others take their first's (its
     // slot in `first` now holds its vertex)
     let mut mesh = Mesh::empty(origin, textures);
@@ -757,13 +838,13 @@ fn build_mesh(
         let start = corners.len();
         for (k, &p) in leaf.corners().iter().enumerate() {
             let slot = 4 * i + k;
-            let f = first[slot] as usize;
+            let f = *first[slot].get_mut() as usize;
             let v = if f == slot {
                 mesh.push_position(p)
             } else {
-                first[f]
+                *first[f].get_mut()
             };
-            first[slot] = v;
+            *first[slot].get_mut() = v;
             corners.push(v);
         }
         patch_leaf.push(i as u32);

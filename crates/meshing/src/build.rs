@@ -61,6 +61,10 @@ pub enum MeshError {
         /// The limit.
         limit: usize,
     },
+    /// The leaves an adaptive mesh's start was cut into differ from their count (an internal
+    /// error: both follow the same rules).
+    #[error("the adaptive mesh's start was cut into another number of leaves than counted")]
+    StartCount,
     /// A recorded refinement ([`crate::History`]) does not apply to this scene and bounds.
     #[error(
         "refinement {round} of the recorded mesh split {recorded} elements, on this scene only \
