@@ -402,3 +402,119 @@ fn the_hierarchy_holds_a_leaf_per_element_and_a_template_per_material() {
     assert_eq!(&faces[faces.len() - 4..], &[1999; 4]);
     assert_eq!(faces[10..14], [7; 4]);
 }
+
+/// A wavy terrain of `n × n` cells, two triangles each (`2 n²` faces), each side 1 long, its
+/// material two-sided when asked: enough faces for several blocks of the start's and the
+/// vertex sharing's parallel passes.
+fn terrain(n: u32, two_sided: bool) -> Scene {
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f32, j as f32);
+            positions.push(Vec3::new(x, y, (0.3 * x).sin() + (0.2 * y).cos()));
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i;
+    let mut faces = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            faces.push(vec![at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            faces.push(vec![at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    let s = scene(positions, faces);
+    if two_sided {
+        s.with_two_sided(vec![true])
+    } else {
+        s
+    }
+}
+
+#[test]
+fn start_counts_are_the_meshes_patch_counts() {
+    let scenes = [
+        shapes(Vec3::ZERO),
+        shapes(Vec3::splat(1e4)),
+        terrain(12, false),
+        terrain(12, true),
+    ];
+    for scene in &scenes {
+        for start in [
+            Subdivision::None,
+            Subdivision::MaxEdge(0.3),
+            Subdivision::MaxEdge(0.7),
+            Subdivision::MaxEdge(5.0),
+        ] {
+            let built = Mesh::build(scene, start).unwrap().patches().len();
+            assert_eq!(Mesh::count_patches(scene, start).unwrap(), built as u64);
+            let b = bounds(0.01, 1 << 20);
+            assert_eq!(AdaptiveMesh::start_len(scene, start, b).unwrap(), built);
+            assert_eq!(AdaptiveMesh::new(scene, start, b).unwrap().len(), built);
+        }
+        // the errors of a build
+        assert!(Mesh::count_patches(scene, Subdivision::MaxEdge(0.0)).is_err());
+        assert!(AdaptiveMesh::start_len(scene, Subdivision::None, bounds(0.01, 0)).is_err());
+    }
+}
+
+#[test]
+fn the_start_is_the_uniform_mesh_with_its_corners_shared() {
+    for scene in [terrain(12, false), terrain(12, true), shapes(Vec3::ZERO)] {
+        for start in [Subdivision::None, Subdivision::MaxEdge(0.4)] {
+            let uniform = Mesh::build(&scene, start).unwrap();
+            let adaptive = AdaptiveMesh::new(&scene, start, bounds(0.01, 1 << 20)).unwrap();
+            let mesh = adaptive.mesh();
+            assert_eq!(mesh.patches().len(), uniform.patches().len());
+            for (a, u) in mesh.patches().iter().zip(uniform.patches()) {
+                let corners = |m: &Mesh, p| -> Vec<Vec3> {
+                    m.corners(p)
+                        .iter()
+                        .map(|&v| m.positions()[v as usize])
+                        .collect()
+                };
+                assert_eq!(corners(mesh, a), corners(&uniform, u));
+                assert_eq!(
+                    (a.area, a.normal, a.centroid, a.face, a.back),
+                    (u.area, u.normal, u.centroid, u.face, u.back)
+                );
+            }
+            // one vertex per position
+            let mut keys: Vec<[u32; 3]> = mesh
+                .positions()
+                .iter()
+                .map(|p| p.to_array().map(f32::to_bits))
+                .collect();
+            let n = keys.len();
+            keys.sort_unstable();
+            keys.dedup();
+            assert_eq!(keys.len(), n, "a position has two vertices");
+            mesh.validate().unwrap();
+        }
+    }
+}
+
+#[test]
+fn the_start_and_its_refinement_are_the_same_on_any_thread_count() {
+    // 2 × 110² faces: several blocks of faces and of leaves
+    let scene = terrain(110, true);
+    let build = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut m = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.9), bounds(0.01, 1 << 20))
+                .unwrap();
+            let every_third: Vec<u32> = (0..m.len() as u32).step_by(3).collect();
+            m.refine(&every_third);
+            m
+        })
+    };
+    let (one, three) = (build(1), build(3));
+    assert!(one.len() > 1 << 15, "{} leaves", one.len());
+    let (a, b) = (one.mesh(), three.mesh());
+    assert_eq!(a.positions(), b.positions());
+    assert_eq!(a.triangles(), b.triangles());
+    assert_eq!(a.triangle_patch(), b.triangle_patch());
+    assert_eq!(a.patches(), b.patches());
+}
