@@ -743,7 +743,7 @@ impl Hasher for KeyHasher {
             let mut b = [0u8; 8];
             b[..chunk.len()].copy_from_slice(chunk);
             self.0 = (self.0.rotate_left(5) ^ u64::from_le_bytes(b))
-                .wrapping_mul(0x51_7CC1_B727_220A_95);
+                .wrapping_mul(0x517C_C1B7_2722_0A95);
         }
     }
 }
