@@ -146,6 +146,8 @@ fn with_context<C: RayCaster>(
     // The last combination's correlation factors per face (`Solution::face_correlation`).
     let mut face_correlation = None;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        // (The last pass's factors go: this pass sets its own or ends the run with an error.)
+        drop(face_correlation.take());
         let k = run.steps as u64;
         let share = match (&shots, gathers.own().is_some(), &run.merged) {
             (Some(s), true, Some(c)) => {
