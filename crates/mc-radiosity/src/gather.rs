@@ -243,7 +243,8 @@ fn round<C: RayCaster>(
 /// (a scene without emitters) this is [`gather_round_parts`] with [`Emission::Exclude`].
 pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
     ctx: &Context<C>,
-    input: &Estimate,
+    input: &[DVec3],
+    input_variance: Option<&[DVec3]>,
     light: Option<&CosineLight>,
     sketch: Option<&[crate::replicates::Row]>,
     rays_per_patch: u32,
@@ -251,8 +252,8 @@ pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
     round_parts(
         ctx,
-        input.radiosity(),
-        input.variance(),
+        input,
+        input_variance,
         Emission::Exclude,
         rays_per_patch,
         key,

@@ -169,6 +169,8 @@ fn with_context<C: RayCaster>(
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         // The passes merge by the rays asked of them (see `Progressive::shoot`).
         let asked = s.estimate.rays();
+        // (The unshot power per patch is not read here: it goes before the gathering.)
+        drop(std::mem::take(&mut s.unshot));
         shot_rays += asked;
         shots = Some(match shots.take() {
             None => Shots {
