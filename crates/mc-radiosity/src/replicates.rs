@@ -802,59 +802,19 @@ impl Waves {
 /// grew to hundreds of times the error.)
 #[derive(Debug, Default)]
 pub(crate) struct LoneRays {
-    /// Per source patch, its unpaired lone ray ([`LoneRay`]), in blocks of [`LONE_BLOCK`]
-    /// patches made at the first lone ray of one of them and never moved (32 bytes a patch of
-    /// a block with a shooter; a hash map's entry took about 56 a waiting ray).
-    blocks: Vec<Vec<LoneRay>>,
+    /// Per patch holding one, its unpaired lone ray.
+    open: std::collections::HashMap<u32, LoneRay>,
 }
 
-/// Patches per block of [`LoneRays`] (128 KiB).
-const LONE_BLOCK: usize = 4096;
-
-/// A lone ray waiting for its pair ([`LoneRays`]): its power per channel (W), the patch it
-/// kept power on ([`NO_HIT`]: it kept nothing on a front face) and its replicate plus 1 (0:
-/// no ray waiting). 32 bytes.
-#[derive(Debug, Clone, Copy, Default)]
-struct LoneRay {
-    power: DVec3,
-    hit: u32,
-    replicate: u8,
-}
-
-/// [`LoneRay::hit`] of a ray that kept nothing on a front face.
-const NO_HIT: u32 = u32::MAX;
-
-impl LoneRay {
-    /// `(replicate, hit, power)` of the ray waiting, if any.
-    fn waiting(&self) -> Option<(usize, Option<u32>, DVec3)> {
-        (self.replicate > 0).then(|| {
-            (
-                usize::from(self.replicate - 1),
-                (self.hit != NO_HIT).then_some(self.hit),
-                self.power,
-            )
-        })
-    }
-}
+/// A lone ray waiting for its pair ([`LoneRays`]): its replicate, the patch it kept power on
+/// (`None`: it kept nothing on a front face) and its power per channel (W).
+type LoneRay = (usize, Option<u32>, DVec3);
 
 impl LoneRays {
-    /// The slot of source patch `source`, its block made if it is the first.
-    fn slot(&mut self, source: u32) -> &mut LoneRay {
-        let (b, k) = (source as usize / LONE_BLOCK, source as usize % LONE_BLOCK);
-        if self.blocks.len() <= b {
-            self.blocks.resize_with(b + 1, Vec::new);
-        }
-        let block = &mut self.blocks[b];
-        if block.is_empty() {
-            *block = vec![LoneRay::default(); LONE_BLOCK];
-        }
-        &mut block[k]
-    }
-
-    /// A lone ray of replicate `r` (0 or 1) from patch `source` carrying `power` (W per
-    /// channel) that left `kept` (`rho_j` of its power) on the front of patch `j`, or nothing.
-    /// `rho` gives a patch's reflectance. Returns a ray whose error stays with the formula:
-    /// `(j, kept)` of an earlier lone ray of the same replicate that this one replaces.
+    /// A lone ray of replicate `r` from patch `source` carrying `power` (W per channel) that
+    /// left `kept` (`rho_j` of its power) on the front of patch `j`, or nothing. `rho` gives a
+    /// patch's reflectance. Returns a ray whose error stays with the formula: `(j, kept)` of
+    /// an earlier lone ray of the same replicate that this one replaces.
     pub fn ray(
         &mut self,
         source: u32,
@@ -864,10 +824,8 @@ impl LoneRays {
         waves: &mut Waves,
         rho: impl Fn(u32) -> DVec3,
     ) -> Option<(u32, DVec3)> {
-        let slot = self.slot(source);
-        match slot.waiting() {
+        match self.open.remove(&source) {
             Some((r0, j0, p0)) if r0 != r => {
-                *slot = LoneRay::default();
                 let c = ((p0 * p0 + power * power) / 2.0).powf(0.5);
                 if let Some(j) = j0 {
                     waves.add_error(j as usize, c * rho(j));
@@ -878,11 +836,7 @@ impl LoneRays {
                 None
             }
             older => {
-                *slot = LoneRay {
-                    power,
-                    hit: hit.unwrap_or(NO_HIT),
-                    replicate: u8::try_from(r + 1).unwrap_or(u8::MAX),
-                };
+                self.open.insert(source, (r, hit, power));
                 older.and_then(|(_, j, p)| j.map(|j| (j, rho(j) * p)))
             }
         }
@@ -891,11 +845,10 @@ impl LoneRays {
     /// The rays left unpaired, `(j, kept)` for those that kept power on a patch, in patch
     /// order (the same for any thread count).
     pub fn unpaired(self, rho: impl Fn(u32) -> DVec3) -> Vec<(u32, DVec3)> {
-        self.blocks
-            .iter()
-            .flatten()
-            .filter_map(|l| l.waiting())
-            .filter_map(|(_, j, p)| j.map(|j| (j, rho(j) * p)))
+        let mut left: Vec<(u32, LoneRay)> = self.open.into_iter().collect();
+        left.sort_by_key(|(source, _)| *source);
+        left.into_iter()
+            .filter_map(|(_, (_, j, p))| j.map(|j| (j, rho(j) * p)))
             .collect()
     }
 }
