@@ -118,4 +118,11 @@ impl Estimate {
     pub fn is_empty(&self) -> bool {
         self.radiosity.is_empty()
     }
+
+    /// The estimate taken apart: radiosity (W/m²), variance ((W/m²)², when known) and rays,
+    /// as [`Estimate::new`] takes them, so that a changed copy reuses the arrays instead of
+    /// copying them.
+    pub fn into_parts(self) -> (Vec<DVec3>, Option<Vec<DVec3>>, u64) {
+        (self.radiosity, self.variance, self.rays)
+    }
 }

@@ -45,14 +45,32 @@ pub fn shot_noise(deposit: DVec3, area: f64, proxy: DVec3) -> DVec3 {
 /// as does `group`; the result has `max(group) + 1` entries.
 pub fn pooled_relative(group: &[usize], variance: &[DVec3], value: &[DVec3]) -> Vec<DVec3> {
     let groups = group.iter().map(|g| g + 1).max().unwrap_or(0);
-    let (mut var, mut square) = (vec![DVec3::ZERO; groups], vec![DVec3::ZERO; groups]);
-    for ((g, v), x) in group.iter().zip(variance).zip(value) {
+    pooled_relative_of(
+        groups,
+        group
+            .iter()
+            .zip(variance)
+            .zip(value)
+            .map(|((g, v), x)| (*g, *v, *x)),
+    )
+}
+
+/// [`pooled_relative`] over `groups` groups from the items `(group, variance, value)` in
+/// order, without arrays of them: the result has `groups` entries (each item's group below
+/// it). The same sums in the same order, so the same result bit for bit.
+pub fn pooled_relative_of(
+    groups: usize,
+    items: impl IntoIterator<Item = (usize, DVec3, DVec3)>,
+) -> Vec<DVec3> {
+    // One array of (variance, square) sums, turned into the result in place.
+    let mut sums = vec![(DVec3::ZERO, DVec3::ZERO); groups];
+    for (g, v, x) in items {
         let x = x.max(DVec3::ZERO);
-        var[*g] += *v;
-        square[*g] += x * x;
+        let s = &mut sums[g];
+        s.0 += v;
+        s.1 += x * x;
     }
-    var.iter()
-        .zip(&square)
+    sums.iter()
         .map(|(v, s)| DVec3::select(s.cmpgt(DVec3::ZERO), *v / *s, DVec3::ZERO))
         .collect()
 }

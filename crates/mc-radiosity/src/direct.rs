@@ -68,7 +68,7 @@
 use crate::context::{Context, Sampler};
 use crate::error::Error;
 use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts_with_light};
-use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments, jobs};
+use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments};
 use crate::replicates::{self, Halves, Measure};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
 use crate::surface::{Rays, SurfaceSampler};
@@ -166,10 +166,18 @@ fn direct_with<C: RayCaster>(
         emitters,
         mis,
     };
-    let jobs = jobs(patches.len(), samples_per_patch);
-    let seen: Vec<Tally> = jobs
-        .par_iter()
-        .map(|job| {
+    // The jobs run a block at a time (`fold_with`), each patch's chunks merged in chunk order
+    // as they come; per patch only what the answer and the gains read is kept (88 bytes, where
+    // a `Tally` per job and one per patch took about 240).
+    let n = patches.len();
+    let (mut radiosity, mut variance) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut errors = Vec::with_capacity(n);
+    let mut replicate_variance: Vec<Option<f64>> = Vec::with_capacity(n);
+    let (mut rays, mut occluded) = (0, 0);
+    crate::jobs::fold_with(
+        n,
+        samples_per_patch,
+        |job| {
             if ctx.cancelled() {
                 return Tally::default();
             }
@@ -185,42 +193,47 @@ fn direct_with<C: RayCaster>(
                 tally.halves.push(replicate(u64::from(t)), f);
             }
             tally
-        })
-        .collect();
+        },
+        |acc: Tally, t: Tally| Tally {
+            moments: acc.moments.merge(t.moments),
+            halves: acc.halves.merge(t.halves),
+            rays: acc.rays + t.rays,
+            occluded: acc.occluded + t.occluded,
+        },
+        |i, t| {
+            let rho = patches[i].reflectance.as_dvec3();
+            radiosity.push(rho * t.moments.mean);
+            errors.push(rho * t.halves.error_of_mean(t.moments.n));
+            // `variance_of_mean` for now: scaled by the gains below
+            variance.push(t.moments.variance_of_mean());
+            replicate_variance.push(t.halves.variance_of_mean(t.moments.n));
+            rays += t.rays;
+            occluded += t.occluded;
+        },
+    );
     ctx.check_cancelled()?;
-    // Merge each patch's chunks in chunk order.
-    let mut per_patch = vec![Tally::default(); patches.len()];
-    for (job, t) in jobs.iter().zip(seen) {
-        let acc = &mut per_patch[job.item as usize];
-        acc.moments = acc.moments.merge(t.moments);
-        acc.halves = acc.halves.merge(t.halves);
-        acc.rays += t.rays;
-        acc.occluded += t.occluded;
-    }
     let gains = if ctx.sampling() == Sampler::Qmc {
         replicates::gains(
-            patches.iter().zip(&per_patch).map(|(p, t)| Measure {
-                face: p.face,
-                replicate: t.halves.variance_of_mean(t.moments.n),
-                model: t.moments.variance_of_mean().element_sum(),
-                dof: 1.0,
-                deposits: 0.0,
-            }),
+            patches
+                .iter()
+                .zip(&replicate_variance)
+                .zip(&variance)
+                .map(|((p, r), v)| Measure {
+                    face: p.face,
+                    replicate: *r,
+                    model: v.element_sum(),
+                    dof: 1.0,
+                    deposits: 0.0,
+                }),
             replicates::Toward::Formula,
         )
     } else {
         vec![1.0; patches.len()]
     };
-    let (mut radiosity, mut variance) = (Vec::new(), Vec::new());
-    let (mut rays, mut occluded) = (0, 0);
-    let mut errors = Vec::with_capacity(patches.len());
-    for ((p, t), g) in patches.iter().zip(&per_patch).zip(&gains) {
+    drop(replicate_variance);
+    for ((p, v), g) in patches.iter().zip(variance.iter_mut()).zip(&gains) {
         let rho = p.reflectance.as_dvec3();
-        radiosity.push(rho * t.moments.mean);
-        errors.push(rho * t.halves.error_of_mean(t.moments.n));
-        variance.push(rho * rho * t.moments.variance_of_mean() * *g);
-        rays += t.rays;
-        occluded += t.occluded;
+        *v = rho * rho * *v * *g;
     }
     Ok(DirectLight {
         estimate: Estimate::new(radiosity, Some(variance), rays)?,
@@ -491,6 +504,17 @@ fn reflected_part(patches: &[Patch], shooting: &Estimate) -> Result<Estimate, Er
     )?)
 }
 
+/// [`reflected_part`]'s radiosity alone, `B - E` per patch (W/m²), for a gathering that reads
+/// the shooting's variance where it is.
+fn reflected_radiosity(patches: &[Patch], shooting: &Estimate) -> Vec<DVec3> {
+    shooting
+        .radiosity()
+        .iter()
+        .zip(patches)
+        .map(|(b, p)| *b - p.emission.as_dvec3())
+        .collect()
+}
+
 /// `E + D + indirect`, variances summed, rays of both.
 fn join_split(
     patches: &[Patch],
@@ -588,21 +612,27 @@ pub(crate) fn split_with_budget<C: RayCaster>(
     let shadow_rays = (n as f64 * samples as f64 * q).round() as u64;
     let rays_per_patch = (rays.saturating_sub(shadow_rays) / n).clamp(2, u32::MAX as u64) as u32;
     let cosine_per_sample = rays_per_patch as f64 / samples as f64;
-    let direct = direct_with(ctx, samples, Mis::Shared { cosine_per_sample }, key)?;
     let light = ctx.emitters().map(|emitters| CosineLight {
         patches,
         emitters,
         samples_per_ray: 1.0 / cosine_per_sample,
     });
-    let indirect_input = reflected_part(patches, shooting)?;
+    // The indirect gathering first, then the direct light (their streams are keyed, so the
+    // order changes nothing but what memory is held at once: the gathering's input goes
+    // before the direct light runs, and the direct light's answer is not held through the
+    // gathering).
+    let indirect_input = reflected_radiosity(patches, shooting);
     let (indirect, inherited) = gather_round_parts_with_light(
         ctx,
         &indirect_input,
+        shooting.variance(),
         light.as_ref(),
         sketch,
         rays_per_patch,
         key,
     )?;
+    drop(indirect_input);
+    let direct = direct_with(ctx, samples, Mis::Shared { cosine_per_sample }, key)?;
     Ok(Split {
         estimate: join_split(patches, &indirect.estimate, &direct.estimate)?,
         inherited,

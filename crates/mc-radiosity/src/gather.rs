@@ -243,7 +243,8 @@ fn round<C: RayCaster>(
 /// (a scene without emitters) this is [`gather_round_parts`] with [`Emission::Exclude`].
 pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
     ctx: &Context<C>,
-    input: &Estimate,
+    input: &[DVec3],
+    input_variance: Option<&[DVec3]>,
     light: Option<&CosineLight>,
     sketch: Option<&[crate::replicates::Row]>,
     rays_per_patch: u32,
@@ -251,8 +252,8 @@ pub(crate) fn gather_round_parts_with_light<C: RayCaster>(
 ) -> Result<(GatherRound, Vec<DVec3>), Error> {
     round_parts(
         ctx,
-        input.radiosity(),
-        input.variance(),
+        input,
+        input_variance,
         Emission::Exclude,
         rays_per_patch,
         key,
@@ -535,16 +536,16 @@ fn with_face_pooled(
         tracked,
     } = faces;
     let faces = m2.len();
-    // Per face, the sample variance of the values seen, its emission part the run's so far.
-    let mut face_variance: Vec<DVec3> = (0..faces)
-        .map(|f| {
-            if dof[f] == 0 {
-                DVec3::ZERO
-            } else {
-                m2[f] / dof[f] as f64
-            }
-        })
-        .collect();
+    // Per face, the sample variance of the values seen, its emission part the run's so far
+    // (made over the sums it is made from).
+    let mut face_variance = m2;
+    for (v, &dof) in face_variance.iter_mut().zip(&dof) {
+        *v = if dof == 0 {
+            DVec3::ZERO
+        } else {
+            *v / dof as f64
+        };
+    }
     // Every ray's emission is recorded where the input's variance is known (`inherit`).
     if let Some(pool) = pool.filter(|_| tracked) {
         pool.m2.resize(faces, DVec3::ZERO);
@@ -557,9 +558,12 @@ fn with_face_pooled(
             }
         }
     }
-    let Some(variance) = estimate.variance() else {
+    drop(emitted);
+    if estimate.variance().is_none() {
         return Ok(estimate);
-    };
+    }
+    let (radiosity, variance, rays) = estimate.into_parts();
+    let mut variance = variance.unwrap_or_default();
     // The sampling variance each patch reports (before `rho²`): the face's, or its own
     // (made where read, twice, rather than held).
     let model = |p: &Patch, o: &Own| {
@@ -584,21 +588,12 @@ fn with_face_pooled(
     } else {
         vec![1.0; patches.len()]
     };
-    let variance = patches
-        .iter()
-        .zip(own)
-        .zip(variance)
-        .zip(&gains)
-        .map(|(((p, o), v), g)| {
-            let rho = p.reflectance.as_dvec3();
-            (*v + rho * rho * (model(p, o) * *g - o.own)).max(DVec3::ZERO)
-        })
-        .collect();
-    Ok(Estimate::new(
-        estimate.radiosity().to_vec(),
-        Some(variance),
-        estimate.rays(),
-    )?)
+    // (Each patch's variance made over its own.)
+    for (((p, o), v), g) in patches.iter().zip(own).zip(variance.iter_mut()).zip(&gains) {
+        let rho = p.reflectance.as_dvec3();
+        *v = (*v + rho * rho * (model(p, o) * *g - o.own)).max(DVec3::ZERO);
+    }
+    Ok(Estimate::new(radiosity, Some(variance), rays)?)
 }
 
 /// Turns each item's moments into `[E] + rho (mean + offset)` and

@@ -283,7 +283,19 @@ pub(crate) fn fold<F: Fn(&Job) -> Seen + Sync + Send>(
     items: usize,
     per_item: u32,
     f: F,
-    mut take: impl FnMut(usize, Seen),
+    take: impl FnMut(usize, Seen),
+) {
+    fold_with(items, per_item, f, Seen::merge, take);
+}
+
+/// [`fold`] of jobs whose results are `T`s, an item's chunks merged by `merge` in chunk order
+/// from `T::default()`.
+pub(crate) fn fold_with<T: Default + Send, F: Fn(&Job) -> T + Sync + Send>(
+    items: usize,
+    per_item: u32,
+    f: F,
+    merge: impl Fn(T, T) -> T,
+    mut take: impl FnMut(usize, T),
 ) {
     let chunks = per_item.div_ceil(JOB_RAYS).max(1) as usize;
     let block_items = (BLOCK_JOBS / chunks).max(1);
@@ -297,13 +309,13 @@ pub(crate) fn fold<F: Fn(&Job) -> Seen + Sync + Send>(
                 ..j
             })
             .collect();
-        let seen: Vec<Seen> = block.par_iter().map(&f).collect();
+        let seen: Vec<T> = block.par_iter().map(&f).collect();
         // Jobs item by item, chunk by chunk: an item's chunks are consecutive.
         let mut jobs = block.iter().zip(seen).peekable();
         for item in first..last {
-            let mut acc = Seen::default();
+            let mut acc = T::default();
             while let Some((_, s)) = jobs.next_if(|(j, _)| j.item as usize == item) {
-                acc = acc.merge(s);
+                acc = merge(acc, s);
             }
             take(item, acc);
         }

@@ -897,16 +897,21 @@ where
         .max()
         .unwrap_or(0);
     let (mut q, mut v, mut dof) = (vec![0.0; n_faces], vec![0.0; n_faces], vec![0.0; n_faces]);
-    // per face: deposits summed over its measured patches, and their count
-    let (mut deposits, mut count) = (vec![0.0; n_faces], vec![0u32; n_faces]);
+    // per face: deposits summed over its measured patches, and their count (what the classes
+    // of `Toward::Alike` read; the formula's gain needs neither)
+    let alike = toward == Toward::Alike;
+    let per_face = |x| if alike { vec![x; n_faces] } else { Vec::new() };
+    let (mut deposits, mut count) = (per_face(0.0), vec![0u32; if alike { n_faces } else { 0 }]);
     for m in items.clone() {
         if let Some(r) = m.replicate {
             let f = m.face as usize;
             q[f] += r;
             v[f] += m.model;
             dof[f] += m.dof;
-            deposits[f] += m.deposits;
-            count[f] += 1;
+            if alike {
+                deposits[f] += m.deposits;
+                count[f] += 1;
+            }
         }
     }
     let (q_all, v_all) = (q.iter().sum::<f64>(), v.iter().sum::<f64>());
@@ -934,16 +939,18 @@ where
                 .collect()
         }
     };
-    let face_gain: Vec<f64> = (0..n_faces)
-        .map(|f| {
-            let target = targets[class_of(f)];
-            if dof[f] <= 0.0 || v[f] <= 0.0 {
-                return target;
-            }
+    // Each face's gain, made over its sums `q` (4 arrays a face less at the gathers' peak).
+    for f in 0..n_faces {
+        let target = if alike { targets[class_of(f)] } else { 1.0 };
+        q[f] = if dof[f] <= 0.0 || v[f] <= 0.0 {
+            target
+        } else {
             let prior = PRIOR_PATCHES * v[f] / dof[f];
             (q[f] + prior * target) / (v[f] + prior)
-        })
-        .collect();
+        };
+    }
+    drop((v, dof, deposits, count));
+    let face_gain = q;
     items.map(|m| face_gain[m.face as usize]).collect()
 }
 

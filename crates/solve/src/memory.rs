@@ -12,7 +12,7 @@ use mcrad_scene_io::Scene;
 /// the BVH and its build, the adaptive hierarchy, the sampler, the method's per-patch sums
 /// (shooting's, the steps', the refinement's pooled estimate) and the allocator's slack.
 /// Measured peak RSS on the generated atrium of 10^6 elements at 2e6 rays
-/// (docs/atrium.md, "Memory and scale"): 628 bytes per element, of which about 40 are the
+/// (docs/atrium.md, "Memory and scale"): 630-670 bytes per element, of which about 40 are the
 /// error samples of the patches reached ([`BYTES_PER_REACHED`]) and 66 the fixed part.
 pub const BYTES_PER_ELEMENT: u64 = 600;
 
@@ -21,13 +21,13 @@ pub const BYTES_PER_ELEMENT: u64 = 600;
 /// on, so at most `min(elements, rays)` of them.
 pub const BYTES_PER_REACHED: u64 = 400;
 
-/// Bytes per element a gathering pass adds (the gathers' images of the shooting's error
-/// samples, the shooting's samples they gather from, their own error samples, the pooling's
-/// inputs and the combination's per-patch arrays): measured with [`BYTES_PER_ELEMENT`] and
-/// [`BYTES_PER_REACHED`] at 2e7 rays on the 10^6-element atrium, 1,460 bytes per element in
-/// all. A method gathers on a mesh of `P` patches only with at least
+/// Bytes per element a gathering pass adds (the gathers' merged estimate and their image of
+/// the shooting's error samples, held through the next pass's shooting beside the earlier
+/// passes' shooting estimate and samples): measured with [`BYTES_PER_ELEMENT`] and
+/// [`BYTES_PER_REACHED`] at 2e7 rays on the 10^6-element atrium, about 1,180 bytes per
+/// element in all. A method gathers on a mesh of `P` patches only with at least
 /// [`gather_rays_per_element`] `P` rays, so at most `min(elements, rays / k)` elements.
-pub const BYTES_PER_GATHERED: u64 = 600;
+pub const BYTES_PER_GATHERED: u64 = 250;
 
 /// Bytes of a process before its scene: code, thread stacks, the allocator's arenas.
 pub const BYTES_FIXED: u64 = 64 << 20;

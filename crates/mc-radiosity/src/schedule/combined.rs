@@ -54,11 +54,11 @@ use super::{
     Doubling, GATHER_TAG, Gathers, Observer, Progressive, ScheduleConfig, Solution, accumulate,
 };
 use crate::context::Context;
-use crate::direct::split_with_budget;
+use crate::direct::{Split, split_with_budget};
 use crate::error::Error;
 use glam::DVec3;
-use mcrad_combine::expected::{pooled_relative, shot_noise};
-use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge};
+use mcrad_combine::expected::{pooled_relative_of, shot_noise};
+use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting};
 use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
@@ -136,7 +136,8 @@ fn with_context<C: RayCaster>(
     let mut passes = Doubling::at_least(config, min_pass);
     let mut run = Progressive::default();
     let mut shots: Option<Shots> = None;
-    let mut gathered: Option<Estimate> = None;
+    // The gathering estimate `G` is `gathers.estimate()`, made where it is read (the
+    // combination, the next pass's share), not held between passes.
     let mut gathers = Gathers::default();
     // The gathers' images of the shooting's error samples and their own noise measured by
     // their replicates, merged by rays as the gathers are.
@@ -145,15 +146,17 @@ fn with_context<C: RayCaster>(
     // The last combination's correlation factors per face (`Solution::face_correlation`).
     let mut face_correlation = None;
     while let Some(budget) = passes.next().filter(|&b| b >= min_pass) {
+        // (The last pass's factors go: this pass sets its own or ends the run with an error.)
+        drop(face_correlation.take());
         let k = run.steps as u64;
-        let share = match (&shots, &gathered, &run.merged) {
-            (Some(s), Some(g), Some(c)) => {
-                let r = reflected(mesh, c);
+        let share = match (&shots, gathers.own().is_some(), &run.merged) {
+            (Some(s), true, Some(c)) => {
+                let vg = gathering_variance(mesh, &gathers.estimate()?, c)?;
                 best_share(
                     mesh,
-                    &shooting_variance(mesh, s, &r),
+                    &shooting_variance(mesh, s, c),
                     shot_rays,
-                    &gathering_variance(mesh, g, &r)?,
+                    &vg,
                     gather_rays,
                     budget + passes.remaining(),
                 )
@@ -166,6 +169,8 @@ fn with_context<C: RayCaster>(
         let ray_power = s.stats.shot / pass_rays.max(1) as f64;
         // The passes merge by the rays asked of them (see `Progressive::shoot`).
         let asked = s.estimate.rays();
+        // (The unshot power per patch is not read here: it goes before the gathering.)
+        drop(std::mem::take(&mut s.unshot));
         shot_rays += asked;
         shots = Some(match shots.take() {
             None => Shots {
@@ -188,14 +193,19 @@ fn with_context<C: RayCaster>(
         // patches, so what a gather inherits from it is the inherited-noise term; not from the
         // combination, whose errors the gathers themselves correlate (module documentation).
         let gather_budget = budget.saturating_sub(pass_rays);
-        let split = split_with_budget(
+        let Split {
+            estimate: g,
+            inherited,
+            image,
+            own_errors,
+            image_variance,
+        } = split_with_budget(
             ctx,
             &shots_now.merged,
             Some(&shots_now.samples.sketch),
             gather_budget,
             StreamKey::new(config.seed).derive(GATHER_TAG + k),
         )?;
-        let (g, inherited) = (split.estimate, split.inherited);
         // What the pass did not use (rays per patch are whole) goes to the passes after it.
         passes.refund(budget.saturating_sub(pass_rays + g.rays()));
         // And what the shooting cast beyond its share (its roulette tail) is taken from them.
@@ -206,12 +216,16 @@ fn with_context<C: RayCaster>(
         // independent parts' error samples (the indirect gathering's and the direct light's
         // replicates).
         gather_samples.add(
-            split.image,
-            &[&split.own_errors[0], &split.own_errors[1]],
-            &split.image_variance,
+            image,
+            &[&own_errors[0], &own_errors[1]],
+            &image_variance,
             g.rays(),
         );
+        // (What the pass's parts held goes as soon as it is added in: the combination below
+        // is the run's peak of memory.)
+        drop((own_errors, image_variance));
         gathers.add(g, &inherited)?;
+        drop(inherited);
         let g = gathers.estimate()?;
         let own = gathers.own().ok_or(EstimateError::MissingVariance)?;
         let (c, factors) = combine(
@@ -223,7 +237,7 @@ fn with_context<C: RayCaster>(
             weighting,
         )?;
         face_correlation = factors;
-        gathered = Some(g);
+        drop(g);
         if !run.replace(c, &mut passes, observer)? {
             break;
         }
@@ -233,43 +247,61 @@ fn with_context<C: RayCaster>(
     Ok(solution)
 }
 
-/// The reflected radiosity `R_i = (B_i - E_i)^+` the expected variances scale with (W/m²),
-/// from `proxy`: the previous combination, or the shooting estimate before there is one.
-fn reflected(mesh: &Mesh, proxy: &Estimate) -> Vec<DVec3> {
-    mesh.patches()
-        .iter()
-        .zip(proxy.radiosity())
-        .map(|(p, b)| (*b - p.emission.as_dvec3()).max(DVec3::ZERO))
-        .collect()
+/// The reflected radiosity `R_i = (B_i - E_i)^+` of patch `i` the expected variances scale
+/// with (W/m²), from `proxy`: the previous combination, or the shooting estimate before there
+/// is one.
+fn reflected(mesh: &Mesh, proxy: &Estimate, i: usize) -> DVec3 {
+    (proxy.radiosity()[i] - mesh.patches()[i].emission.as_dvec3()).max(DVec3::ZERO)
 }
 
 /// The expected variance of the shooting estimate per patch and channel, `m_i R_i / A_i`
 /// ((W/m²)², [`shot_noise`]), with `m_i = rho_i` times the mean power a ray carried (what a hit
 /// deposits, known whatever landed: see [`mcrad_combine::expected`] for why not the deposits'
-/// own mean).
-fn shooting_variance(mesh: &Mesh, shots: &Shots, r: &[DVec3]) -> Vec<DVec3> {
+/// own mean) and `R_i` the [`reflected`] radiosity of `proxy`.
+fn shooting_variance(mesh: &Mesh, shots: &Shots, proxy: &Estimate) -> Vec<DVec3> {
     mesh.patches()
         .iter()
-        .zip(r)
-        .map(|(p, r)| shot_noise(p.reflectance.as_dvec3() * shots.ray_power, p.area, *r))
+        .enumerate()
+        .map(|(i, p)| {
+            shot_noise(
+                p.reflectance.as_dvec3() * shots.ray_power,
+                p.area,
+                reflected(mesh, proxy, i),
+            )
+        })
         .collect()
 }
 
 /// The expected variance of the gathering estimate per patch and channel, `k_f R_i²`
 /// ((W/m²)²), with `k_f` the gather's relative variance pooled over the input face `f` of the
-/// patch ([`pooled_relative`]), so a patch whose few rays all saw the same value (a sample
-/// variance of zero) is not taken as exact.
-fn gathering_variance(mesh: &Mesh, gathered: &Estimate, r: &[DVec3]) -> Result<Vec<DVec3>, Error> {
+/// patch ([`pooled_relative_of`]), so a patch whose few rays all saw the same value (a sample
+/// variance of zero) is not taken as exact, and `R_i` the [`reflected`] radiosity of `proxy`.
+fn gathering_variance(
+    mesh: &Mesh,
+    gathered: &Estimate,
+    proxy: &Estimate,
+) -> Result<Vec<DVec3>, Error> {
     let v = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let patches = mesh.patches();
-    let face: Vec<usize> = patches.iter().map(|p| p.face as usize).collect();
-    let reflected: Vec<DVec3> = patches
+    let faces = patches
         .iter()
-        .zip(gathered.radiosity())
-        .map(|(p, g)| *g - p.emission.as_dvec3())
-        .collect();
-    let k = pooled_relative(&face, v, &reflected);
-    Ok(face.iter().zip(r).map(|(f, r)| k[*f] * *r * *r).collect())
+        .map(|p| p.face as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let k = pooled_relative_of(
+        faces,
+        patches
+            .iter()
+            .zip(v)
+            .zip(gathered.radiosity())
+            .map(|((p, v), g)| (p.face as usize, *v, *g - p.emission.as_dvec3())),
+    );
+    Ok((0..patches.len())
+        .map(|i| {
+            let r = reflected(mesh, proxy, i);
+            k[patches[i].face as usize] * r * r
+        })
+        .collect())
 }
 
 /// `S` and `G` merged by `weighting`, each operand carrying its expected variance at the
@@ -328,26 +360,38 @@ fn combine(
     previous: Option<&Estimate>,
     weighting: &dyn Weighting,
 ) -> Result<(Estimate, Option<Vec<DVec3>>), Error> {
-    let r = reflected(mesh, previous.unwrap_or(&shots.merged));
-    let (vs, vg) = (
-        shooting_variance(mesh, shots, &r),
-        gathering_variance(mesh, gathered, &r)?,
-    );
-    let (a, b) = (
-        Operand::with_expected(&shots.merged, &vs),
-        Operand::with_expected(gathered, &vg),
-    );
-    let merged = merge(a, b, weighting)?;
-    let own = own.variance().ok_or(EstimateError::MissingVariance)?;
-    let weights: Vec<DVec3> = (0..own.len())
-        .map(|i| {
-            DVec3::new(
-                weighting.weight(&a, &b, i, 0),
-                weighting.weight(&a, &b, i, 1),
-                weighting.weight(&a, &b, i, 2),
-            )
-        })
-        .collect();
+    let (ea, eb) = (&shots.merged, gathered);
+    // The weights `w_i` per channel, as `merge` would weight (its checks first); the expected
+    // variances they are made from go before the variance's sums (this is the run's peak of
+    // memory: one array a patch at a time, beside the result).
+    let (own, weights) = {
+        let proxy = previous.unwrap_or(&shots.merged);
+        let vs = shooting_variance(mesh, shots, proxy);
+        let vg = gathering_variance(mesh, gathered, proxy)?;
+        let (a, b) = (
+            Operand::with_expected(ea, &vs),
+            Operand::with_expected(eb, &vg),
+        );
+        if ea.len() != eb.len() {
+            return Err(EstimateError::PatchCountMismatch {
+                a: ea.len(),
+                b: eb.len(),
+            }
+            .into());
+        }
+        weighting.check(&a, &b)?;
+        let own = own.variance().ok_or(EstimateError::MissingVariance)?;
+        let weights: Vec<DVec3> = (0..own.len())
+            .map(|i| {
+                DVec3::new(
+                    weighting.weight(&a, &b, i, 0),
+                    weighting.weight(&a, &b, i, 1),
+                    weighting.weight(&a, &b, i, 2),
+                )
+            })
+            .collect();
+        (own, weights)
+    };
     let parts = Parts {
         shot: &shots.samples,
         shot_variance: shots
@@ -367,11 +411,45 @@ fn combine(
         // its samples' part mixes shooting's own samples with the gathers' images
         sample_prior: 0.0,
     };
-    let Some((variance, factors)) = samples::variance(mesh, &parts, &weights) else {
-        return Ok((merged, None));
+    let sampled = samples::variance(mesh, &parts, &weights);
+    // `w S + (1 - w) G` ([`mcrad_combine::merge`]'s sums).
+    let radiosity: Vec<DVec3> = (0..ea.len())
+        .map(|i| {
+            let mut x = DVec3::ZERO;
+            for c in 0..3 {
+                let wa = weights[i][c];
+                let wb = 1.0 - wa;
+                x[c] = wa * ea.radiosity()[i][c] + wb * eb.radiosity()[i][c];
+            }
+            x
+        })
+        .collect();
+    let rays = ea.rays() + eb.rays();
+    let Some((variance, factors)) = sampled else {
+        // Where the samples do not fit, `merge`'s variance `w² V_S + (1 - w)² V_G`.
+        let variance = match (ea.variance(), eb.variance()) {
+            (Some(va), Some(vb)) => Some(
+                (0..ea.len())
+                    .map(|i| {
+                        let mut v = DVec3::ZERO;
+                        for c in 0..3 {
+                            let wa = weights[i][c];
+                            let wb = 1.0 - wa;
+                            v[c] = wa * wa * va[i][c] + wb * wb * vb[i][c];
+                        }
+                        v
+                    })
+                    .collect(),
+            ),
+            _ => None,
+        };
+        return Ok((Estimate::new(radiosity, variance, rays)?, None));
     };
-    let estimate = Estimate::new(merged.radiosity().to_vec(), Some(variance), merged.rays())?;
-    Ok((estimate, Some(factors)))
+    drop(weights);
+    Ok((
+        Estimate::new(radiosity, Some(variance), rays)?,
+        Some(factors),
+    ))
 }
 
 /// The shooting share `f` in [`SHARE`] of the next `remaining` rays that minimises the expected

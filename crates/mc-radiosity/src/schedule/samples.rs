@@ -194,6 +194,85 @@ pub(crate) fn variance(
     parts: &Parts<'_>,
     weights: &[DVec3],
 ) -> Option<(Vec<DVec3>, Vec<DVec3>)> {
+    if weights.len() != parts.own.len() {
+        return None;
+    }
+    variance_with(mesh, parts, |i| weights[i])
+}
+
+/// The patches grouped by input face in a counting sort (stable: a face's patches in mesh
+/// order), so that a face's sums are made in registers, one face at a time, instead of in
+/// arrays over the faces: `order[first[f]..first[f + 1]]` are the patches of face `f`
+/// (4 bytes a patch and a face).
+struct ByFace {
+    first: Vec<u32>,
+    order: Vec<u32>,
+}
+
+impl ByFace {
+    fn new(mesh: &Mesh) -> ByFace {
+        let faces = mesh.face_count();
+        let n = mesh.patches().len();
+        let mut first = vec![0u32; faces + 1];
+        for p in mesh.patches() {
+            first[p.face as usize + 1] += 1;
+        }
+        for f in 0..faces {
+            first[f + 1] += first[f];
+        }
+        // `first[f]` runs as face `f`'s cursor, ending where face `f + 1` starts; shifted
+        // back by one face after.
+        let mut order = vec![0u32; n];
+        for (i, p) in mesh.patches().iter().enumerate() {
+            let cursor = &mut first[p.face as usize];
+            order[*cursor as usize] = i as u32;
+            *cursor += 1;
+        }
+        for f in (1..=faces).rev() {
+            first[f] = first[f - 1];
+        }
+        first[0] = 0;
+        ByFace { first, order }
+    }
+
+    /// The number of faces.
+    fn faces(&self) -> usize {
+        self.first.len() - 1
+    }
+
+    /// The patches of face `f`, in mesh order.
+    fn patches(&self, f: usize) -> impl Iterator<Item = usize> + '_ {
+        self.order[self.first[f] as usize..self.first[f + 1] as usize]
+            .iter()
+            .map(|&i| i as usize)
+    }
+
+    /// The number of patches of face `f`.
+    fn count(&self, f: usize) -> u32 {
+        self.first[f + 1] - self.first[f]
+    }
+}
+
+/// A face's sums over its patches ((W/m²)² per channel): `S`'s variance, the part its samples
+/// hold, the part they miss, the gathers' own noise by the formula and as measured.
+#[derive(Clone, Copy, Default)]
+struct FaceSums {
+    shot: DVec3,
+    held: DVec3,
+    unsampled: DVec3,
+    own: DVec3,
+    measured: DVec3,
+}
+
+/// [`variance`] with the weight of patch `i` (per channel) given by `weight(i)`. Holds no
+/// per-patch array but the result and the patches' order by face (4 bytes a patch): a patch's
+/// samples' sums are made again where needed, a face's sums one face at a time, each sum in
+/// the order the arrays were summed in before, so the result is the same bit for bit.
+pub(crate) fn variance_with(
+    mesh: &Mesh,
+    parts: &Parts<'_>,
+    weight: impl Fn(usize) -> DVec3,
+) -> Option<(Vec<DVec3>, Vec<DVec3>)> {
     let Parts {
         shot,
         shot_variance: shot_v,
@@ -211,7 +290,6 @@ pub(crate) fn variance(
     if shot.sketch.len() != n
         || image.len() != n
         || shot.unsampled.len() != n
-        || weights.len() != n
         || (measured && gathers.measured.len() != n)
     {
         return None;
@@ -226,102 +304,159 @@ pub(crate) fn variance(
         }
     };
     let phi = share(&shot.unsampled);
-    let mut sampled = vec![DVec3::ZERO; n];
-    let mut held = vec![DVec3::ZERO; n];
-    for i in 0..n {
+    // Patch `i`'s samples' part, `sum_g (w z_g + (1 - w) y_g)²`, and what `S`'s samples
+    // hold, `sum_g z_g²`, per channel.
+    let samples_of = |i: usize| {
+        let (mut sampled, mut held) = (DVec3::ZERO, DVec3::ZERO);
+        let weight = weight(i);
         for c in 0..3 {
-            let w = weights[i][c];
+            let w = weight[c];
             for g in 0..SKETCHES {
                 let (z, y) = (
                     f64::from(shot.sketch[i][3 * g + c]),
                     f64::from(image[i][3 * g + c]) * image_scale,
                 );
-                sampled[i][c] += (w * z + (1.0 - w) * y).powi(2);
-                held[i][c] += z * z;
+                sampled[c] += (w * z + (1.0 - w) * y).powi(2);
+                held[c] += z * z;
             }
         }
-    }
+        (sampled, held)
+    };
     // Per input face (its patches see nearly the same scene; one patch's samples alone would
     // make a noisy share): the share of `S`'s variance the samples hold, and the gathers' own
     // noise measured against the formula's.
-    let faces = mesh.face_count();
-    let mut face_shot = vec![DVec3::ZERO; faces];
-    let mut face_held = vec![DVec3::ZERO; faces];
-    let mut face_unsampled = vec![DVec3::ZERO; faces];
-    let mut face_own = vec![DVec3::ZERO; faces];
-    let mut face_measured = vec![DVec3::ZERO; faces];
-    let mut face_patches = vec![0u32; faces];
-    for (i, p) in mesh.patches().iter().enumerate() {
-        let f = p.face as usize;
-        face_shot[f] += shot_v[i];
-        face_held[f] += held[i];
-        face_unsampled[f] += shot.unsampled[i];
-        face_own[f] += own[i];
-        face_patches[f] += 1;
-        if let Some(m) = measured {
-            face_measured[f] += m[i];
+    let by_face = ByFace::new(mesh);
+    let face_sums = |f: usize| {
+        let mut s = FaceSums::default();
+        for i in by_face.patches(f) {
+            s.shot += shot_v[i];
+            s.held += samples_of(i).1;
+            s.unsampled += shot.unsampled[i];
+            s.own += own[i];
+            if let Some(m) = measured {
+                s.measured += m[i];
+            }
         }
-    }
-    if sample_prior > 0.0 {
-        shrink_samples(mesh, &mut sampled, whole, own, &face_patches, sample_prior);
-    }
+        s
+    };
+    let face_of = |i: usize| mesh.patches()[i].face as usize;
+    // The samples' part drawn towards the scene's transfer (`shrink`), or as it is.
+    let inherited = |i: usize| (whole[i] - own[i]).max(DVec3::ZERO);
+    let pull_to = (sample_prior > 0.0).then(|| {
+        let (s, h): (DVec3, DVec3) = (
+            (0..n).map(|i| samples_of(i).0).sum(),
+            (0..n).map(inherited).sum(),
+        );
+        DVec3::new(ratio(s.x, h.x), ratio(s.y, h.y), ratio(s.z, h.z))
+    });
+    let sampled_of = |i: usize| {
+        let (sampled, held) = samples_of(i);
+        let sampled = match pull_to {
+            Some(r) => shrink(
+                sampled,
+                r,
+                inherited(i),
+                sample_prior,
+                by_face.count(face_of(i)),
+            ),
+            None => sampled,
+        };
+        (sampled, held)
+    };
     // The own noise's scale per face: measured over formula, drawn towards the scene's with
     // the weight of `prior` faces of one patch's degrees of freedom.
     let scene_scale = {
-        let (m, o): (DVec3, DVec3) = (face_measured.iter().sum(), face_own.iter().sum());
+        let (mut m, mut o) = (DVec3::ZERO, DVec3::ZERO);
+        for f in 0..by_face.faces() {
+            let (mut fm, mut fo) = (DVec3::ZERO, DVec3::ZERO);
+            for i in by_face.patches(f) {
+                fo += own[i];
+                if let Some(measured) = measured {
+                    fm += measured[i];
+                }
+            }
+            m += fm;
+            o += fo;
+        }
         DVec3::new(ratio(m.x, o.x), ratio(m.y, o.y), ratio(m.z, o.z)).max(DVec3::ZERO)
     };
     let rounds = gathers.rounds().max(1.0);
-    // Per face, the numerator and denominator of that scale.
-    let face_scale: Vec<(DVec3, DVec3)> = (0..faces)
-        .map(|f| {
-            let pull = prior / (rounds * f64::from(face_patches[f].max(1)));
-            let (m, o) = (face_measured[f], face_own[f]);
-            if pull > 0.0 {
-                (m + pull * scene_scale * o, (1.0 + pull) * o)
-            } else {
-                (m, o)
-            }
-        })
-        .collect();
+    // A face's numerator and denominator of that scale.
+    let face_scale = |f: usize, s: &FaceSums| {
+        let pull = prior / (rounds * f64::from(by_face.count(f).max(1)));
+        let (m, o) = (s.measured, s.own);
+        if pull > 0.0 {
+            (m + pull * scene_scale * o, (1.0 + pull) * o)
+        } else {
+            (m, o)
+        }
+    };
     // How the samples' part of `S`'s variance reaches the estimate, over the scene (a face
     // of one patch holds 8 samples: its own ratio, in the denominator, made rare patches
     // report thousands of times their spread).
-    let (ts, th): (DVec3, DVec3) = (sampled.iter().sum(), held.iter().sum());
+    let (ts, th) = {
+        let (mut ts, mut th) = (DVec3::ZERO, DVec3::ZERO);
+        for i in 0..n {
+            let (s, h) = sampled_of(i);
+            ts += s;
+            th += h;
+        }
+        (ts, th)
+    };
     let transfer = DVec3::new(ratio(ts.x, th.x), ratio(ts.y, th.y), ratio(ts.z, th.z));
-    let variance: Vec<DVec3> = (0..n)
-        .map(|i| {
-            let f = mesh.patches()[i].face as usize;
+    let mut variance = vec![DVec3::ZERO; n];
+    for f in 0..by_face.faces() {
+        let sums = face_sums(f);
+        let scale = face_scale(f, &sums);
+        for i in by_face.patches(f) {
+            let weight = weight(i);
+            let sampled = sampled_of(i).0;
             let mut v = DVec3::ZERO;
             for c in 0..3 {
-                let w = weights[i][c];
+                let w = weight[c];
                 let own_i = match measured {
-                    Some(_) if face_own[f][c] > 0.0 => {
-                        own[i][c] * face_scale[f].0[c] / face_scale[f].1[c]
-                    }
+                    Some(_) if sums.own[c] > 0.0 => own[i][c] * scale.0[c] / scale.1[c],
                     Some(m) => m[i][c],
                     None => own[i][c],
                 };
                 // (Measured less what the images hold, a face's estimate can fall below 0.)
                 v[c] = (1.0 - w).powi(2) * own_i.max(0.0)
-                    + if face_held[f][c] > 0.0 {
-                        let missed = (face_shot[f][c] - face_held[f][c])
+                    + if sums.held[c] > 0.0 {
+                        let missed = (sums.shot[c] - sums.held[c])
                             .max(0.0)
-                            .min(face_unsampled[f][c]);
-                        let share = ratio(missed, face_unsampled[f][c]);
+                            .min(sums.unsampled[c]);
+                        let share = ratio(missed, sums.unsampled[c]);
                         let missed = share * shot.unsampled[i][c];
                         let inherited = (whole[i][c] - own[i][c]).max(0.0);
                         let independent = w * w * missed + (1.0 - w).powi(2) * phi * inherited;
-                        sampled[i][c] + (transfer[c] * missed).min(independent)
+                        sampled[c] + (transfer[c] * missed).min(independent)
                     } else {
                         let inherited = (whole[i][c] - own[i][c]).max(0.0);
                         let unsampled = shot.unsampled[i][c];
-                        (1.0 - w).powi(2) * phi * inherited + w * w * unsampled + sampled[i][c]
+                        (1.0 - w).powi(2) * phi * inherited + w * w * unsampled + sampled[c]
                     };
             }
-            v
-        })
-        .collect();
+            variance[i] = v;
+        }
+    }
+    let counts: Vec<u32> = if pull_to.is_some() {
+        mesh.patches()
+            .iter()
+            .map(|p| by_face.count(p.face as usize))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    drop(by_face);
+    // The samples' part again, with the face's patch count from `counts` now that the
+    // order by face is gone.
+    let sampled_again = |i: usize| {
+        let sampled = samples_of(i).0;
+        match pull_to {
+            Some(r) => shrink(sampled, r, inherited(i), sample_prior, counts[i]),
+            None => sampled,
+        }
+    };
     // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
     // of their variance as independent (the gathers' own noise, the samples' missed part).
     let factors = crate::correlation::factors_of(
@@ -331,41 +466,27 @@ pub(crate) fn variance(
                 sample(&shot.sketch[i], g),
                 sample(&image[i], g) * image_scale,
             );
-            weights[i] * z + (DVec3::ONE - weights[i]) * y
+            let w = weight(i);
+            w * z + (DVec3::ONE - w) * y
         },
-        |i| (variance[i] - sampled[i]).max(DVec3::ZERO),
+        |i| (variance[i] - sampled_again(i)).max(DVec3::ZERO),
         1.0,
     );
     Some((variance, factors))
 }
 
-/// Draws each patch's samples' part of a gather's variance (`sampled`: `[SKETCHES]` degrees
+/// Draws a patch's samples' part of a gather's variance (`sampled`: `[SKETCHES]` degrees
 /// of freedom at most) towards its inherited variance by the independent formula
-/// (`whole - own`) times the scene's ratio of the two, with the weight of `prior` patches
-/// spread over the `n_f` patches of its face (`face_patches`): `(s_i + (prior / n_f) r h_i) / (1 + prior / n_f)`,
-/// `r = sum s / sum h` per channel. The formula's shape is wrong by the correlation of the
-/// shooting's errors, which the scene's ratio puts right where the patches are alike (a
-/// closed furnace of one patch per face: about a fifth); its noise is that of the scene's
-/// samples, not one patch's (module, "Degrees of freedom": `z²` about `k / (k - 2)` too large
-/// from a variance of `k` degrees of freedom).
-fn shrink_samples(
-    mesh: &Mesh,
-    sampled: &mut [DVec3],
-    whole: &[DVec3],
-    own: &[DVec3],
-    face_patches: &[u32],
-    prior: f64,
-) {
-    let inherited = |i: usize| (whole[i] - own[i]).max(DVec3::ZERO);
-    let (s, h): (DVec3, DVec3) = (
-        sampled.iter().sum(),
-        (0..sampled.len()).map(inherited).sum(),
-    );
-    let r = DVec3::new(ratio(s.x, h.x), ratio(s.y, h.y), ratio(s.z, h.z));
-    for (i, p) in mesh.patches().iter().enumerate() {
-        let pull = prior / f64::from(face_patches[p.face as usize].max(1));
-        sampled[i] = (sampled[i] + pull * r * inherited(i)) / (1.0 + pull);
-    }
+/// (`inherited`, `whole - own`) times the scene's ratio of the two (`r = sum s / sum h` per
+/// channel), with the weight of `prior` patches spread over the `n_f` patches of its face
+/// (`face_patches`): `(s_i + (prior / n_f) r h_i) / (1 + prior / n_f)`. The formula's shape
+/// is wrong by the correlation of the shooting's errors, which the scene's ratio puts right
+/// where the patches are alike (a closed furnace of one patch per face: about a fifth); its
+/// noise is that of the scene's samples, not one patch's (module, "Degrees of freedom": `z²`
+/// about `k / (k - 2)` too large from a variance of `k` degrees of freedom).
+fn shrink(sampled: DVec3, r: DVec3, inherited: DVec3, prior: f64, face_patches: u32) -> DVec3 {
+    let pull = prior / f64::from(face_patches.max(1));
+    (sampled + pull * r * inherited) / (1.0 + pull)
 }
 
 /// `a / b`, 0 where `b` is not positive.
