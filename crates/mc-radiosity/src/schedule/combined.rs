@@ -407,7 +407,6 @@ fn combine(
         // weight of `PRIOR_OWN` patches (mean z² 1.63 -> 1.33 in calibrate's slivers
         // corridor, spread / reported in target before and after).
         prior: PRIOR_OWN * gather_samples.rounds().max(1.0),
-        image_scale: 1.0,
         // its samples' part mixes shooting's own samples with the gathers' images
         sample_prior: 0.0,
     };

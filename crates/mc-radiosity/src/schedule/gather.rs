@@ -98,6 +98,14 @@ fn series_remainder(mesh: &Mesh, rounds: u32) -> f64 {
     rho_max(mesh).powi(rounds.min(i32::MAX as u32) as i32)
 }
 
+/// The drift of the increments' ratio, over `1 - q` ([`with_remainder`]), that rounding alone
+/// can make: the increments are differences of powers of about `total` (W per channel), each
+/// rounded to `f64`, so `q` carries a relative error of a few `epsilon total / d` with `d` the
+/// last increment's power; 16 of them, and at least 1e-9.
+fn rounding_drift(total: f64, d: f64, q: f64) -> f64 {
+    (16.0 * f64::EPSILON * total.abs() / (d.abs() * (1.0 - q))).max(1e-9)
+}
+
 /// Rounds kept for [`with_remainder`]: three increments, two ratios.
 const HISTORY: usize = 4;
 
@@ -112,10 +120,12 @@ const HISTORY: usize = 4;
 /// added to the last round's, is `(B_m,i - E_i)² r² delta²` with `delta` the relative
 /// uncertainty of `q / (1 - q)`: the change of the ratio between the last two pairs of rounds
 /// over `1 - q`, plus the relative noise of `sum A d_m` (its rounds' variances), at least
-/// `1e-3` unless every round of the run was noise-free (`noise_free`: [`GatherStats::noise_free`](crate::GatherStats::noise_free))
-/// and the drift is below 1e-9 (rounds in a geometric ratio to rounding): the remainder is
-/// then exact, and so is its variance 0. A series that cannot be sized (fewer than 3 rounds, an increment within two
-/// standard deviations of its noise, or not shrinking) adds nothing to `B`, and to the
+/// `1e-3` unless every round of the run was noise-free (`noise_free`:
+/// [`GatherStats::noise_free`](crate::GatherStats::noise_free)) and the drift is within what
+/// rounding makes (`rounding_drift`: rounds in a geometric ratio to rounding): the remainder
+/// is then exact, and so is its variance 0. A series that cannot be sized (fewer than 3
+/// rounds, an increment within two standard deviations of its noise, or not shrinking) adds
+/// nothing to `B`, and to the
 /// variance the bound `rho_max / (1 - rho_max)` times the last increment (or its noise) in
 /// power, spread as the reflected light, and never more than `rho_max^m / (1 - rho_max^m)` of
 /// it after `m` rounds: missing light is reported, not hidden.
@@ -142,6 +152,7 @@ fn with_remainder(
     let incr = |k: usize| power(&|i| history[k][i] - history[k - 1][i]);
     let d1 = incr(n - 1);
     let reflected = power(&|i| (b[i] - patches[i].emission.as_dvec3()).max(DVec3::ZERO));
+    let total = power(&|i| b[i]);
     // The variance of `sum_i A_i B_m,i` as if the patches' errors were independent.
     let noise: DVec3 = patches
         .iter()
@@ -175,8 +186,10 @@ fn with_remainder(
                 r[c] = q / (1.0 - q) * d1[c] / reflected[c];
                 // Rounds without noise that shrink by the same ratio to rounding (a furnace:
                 // every ray sees the same value) make the remainder exact; otherwise the
-                // geometric model is trusted to no better than 1e-3.
-                delta[c] = if noise_free && drift <= 1e-9 {
+                // geometric model is trusted to no better than 1e-3. (Rounding alone moved
+                // the ratio by 1.3e-9 of `1 - q` on the rho 0.99 furnace of one patch per
+                // face, which a fixed 1e-9 took for a drift.)
+                delta[c] = if noise_free && drift <= rounding_drift(total[c], d1[c], q) {
                     0.0
                 } else {
                     (drift + sd / d1[c]).max(1e-3)

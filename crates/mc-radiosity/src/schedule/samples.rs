@@ -22,7 +22,16 @@
 //! - the gathers' own noise is measured by their replicates: per round and patch one signed
 //!   difference of the indirect gathering and one of the direct light
 //!   ([`Halves::error_of_mean`](crate::replicates::Halves)), squared and merged by rays as the
-//!   rounds are, the formula's shape over an input face taking the face's measured scale.
+//!   rounds are, the formula's shape over an input face taking the face's measured scale. It
+//!   comes from the values the rays saw, the shooting's error included: `(T̂ - T) e`, which the
+//!   image `T̂ z` of the same rays holds too, so each round's measure is taken less the
+//!   replicates' variance of its image (`Seen::sketch_variance`). Counted twice, the own noise
+//!   was most of a subdivided furnace's reported variance; a scale on the image (the faces'
+//!   stratification over the waves, one factor for the scene) made up for it on the patches
+//!   whose gathers spread over the scene and left those whose gathers see a few patches up
+//!   close (a furnace's edges and corners) at half their spread. Both are gone: on the rho
+//!   0.999 furnace `two-pass`'s spread over reported went from 1.9 on the edges and 0.95
+//!   inside to 0.73 and 0.84 (`docs/calibration.md`).
 //!
 //! The estimate `C_i = w_i S_i + (1 - w_i) G_i` (`combined`'s merge; `w = 0` for a gather
 //! alone) then has the variance ([`variance`])
@@ -66,10 +75,6 @@ pub(crate) struct ShotSamples {
     pub sketch: Vec<Row>,
     /// Per patch and channel, the variance the samples miss ((W/m²)²).
     pub unsampled: Vec<DVec3>,
-    /// The share of the samples' variance of a face's total that the run keeps
-    /// (`Shooting::face_scale`: the stratification across the waves over many patches),
-    /// averaged over the passes by rays; dimensionless, 1 without faces of several patches.
-    pub face_scale: f64,
 }
 
 impl ShotSamples {
@@ -78,7 +83,6 @@ impl ShotSamples {
         ShotSamples {
             sketch: std::mem::take(&mut s.sketch),
             unsampled: std::mem::take(&mut s.unsampled),
-            face_scale: s.face_scale,
         }
     }
 
@@ -90,7 +94,6 @@ impl ShotSamples {
         ShotSamples {
             sketch: blend(self.sketch, &next.sketch, w),
             unsampled: by_rays(&self.unsampled, &next.unsampled, w),
-            face_scale: (1.0 - w) * self.face_scale + w * next.face_scale,
         }
     }
 }
@@ -175,10 +178,6 @@ pub(crate) struct Parts<'a> {
     /// The weight, in faces of the rounds' degrees of freedom, of the scene's measured scale
     /// in a face's ([module](self)); 0: each face its own.
     pub prior: f64,
-    /// The factor on the variance the gathers' image of the samples gives (the gathers sum
-    /// the samples over many patches, as a face's total does: [`ShotSamples::face_scale`]);
-    /// 1 to take the image as it is.
-    pub image_scale: f64,
     /// The weight, in patches, of the scene's transfer of the inherited variance in a face's
     /// samples' part ([module](self), "Degrees of freedom"); 0: each patch its own samples.
     pub sample_prior: f64,
@@ -281,10 +280,8 @@ pub(crate) fn variance_with(
         gathers,
         measured,
         prior,
-        image_scale,
         sample_prior,
     } = *parts;
-    let image_scale = image_scale.max(0.0).sqrt();
     let n = own.len();
     let image = &gathers.image;
     if shot.sketch.len() != n
@@ -314,7 +311,7 @@ pub(crate) fn variance_with(
             for g in 0..SKETCHES {
                 let (z, y) = (
                     f64::from(shot.sketch[i][3 * g + c]),
-                    f64::from(image[i][3 * g + c]) * image_scale,
+                    f64::from(image[i][3 * g + c]),
                 );
                 sampled[c] += (w * z + (1.0 - w) * y).powi(2);
                 held[c] += z * z;
@@ -462,10 +459,7 @@ pub(crate) fn variance_with(
     let factors = crate::correlation::factors_of(
         mesh,
         |i, g| {
-            let (z, y) = (
-                sample(&shot.sketch[i], g),
-                sample(&image[i], g) * image_scale,
-            );
+            let (z, y) = (sample(&shot.sketch[i], g), sample(&image[i], g));
             let w = weight(i);
             w * z + (DVec3::ONE - w) * y
         },
@@ -532,16 +526,19 @@ pub(crate) struct GatherRun {
 
 impl GatherRun {
     /// Adds a gather: its estimate (with its whole variance by the formulas), the part of
-    /// that variance it inherits from the shooting, its image of the shooting's samples and
-    /// the signed replicate differences of its independent parts.
+    /// that variance it inherits from the shooting, its image of the shooting's samples, the
+    /// signed replicate differences of its independent parts, and the replicates' variance
+    /// of its image over its rays (the part of its own noise the image holds:
+    /// [`GatherSamples::add`]).
     pub(crate) fn add(
         &mut self,
         estimate: mcrad_combine::Estimate,
         inherited: &[DVec3],
         image: Vec<Row>,
         errors: &[&[DVec3]],
+        held: &[DVec3],
     ) -> Result<(), crate::error::Error> {
-        self.samples.add(image, errors, &[], estimate.rays());
+        self.samples.add(image, errors, held, estimate.rays());
         self.gathers.add(estimate, inherited)
     }
 
@@ -565,7 +562,13 @@ impl GatherRun {
             key,
         )?;
         let (rays, escaped) = (r.estimate.rays(), r.escaped_rays);
-        self.add(r.estimate, &inherited, r.sketch, &[&r.errors])?;
+        self.add(
+            r.estimate,
+            &inherited,
+            r.sketch,
+            &[&r.errors],
+            &r.sketch_variance,
+        )?;
         Ok((rays, escaped))
     }
 
@@ -622,7 +625,6 @@ fn gathered(
         gathers: gather_samples,
         measured,
         prior: PRIOR_FACES,
-        image_scale: shot.face_scale,
         sample_prior: PRIOR_FACES,
     };
     let weights = vec![DVec3::ZERO; own.len()];

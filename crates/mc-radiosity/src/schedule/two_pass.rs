@@ -192,7 +192,13 @@ fn finish<C: RayCaster>(
         let sketch = samples.as_ref().map(|s| &s.sketch[..]);
         let s = split_with_budget(ctx, &shooting, sketch, gather_budget, key)?;
         let errors = [&s.own_errors[0][..], &s.own_errors[1][..]];
-        gathers.add(s.estimate, &s.inherited, s.image, &errors)?;
+        gathers.add(
+            s.estimate,
+            &s.inherited,
+            s.image,
+            &errors,
+            &s.image_variance,
+        )?;
     } else {
         let per = per_patch(mesh, gather_budget);
         escaped_rays += gathers.round(ctx, &shooting, samples.as_ref(), per, key)?.1;
