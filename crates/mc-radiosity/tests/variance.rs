@@ -197,14 +197,7 @@ fn combined_on_a_subdivided_rho_0_99_furnace_reports_its_error() {
 /// freedom each, over the median of `chi²(15) / 15`, 0.956) must lie within `[0.8, 1.25]`.
 #[test]
 fn combined_on_a_subdivided_rho_0_999_furnace_reports_its_error() {
-    let material = mcrad_scene_io::Material {
-        name: "furnace".into(),
-        reflectance: glam::Vec3::splat(0.999),
-        emission: glam::Vec3::ONE,
-    };
-    let scene = common::cube(12.0, material, Vec::new());
-    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
-    assert_eq!(mesh.patches().len(), 864);
+    let mesh = subdivided_furnace(0.999);
     let runs = seeded_runs(Method::Combined, &mesh, 200_000, 16);
     let n = runs.len() as f64;
     let mut ratios: Vec<f64> = (0..mesh.patches().len())
@@ -236,14 +229,7 @@ fn combined_on_a_subdivided_rho_0_999_furnace_reports_its_error() {
 /// within `[0.6, 1.5]`, and the one over the other within `[0.75, 1.33]`.
 #[test]
 fn two_pass_on_a_subdivided_rho_0_999_furnace_reports_its_error_along_the_edges() {
-    let material = mcrad_scene_io::Material {
-        name: "furnace".into(),
-        reflectance: glam::Vec3::splat(0.999),
-        emission: glam::Vec3::ONE,
-    };
-    let scene = common::cube(12.0, material, Vec::new());
-    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
-    assert_eq!(mesh.patches().len(), 864);
+    let mesh = subdivided_furnace(0.999);
     let runs = seeded_runs(Method::TwoPass, &mesh, 200_000, 64);
     // A patch along an edge has its centre within 1 of two of the box's planes (at -6, 6).
     let near = |x: f32| x.abs() >= 5.0;
@@ -284,6 +270,20 @@ fn two_pass_on_a_subdivided_rho_0_999_furnace_reports_its_error_along_the_edges(
         (0.75..=1.33).contains(&(edges / inside)),
         "spread / reported along the edges {edges:.3} over inside {inside:.3}"
     );
+}
+
+/// The subdivided furnace of `cargo xtask calibrate` at reflectance `rho`: a cube of side 12
+/// centred at the origin, every face emitting `E = 1` W/m², in 864 patches of side 1.
+fn subdivided_furnace(rho: f32) -> Mesh {
+    let material = mcrad_scene_io::Material {
+        name: "furnace".into(),
+        reflectance: glam::Vec3::splat(rho),
+        emission: glam::Vec3::ONE,
+    };
+    let scene = common::cube(12.0, material, Vec::new());
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(1.0)).unwrap();
+    assert_eq!(mesh.patches().len(), 864);
+    mesh
 }
 
 /// A closed unit cube of one patch per face (`Subdivision::None`) at reflectance `rho`, lit by

@@ -125,10 +125,10 @@ const HISTORY: usize = 4;
 /// rounding makes (`rounding_drift`: rounds in a geometric ratio to rounding): the remainder
 /// is then exact, and so is its variance 0. A series that cannot be sized (fewer than 3
 /// rounds, an increment within two standard deviations of its noise, or not shrinking) adds
-/// nothing to `B`, and to the
-/// variance the bound `rho_max / (1 - rho_max)` times the last increment (or its noise) in
-/// power, spread as the reflected light, and never more than `rho_max^m / (1 - rho_max^m)` of
-/// it after `m` rounds: missing light is reported, not hidden.
+/// nothing to `B`, and to the variance the bound `rho_max / (1 - rho_max)` times the last
+/// increment (or its noise) in power, spread as the reflected light, and never more than
+/// `rho_max^m / (1 - rho_max^m)` of it after `m` rounds: missing light is reported, not
+/// hidden.
 fn with_remainder(
     mesh: &Mesh,
     last: Estimate,
