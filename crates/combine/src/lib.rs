@@ -34,4 +34,7 @@ mod weighting;
 pub use estimate::{Estimate, EstimateError};
 pub use measure::{relative_error, rms_rel, weighted_quantile};
 pub use runs::{MergedRuns, Run, RunWeighting, merge_runs};
-pub use weighting::{ByRays, InverseExpectedVariance, InverseVariance, Operand, Weighting, merge};
+pub use weighting::{
+    ByRays, InverseExpectedVariance, InverseVariance, Operand, Weighting, merge, merge_weighted,
+    weights,
+};

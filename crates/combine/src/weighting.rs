@@ -197,6 +197,20 @@ pub fn merge<'a>(
     weighting: &(impl Weighting + ?Sized),
 ) -> Result<Estimate, EstimateError> {
     let (a, b) = (a.into(), b.into());
+    let w = weights(&a, &b, weighting)?;
+    merge_weighted(a.estimate, b.estimate, &w)
+}
+
+/// The weights [`merge`] gives `a` (dimensionless, per patch and channel, `w` of
+/// `w X_a + (1 - w) X_b`), after its checks: for a caller that reads them, or makes the
+/// merge's variance another way, before [`merge_weighted`].
+///
+/// Errors: as [`merge`]'s.
+pub fn weights(
+    a: &Operand,
+    b: &Operand,
+    weighting: &(impl Weighting + ?Sized),
+) -> Result<Vec<DVec3>, EstimateError> {
     let (ea, eb) = (a.estimate, b.estimate);
     if ea.len() != eb.len() {
         return Err(EstimateError::PatchCountMismatch {
@@ -204,7 +218,33 @@ pub fn merge<'a>(
             b: eb.len(),
         });
     }
-    weighting.check(&a, &b)?;
+    weighting.check(a, b)?;
+    Ok((0..ea.len())
+        .map(|i| {
+            DVec3::new(
+                weighting.weight(a, b, i, 0),
+                weighting.weight(a, b, i, 1),
+                weighting.weight(a, b, i, 2),
+            )
+        })
+        .collect())
+}
+
+/// [`merge`] with the weights of `a` given per patch and channel (`weights`, dimensionless,
+/// one per patch, [`weights`]): `w X_a + (1 - w) X_b`, rays summed, variance
+/// `w² V_a + (1 - w)² V_b` where both have one.
+///
+/// Errors: patch counts of `a`, `b` and `weights` differ.
+pub fn merge_weighted(
+    ea: &Estimate,
+    eb: &Estimate,
+    weights: &[DVec3],
+) -> Result<Estimate, EstimateError> {
+    for n in [eb.len(), weights.len()] {
+        if n != ea.len() {
+            return Err(EstimateError::PatchCountMismatch { a: ea.len(), b: n });
+        }
+    }
     let own = match (ea.variance(), eb.variance()) {
         (Some(va), Some(vb)) => Some((va, vb)),
         _ => None,
@@ -212,11 +252,11 @@ pub fn merge<'a>(
     let n = ea.len();
     let mut value = Vec::with_capacity(n);
     let mut variance = own.map(|_| Vec::with_capacity(n));
-    for i in 0..n {
+    for (i, w) in weights.iter().enumerate() {
         let (mut x, mut v) = (DVec3::ZERO, DVec3::ZERO);
         let (var_a, var_b) = own.map_or((DVec3::ZERO, DVec3::ZERO), |(va, vb)| (va[i], vb[i]));
         for c in 0..3 {
-            let wa = weighting.weight(&a, &b, i, c);
+            let wa = w[c];
             let wb = 1.0 - wa;
             x[c] = wa * ea.radiosity()[i][c] + wb * eb.radiosity()[i][c];
             v[c] = wa * wa * var_a[c] + wb * wb * var_b[c];

@@ -58,7 +58,9 @@ use crate::direct::{Split, split_with_budget};
 use crate::error::Error;
 use glam::DVec3;
 use mcrad_combine::expected::{pooled_relative_of, shot_noise};
-use mcrad_combine::{Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting};
+use mcrad_combine::{
+    Estimate, EstimateError, InverseExpectedVariance, Operand, Weighting, merge_weighted,
+};
 use mcrad_meshing::Mesh;
 use mcrad_random::StreamKey;
 use mcrad_raycast::RayCaster;
@@ -361,37 +363,20 @@ fn combine(
     weighting: &dyn Weighting,
 ) -> Result<(Estimate, Option<Vec<DVec3>>), Error> {
     let (ea, eb) = (&shots.merged, gathered);
-    // The weights `w_i` per channel, as `merge` would weight (its checks first); the expected
-    // variances they are made from go before the variance's sums (this is the run's peak of
-    // memory: one array a patch at a time, beside the result).
-    let (own, weights) = {
+    // The weights `w_i` per channel, as `merge` would weight; the expected variances they are
+    // made from go before the variance's sums (this is the run's peak of memory: one array a
+    // patch at a time, beside the result).
+    let weights = {
         let proxy = previous.unwrap_or(&shots.merged);
         let vs = shooting_variance(mesh, shots, proxy);
         let vg = gathering_variance(mesh, gathered, proxy)?;
-        let (a, b) = (
-            Operand::with_expected(ea, &vs),
-            Operand::with_expected(eb, &vg),
-        );
-        if ea.len() != eb.len() {
-            return Err(EstimateError::PatchCountMismatch {
-                a: ea.len(),
-                b: eb.len(),
-            }
-            .into());
-        }
-        weighting.check(&a, &b)?;
-        let own = own.variance().ok_or(EstimateError::MissingVariance)?;
-        let weights: Vec<DVec3> = (0..own.len())
-            .map(|i| {
-                DVec3::new(
-                    weighting.weight(&a, &b, i, 0),
-                    weighting.weight(&a, &b, i, 1),
-                    weighting.weight(&a, &b, i, 2),
-                )
-            })
-            .collect();
-        (own, weights)
+        mcrad_combine::weights(
+            &Operand::with_expected(ea, &vs),
+            &Operand::with_expected(eb, &vg),
+            weighting,
+        )?
     };
+    let own = own.variance().ok_or(EstimateError::MissingVariance)?;
     let parts = Parts {
         shot: &shots.samples,
         shot_variance: shots
@@ -411,40 +396,14 @@ fn combine(
         sample_prior: 0.0,
     };
     let sampled = samples::variance(mesh, &parts, &weights);
-    // `w S + (1 - w) G` ([`mcrad_combine::merge`]'s sums).
-    let radiosity: Vec<DVec3> = (0..ea.len())
-        .map(|i| {
-            let mut x = DVec3::ZERO;
-            for c in 0..3 {
-                let wa = weights[i][c];
-                let wb = 1.0 - wa;
-                x[c] = wa * ea.radiosity()[i][c] + wb * eb.radiosity()[i][c];
-            }
-            x
-        })
-        .collect();
-    let rays = ea.rays() + eb.rays();
-    let Some((variance, factors)) = sampled else {
-        // Where the samples do not fit, `merge`'s variance `w² V_S + (1 - w)² V_G`.
-        let variance = match (ea.variance(), eb.variance()) {
-            (Some(va), Some(vb)) => Some(
-                (0..ea.len())
-                    .map(|i| {
-                        let mut v = DVec3::ZERO;
-                        for c in 0..3 {
-                            let wa = weights[i][c];
-                            let wb = 1.0 - wa;
-                            v[c] = wa * wa * va[i][c] + wb * wb * vb[i][c];
-                        }
-                        v
-                    })
-                    .collect(),
-            ),
-            _ => None,
-        };
-        return Ok((Estimate::new(radiosity, variance, rays)?, None));
-    };
+    // `w S + (1 - w) G`, with `merge`'s variance `w² V_S + (1 - w)² V_G` where the samples do
+    // not fit.
+    let merged = merge_weighted(ea, eb, &weights)?;
     drop(weights);
+    let Some((variance, factors)) = sampled else {
+        return Ok((merged, None));
+    };
+    let (radiosity, _, rays) = merged.into_parts();
     Ok((
         Estimate::new(radiosity, Some(variance), rays)?,
         Some(factors),

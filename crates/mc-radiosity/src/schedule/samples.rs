@@ -436,24 +436,6 @@ pub(crate) fn variance_with(
             variance[i] = v;
         }
     }
-    let counts: Vec<u32> = if pull_to.is_some() {
-        mesh.patches()
-            .iter()
-            .map(|p| by_face.count(p.face as usize))
-            .collect()
-    } else {
-        Vec::new()
-    };
-    drop(by_face);
-    // The samples' part again, with the face's patch count from `counts` now that the
-    // order by face is gone.
-    let sampled_again = |i: usize| {
-        let sampled = samples_of(i).0;
-        match pull_to {
-            Some(r) => shrink(sampled, r, inherited(i), sample_prior, counts[i]),
-            None => sampled,
-        }
-    };
     // The correlation between a face's patches: their samples `w z + (1 - w) y`, and the rest
     // of their variance as independent (the gathers' own noise, the samples' missed part).
     let factors = crate::correlation::factors_of(
@@ -463,7 +445,7 @@ pub(crate) fn variance_with(
             let w = weight(i);
             w * z + (DVec3::ONE - w) * y
         },
-        |i| (variance[i] - sampled_again(i)).max(DVec3::ZERO),
+        |i| (variance[i] - sampled_of(i).0).max(DVec3::ZERO),
         1.0,
     );
     Some((variance, factors))
