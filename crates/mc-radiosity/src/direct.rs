@@ -493,12 +493,7 @@ pub fn two_pass_split<C: RayCaster>(
 /// what the indirect gather of the split gathers from.
 fn reflected_part(patches: &[Patch], shooting: &Estimate) -> Result<Estimate, Error> {
     Ok(Estimate::new(
-        shooting
-            .radiosity()
-            .iter()
-            .zip(patches)
-            .map(|(b, p)| *b - p.emission.as_dvec3())
-            .collect(),
+        reflected_radiosity(patches, shooting),
         shooting.variance().map(<[DVec3]>::to_vec),
         shooting.rays(),
     )?)
