@@ -26,7 +26,7 @@
 
 use crate::build::{
     Mesh, MeshError, PatchTemplate, Subdivision, checked_max_edge, local_origin, local_positions,
-    max_coordinate, resolved_size_at,
+    max_coordinate, patches_of_face, resolved_size_at,
 };
 use crate::subdivide::{Cutter, Target};
 use glam::{DVec3, Vec3};
@@ -589,19 +589,10 @@ fn start_leaves(
         .par_iter()
         .map(|faces| {
             let mut pos = Vec::new();
+            let cut = max_edge.map(|l| (l, min_size));
             faces
                 .iter()
-                .map(|face| {
-                    let sides = 1 + usize::from(scene.is_two_sided(face.material));
-                    let Some(l) = max_edge else { return sides };
-                    pos.clear();
-                    pos.extend(
-                        face.vertices
-                            .iter()
-                            .map(|&v| positions[v as usize].as_dvec3()),
-                    );
-                    sides * crate::subdivide::count_face(&pos, l, min_size) as usize
-                })
+                .map(|face| patches_of_face(scene, face, &positions, cut, &mut pos) as usize)
                 .sum()
         })
         .collect();

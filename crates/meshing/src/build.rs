@@ -215,23 +215,16 @@ impl Mesh {
     /// in parallel on rayon's pool. Errors as [`Mesh::build`]'s.
     pub fn count_patches(scene: &Scene, subdivision: Subdivision) -> Result<u64, MeshError> {
         let max_edge = checked_max_edge(scene, subdivision)?;
-        let sides = |face: &mcrad_scene_io::Face| 1 + u64::from(scene.is_two_sided(face.material));
-        let Some(l) = max_edge else {
-            return Ok(scene.faces().par_iter().map(sides).sum());
+        let positions = match max_edge {
+            Some(_) => local_positions(scene, local_origin(scene)),
+            None => Vec::new(),
         };
-        let positions = local_positions(scene, local_origin(scene));
-        let min_size = resolved_size_at(max_coordinate(&positions));
+        let cut = max_edge.map(|l| (l, resolved_size_at(max_coordinate(&positions))));
         Ok(scene
             .faces()
             .par_iter()
             .map_init(Vec::new, |pos, face| {
-                pos.clear();
-                pos.extend(
-                    face.vertices
-                        .iter()
-                        .map(|&v| positions[v as usize].as_dvec3()),
-                );
-                sides(face) * crate::subdivide::count_face(pos, l, min_size)
+                patches_of_face(scene, face, &positions, cut, pos)
             })
             .sum())
     }
@@ -708,6 +701,29 @@ pub(crate) fn max_coordinate(positions: &[Vec3]) -> f64 {
 /// [`Mesh::resolved_size`] of a mesh whose largest coordinate magnitude is `coordinate`.
 pub(crate) fn resolved_size_at(coordinate: f64) -> f64 {
     coordinate * f64::from(f32::EPSILON) * F32_SPACINGS_PER_PATCH
+}
+
+/// The patches [`Mesh::build`] cuts `face` of `scene` into (a two-sided face's back sides
+/// counted): one, or with `cut` = (maximum edge, resolved size) the uniform cut's count from
+/// the face's corners in `positions` (the local frame); `pos` is room for those corners.
+pub(crate) fn patches_of_face(
+    scene: &Scene,
+    face: &mcrad_scene_io::Face,
+    positions: &[Vec3],
+    cut: Option<(f32, f64)>,
+    pos: &mut Vec<DVec3>,
+) -> u64 {
+    let sides = 1 + u64::from(scene.is_two_sided(face.material));
+    let Some((max_edge, min_size)) = cut else {
+        return sides;
+    };
+    pos.clear();
+    pos.extend(
+        face.vertices
+            .iter()
+            .map(|&v| positions[v as usize].as_dvec3()),
+    );
+    sides * crate::subdivide::count_face(pos, max_edge, min_size)
 }
 
 /// `scene`'s positions in the local frame of origin `origin` (see [`Mesh::origin`]).
