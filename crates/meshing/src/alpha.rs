@@ -45,6 +45,19 @@ impl AlphaTest {
     }
 }
 
+impl AlphaTest {
+    /// Per input face (indexed by [`crate::Patch::face`]), whether `mesh` alpha-tests it;
+    /// `None` when it tests none.
+    pub(crate) fn tested_faces(mesh: &Mesh) -> Option<Vec<bool>> {
+        let textures = mesh.textures().filter(|t| t.has_alpha())?;
+        let mut tested = vec![false; mesh.face_count()];
+        for (f, t) in tested.iter_mut().zip(&textures.faces) {
+            *f = t.as_ref().is_some_and(|m| m.alpha.is_some());
+        }
+        Some(tested)
+    }
+}
+
 impl AnyHit for AlphaTest {
     fn passes(&self, id: u32, point: Vec3, dir: Vec3) -> bool {
         let Some(&face) = self.faces.get(id as usize).filter(|&&f| f != u32::MAX) else {

@@ -65,6 +65,22 @@ pub enum MeshError {
     /// error: both follow the same rules).
     #[error("the adaptive mesh's start was cut into another number of leaves than counted")]
     StartCount,
+    /// [`Mesh::clustered`] got another number of group numbers than the mesh has patches.
+    #[error("{got} group numbers for a mesh of {patches} patches")]
+    GroupCount {
+        /// The mesh's patches.
+        patches: usize,
+        /// The group numbers given.
+        got: usize,
+    },
+    /// [`Mesh::clustered`] got a group with a patch that may not join a cluster.
+    #[error("patch {patch} may not join a cluster: {why}")]
+    Unclusterable {
+        /// The patch (mesh order).
+        patch: usize,
+        /// Why not.
+        why: &'static str,
+    },
     /// A recorded refinement ([`crate::History`]) does not apply to this scene and bounds.
     #[error(
         "refinement {round} of the recorded mesh split {recorded} elements, on this scene only \
@@ -116,16 +132,26 @@ pub struct Patch {
     /// opposite normal. Each side has a radiosity of its own. `false` for every patch of a
     /// one-sided face and for fronts.
     pub back: bool,
-    first_corner: u32,
-    corner_count: u32,
-    /// Its triangles are a fan over its corners: `corner_count - 2` of them from here.
-    first_triangle: u32,
+    /// The polygons it is made of: 1 for a patch cut from one face; a cluster's member count
+    /// (see [`Mesh::clustered`]), whose corners are its members' one after the other.
+    pub(crate) polygons: u16,
+    pub(crate) first_corner: u32,
+    pub(crate) corner_count: u32,
+    /// Its triangles are a fan over each polygon's corners: `corner_count - 2 polygons` of
+    /// them from here.
+    pub(crate) first_triangle: u32,
 }
 
 impl Patch {
-    /// The number of its triangles: a fan over its corners.
-    fn triangle_count(&self) -> usize {
-        (self.corner_count as usize).saturating_sub(2)
+    /// The number of its triangles: a fan over each of its polygons' corners.
+    pub(crate) fn triangle_count(&self) -> usize {
+        (self.corner_count as usize).saturating_sub(2 * self.polygons as usize)
+    }
+
+    /// Whether it is a cluster of several input faces (see [`Mesh::clustered`]): not planar,
+    /// each of its triangles with a normal of its own ([`Mesh::triangle_normal`]).
+    pub fn is_cluster(&self) -> bool {
+        self.polygons > 1
     }
 }
 
@@ -275,6 +301,27 @@ impl Mesh {
     /// Sets the count [`Mesh::kept_whole`] reports (an adaptive mesh carries its start's).
     pub(crate) fn set_kept_whole(&mut self, n: usize) {
         self.kept_whole = n;
+    }
+
+    /// A mesh over this one's positions (and origin, textures and count of faces kept whole)
+    /// with the given corners, triangles and patches.
+    pub(crate) fn with_patches(
+        &self,
+        corners: Vec<u32>,
+        triangles: Vec<[u32; 3]>,
+        triangle_patch: Vec<u32>,
+        patches: Vec<Patch>,
+    ) -> Mesh {
+        Mesh {
+            origin: self.origin,
+            positions: self.positions.clone(),
+            corners,
+            triangles,
+            triangle_patch,
+            patches,
+            kept_whole: self.kept_whole,
+            textures: self.textures.clone(),
+        }
     }
 
     /// Releases the arrays' spare capacity.
@@ -508,6 +555,7 @@ impl Mesh {
             face: t.face,
             material: t.material,
             back: false,
+            polygons: 1,
             first_corner,
             corner_count: corners.len() as u32,
             first_triangle,
@@ -603,7 +651,7 @@ impl Mesh {
         &self.triangles
     }
 
-    /// The triangles of `patch` (a fan over its corners).
+    /// The triangles of `patch` (a fan over its corners; a cluster's, its members' fans).
     pub fn patch_triangles(&self, patch: &Patch) -> &[[u32; 3]] {
         let s = patch.first_triangle as usize;
         &self.triangles[s..s + patch.triangle_count()]
@@ -647,8 +695,11 @@ impl Mesh {
     /// Checks the invariants; returns a description of the first violation.
     pub fn validate(&self) -> Result<(), String> {
         for (i, p) in self.patches.iter().enumerate() {
-            if p.corner_count < 3 {
-                return Err(format!("patch {i} has {} corners", p.corner_count));
+            if p.polygons == 0 || p.corner_count < 3 * u32::from(p.polygons) {
+                return Err(format!(
+                    "patch {i} has {} corners in {} polygons",
+                    p.corner_count, p.polygons
+                ));
             }
             if !(p.area.is_finite() && p.area > 0.0) {
                 return Err(format!("patch {i} has area {}", p.area));

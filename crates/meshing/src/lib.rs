@@ -17,6 +17,7 @@ mod adaptive;
 mod alpha;
 mod build;
 mod cluster;
+mod coarse;
 mod discretization;
 mod reconstruct;
 mod seams;
@@ -33,6 +34,7 @@ pub use build::{
     Subdivision,
 };
 pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
+pub use coarse::{ClusteredMesh, MAX_CLUSTER_MEMBERS, UNGROUPED};
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 
