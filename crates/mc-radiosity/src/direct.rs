@@ -71,7 +71,7 @@ use crate::gather::{Emission, check_input, gather_round_from, gather_round_parts
 use crate::jobs::{DIRECT_LIGHT, DIRECT_PILOT, Moments};
 use crate::replicates::{self, Halves, Measure};
 use crate::sampling::{Discrete, Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection};
-use crate::surface::{Rays, SurfaceSampler};
+use crate::surface::{Rays, SurfaceSampler, own_id};
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
 use mcrad_meshing::Patch;
@@ -188,7 +188,7 @@ fn direct_with<C: RayCaster>(
             let mut tally = Tally::default();
             for t in 0..job.rays {
                 let draw = draw(&mut rays, &light, i, &frame, sampler);
-                let f = light.sample(i, &frame, caster, draw, &mut tally);
+                let f = light.sample(i, caster, draw, &mut tally);
                 tally.moments.push(f);
                 tally.halves.push(replicate(u64::from(t)), f);
             }
@@ -243,10 +243,11 @@ fn direct_with<C: RayCaster>(
     })
 }
 
-/// One sample's random choices: the point `x` of the receiver, the emitter `j`, its point `y`
-/// and (multiple importance sampling only) the cosine direction.
+/// One sample's random choices: the point `x` of the receiver (and the tangent frame there),
+/// the emitter `j`, its point `y` and (multiple importance sampling only) the cosine direction.
 struct Draw {
     x: Vec3,
+    frame: Frame,
     j: usize,
     y: Vec3,
     dir: Option<Vec3>,
@@ -261,18 +262,26 @@ struct Draw {
 fn draw(rays: &mut Rays, light: &Light, i: usize, frame: &Frame, sampler: &SurfaceSampler) -> Draw {
     match rays {
         Rays::Random(rng) => {
-            let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+            let (x, t) = sampler.point_on(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+            let frame = sampler.frame_on(i, t, frame);
             let j = light.emitters.sample(rng.uniform_f64());
             let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
             let dir = light
                 .mis
                 .eq(&Mis::Paired)
                 .then(|| frame.to_world(cosine_hemisphere_rejection(|| rng.uniform())));
-            Draw { x, j, y, dir }
+            Draw {
+                x,
+                frame,
+                j,
+                y,
+                dir,
+            }
         }
         Rays::Qmc { sequence, next } => {
             let u = sequence.point(*next);
-            let x = sampler.point2(i, [u[2], u[3]]);
+            let (x, t) = sampler.point2_on(i, [u[2], u[3]]);
+            let frame = sampler.frame_on(i, t, frame);
             let j = light.emitters.sample(f64::from(u[0]));
             let share = light.emitters.inverse(j);
             let v = ((f64::from(u[0]) - share.start) / (share.end - share.start))
@@ -283,7 +292,13 @@ fn draw(rays: &mut Rays, light: &Light, i: usize, frame: &Frame, sampler: &Surfa
                 frame.to_world(cosine_hemisphere_concentric(glam::Vec2::new(w[0], w[1])))
             });
             *next += 1;
-            Draw { x, j, y, dir }
+            Draw {
+                x,
+                frame,
+                j,
+                y,
+                dir,
+            }
         }
     }
 }
@@ -347,7 +362,8 @@ impl CosineLight<'_> {
             return DVec3::ZERO;
         }
         let pk = &self.patches[k];
-        let (dir, nx) = (ray.dir.as_dvec3(), self.patches[i].normal.as_dvec3());
+        // the normal at the ray's origin (a cluster's triangle's own)
+        let (dir, nx) = (ray.dir.as_dvec3(), ray.origin_normal.as_dvec3());
         let cos_x = dir.dot(nx);
         let cos_y = -dir.dot(pk.normal.as_dvec3());
         if cos_x <= 0.0 || cos_y <= 0.0 {
@@ -377,23 +393,23 @@ impl Light<'_> {
     }
 
     /// One sample's score `f` for patch `i` (see the module documentation), counting rays.
-    fn sample<C: RayCaster>(
-        &self,
-        i: usize,
-        frame: &Frame,
-        caster: &C,
-        draw: Draw,
-        tally: &mut Tally,
-    ) -> DVec3 {
+    fn sample<C: RayCaster>(&self, i: usize, caster: &C, draw: Draw, tally: &mut Tally) -> DVec3 {
+        let Draw {
+            x,
+            frame,
+            j,
+            y,
+            dir,
+        } = draw;
         let nx = frame.normal;
-        let Draw { x, j, y, dir } = draw;
+        let own = own_id(&self.patches[i], i);
         let mut f = DVec3::ZERO;
         // Emitter sampling.
         if let Some((cos_x, cos_y, r2)) = self.geometry(x, nx, y, j).filter(|_| j != i) {
             tally.rays += 1;
             let pj = &self.patches[j];
             let blocked = caster.occluded(
-                &SurfacePoint::new(x, nx, i as u32),
+                &SurfacePoint::new(x, nx, own),
                 &SurfacePoint::new(y, pj.normal, j as u32),
             );
             if blocked {
@@ -418,7 +434,7 @@ impl Light<'_> {
         // Cosine sampling.
         if let Some(dir) = dir {
             tally.rays += 1;
-            if let Some(hit) = caster.closest_hit(&Ray::from_surface(x, nx, dir, i as u32))
+            if let Some(hit) = caster.closest_hit(&Ray::from_surface(x, nx, dir, own))
                 && hit.front
                 && self.emitters.pmf(hit.id as usize) > 0.0
             {
@@ -556,10 +572,10 @@ fn shadow_fraction<C: RayCaster>(ctx: &Context<C>, key: StreamKey) -> f64 {
         .into_par_iter()
         .map(|i| {
             let mut rng = key.item(i as u64).substream(DIRECT_PILOT).stream();
-            let nx = patches[i].normal;
             let mut n = 0u64;
             for _ in 0..PILOT_SAMPLES {
-                let x = sampler.point(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                let (x, t) = sampler.point_on(i, [rng.uniform(), rng.uniform(), rng.uniform()]);
+                let nx = ctx.mesh().triangle_normal(&patches[i], t);
                 let j = emitters.sample(rng.uniform_f64());
                 let y = sampler.point(j, [rng.uniform(), rng.uniform(), rng.uniform()]);
                 if j != i && light.geometry(x, nx, y, j).is_some() {

@@ -350,6 +350,7 @@ fn irradiance_moments<C: RayCaster>(
     rng: &mut Stream,
 ) -> Moments {
     let m = (f64::from(n).sqrt().round() as u32).max(1);
+    let own = sampler.own_id(patch);
     let (mut sum, mut direct_sum) = (DVec3::ZERO, DVec3::ZERO);
     let mut sky_sum = DVec3::ZERO;
     let (mut unoccluded, mut visible) = (0.0, 0.0);
@@ -364,11 +365,13 @@ fn irradiance_moments<C: RayCaster>(
                 ((a as f32 + rng.uniform()) / m as f32).min(1.0 - f32::EPSILON),
                 ((b as f32 + rng.uniform()) / m as f32).min(1.0 - f32::EPSILON),
             ];
-            let x = sampler.point2(patch, u);
+            let (x, t) = sampler.point2_on(patch, u);
+            // a cluster's triangle's own normal
+            let normal = sampler.normal_on(patch, t, normal);
             let mut h = DVec3::ZERO;
             let mut sky_h = DVec3::ZERO;
             if let Some(sky) = sources.sky {
-                let (s, scored) = crate::sky::irradiance(sky, patch, x, normal, caster, far, rng);
+                let (s, scored) = crate::sky::irradiance(sky, own, x, normal, caster, far, rng);
                 sky_scored += scored;
                 sky_h = s;
                 h += s;
@@ -382,7 +385,7 @@ fn irradiance_moments<C: RayCaster>(
                 };
                 unoccluded += LUMINANCE.dot(e);
                 unoccluded_rgb += e;
-                let from = SurfacePoint::new(x, normal, patch as u32);
+                let from = SurfacePoint::new(x, normal, own);
                 if !caster.occluded(&from, &SurfacePoint::free(target)) {
                     h += e;
                     direct_sum += e;

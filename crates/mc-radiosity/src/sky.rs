@@ -31,13 +31,14 @@ pub(crate) fn rays_per_point(sky: Option<&Sky>) -> u32 {
     }
 }
 
-/// An estimate of the sky's irradiance at `x` (on `patch`, unit normal `normal`, the mesh's
-/// frame: the sky is at infinity, so no offset applies), W/m² per channel, from
+/// An estimate of the sky's irradiance at `x` (on a surface of id `own`, which its rays
+/// exclude, unit normal `normal`, the mesh's frame: the sky is at infinity, so no offset
+/// applies), W/m² per channel, from
 /// [`rays_per_point`] rays reaching `far` along their direction; and how many of those rays
 /// left the scene (scored).
 pub(crate) fn irradiance<C: RayCaster>(
     sky: &Sky,
-    patch: usize,
+    own: u32,
     x: Vec3,
     normal: Vec3,
     caster: &C,
@@ -46,7 +47,7 @@ pub(crate) fn irradiance<C: RayCaster>(
 ) -> (DVec3, u32) {
     let n = normal.as_dvec3();
     let (t, b) = n.any_orthonormal_pair();
-    let from = SurfacePoint::new(x, normal, patch as u32);
+    let from = SurfacePoint::new(x, normal, own);
     let open = |w: DVec3| {
         let target = (x.as_dvec3() + w * far).as_vec3();
         !caster.occluded(&from, &SurfacePoint::free(target))

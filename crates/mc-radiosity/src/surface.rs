@@ -6,7 +6,7 @@ use crate::sampling::{
     Frame, cosine_hemisphere_concentric, cosine_hemisphere_rejection, uniform_triangle,
 };
 use glam::{Vec2, Vec3};
-use mcrad_meshing::Mesh;
+use mcrad_meshing::{Mesh, Patch};
 use mcrad_random::{Sobol, Stream, StreamKey};
 use mcrad_raycast::Ray;
 
@@ -83,8 +83,17 @@ impl<'m> SurfaceSampler<'m> {
     /// area, the other two a point in it.
     #[inline]
     pub fn point(&self, patch: usize, u: [f32; 3]) -> Vec3 {
+        self.point_on(patch, u).0
+    }
+
+    /// [`point`](Self::point) and the triangle (its index in the mesh) it lies on.
+    #[inline]
+    pub fn point_on(&self, patch: usize, u: [f32; 3]) -> (Vec3, usize) {
         let t = self.triangle_at(patch, u[0]);
-        self.on_triangle(t, uniform_triangle(Vec2::new(u[1], u[2])))
+        (
+            self.on_triangle(t, uniform_triangle(Vec2::new(u[1], u[2]))),
+            t,
+        )
     }
 
     /// A uniform point of `patch` from two uniforms in `[0, 1)`: the first picks a triangle by
@@ -92,6 +101,12 @@ impl<'m> SurfaceSampler<'m> {
     /// the triangle with the second (so stratified pairs give stratified points).
     #[inline]
     pub fn point2(&self, patch: usize, u: [f32; 2]) -> Vec3 {
+        self.point2_on(patch, u).0
+    }
+
+    /// [`point2`](Self::point2) and the triangle (its index in the mesh) it lies on.
+    #[inline]
+    pub fn point2_on(&self, patch: usize, u: [f32; 2]) -> (Vec3, usize) {
         let first = self.triangles(patch).0;
         let t = self.triangle_at(patch, u[0]);
         let low = if t == first { 0.0 } else { self.cdf[t - 1] };
@@ -101,7 +116,19 @@ impl<'m> SurfaceSampler<'m> {
         } else {
             0.0
         };
-        self.on_triangle(t, uniform_triangle(Vec2::new(v, u[1])))
+        (self.on_triangle(t, uniform_triangle(Vec2::new(v, u[1]))), t)
+    }
+
+    /// The tangent frame at the points of triangle `t` of `patch` (for a cluster, its
+    /// triangle's own normal: [`Mesh::triangle_normal`]), given `frame`, the patch's.
+    #[inline]
+    pub fn frame_on(&self, patch: usize, t: usize, frame: &Frame) -> Frame {
+        let p = &self.mesh.patches()[patch];
+        if p.is_cluster() {
+            Frame::from_normal(self.mesh.triangle_normal(p, t))
+        } else {
+            *frame
+        }
     }
 
     /// The triangle of `patch` (its index in the mesh) that [`point2`](Self::point2) puts a
@@ -122,21 +149,62 @@ impl<'m> SurfaceSampler<'m> {
     /// direction; stratified `u` (a quasi-Monte Carlo sequence) gives stratified rays.
     #[inline]
     pub fn ray_at(&self, patch: usize, u: [f32; 4]) -> Ray {
-        let p = self.point2(patch, [u[2], u[3]]);
+        let (p, t) = self.point2_on(patch, [u[2], u[3]]);
         let frame = self.frame(patch);
+        let frame = self.frame_on(patch, t, &frame);
         let d = frame.to_world(cosine_hemisphere_concentric(Vec2::new(u[0], u[1])));
-        Ray::from_surface(p, frame.normal, d, patch as u32)
+        self.leaving(patch, p, &frame, d)
     }
 
     /// A ray leaving a uniform point of `patch` in a cosine-distributed direction about its
     /// normal, drawing three uniforms for the point and about 2.5 for the direction from `rng`.
     #[inline]
     pub fn ray(&self, patch: usize, rng: &mut Stream) -> Ray {
-        let p = self.point(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let (p, t) = self.point_on(patch, [rng.uniform(), rng.uniform(), rng.uniform()]);
         let frame = self.frame(patch);
+        let frame = self.frame_on(patch, t, &frame);
         // Unit to rounding: a unit local direction in an orthonormal frame.
         let d = frame.to_world(cosine_hemisphere_rejection(|| rng.uniform()));
-        Ray::from_surface(p, frame.normal, d, patch as u32)
+        self.leaving(patch, p, &frame, d)
+    }
+
+    /// The ray from point `p` of `patch` (tangent frame `frame` there) in direction `d`. A
+    /// planar patch cannot hit itself, and its own hits are filtered out; a cluster's member
+    /// may see another member (a fold between them), so a cluster's ray excludes nothing: it
+    /// is lifted off its own triangle's plane, which it leaves.
+    #[inline]
+    fn leaving(&self, patch: usize, p: Vec3, frame: &Frame, d: Vec3) -> Ray {
+        Ray::from_surface(p, frame.normal, d, self.own_id(patch))
+    }
+
+    /// The id rays from `patch` exclude ([`own_id`]).
+    #[inline]
+    pub fn own_id(&self, patch: usize) -> u32 {
+        own_id(&self.mesh.patches()[patch], patch)
+    }
+
+    /// The unit normal at the points of triangle `t` of `patch`, given `normal`, the patch's
+    /// (a cluster's triangle's own: [`Mesh::triangle_normal`]).
+    #[inline]
+    pub fn normal_on(&self, patch: usize, t: usize, normal: Vec3) -> Vec3 {
+        let p = &self.mesh.patches()[patch];
+        if p.is_cluster() {
+            self.mesh.triangle_normal(p, t)
+        } else {
+            normal
+        }
+    }
+}
+
+/// The id that rays and shadow rays from a point of `patch` (number `i`) exclude: its own,
+/// whose planar triangles it cannot see; none for a cluster, one member of which may see
+/// another across a fold (the ray is lifted off its own triangle's plane, which it leaves).
+#[inline]
+pub(crate) fn own_id(patch: &Patch, i: usize) -> u32 {
+    if patch.is_cluster() {
+        mcrad_raycast::NO_ID
+    } else {
+        i as u32
     }
 }
 

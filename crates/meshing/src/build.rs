@@ -73,14 +73,6 @@ pub enum MeshError {
         /// The group numbers given.
         got: usize,
     },
-    /// [`Mesh::clustered`] got a group with a patch that may not join a cluster.
-    #[error("patch {patch} may not join a cluster: {why}")]
-    Unclusterable {
-        /// The patch (mesh order).
-        patch: usize,
-        /// Why not.
-        why: &'static str,
-    },
     /// A recorded refinement ([`crate::History`]) does not apply to this scene and bounds.
     #[error(
         "refinement {round} of the recorded mesh split {recorded} elements, on this scene only \

@@ -35,8 +35,9 @@ pub struct ClusteredMesh {
 impl Mesh {
     /// This mesh with each group of patches made one element (see the module documentation):
     /// `group[i]` is patch `i`'s group number, or [`UNGROUPED`]; a group of one patch stays
-    /// that patch. Members must be one-sided, not alpha-tested, emit nothing and be a whole
-    /// polygon each (not themselves clusters), else [`MeshError::Unclusterable`].
+    /// that patch. A member that may not join a cluster stays a patch of its own: a side of a
+    /// two-sided face, an emitter, an alpha-tested face or a cluster already (a cluster's
+    /// members are one-sided, opaque, emit nothing and are whole polygons).
     pub fn clustered(&self, group: &[u32]) -> Result<ClusteredMesh, MeshError> {
         let patches = self.patches();
         if group.len() != patches.len() {
@@ -45,48 +46,37 @@ impl Mesh {
                 got: group.len(),
             });
         }
-        // members per group, in mesh order
-        let groups = group
-            .iter()
-            .filter(|&&g| g != UNGROUPED)
-            .map(|&g| g as usize + 1)
+        // members that may not join a cluster stay patches of their own
+        let alpha = crate::AlphaTest::tested_faces(self);
+        let joins = |i: usize| {
+            let p = &patches[i];
+            group[i] != UNGROUPED
+                && !p.is_cluster()
+                && self.twin(i).is_none()
+                && p.emission == Vec3::ZERO
+                && !alpha.as_ref().is_some_and(|a| a[p.face as usize])
+        };
+        // members per group, in mesh order (a counting sort)
+        let groups = (0..patches.len())
+            .filter(|&i| joins(i))
+            .map(|i| group[i] as usize + 1)
             .max()
             .unwrap_or(0);
         let mut count = vec![0u32; groups + 1];
-        for &g in group.iter().filter(|&&g| g != UNGROUPED) {
-            count[g as usize + 1] += 1;
+        for i in (0..patches.len()).filter(|&i| joins(i)) {
+            count[group[i] as usize + 1] += 1;
         }
         for g in 0..groups {
             count[g + 1] += count[g];
         }
         let mut fill = count.clone();
         let mut members = vec![0u32; count[groups] as usize];
-        for (i, &g) in group.iter().enumerate().filter(|(_, g)| **g != UNGROUPED) {
-            members[fill[g as usize] as usize] = i as u32;
-            fill[g as usize] += 1;
+        for i in (0..patches.len()).filter(|&i| joins(i)) {
+            let g = group[i] as usize;
+            members[fill[g] as usize] = i as u32;
+            fill[g] += 1;
         }
         drop(fill);
-        let alpha = crate::AlphaTest::tested_faces(self);
-        for &i in &members {
-            let p = &patches[i as usize];
-            let why = if p.is_cluster() {
-                Some("it is a cluster already")
-            } else if self.twin(i as usize).is_some() {
-                Some("it is a side of a two-sided face")
-            } else if p.emission != Vec3::ZERO {
-                Some("it emits light")
-            } else if alpha.as_ref().is_some_and(|a| a[p.face as usize]) {
-                Some("it is alpha-tested")
-            } else {
-                None
-            };
-            if let Some(why) = why {
-                return Err(MeshError::Unclusterable {
-                    patch: i as usize,
-                    why,
-                });
-            }
-        }
         // each group's runs of at most MAX_CLUSTER_MEMBERS, keyed by their first member
         let mut run_of = vec![u32::MAX; patches.len()];
         let mut runs: Vec<(u32, u32)> = Vec::new(); // (start, end) in `members`
@@ -249,6 +239,12 @@ impl ClusteredMesh {
         })
     }
 
+    /// Per-element irradiances `coarse` (W/m² per channel, shared by an element's members, such
+    /// as its direct light `H_d`) per patch of the finer mesh: each patch gets its element's.
+    pub fn shared(&self, coarse: &[DVec3]) -> Vec<DVec3> {
+        self.element.iter().map(|&e| coarse[e as usize]).collect()
+    }
+
     /// `coarse` per patch of `fine` through `member(fine patch, its element, element's value)`
     /// for members of clusters, as it is for the rest.
     fn carry(
@@ -394,7 +390,11 @@ mod tests {
                     .find(|&&i| mesh.patch_triangles(&fine[i]).contains(t))
                     .unwrap();
                 let n = c.mesh.triangle_normal(p, first + k);
-                assert!(n.dot(fine[*m].normal) > 1.0 - 1e-6, "{n} {}", fine[*m].normal);
+                assert!(
+                    n.dot(fine[*m].normal) > 1.0 - 1e-6,
+                    "{n} {}",
+                    fine[*m].normal
+                );
             }
         }
         // the emitter and every unclustered patch are copies
@@ -432,7 +432,7 @@ mod tests {
     }
 
     #[test]
-    fn an_emitter_or_a_wrong_length_is_refused() {
+    fn an_emitter_stays_alone_and_a_wrong_length_is_refused() {
         let (mesh, clusters) = strip();
         let mut group = groups(&mesh, &clusters);
         assert!(matches!(
@@ -440,10 +440,17 @@ mod tests {
             Err(MeshError::GroupCount { .. })
         ));
         group[0] = group[1];
-        assert!(matches!(
-            mesh.clustered(&group),
-            Err(MeshError::Unclusterable { patch: 0, .. })
-        ));
+        let c = mesh.clustered(&group).unwrap();
+        assert_eq!(c.mesh.patches()[0], mesh.patches()[0]);
+        assert_eq!(c.element[0], 0);
+        assert_eq!(
+            c.mesh.patches().len(),
+            mesh.clustered(&groups(&mesh, &clusters))
+                .unwrap()
+                .mesh
+                .patches()
+                .len()
+        );
     }
 
     #[test]
