@@ -107,6 +107,12 @@ pub struct Solve {
     /// in open scenes too. `off`: plain gathering.
     #[arg(long, default_value_t = ControlVariate::default(), value_parser = control_variate_parser())]
     pub control_variate: ControlVariate,
+    /// Adaptive plan: how groups of small neighbouring faces that the refinement shows evenly
+    /// lit serve the solve. `transport`: each group is one element of the transport (its rays
+    /// shared by its faces, each face keeping its own reflectance and texture); `pool`: every
+    /// face an element of its own, the groups' estimates pooled after (docs/meshing.md).
+    #[arg(long, value_enum, default_value_t = ClusterArg::Transport)]
+    pub clusters: ClusterArg,
     /// reference: the target error of each form-factor row's visibility, relative to the row
     /// sum (one standard deviation of the shadow-ray estimate). Halving it doubles the rays;
     /// 2e-3 is about twenty times quicker than the default.
@@ -486,6 +492,24 @@ fn method_parser() -> impl TypedValueParser<Value = Method> {
         };
         PossibleValue::new(m.name()).help(help)
     }))
+}
+
+/// `--clusters`: `transport` and `pool` ([`mcrad_solve::Clustering`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ClusterArg {
+    /// Each evenly lit group of small faces is one element of the transport.
+    Transport,
+    /// Every face an element of its own; the groups' estimates pooled after.
+    Pool,
+}
+
+impl From<ClusterArg> for mcrad_solve::Clustering {
+    fn from(c: ClusterArg) -> Self {
+        match c {
+            ClusterArg::Transport => mcrad_solve::Clustering::Transport,
+            ClusterArg::Pool => mcrad_solve::Clustering::Pool,
+        }
+    }
 }
 
 /// `--sampler`: `random` and `qmc`.

@@ -140,6 +140,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         closure: args.stats.is_some(),
         // the render, after the solve, is on the same clock
         after: Some(mcrad_solve::AfterSolve(&image_seconds)),
+        clustering: args.clusters.into(),
     };
     let bar = progress_bar(args.quiet);
     let mut tracer: Option<Tracer> = None;

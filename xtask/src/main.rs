@@ -239,6 +239,7 @@ fn solve_input(
         cancel: None,
         closure: false,
         after: None,
+        clustering: mcrad_solve::Clustering::default(),
     };
     mcrad_solve::solve(&problem, observer)
 }

@@ -569,7 +569,7 @@ struct Mark {
     proximity: bool,
 }
 
-fn luminance(x: DVec3) -> f64 {
+pub(crate) fn luminance(x: DVec3) -> f64 {
     x.dot(LUMINANCE)
 }
 
@@ -767,7 +767,7 @@ fn proximity_contrast<C: RayCaster>(
 }
 
 /// The emitters, drawn in proportion to their luminous power.
-struct Lights {
+pub(crate) struct Lights {
     /// Emitting patches and the cumulative share of power up to and including each.
     patches: Vec<u32>,
     cumulative: Vec<f64>,
@@ -775,7 +775,7 @@ struct Lights {
 }
 
 impl Lights {
-    fn new(mesh: &Mesh) -> Option<Lights> {
+    pub(crate) fn new(mesh: &Mesh) -> Option<Lights> {
         let (mut patches, mut cumulative, mut total) = (Vec::new(), Vec::new(), 0.0);
         for (i, p) in mesh.patches().iter().enumerate() {
             let power = luminance(p.emission.as_dvec3()) * p.area;
@@ -793,7 +793,7 @@ impl Lights {
     }
 
     /// An emitter drawn by power and the probability of drawing it.
-    fn draw(&self, mesh: &Mesh, u: f64) -> (usize, f64) {
+    pub(crate) fn draw(&self, mesh: &Mesh, u: f64) -> (usize, f64) {
         let x = u * self.total;
         let k = self
             .cumulative
@@ -809,7 +809,7 @@ impl Lights {
 }
 
 /// A uniform point on patch `i` of `mesh`.
-fn point_on(mesh: &Mesh, i: usize, stream: &mut Stream) -> Vec3 {
+pub(crate) fn point_on(mesh: &Mesh, i: usize, stream: &mut Stream) -> Vec3 {
     let patch = &mesh.patches()[i];
     let triangles = mesh.patch_triangles(patch);
     let positions = mesh.positions();

@@ -53,6 +53,7 @@ mod method;
 mod replicates;
 mod sampling;
 mod schedule;
+mod shadowed;
 mod shoot;
 mod sky;
 mod surface;
@@ -73,6 +74,7 @@ pub use schedule::{
     DEFAULT_RAYS, DEFAULT_UNSHOT_THRESHOLD, Observer, ScheduleConfig, Solution, Step,
     gather_at_vertices, gather_from, run, run_cancellable, run_combined_with,
 };
+pub use shadowed::{ShadowSplit, split_shadowed};
 
 // The estimators the schedules compose, for the crate's tests (`src/tests`).
 #[cfg(test)]

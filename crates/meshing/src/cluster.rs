@@ -148,6 +148,30 @@ impl Clusters {
         clusters
     }
 
+    /// Clusters of the given patch lists (patch indices, mesh order), in order; a list of
+    /// fewer than two patches forms none. The caller keeps a patch in one list at most.
+    pub fn from_lists<'l>(lists: impl IntoIterator<Item = &'l [u32]>) -> Clusters {
+        let mut clusters = Clusters {
+            offsets: vec![0],
+            members: Vec::new(),
+        };
+        for list in lists.into_iter().filter(|l| l.len() >= 2) {
+            clusters.members.extend_from_slice(list);
+            clusters.offsets.push(clusters.members.len() as u32);
+        }
+        clusters
+    }
+
+    /// These clusters without the patches for which `drop` is true (a cluster left with fewer
+    /// than two patches goes).
+    pub fn without(&self, drop: impl Fn(u32) -> bool) -> Clusters {
+        let lists: Vec<Vec<u32>> = self
+            .iter()
+            .map(|c| c.iter().copied().filter(|&i| !drop(i)).collect())
+            .collect();
+        Clusters::from_lists(lists.iter().map(Vec::as_slice))
+    }
+
     /// The number of clusters.
     pub fn len(&self) -> usize {
         self.offsets.len().saturating_sub(1)

@@ -239,6 +239,19 @@ impl ClusteredMesh {
         })
     }
 
+    /// The cluster elements' members (patches of the finer mesh, in its order), cluster by
+    /// cluster in element order.
+    pub fn clusters(&self) -> crate::Clusters {
+        let elements = self.mesh.patches();
+        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); elements.len()];
+        for (i, &e) in self.element.iter().enumerate() {
+            if elements[e as usize].is_cluster() {
+                lists[e as usize].push(i as u32);
+            }
+        }
+        crate::Clusters::from_lists(lists.iter().map(Vec::as_slice))
+    }
+
     /// Per-element irradiances `coarse` (W/m² per channel, shared by an element's members, such
     /// as its direct light `H_d`) per patch of the finer mesh: each patch gets its element's.
     pub fn shared(&self, coarse: &[DVec3]) -> Vec<DVec3> {

@@ -50,12 +50,14 @@ pub(crate) type Groups = Vec<u32>;
 pub(crate) const ALONE: u32 = u32::MAX;
 
 /// `estimate` pooled over `clusters` of `mesh` (see the module documentation), what the
-/// pooling did, and the groups that share an estimate. An estimate without variances is
-/// returned as it is (nothing to test against).
+/// pooling did, and the groups that share an estimate; `test`: a cluster the light varies
+/// across is split first, else every cluster is pooled whole. An estimate without variances
+/// is returned as it is (nothing to test against).
 pub(crate) fn pool_clusters(
     mesh: &Mesh,
     clusters: &Clusters,
     estimate: &Estimate,
+    test: bool,
 ) -> Result<(Estimate, PoolCounts, Groups), EstimateError> {
     let mut counts = PoolCounts::default();
     let mut groups = vec![ALONE; mesh.patches().len()];
@@ -68,7 +70,15 @@ pub(crate) fn pool_clusters(
     for cluster in clusters.iter() {
         members.clear();
         members.extend_from_slice(cluster);
-        settle(mesh, &mut members, &mut b, &mut v, &mut groups, &mut counts);
+        settle(
+            mesh,
+            &mut members,
+            &mut b,
+            &mut v,
+            &mut groups,
+            &mut counts,
+            test,
+        );
     }
     Ok((Estimate::new(b, Some(v), estimate.rays())?, counts, groups))
 }
@@ -82,6 +92,7 @@ fn settle(
     v: &mut [DVec3],
     groups: &mut [u32],
     counts: &mut PoolCounts,
+    test: bool,
 ) {
     if members.len() < 2 {
         return;
@@ -96,7 +107,7 @@ fn settle(
         spread += v[i] * p.area * p.area;
     }
     let pooled = DVec3::select(weight.cmpgt(DVec3::ZERO), power / weight, DVec3::ZERO);
-    if varies(mesh, members, b, v, pooled) {
+    if test && varies(mesh, members, b, v, pooled) {
         // cut at the median along the centroids' longest extent, ties by patch index
         let (lo, hi) = members.iter().fold(
             (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
@@ -115,8 +126,8 @@ fn settle(
         });
         counts.splits += 1;
         let (left, right) = members.split_at_mut(members.len() / 2);
-        settle(mesh, left, b, v, groups, counts);
-        settle(mesh, right, b, v, groups, counts);
+        settle(mesh, left, b, v, groups, counts, test);
+        settle(mesh, right, b, v, groups, counts, test);
         return;
     }
     let var_h = DVec3::select(

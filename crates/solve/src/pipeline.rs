@@ -1,21 +1,24 @@
 //! [`solve`]: mesh, refine, run, pool, under one budget.
 
-use crate::clusters::{Groups, PoolCounts, pool_clusters};
+use crate::clusters::{ALONE, Groups, PoolCounts, pool_clusters};
 use crate::problem::Input;
 use crate::state::Identity;
 use crate::stats::ClusterStats;
 use crate::stats::{RefinementRound, SetupPhases};
-use crate::{Budget, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed};
+use crate::{
+    Budget, Clustering, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed,
+};
 use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
 use mcrad_mc_radiosity::{
-    AdaptiveConfig, Error as MethodError, Refined, ScheduleConfig, Solution, Step, StopReason,
-    pool, pool_correlation, refine, run_cancellable,
+    AdaptiveConfig, Error as MethodError, Refined, ScheduleConfig, ShadowSplit, Solution, Step,
+    StopReason, pool, pool_correlation, refine, run_cancellable, split_shadowed,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, ClusterBounds, Clusters, CornerGroups,
+    AdaptiveBounds, AdaptiveMesh, ClusterBounds, ClusteredMesh, Clusters, CornerGroups,
     DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
+use mcrad_random::derive_seed;
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
 use mcrad_scene_io::Scene;
@@ -140,6 +143,9 @@ struct Run<'a> {
     /// Small faces that share one estimate of irradiance where the light allows
     /// ([`crate::clusters`]); empty but on the adaptive plan.
     clusters: &'a Clusters,
+    /// The groups of faces that were one element each of the transport (their estimates
+    /// already share one irradiance, and their errors are one), and what forming them did.
+    transport: (&'a Clusters, PoolCounts),
     /// What the last pooling over `clusters` did, and its groups.
     pooled: std::sync::Mutex<(PoolCounts, Groups)>,
 }
@@ -161,12 +167,27 @@ impl Run<'_> {
         }
     }
 
-    /// `estimate` pooled over the run's clusters (itself without clusters).
+    /// `estimate` pooled over the run's clusters (itself without clusters); the groups of
+    /// the transport are counted with the pooling's groups.
     fn clustered(&self, estimate: &Estimate) -> Result<Estimate, Error> {
-        if self.clusters.is_empty() {
+        let (transport, formed) = self.transport;
+        if self.clusters.is_empty() && transport.is_empty() {
             return Ok(estimate.clone());
         }
-        let (pooled, counts, groups) = pool_clusters(self.mesh, self.clusters, estimate)?;
+        let (pooled, mut counts, mut groups) = if self.clusters.is_empty() {
+            let alone = vec![ALONE; self.mesh.patches().len()];
+            (estimate.clone(), PoolCounts::default(), alone)
+        } else {
+            pool_clusters(self.mesh, self.clusters, estimate, true)?
+        };
+        for (k, members) in transport.iter().enumerate() {
+            for &i in members {
+                groups[i as usize] = (counts.groups + k) as u32;
+            }
+        }
+        counts.groups += formed.groups;
+        counts.faces += formed.faces;
+        counts.splits += formed.splits;
         if let Ok(mut last) = self.pooled.lock() {
             *last = (counts, groups);
         }
@@ -381,6 +402,61 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         _ => Clusters::default(),
     };
+    // Groups of them that the refinement's estimate shows evenly lit, and across which no
+    // light changes visibility, are one element each of the transport: the method runs on that
+    // coarser mesh, and its answers come back per patch. The refinement's estimate is pooled
+    // over the same groups (its faces' estimates are independent, the transport's are one per
+    // group), and the answer's pooling leaves them alone.
+    let mut transport_counts = PoolCounts::default();
+    let transport = match (refinement.as_mut(), problem.clustering) {
+        (Some(r), Clustering::Transport) if !clusters.is_empty() && problem.resume.is_none() => {
+            let (_, counts, mut groups) = pool_clusters(&mesh, &clusters, &r.pooled, true)?;
+            transport_counts.splits = counts.splits;
+            transport_counts.splits += split_shadowed(
+                &mesh,
+                &bvh,
+                &config.lights,
+                r.pooled.radiosity(),
+                &mut groups,
+                ShadowSplit {
+                    rays: SHADOW_SPLIT_RAYS,
+                    tolerance: AdaptiveConfig::default().tolerance,
+                    seed: derive_seed(settings.seed, SHADOW_SPLIT_STREAM),
+                },
+            );
+            let coarse = mesh.clustered(&groups).map_err(|source| Error::Mesh {
+                source,
+                max_edge: None,
+            })?;
+            let members = coarse.clusters();
+            transport_counts.groups = members.len();
+            transport_counts.faces = members.patches();
+            (coarse.mesh.patches().len() < mesh.patches().len()).then(|| {
+                r.pooled = pool_clusters(&mesh, &members, &r.pooled, false)
+                    .map(|p| p.0)
+                    .unwrap_or_else(|_| r.pooled.clone());
+                (coarse, members)
+            })
+        }
+        _ => None,
+    };
+    let transport_bvh = match &transport {
+        Some((c, _)) => Some(c.mesh.caster()?),
+        None => None,
+    };
+    let formed = (clusters.len(), clusters.patches());
+    // the answer's pooling: over the clusters less the transport's members
+    let clusters = match &transport {
+        Some((c, _)) => {
+            let elements = c.mesh.patches();
+            clusters.without(|i| elements[c.element[i as usize] as usize].is_cluster())
+        }
+        None => clusters,
+    };
+    let (transport, transport_groups) = match transport {
+        Some((c, members)) => (Some(c), members),
+        None => (None, Clusters::default()),
+    };
     phases.clusters_seconds = clustering.elapsed().as_secs_f64();
     // The caller's work after the solve, timed now that the mesh and caster exist.
     let timing = Instant::now();
@@ -409,6 +485,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         resumed: problem.resume,
         lighting,
         clusters: &clusters,
+        transport: (&transport_groups, transport_counts),
         pooled: std::sync::Mutex::new((PoolCounts::default(), Groups::new())),
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
@@ -433,67 +510,79 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let groups = budget
         .target_error
         .map(|_| mesh.corner_groups(mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES));
-    let result = run_cancellable(method, &mesh, &bvh, &config, cancel, &mut |step| {
-        let seconds = start.elapsed().as_secs_f64();
-        complete_steps = step.variance.is_some();
-        // the last step's copy goes before this one's is made (one copy at a time)
-        last_step = None;
-        let estimate = match step_estimate(step) {
-            Ok(e) => e,
-            Err(e) => {
-                failure = Some(e);
+    let (solved_mesh, solved_bvh) = match (&transport, &transport_bvh) {
+        (Some(c), Some(b)) => (&c.mesh, b),
+        _ => (&mesh, &bvh),
+    };
+    let result = run_cancellable(
+        method,
+        solved_mesh,
+        solved_bvh,
+        &config,
+        cancel,
+        &mut |step| {
+            let seconds = start.elapsed().as_secs_f64();
+            complete_steps = step.variance.is_some();
+            // the last step's copy goes before this one's is made (one copy at a time)
+            last_step = None;
+            let estimate =
+                match step_estimate(step).and_then(|e| carried(transport.as_ref(), &mesh, e)) {
+                    Ok(e) => e,
+                    Err(e) => {
+                        failure = Some(e);
+                        return ControlFlow::Break(());
+                    }
+                };
+            let progress = Progress {
+                step: step.index,
+                rays: step.rays,
+                budget_rays: if deterministic { u64::MAX } else { rays },
+                seconds,
+                complete: complete_steps,
+                run: &run,
+                step_estimate: &estimate,
+            };
+            let flow = observer(&progress);
+            let target = match (budget.target_error, step.variance.is_some()) {
+                (Some(target), true) => match run.answer(&estimate) {
+                    Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
+                    Err(e) => {
+                        failure = Some(e);
+                        return ControlFlow::Break(());
+                    }
+                },
+                _ => false,
+            };
+            last_step = Some(Solution {
+                estimate,
+                steps: step.index,
+                escaped_rays: 0,
+                unshot_fraction: f64::NAN,
+                stop: StopReason::Stopped,
+                direct: None,
+                sky_direct: None,
+                face_correlation: None,
+            });
+            if flow.is_break() {
                 return ControlFlow::Break(());
             }
-        };
-        let progress = Progress {
-            step: step.index,
-            rays: step.rays,
-            budget_rays: if deterministic { u64::MAX } else { rays },
-            seconds,
-            complete: complete_steps,
-            run: &run,
-            step_estimate: &estimate,
-        };
-        let flow = observer(&progress);
-        let target = match (budget.target_error, step.variance.is_some()) {
-            (Some(target), true) => match run.answer(&estimate) {
-                Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
-                Err(e) => {
-                    failure = Some(e);
-                    return ControlFlow::Break(());
-                }
-            },
-            _ => false,
-        };
-        last_step = Some(Solution {
-            estimate,
-            steps: step.index,
-            escaped_rays: 0,
-            unshot_fraction: f64::NAN,
-            stop: StopReason::Stopped,
-            direct: None,
-            sky_direct: None,
-            face_correlation: None,
-        });
-        if flow.is_break() {
-            return ControlFlow::Break(());
-        }
-        if target {
-            target_reached = true;
-            return ControlFlow::Break(());
-        }
-        if let Some(seconds_budget) = deadline {
-            // The time left is measured from the budget's clock. At the speed of the run so
-            // far, size the rest to what fits: time up is a budget spent, not an
-            // interruption (a shooting extrapolates what it could not shoot).
-            let left = seconds_budget - clock.elapsed().as_secs_f64();
-            let fits = rays_that_fit(left, seconds, step.rays, after);
-            if step.next_rays > fits {
-                step.limit_rays_left(fits);
+            if target {
+                target_reached = true;
+                return ControlFlow::Break(());
             }
-        }
-        ControlFlow::Continue(())
-    });
+            if let Some(seconds_budget) = deadline {
+                // The time left is measured from the budget's clock. At the speed of the run so
+                // far, size the rest to what fits: time up is a budget spent, not an
+                // interruption (a shooting extrapolates what it could not shoot).
+                let left = seconds_budget - clock.elapsed().as_secs_f64();
+                let fits = rays_that_fit(left, seconds, step.rays, after);
+                if step.next_rays > fits {
+                    step.limit_rays_left(fits);
+                }
+            }
+            ControlFlow::Continue(())
+        },
+    );
     if let Some(e) = failure {
         return Err(e);
     }
@@ -501,8 +590,14 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let cancelled = matches!(result, Err(MethodError::Cancelled));
     let solution = match result {
         Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
-        other => other?,
+        Ok(solution) => match &transport {
+            Some(c) => carried_solution(c, &mesh, solution)?,
+            None => solution,
+        },
+        Err(e) => return Err(e.into()),
     };
+    let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
+    drop((transport, transport_bvh));
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     let direct = solution.direct.clone();
@@ -575,15 +670,16 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             .as_ref()
             .map(|r| r.rounds.iter().map(RefinementRound::from).collect()),
         closure,
-        clusters: (!clusters.is_empty()).then(|| {
+        clusters: (formed.0 > 0).then(|| {
             let pooled = run.pooled.lock().map(|c| c.0).unwrap_or_default();
             ClusterStats {
-                clusters: clusters.len(),
-                faces: clusters.patches(),
+                clusters: formed.0,
+                faces: formed.1,
                 groups: pooled.groups,
                 pooled_faces: pooled.faces,
                 splits: pooled.splits,
                 elements: mesh.patches().len() - pooled.faces + pooled.groups,
+                transport_elements,
             }
         }),
     };
@@ -604,6 +700,69 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         face_correlation: if cancelled { None } else { face_correlation },
     })
 }
+
+/// `estimate`, per element of `transport`'s coarser mesh, carried back to the patches of
+/// `fine` ([`ClusteredMesh::refine`]); as it is without clusters.
+fn carried(
+    transport: Option<&ClusteredMesh>,
+    fine: &Mesh,
+    estimate: Estimate,
+) -> Result<Estimate, Error> {
+    let Some(c) = transport else {
+        return Ok(estimate);
+    };
+    Ok(Estimate::new(
+        c.refine(fine, estimate.radiosity(), true),
+        estimate.variance().map(|v| c.refine_variance(fine, v)),
+        estimate.rays(),
+    )?)
+}
+
+/// `solution`, solved on the elements of `transport`, carried back to the patches of `fine`:
+/// the estimate as [`carried`], the direct irradiances shared by each element's members, the
+/// faces' correlation factors by face (1 for a cluster's members, each a face of one patch).
+fn carried_solution(
+    transport: &ClusteredMesh,
+    fine: &Mesh,
+    solution: Solution,
+) -> Result<Solution, Error> {
+    let coarse = &transport.mesh;
+    let face_correlation = solution.face_correlation.as_ref().map(|k| {
+        let (fine_offset, coarse_offset) = (fine.back_face_offset(), coarse.back_face_offset());
+        let key = |p: &mcrad_meshing::Patch, offset: u32| {
+            (p.face + if p.back { offset } else { 0 }) as usize
+        };
+        let faces = fine
+            .patches()
+            .iter()
+            .map(|p| key(p, fine_offset) + 1)
+            .max()
+            .unwrap_or(0);
+        let mut out = vec![DVec3::ONE; faces];
+        for (p, &e) in fine.patches().iter().zip(&transport.element) {
+            let q = &coarse.patches()[e as usize];
+            if let (false, Some(v)) = (q.is_cluster(), k.get(key(q, coarse_offset))) {
+                out[key(p, fine_offset)] = *v;
+            }
+        }
+        out
+    });
+    Ok(Solution {
+        estimate: carried(Some(transport), fine, solution.estimate)?,
+        direct: solution.direct.as_deref().map(|d| transport.shared(d)),
+        sky_direct: solution.sky_direct.as_deref().map(|d| transport.shared(d)),
+        face_correlation,
+        ..solution
+    })
+}
+
+/// The stream tag of the shadow rays that split the transport's groups
+/// ([`split_shadowed`]), distinct from every method's.
+const SHADOW_SPLIT_STREAM: u64 = 0x5eed_c1a5;
+
+/// Shadow rays per test of a transport group ([`split_shadowed`]): a shadow over more than
+/// about a 32nd of a group (along its longest extent) is seen.
+const SHADOW_SPLIT_RAYS: u32 = 32;
 
 /// This step's solution as an estimate.
 fn step_estimate(step: &Step) -> Result<Estimate, Error> {

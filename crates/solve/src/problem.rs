@@ -217,6 +217,24 @@ pub struct Problem<'a> {
     /// The caller's work after the solve on the clock of [`Budget::seconds`] (a render); `None`:
     /// none. Under a time budget the solve leaves it its time.
     pub after: Option<AfterSolve<'a>>,
+    /// How clusters of small faces serve an adaptive solve.
+    pub clustering: Clustering,
+}
+
+/// How the clusters of small faces ([`mcrad_meshing::Clusters`]) serve a new solve on the
+/// adaptive plan (a fixed mesh and a continued run are solved per patch as given).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Clustering {
+    /// Each group of faces that the refinement's estimate shows evenly lit (the pooling's
+    /// test) is one element of the transport ([`mcrad_meshing::Mesh::clustered`]): its rays
+    /// leave and arrive on its members' triangles, and each member gets `E_f + rho_f H` from
+    /// the group's irradiance `H`. The answer is then pooled over the clusters as with
+    /// [`Clustering::Pool`]. The default.
+    #[default]
+    Transport,
+    /// The transport runs per patch, each with rays of its own; the answer's estimates are
+    /// pooled over the clusters after (a group the light varies across is split).
+    Pool,
 }
 
 /// The caller's work after a solve, on its clock ([`Problem::after`]): asked once, when the
@@ -244,6 +262,7 @@ impl<'a> Problem<'a> {
             cancel: None,
             closure: false,
             after: None,
+            clustering: Clustering::default(),
         }
     }
 }

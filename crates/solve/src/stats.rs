@@ -100,6 +100,10 @@ pub struct ClusterStats {
     /// Independent estimates in the answer: the patches less the pooled faces plus the
     /// groups.
     pub elements: usize,
+    /// Elements the method's transport ran on ([`crate::Clustering::Transport`]): the patches
+    /// outside the groups the refinement's estimate showed evenly lit, plus one per such
+    /// group; `None` when it ran per patch.
+    pub transport_elements: Option<usize>,
 }
 
 /// What one round of an adaptive mesh's refinement did (counts of elements, and rays).

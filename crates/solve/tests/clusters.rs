@@ -7,7 +7,7 @@ use mcrad_meshing::{
     ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION,
 };
 use mcrad_scene_io::{Face, Material, Scene};
-use mcrad_solve::{Answer, Problem, solve};
+use mcrad_solve::{Answer, Clustering, Problem, solve};
 use std::f64::consts::PI;
 use std::ops::ControlFlow;
 
@@ -120,7 +120,12 @@ fn irradiance(x: f64, z: f64) -> f64 {
 }
 
 fn run(scene: &Scene, seed: u64, threads: usize) -> Answer {
+    run_with(scene, seed, threads, Clustering::Transport)
+}
+
+fn run_with(scene: &Scene, seed: u64, threads: usize, clustering: Clustering) -> Answer {
     let mut problem = Problem::new(scene);
+    problem.clustering = clustering;
     problem.settings.seed = seed;
     problem.budget.rays = Some(2_000_000);
     problem.threads = Some(threads);
@@ -133,15 +138,85 @@ fn tiles(answer: &Answer) -> Vec<usize> {
     (0..p.len()).filter(|&i| p[i].material >= 2).collect()
 }
 
+/// The checkerboard of [`tiny_coplanar_faces_share_few_estimates_each_with_its_own_reflectance`]
+/// as one element of transport per group: the tiles' faces share few estimates, each face its
+/// reflectance times its group's irradiance, which is within its standard errors of the exact
+/// one (the transport's members' errors are one error: pooling them as independent would
+/// report a standard error ten times too small).
+#[test]
+fn tiny_coplanar_faces_are_few_elements_of_transport_each_with_its_own_reflectance() {
+    let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, false);
+    let mut zs = Vec::new();
+    for seed in 0..4 {
+        let answer = run(&scene, seed, 2);
+        let stats = answer.stats.clusters.expect("clusters formed");
+        let tiles = tiles(&answer);
+        let transport = stats.transport_elements.expect("clusters as transport");
+        // every tile in a group, few groups, few elements
+        assert_eq!(stats.pooled_faces, tiles.len(), "{stats:?}");
+        assert!(stats.groups * 20 <= tiles.len(), "{stats:?}");
+        assert!(transport + tiles.len() <= answer.mesh.patches().len() + stats.groups);
+        let (b, var) = (
+            answer.estimate.radiosity(),
+            answer.estimate.variance().unwrap(),
+        );
+        let p = answer.mesh.patches();
+        // the groups: tiles of one irradiance B / rho (to rounding)
+        let mut by_h: Vec<(f64, usize)> = tiles
+            .iter()
+            .map(|&i| (b[i].y / f64::from(p[i].reflectance.y), i))
+            .collect();
+        by_h.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        for (h, i) in by_h {
+            match groups.last_mut() {
+                Some(g)
+                    if (b[g[0]].y / f64::from(p[g[0]].reflectance.y) - h).abs() <= 1e-12 * h =>
+                {
+                    g.push(i)
+                }
+                _ => groups.push(vec![i]),
+            }
+        }
+        assert_eq!(groups.len(), stats.groups, "{stats:?}");
+        for g in &groups {
+            let (mut weight, mut exact) = (0.0, 0.0);
+            for &i in g {
+                let rho = f64::from(p[i].reflectance.y);
+                let o = p[i].centroid.as_dvec3() + answer.mesh.origin().as_dvec3();
+                weight += rho * p[i].area;
+                exact += rho * p[i].area * irradiance(o.x, o.z);
+                // the variance its reflectance squared times the shared one's
+                let (rho0, r) = (f64::from(p[g[0]].reflectance.y), rho);
+                let (vr, vh) = (var[i].y / (r * r), var[g[0]].y / (rho0 * rho0));
+                assert!((vr - vh).abs() <= 1e-9 * vh);
+            }
+            exact /= weight;
+            let rho0 = f64::from(p[g[0]].reflectance.y);
+            let h = b[g[0]].y / rho0;
+            zs.push((h - exact) / (var[g[0]].y.sqrt() / rho0));
+        }
+    }
+    // the shared irradiances within their standard errors of the exact ones: each within 4.5,
+    // and their mean square near 1 (about 70 groups: within 0.45 and 2)
+    let mean_z2 = zs.iter().map(|z| z * z).sum::<f64>() / zs.len() as f64;
+    assert!(zs.iter().all(|z| z.abs() < 4.5), "{zs:?}");
+    assert!(
+        (0.45..2.0).contains(&mean_z2),
+        "mean z² {mean_z2} over {}",
+        zs.len()
+    );
+}
+
 #[test]
 fn tiny_coplanar_faces_share_few_estimates_each_with_its_own_reflectance() {
     // 1,800 triangles of 2 cm in a checkerboard of reflectances 0.3 and 0.6 under the panel:
     // their irradiance is the panel's direct light alone (nothing else reflects), known in
-    // closed form, and varies by 0.3% across them.
+    // closed form, and varies by 0.3% across them. Pooled after a transport per face.
     let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, false);
     let cut = scene.bounds().diagonal() as f32 * DEFAULT_COARSE_EDGE_FRACTION;
     for seed in 0..3 {
-        let answer = run(&scene, seed, 2);
+        let answer = run_with(&scene, seed, 2, Clustering::Pool);
         let stats = answer.stats.clusters.expect("clusters formed");
         let tiles = tiles(&answer);
         assert_eq!(tiles.len(), 2 * N * N);
@@ -211,10 +286,14 @@ fn tiny_coplanar_faces_share_few_estimates_each_with_its_own_reflectance() {
 }
 
 #[test]
-fn pooling_is_the_same_on_any_thread_count() {
+fn clusters_are_the_same_on_any_thread_count() {
     let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, true);
     let (a, b) = (run(&scene, 7, 1), run(&scene, 7, 2));
-    assert!(a.stats.clusters.is_some());
+    assert!(
+        a.stats
+            .clusters
+            .is_some_and(|c| c.transport_elements.is_some())
+    );
     assert_eq!(a.estimate, b.estimate);
     assert_eq!(a.stats.clusters, b.stats.clusters);
 }
@@ -223,10 +302,17 @@ fn pooling_is_the_same_on_any_thread_count() {
 fn a_cluster_across_a_shadow_is_split() {
     // The tiles of reflectance 0.6 with a black plate 2 cm above those at x < 0: a sharp
     // shadow across the clusters that straddle x = 0. Pooled whole, such a cluster would give
-    // its shadowed tiles about half the light of the lit ones.
+    // its shadowed tiles about half the light of the lit ones. Both ways: one element of
+    // transport per group (split by the shadow rays before), and pooled after.
     let scene = scene(|_, _| 3, true);
-    for seed in 0..2 {
-        let answer = run(&scene, seed, 2);
+    for (seed, clustering) in [
+        (0, Clustering::Transport),
+        (1, Clustering::Transport),
+        (2, Clustering::Transport),
+        (0, Clustering::Pool),
+        (1, Clustering::Pool),
+    ] {
+        let answer = run_with(&scene, seed, 2, clustering);
         let stats = answer.stats.clusters.expect("clusters formed");
         let (b, p) = (answer.estimate.radiosity(), answer.mesh.patches());
         let x = |i: usize| f64::from(p[i].centroid.x + answer.mesh.origin().x);
