@@ -336,3 +336,67 @@ fn a_cluster_across_a_shadow_is_split() {
         assert!(stats.groups > 0, "{stats:?}");
     }
 }
+
+#[test]
+fn every_method_solves_on_clusters_as_elements_of_transport() {
+    // The checkerboard under the panel by every Monte Carlo method: each runs on the coarser
+    // mesh (few elements for the tiles) and gives the tiles' mean irradiance, known in closed
+    // form, within 5 of its standard errors (from the answer's variances: the members of a
+    // group share one error) and 0.3% (the light's variation across a group), or within 3%
+    // where a method reports no variance.
+    let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, false);
+    for method in mcrad_mc_radiosity::Method::ALL {
+        let mut problem = Problem::new(&scene);
+        problem.settings.method = method;
+        if problem.settings.deterministic() {
+            continue;
+        }
+        problem.budget.rays = Some(400_000);
+        problem.threads = Some(2);
+        let answer = solve(&problem, &mut go).unwrap();
+        let stats = answer.stats.clusters.expect("clusters formed");
+        let transport = stats.transport_elements.expect("clusters as transport");
+        assert!(
+            transport * 2 < answer.mesh.patches().len(),
+            "{method:?}: {stats:?}"
+        );
+        let (b, p) = (answer.estimate.radiosity(), answer.mesh.patches());
+        let var = answer.estimate.variance();
+        let (mut area, mut h, mut exact) = (0.0, 0.0, 0.0);
+        // per group (one irradiance B / rho): its area and the variance of its irradiance
+        let mut groups: Vec<(f64, f64, f64)> = Vec::new();
+        for i in tiles(&answer) {
+            let o = p[i].centroid.as_dvec3() + answer.mesh.origin().as_dvec3();
+            assert!(
+                b[i].is_finite() && b[i].min_element() >= 0.0,
+                "{method:?}: {}",
+                b[i]
+            );
+            let rho = f64::from(p[i].reflectance.y);
+            let hi = b[i].y / rho;
+            area += p[i].area;
+            h += p[i].area * hi;
+            exact += p[i].area * irradiance(o.x, o.z);
+            let vi = var.map_or(0.0, |v| v[i].y / (rho * rho));
+            match groups.iter_mut().find(|g| (g.0 - hi).abs() <= 1e-12 * hi) {
+                Some(g) => g.1 += p[i].area,
+                None => groups.push((hi, p[i].area, vi)),
+            }
+        }
+        let (h, exact) = (h / area, exact / area);
+        let se = groups
+            .iter()
+            .map(|(_, a, v)| (a / area).powi(2) * v)
+            .sum::<f64>()
+            .sqrt();
+        let allowed = if var.is_some() {
+            5.0 * se + 0.003 * exact
+        } else {
+            0.03 * exact
+        };
+        assert!(
+            (h - exact).abs() < allowed,
+            "{method:?}: mean irradiance {h}, exact {exact}, standard error {se}"
+        );
+    }
+}
