@@ -136,11 +136,9 @@ impl<'m> SurfaceSampler<'m> {
     #[inline]
     pub fn triangle_at(&self, patch: usize, u0: f32) -> usize {
         let (first, count) = self.triangles(patch);
-        let mut t = first;
-        while t + 1 < first + count && u0 >= self.cdf[t] {
-            t += 1;
-        }
-        t
+        // the first triangle whose cumulative share exceeds u0 (the last if none does); a
+        // binary search, as a cluster has many triangles
+        first + self.cdf[first..first + count - 1].partition_point(|&c| u0 >= c)
     }
 
     /// The ray of `patch` from a point `u` of the unit 4-cube: a cosine-distributed direction
