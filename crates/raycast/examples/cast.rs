@@ -4,7 +4,8 @@
 //! what else the machine is doing).
 //!
 //! `cargo run --release -p mcrad-raycast --example cast -- SCENE QUERY RAYS`, with SCENE one of
-//! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch`, `occluded` or `lifted` (closest
+//! `cornell`, `room100k`, `room1m`, `room10m` (a room of ten million triangles, for the build's
+//! peak memory), QUERY `closest`, `batch`, `occluded` or `lifted` (closest
 //! hit with the origins raised 1e-3 off the surface, as the Embree comparison's ray files
 //! have them). `PRESET=medium` or `PRESET=slow` picks the build preset; `SIMD=portable`,
 //! `SIMD=avx2` or `SIMD=avx512` caps the traversal's instruction sets (see `Bvh::with_simd`).
@@ -29,8 +30,9 @@ fn main() {
         "cornell" => scenes::cornell(),
         "room100k" => scenes::cluttered_room(100_000, 1),
         "room1m" => scenes::cluttered_room(1_000_000, 2),
+        "room10m" => scenes::cluttered_room(10_000_000, 3),
         other => {
-            eprintln!("error: unknown scene {other:?} (cornell, room100k, room1m)");
+            eprintln!("error: unknown scene {other:?} (cornell, room100k, room1m, room10m)");
             std::process::exit(2);
         }
     };
