@@ -217,7 +217,7 @@ fn join(chunks: Vec<Chunk>, top: &[Top]) -> Wide {
         for s in &slots {
             match *s {
                 Slot::Node(c) => todo.push_back((c, load + n - 1)),
-                Slot::Chunk(k) => stack = stack.max(load + n - 1 + chunks[k].part.stack),
+                Slot::Chunk(k) => stack = stack.max(load + n - 1 + chunks[k].stack),
                 // (its leaves are slots of this node)
                 Slot::Open(_) => {}
             }
@@ -243,8 +243,8 @@ fn join(chunks: Vec<Chunk>, top: &[Top]) -> Wide {
     for (k, c) in chunks.iter().enumerate() {
         node_base.push(nodes);
         packet_base.push(packets);
-        nodes += c.part.nodes.len() - usize::from(opened[k]);
-        packets += c.part.packets.len();
+        nodes += c.nodes.len() - usize::from(opened[k]);
+        packets += c.packets.len();
     }
     // local item -> global item of chunk k
     let remap = |k: usize, item: u32| -> u32 {
@@ -278,7 +278,7 @@ fn join(chunks: Vec<Chunk>, top: &[Top]) -> Wide {
                     at += 1;
                 }
                 Slot::Open(k) => {
-                    let root = &chunks[k].part.nodes[0];
+                    let root = &chunks[k].nodes[0];
                     for j in (0..WIDTH).filter(|&j| root.items[j] != EMPTY) {
                         let (aabb, item) = root.child(j);
                         node.set(at, &aabb, remap(k, item));
@@ -292,8 +292,8 @@ fn join(chunks: Vec<Chunk>, top: &[Top]) -> Wide {
     // the chunks, each freed once copied
     for (k, c) in chunks.into_iter().enumerate() {
         if !opened[k] {
-            let to = &mut out_nodes[node_base[k]..node_base[k] + c.part.nodes.len()];
-            for (slot, node) in to.iter_mut().zip(&c.part.nodes) {
+            let to = &mut out_nodes[node_base[k]..node_base[k] + c.nodes.len()];
+            for (slot, node) in to.iter_mut().zip(c.nodes.iter()) {
                 let mut node = *node;
                 for item in &mut node.items {
                     *item = remap(k, *item);
@@ -301,8 +301,7 @@ fn join(chunks: Vec<Chunk>, top: &[Top]) -> Wide {
                 *slot = node;
             }
         }
-        out_packets[packet_base[k]..packet_base[k] + c.part.packets.len()]
-            .copy_from_slice(&c.part.packets);
+        out_packets[packet_base[k]..packet_base[k] + c.packets.len()].copy_from_slice(&c.packets);
     }
     Wide {
         nodes: out_nodes,

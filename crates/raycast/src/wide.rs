@@ -516,7 +516,11 @@ impl Wide {
             .filter(|&&item| item != EMPTY)
             .count();
         Chunk {
-            part,
+            // (in maps of their own where they are large, given back to the system when the
+            // top has copied them: freed heap memory may stay with the process)
+            nodes: Pages::copy_of(&part.nodes),
+            packets: Pages::copy_of(&part.packets),
+            stack: part.stack,
             aabb: root.aabb,
             count: costs.count,
             as_node: NODE_COST * area(root) + below,
@@ -761,8 +765,12 @@ fn area(node: &Bvh2Node) -> f32 {
 /// chunks needs to place it: as one child slot (its root node) or opened (its root's children
 /// as slots of a top node).
 pub(crate) struct Chunk {
-    /// The chunk's wide BVH (local indices; its root is node 0).
-    pub(crate) part: Part,
+    /// The chunk's wide nodes (local indices; its root is node 0) ...
+    pub(crate) nodes: Pages<Node>,
+    /// ... its packets (local indices) ...
+    pub(crate) packets: Pages<Packet>,
+    /// ... and its traversal stack bound (see [`Wide::stack`]).
+    pub(crate) stack: usize,
     /// The box of the chunk's triangles (padded, canonical units).
     pub(crate) aabb: Aabb,
     /// Triangles in the chunk.
@@ -782,7 +790,7 @@ impl Chunk {
     /// all go. (A chunk of more nodes has a full root wherever it has 16 slots' worth of
     /// subtrees, which a node above could only hold alone.)
     pub(crate) fn openable(&self) -> bool {
-        self.part.nodes.len() == 1
+        self.nodes.len() == 1
     }
 
     /// The chunk's costs as 1 to [`WIDTH`] child slots (see [`Costs`]): its root node, or, if
