@@ -1084,9 +1084,9 @@ mod tests {
             assert!(bvh.wide.stack <= 128, "{what}");
             let mut next = crate::testing::uniforms(seed + 100);
             let mut hits = 0;
-            for k in 0..3000 {
+            for k in 0..3000usize {
                 let dir = (Vec3::new(next(), next(), next()) - 0.5).normalize_or(Vec3::X);
-                let ray = if k % 2 == 0 {
+                let ray = if k.is_multiple_of(2) {
                     Ray::new(Vec3::new(next(), next(), next()) * 10.0, dir)
                 } else {
                     let i = (next() * n as f32) as usize % n;
@@ -1122,7 +1122,7 @@ mod tests {
             let (mut blocked, mut differ) = (0, 0);
             for k in 0..3000 {
                 let mut point = |m: usize| {
-                    if m % 3 == 0 {
+                    if m.is_multiple_of(3) {
                         return SurfacePoint::free(Vec3::new(next(), next(), next()) * 10.0);
                     }
                     let i = (next() * n as f32) as usize % n;

@@ -81,7 +81,7 @@ pub(crate) fn build(
                 })
                 .collect();
             let local_ids: Vec<u32> = members.iter().map(|&i| ids[i as usize]).collect();
-            let bvh2 = crate::bvh::build_bvh2_padded(&tris, params.clone(), pad);
+            let bvh2 = crate::bvh::build_bvh2_padded(&tris, params, pad);
             Wide::chunk(&bvh2, &tris, &local_ids)
         })
         .collect();
