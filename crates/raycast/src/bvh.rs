@@ -181,7 +181,10 @@ impl Bvh {
     }
 
     /// [`Bvh::build`] with an explicit quality preset. The build runs in parallel on the
-    /// current rayon pool.
+    /// current rayon pool. Scenes of more than 2^18 triangles are built in spatially sorted
+    /// chunks of at most that many, joined under a common top (so the build's memory beyond
+    /// the finished BVH is about that of one chunk); the result does not depend on the thread
+    /// count.
     pub fn build_with(
         triangles: &[[Vec3; 3]],
         ids: &[u32],
@@ -1142,6 +1145,61 @@ mod tests {
             }
             assert!((300..2900).contains(&blocked), "{what}: {blocked} blocked");
             assert!(differ <= 3, "{what}: {differ} differ from the oracle");
+        }
+    }
+
+    /// A scene whose triangles nearly all share one Morton cell (cut in the middle of equal
+    /// codes), built in chunks with every preset, gives the hits and occlusion answers of the
+    /// BVH built as one.
+    #[test]
+    fn chunked_builds_of_one_cell_give_the_same_answers() {
+        // a cluster of 1 x 1 x 1 far from one large triangle, so the cluster is a few cells
+        let mut tris: Vec<[Vec3; 3]> = soup(3000, 5).iter().map(|t| t.map(|v| v * 0.1)).collect();
+        tris.push([
+            Vec3::splat(500.0),
+            Vec3::new(520.0, 500.0, 500.0),
+            Vec3::splat(510.0),
+        ]);
+        let n = tris.len();
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let mut next = crate::testing::uniforms(77);
+        let rays: Vec<Ray> = (0..2000)
+            .map(|_| {
+                let from = Vec3::new(next(), next(), next()) * 3.0 - 1.0;
+                let [a, b, c] = tris[(next() * 3000.0) as usize % 3000];
+                Ray::new(from, ((a + b + c) / 3.0 - from).normalize())
+            })
+            .collect();
+        let pairs: Vec<(SurfacePoint, SurfacePoint)> = (0..2000)
+            .map(|_| {
+                let mut p = || SurfacePoint::free(Vec3::new(next(), next(), next()) * 1.2 - 0.1);
+                (p(), p())
+            })
+            .collect();
+        for (preset, chunk) in [
+            (BvhPreset::Fast, 100),
+            (BvhPreset::Medium, 250),
+            (BvhPreset::Slow, 500),
+        ] {
+            let whole = Bvh::build_with(&tris, &ids, preset).unwrap();
+            let bvh = Bvh::build_chunked(n, |i| tris[i], &ids, preset, chunk).unwrap();
+            let hits = rays.iter().filter(|r| {
+                let hit = bvh.closest_hit(r);
+                assert_eq!(
+                    hit,
+                    whole.closest_hit(r),
+                    "{preset:?}, chunks of {chunk}: {r:?}"
+                );
+                hit.is_some()
+            });
+            assert!(hits.count() > 1000, "{preset:?}");
+            for (a, b) in &pairs {
+                assert_eq!(
+                    bvh.occluded(a, b),
+                    whole.occluded(a, b),
+                    "{preset:?}: {a:?} {b:?}"
+                );
+            }
         }
     }
 
