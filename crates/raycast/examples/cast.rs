@@ -1,10 +1,12 @@
 //! Casts the seeded rays of the ray-casting benchmark on one scene, one thread, and prints
-//! Mrays/s, the BVH's size and build time: a quick look, and a fixed workload to count
+//! Mrays/s, the BVH's size, build time and the build's peak memory (what the process held at
+//! its most during the build, less what it held before, per triangle; Linux): a quick look, and a fixed workload to count
 //! instructions with `valgrind --tool=callgrind` (which, unlike a clock, does not depend on
 //! what else the machine is doing).
 //!
 //! `cargo run --release -p mcrad-raycast --example cast -- SCENE QUERY RAYS`, with SCENE one of
-//! `cornell`, `room100k`, `room1m`, QUERY `closest`, `batch`, `occluded` or `lifted` (closest
+//! `cornell`, `room100k`, `room1m`, `room10m` (a room of ten million triangles, for the build's
+//! peak memory), QUERY `closest`, `batch`, `occluded` or `lifted` (closest
 //! hit with the origins raised 1e-3 off the surface, as the Embree comparison's ray files
 //! have them). `PRESET=medium` or `PRESET=slow` picks the build preset; `SIMD=portable`,
 //! `SIMD=avx2` or `SIMD=avx512` caps the traversal's instruction sets (see `Bvh::with_simd`).
@@ -29,12 +31,14 @@ fn main() {
         "cornell" => scenes::cornell(),
         "room100k" => scenes::cluttered_room(100_000, 1),
         "room1m" => scenes::cluttered_room(1_000_000, 2),
+        "room10m" => scenes::cluttered_room(10_000_000, 3),
         other => {
-            eprintln!("error: unknown scene {other:?} (cornell, room100k, room1m)");
+            eprintln!("error: unknown scene {other:?} (cornell, room100k, room1m, room10m)");
             std::process::exit(2);
         }
     };
     let ids: Vec<u32> = (0..tris.len() as u32).collect();
+    let resident = status_kb("VmRSS");
     let start = Instant::now();
     let preset = match std::env::var("PRESET").as_deref() {
         Ok("medium") => mcrad_raycast::BvhPreset::Medium,
@@ -43,6 +47,10 @@ fn main() {
     };
     let bvh = Bvh::build_with(&tris, &ids, preset).expect("the seeded scenes are valid");
     let build = start.elapsed().as_secs_f64();
+    // the build's peak above what the process held before it (the scene included)
+    let peak = status_kb("VmHWM")
+        .zip(resident)
+        .map(|(hwm, before)| (hwm.saturating_sub(before) * 1024) as f64 / tris.len() as f64);
     let simd = |var: &str| match std::env::var(var).as_deref() {
         Ok("portable") => Some(Simd::Portable),
         Ok("avx2") => Some(Simd::Avx2),
@@ -115,11 +123,20 @@ fn main() {
     let seconds = start.elapsed().as_secs_f64();
     println!(
         "{scene} {query}: {:.3} Mrays/s ({found} of {rays} hit), {} triangles, {} nodes, \
-         {:.1} bytes/triangle, build {:.1} ms",
+         {:.1} bytes/triangle, build {:.1} ms, build peak {} bytes/triangle",
         rays as f64 / seconds / 1e6,
         tris.len(),
         bvh.node_count(),
         bvh.memory_bytes() as f64 / tris.len() as f64,
         build * 1e3,
+        peak.map_or("?".to_string(), |p| format!("{p:.0}")),
     );
+}
+
+/// A memory figure of this process in KiB (`VmRSS`: resident now, `VmHWM`: the most resident
+/// so far), where the system tells it (Linux).
+fn status_kb(field: &str) -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with(field))?;
+    line.split_whitespace().nth(1)?.parse().ok()
 }

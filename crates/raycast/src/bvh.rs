@@ -14,7 +14,6 @@ use obvhs::{
 };
 use rayon::prelude::*;
 
-use crate::NO_ID;
 #[cfg(target_arch = "x86_64")]
 use crate::traverse::{Avx2, Avx512};
 use crate::{
@@ -24,6 +23,12 @@ use crate::{
     traverse::{self, LeafTest, NodeRay, NodeTest, Sse, Stack},
     wide::{self, LANES, Wide},
 };
+use crate::{NO_ID, chunks};
+
+/// Most triangles built as one binary BVH (see `chunks.rs`): larger scenes are built in
+/// chunks of at most this many, so that the build's peak memory is that of a chunk plus the
+/// finished BVH. A constant, so that the BVH does not depend on the thread count.
+const CHUNK: usize = 1 << 18;
 
 /// How much build time to spend on BVH quality (obvhs presets).
 ///
@@ -176,7 +181,10 @@ impl Bvh {
     }
 
     /// [`Bvh::build`] with an explicit quality preset. The build runs in parallel on the
-    /// current rayon pool.
+    /// current rayon pool. Scenes of more than 2^18 triangles are built in spatially sorted
+    /// chunks of at most that many, joined under a common top (so the build's memory beyond
+    /// the finished BVH is about that of one chunk); the result does not depend on the thread
+    /// count.
     pub fn build_with(
         triangles: &[[Vec3; 3]],
         ids: &[u32],
@@ -221,25 +229,41 @@ impl Bvh {
         ids: &[u32],
         preset: BvhPreset,
     ) -> Result<Bvh, BuildError> {
+        Bvh::build_chunked(count, triangle, ids, preset, CHUNK)
+    }
+
+    /// [`Bvh::build_from`] in chunks of at most `chunk` triangles (more than 8; see
+    /// `chunks.rs`); a scene of at most one chunk is built as one.
+    fn build_chunked(
+        count: usize,
+        triangle: impl Fn(usize) -> [Vec3; 3] + Sync,
+        ids: &[u32],
+        preset: BvhPreset,
+        chunk: usize,
+    ) -> Result<Bvh, BuildError> {
         let bounds = frame::validate_with(count, &triangle, ids)?;
         let frame = Frame::new(bounds.0, bounds.1);
         frame.check_lift(bounds.0, bounds.1)?;
-        let canonical: Vec<Triangle> = (0..count)
-            .into_par_iter()
-            .map(&triangle)
-            .map(|t| Triangle {
-                v0: frame.canonical(t[0]).into(),
-                v1: frame.canonical(t[1]).into(),
-                v2: frame.canonical(t[2]).into(),
-            })
-            .collect();
         let pad = frame.max_lift(bounds.0, bounds.1) as f32;
-        let bvh2 = build_bvh2_padded(&canonical, preset.params(), pad);
-        let collapsed = Wide::collapse(&bvh2, &canonical, ids);
-        // The binary BVH and the triangles go before the wide one is joined and copied onto
-        // its pages (about 115 bytes a triangle less at the build's peak).
-        drop((bvh2, canonical));
-        let wide = collapsed.assemble();
+        let wide = if count > chunk {
+            chunks::build(count, &triangle, ids, &frame, pad, preset.params(), chunk)
+        } else {
+            let canonical: Vec<Triangle> = (0..count)
+                .into_par_iter()
+                .map(&triangle)
+                .map(|t| Triangle {
+                    v0: frame.canonical(t[0]).into(),
+                    v1: frame.canonical(t[1]).into(),
+                    v2: frame.canonical(t[2]).into(),
+                })
+                .collect();
+            let bvh2 = build_bvh2_padded(&canonical, preset.params(), pad);
+            let collapsed = Wide::collapse(&bvh2, &canonical, ids);
+            // The binary BVH and the triangles go before the wide one is joined and copied
+            // onto its pages (about 115 bytes a triangle less at the build's peak).
+            drop((bvh2, canonical));
+            collapsed.assemble()
+        };
         if wide.packets.len() > wide::MAX_PACKETS {
             return Err(BuildError::TooManyTriangles {
                 slots: wide.packets.len() * LANES,
@@ -596,7 +620,7 @@ thread_local! {
 /// on. Padded, every box whose triangle is crossed within a window holds a stretch of the ray
 /// of at least half a window. The cost is nil for scenes near the origin (`2^-10` canonical
 /// units).
-fn build_bvh2_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> Bvh2 {
+pub(crate) fn build_bvh2_padded(triangles: &[Triangle], params: BvhBuildParams, pad: f32) -> Bvh2 {
     let mut aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let mut indices: Vec<u32> = (0..triangles.len() as u32).collect();
     if params.pre_split {
@@ -992,6 +1016,223 @@ mod tests {
             // most segments are blocked, but not all
             assert!((14_000..19_900).contains(&blocked), "{simd:?}: {blocked}");
         }
+    }
+
+    /// A soup of `n` triangles: clusters of small ones (many sharing a Morton cell, so some
+    /// cuts fall in the middle of equal codes) and a few large ones across the scene.
+    fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
+        let mut next = crate::testing::uniforms(seed);
+        let centres: Vec<Vec3> = (0..12)
+            .map(|_| Vec3::new(next(), next(), next()) * 10.0)
+            .collect();
+        (0..n)
+            .map(|k| {
+                let (c, size) = if k % 97 == 0 {
+                    (Vec3::new(next(), next(), next()) * 10.0, 4.0)
+                } else {
+                    let c = centres[(next() * 12.0) as usize % 12];
+                    (c + (Vec3::new(next(), next(), next()) - 0.5) * 2.0, 0.3)
+                };
+                let mut corner = || c + (Vec3::new(next(), next(), next()) - 0.5) * size;
+                [corner(), corner(), corner()]
+            })
+            .collect()
+    }
+
+    /// The exact traversal stack bound of `wide` (see [`Wide::stack`]) below `item`, whose
+    /// ancestors leave `load` entries.
+    fn stack_bound(wide: &Wide, item: u32, load: usize) -> usize {
+        let node = &wide.nodes[item as usize];
+        let children: Vec<u32> = node
+            .items
+            .iter()
+            .copied()
+            .filter(|&i| i != wide::EMPTY)
+            .collect();
+        let n = children.len();
+        children
+            .iter()
+            .filter(|&&i| i & wide::LEAF == 0)
+            .map(|&i| stack_bound(wide, i, load + n - 1))
+            .fold(load + n, usize::max)
+    }
+
+    /// Built in chunks of 64 to 512 triangles, the BVH holds every triangle once, its stack
+    /// bound is exact, and it gives the closest hits (id and distance) and the occlusion
+    /// answers of the brute-force oracle, and the very hits of the BVH built as one.
+    #[test]
+    fn chunked_builds_give_the_oracle_s_answers() {
+        for (n, chunk, seed) in [
+            (3000, 64, 1),
+            (4000, 200, 2),
+            (2500, 512, 3),
+            (5000, 333, 4),
+        ] {
+            let tris = soup(n, seed);
+            let ids: Vec<u32> = (0..n as u32).map(|i| i * 3 + 1).collect();
+            let whole = Bvh::build(&tris, &ids).unwrap();
+            let bvh = Bvh::build_chunked(n, |i| tris[i], &ids, BvhPreset::Fast, chunk).unwrap();
+            let oracle = crate::BruteForce::build(&tris, &ids).unwrap();
+            let what = format!("{n} triangles, chunks of {chunk}");
+            let mut stored: Vec<u32> = bvh
+                .wide
+                .packets
+                .iter()
+                .flat_map(|p| p.ids)
+                .filter(|&id| id != NO_ID)
+                .collect();
+            stored.sort_unstable();
+            assert_eq!(stored, ids, "{what}");
+            assert_eq!(bvh.wide.stack, stack_bound(&bvh.wide, 0, 0), "{what}");
+            assert!(bvh.wide.stack <= 128, "{what}");
+            let mut next = crate::testing::uniforms(seed + 100);
+            let mut hits = 0;
+            for k in 0..3000usize {
+                let dir = (Vec3::new(next(), next(), next()) - 0.5).normalize_or(Vec3::X);
+                let ray = if k.is_multiple_of(2) {
+                    Ray::new(Vec3::new(next(), next(), next()) * 10.0, dir)
+                } else {
+                    let i = (next() * n as f32) as usize % n;
+                    let [a, b, c] = tris[i];
+                    let normal = (b - a).cross(c - a).normalize_or(Vec3::Y);
+                    let (mut u, mut v) = (next(), next());
+                    if u + v > 1.0 {
+                        (u, v) = (1.0 - u, 1.0 - v);
+                    }
+                    let dir = if dir.dot(normal) < 0.0 { -dir } else { dir };
+                    Ray::from_surface(a + (b - a) * u + (c - a) * v, normal, dir, ids[i])
+                };
+                let hit = bvh.closest_hit(&ray);
+                assert_eq!(hit, whole.closest_hit(&ray), "{what}: {ray:?}");
+                if ray.origin_normal == Vec3::ZERO {
+                    // free rays: no tie or surface rule in play
+                    let best = oracle.hits_along(&ray).first().copied();
+                    let same = match (hit, best) {
+                        (None, None) => true,
+                        (Some(h), Some(b)) => {
+                            h.id == b.id && (h.distance - b.distance).abs() <= 1e-4 * b.distance
+                        }
+                        _ => false,
+                    };
+                    assert!(
+                        same,
+                        "{what}: {ray:?}: {hit:?} against the oracle's {best:?}"
+                    );
+                }
+                hits += usize::from(hit.is_some());
+            }
+            assert!((500..2990).contains(&hits), "{what}: {hits} hits");
+            let (mut blocked, mut differ) = (0, 0);
+            for k in 0..3000 {
+                let mut point = |m: usize| {
+                    if m.is_multiple_of(3) {
+                        return SurfacePoint::free(Vec3::new(next(), next(), next()) * 10.0);
+                    }
+                    let i = (next() * n as f32) as usize % n;
+                    let [a, b, c] = tris[i];
+                    let (mut u, mut v) = (next(), next());
+                    if u + v > 1.0 {
+                        (u, v) = (1.0 - u, 1.0 - v);
+                    }
+                    let normal = (b - a).cross(c - a).normalize_or_zero();
+                    SurfacePoint::new(a + (b - a) * u + (c - a) * v, normal, ids[i])
+                };
+                let (a, b) = (point(k), point(k + 1));
+                let occluded = bvh.occluded(&a, &b);
+                assert_eq!(occluded, whole.occluded(&a, &b), "{what}: {a:?} {b:?}");
+                blocked += usize::from(occluded);
+                differ += usize::from(occluded != oracle.occluded(&a, &b));
+            }
+            assert!((300..2900).contains(&blocked), "{what}: {blocked} blocked");
+            assert!(differ <= 3, "{what}: {differ} differ from the oracle");
+        }
+    }
+
+    /// A scene whose triangles nearly all share one Morton cell (cut in the middle of equal
+    /// codes), built in chunks with every preset, gives the hits and occlusion answers of the
+    /// BVH built as one.
+    #[test]
+    fn chunked_builds_of_one_cell_give_the_same_answers() {
+        // a cluster of 1 x 1 x 1 far from one large triangle, so the cluster is a few cells
+        let mut tris: Vec<[Vec3; 3]> = soup(3000, 5).iter().map(|t| t.map(|v| v * 0.1)).collect();
+        tris.push([
+            Vec3::splat(500.0),
+            Vec3::new(520.0, 500.0, 500.0),
+            Vec3::splat(510.0),
+        ]);
+        let n = tris.len();
+        let ids: Vec<u32> = (0..n as u32).collect();
+        let mut next = crate::testing::uniforms(77);
+        let rays: Vec<Ray> = (0..2000)
+            .map(|_| {
+                let from = Vec3::new(next(), next(), next()) * 3.0 - 1.0;
+                let [a, b, c] = tris[(next() * 3000.0) as usize % 3000];
+                Ray::new(from, ((a + b + c) / 3.0 - from).normalize())
+            })
+            .collect();
+        let pairs: Vec<(SurfacePoint, SurfacePoint)> = (0..2000)
+            .map(|_| {
+                let mut p = || SurfacePoint::free(Vec3::new(next(), next(), next()) * 1.2 - 0.1);
+                (p(), p())
+            })
+            .collect();
+        for (preset, chunk) in [
+            (BvhPreset::Fast, 100),
+            (BvhPreset::Medium, 250),
+            (BvhPreset::Slow, 500),
+        ] {
+            let whole = Bvh::build_with(&tris, &ids, preset).unwrap();
+            let bvh = Bvh::build_chunked(n, |i| tris[i], &ids, preset, chunk).unwrap();
+            let hits = rays.iter().filter(|r| {
+                let hit = bvh.closest_hit(r);
+                assert_eq!(
+                    hit,
+                    whole.closest_hit(r),
+                    "{preset:?}, chunks of {chunk}: {r:?}"
+                );
+                hit.is_some()
+            });
+            assert!(hits.count() > 1000, "{preset:?}");
+            for (a, b) in &pairs {
+                assert_eq!(
+                    bvh.occluded(a, b),
+                    whole.occluded(a, b),
+                    "{preset:?}: {a:?} {b:?}"
+                );
+            }
+        }
+    }
+
+    /// A chunked build is the same BVH, node for node and packet for packet, on 1 and 3
+    /// threads, and a scene of one chunk is built as before chunking.
+    #[test]
+    fn chunked_builds_do_not_depend_on_the_thread_count() {
+        let tris = soup(4000, 9);
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        let build = |threads: usize, chunk: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    Bvh::build_chunked(tris.len(), |i| tris[i], &ids, BvhPreset::Fast, chunk)
+                        .unwrap()
+                })
+        };
+        let bytes = |bvh: &Bvh| {
+            let nodes: &[u8] = bytemuck::cast_slice(&bvh.wide.nodes[..]);
+            let packets: &[u8] = bytemuck::cast_slice(&bvh.wide.packets[..]);
+            (nodes.to_vec(), packets.to_vec(), bvh.wide.stack)
+        };
+        for chunk in [64, 300] {
+            let (one, three) = (build(1, chunk), build(3, chunk));
+            assert!(one.node_count() > 64, "chunks of {chunk}");
+            assert!(bytes(&one) == bytes(&three), "chunks of {chunk}");
+        }
+        // one chunk: the BVH of the build without chunks
+        let whole = Bvh::build(&tris, &ids).unwrap();
+        assert!(bytes(&build(3, tris.len())) == bytes(&whole));
+        assert!(bytes(&build(3, tris.len() - 1)) != bytes(&whole));
     }
 
     /// A grid of `n x n` unit quads on the floor and a ceiling above, and rays from the floor.

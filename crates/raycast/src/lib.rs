@@ -149,6 +149,7 @@
 mod batch;
 mod brute;
 mod bvh;
+mod chunks;
 mod error;
 mod exact;
 mod frame;

@@ -29,7 +29,10 @@
 //! the noise, with the same 48 MiB of `AnonHugePages` in the 1M room.
 
 use bytemuck::Pod;
-use std::{fmt, ops::Deref};
+use std::{
+    fmt,
+    ops::{Deref, DerefMut},
+};
 
 /// The size (and alignment) of a huge page, in bytes.
 const HUGE_PAGE: usize = 2 << 20;
@@ -56,39 +59,44 @@ enum Memory<T> {
 impl<T: Pod> Pages<T> {
     /// A copy of `items` in memory of its own.
     pub(crate) fn copy_of(items: &[T]) -> Pages<T> {
+        let mut pages = Pages::zeroed(items.len());
+        pages.copy_from_slice(items);
+        pages
+    }
+
+    /// `len` all-zero elements, to be written in place. A mapped array takes memory only as
+    /// it is written (the system's zero pages until then), so filling it from other arrays
+    /// freed one by one needs no second copy of the whole.
+    pub(crate) fn zeroed(len: usize) -> Pages<T> {
         #[cfg(target_os = "linux")]
-        if size_of_val(items) >= HUGE_PAGE
-            && let Some((map, start)) = map_huge(bytemuck::cast_slice(items))
+        if let Some(bytes) = len.checked_mul(size_of::<T>())
+            && bytes >= HUGE_PAGE
+            && let Some((map, start)) = map_huge(bytes)
         {
             return Pages {
-                memory: Memory::Mapped {
-                    map,
-                    start,
-                    len: items.len(),
-                },
+                memory: Memory::Mapped { map, start, len },
             };
         }
         Pages {
-            memory: Memory::Heap(items.into()),
+            memory: Memory::Heap(vec![T::zeroed(); len].into()),
         }
     }
 }
 
-/// `bytes` copied into an anonymous map, from the returned offset in it on: its first
-/// huge-page boundary, the range advised for huge pages before the copy writes it. `None` if
+/// An anonymous map holding `bytes` zero bytes from the returned offset in it on: its first
+/// huge-page boundary, the range advised for huge pages before anything writes it. `None` if
 /// the system has no such map to give (the caller falls back on the heap).
 #[cfg(target_os = "linux")]
-fn map_huge(bytes: &[u8]) -> Option<(memmap2::MmapMut, usize)> {
-    let mut map = memmap2::MmapOptions::new()
-        .len(bytes.len() + HUGE_PAGE)
+fn map_huge(bytes: usize) -> Option<(memmap2::MmapMut, usize)> {
+    let map = memmap2::MmapOptions::new()
+        .len(bytes.checked_add(HUGE_PAGE)?)
         .map_anon()
         .ok()?;
     // Maps start on a page boundary, so the first huge-page boundary is within the first
     // HUGE_PAGE bytes.
     let start = map.as_ptr().addr().next_multiple_of(HUGE_PAGE) - map.as_ptr().addr();
     // A hint: its failure (an old kernel, huge pages off) only costs speed.
-    let _ = map.advise_range(memmap2::Advice::HugePage, start, bytes.len());
-    map[start..start + bytes.len()].copy_from_slice(bytes);
+    let _ = map.advise_range(memmap2::Advice::HugePage, start, bytes);
     Some((map, start))
 }
 
@@ -104,6 +112,19 @@ impl<T: Pod> Deref for Pages<T> {
             #[cfg(target_os = "linux")]
             Memory::Mapped { map, start, len } => {
                 bytemuck::cast_slice(&map[*start..*start + len * size_of::<T>()])
+            }
+        }
+    }
+}
+
+impl<T: Pod> DerefMut for Pages<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        match &mut self.memory {
+            Memory::Heap(items) => items,
+            // (aligned as in `deref`)
+            #[cfg(target_os = "linux")]
+            Memory::Mapped { map, start, len } => {
+                bytemuck::cast_slice_mut(&mut map[*start..*start + *len * size_of::<T>()])
             }
         }
     }

@@ -59,7 +59,7 @@ pub(crate) const MAX_PACKETS: usize = 1 << 29;
 /// An empty child slot (its box is empty, so no ray enters it). As a leaf item it would be a
 /// run of 4 packets from the last addressable one, which no leaf is (leaves hold at most
 /// [`LEAF_MAX`] triangles, two packets).
-const EMPTY: u32 = u32::MAX;
+pub(crate) const EMPTY: u32 = u32::MAX;
 
 /// Surface-area-heuristic cost of testing one packet, relative to testing one node
 /// ([`NODE_COST`]).
@@ -98,6 +98,19 @@ impl Node {
             planes: [lo, hi, lo, hi, lo, hi],
             items: [EMPTY; WIDTH],
         }
+    }
+
+    /// Child `i`'s box and item.
+    pub(crate) fn child(&self, i: usize) -> (Aabb, u32) {
+        let (h, lane) = (i / 4, i % 4);
+        let corner = |side: usize| {
+            Vec3A::new(
+                self.planes[side][h][lane],
+                self.planes[2 + side][h][lane],
+                self.planes[4 + side][h][lane],
+            )
+        };
+        (Aabb::new(corner(0), corner(1)), self.items[i])
     }
 
     /// Sets child `i` to `item` with box `aabb`.
@@ -201,10 +214,10 @@ pub(crate) struct Wide {
 
 /// A wide BVH while the collapse grows it (or one subtree of it, with local indices), with
 /// the fields of [`Wide`].
-struct Part {
-    nodes: Vec<Node>,
-    packets: Vec<Packet>,
-    stack: usize,
+pub(crate) struct Part {
+    pub(crate) nodes: Vec<Node>,
+    pub(crate) packets: Vec<Packet>,
+    pub(crate) stack: usize,
 }
 
 /// A wide BVH collapsed but not yet joined ([`Wide::collapse`]): the top nodes, and the
@@ -218,6 +231,17 @@ impl Collapsed {
     /// The wide BVH: the parts joined into the top, in order, each freed as it is joined, in
     /// arrays reserved to their final size, then copied onto their pages.
     pub(crate) fn assemble(self) -> Wide {
+        let wide = self.join();
+        Wide {
+            nodes: Pages::copy_of(&wide.nodes),
+            packets: Pages::copy_of(&wide.packets),
+            stack: wide.stack,
+        }
+    }
+
+    /// The parts joined into the top, in order, each freed as it is joined, in arrays
+    /// reserved to their final size.
+    fn join(self) -> Part {
         let Collapsed {
             top: mut wide,
             parts,
@@ -232,11 +256,7 @@ impl Collapsed {
         for (node, part) in parts {
             wide.join(node, part);
         }
-        Wide {
-            nodes: Pages::copy_of(&wide.nodes),
-            packets: Pages::copy_of(&wide.packets),
-            stack: wide.stack,
-        }
+        wide
     }
 }
 
@@ -245,29 +265,29 @@ impl Collapsed {
 /// through compressed wide BVHs"). 19 bytes, 38 MB for the two million binary nodes of a
 /// million triangles: the [`Costs`] (80 bytes each) are dropped once the parent is planned.
 #[derive(Clone, Copy)]
-struct Plan {
+pub(crate) struct Plan {
     /// One slot: the subtree becomes one leaf (else one wide node).
     leaf: bool,
     /// `split[i - 1]` for `i >= 2`: the best `i` slots take `k` from the left child and
     /// `i - k` from the right, or (0) `i - 1` slots are as good.
-    split: [u8; WIDTH],
+    pub(crate) split: [u8; WIDTH],
     /// As a wide node: its slots (2 to [`WIDTH`]) ...
-    children: u8,
+    pub(crate) children: u8,
     /// ... and how many of them come from the left child.
-    left: u8,
+    pub(crate) left: u8,
 }
 
 /// The surface-area-heuristic costs of a binary node's subtree as child slots of a wide node.
 #[derive(Clone, Copy)]
-struct Costs {
+pub(crate) struct Costs {
     /// Triangles below.
-    count: u32,
+    pub(crate) count: u32,
     /// `cost[i - 1]`: the cost of the best `i` slots or fewer (surface area times
     /// [`PACKET_COST`] per packet and [`NODE_COST`] per wide node, summed).
-    cost: [f32; WIDTH],
+    pub(crate) cost: [f32; WIDTH],
     /// The most slots that are cheaper than fewer: `cost[i - 1]` is the same for every
     /// `i >= useful`.
-    useful: usize,
+    pub(crate) useful: usize,
 }
 
 impl Plan {
@@ -292,7 +312,7 @@ impl Plan {
 
     /// The plan of an inner binary node of surface area `area` whose children's subtrees cost
     /// `l` and `r`.
-    fn inner(area: f32, l: &Costs, r: &Costs) -> (Plan, Costs) {
+    pub(crate) fn inner(area: f32, l: &Costs, r: &Costs) -> (Plan, Costs) {
         let count = l.count + r.count;
         // distribute[j]: the best j slots, some from each child. More than `useful` slots of a
         // child cost as much as `useful` (its costs do not increase with the slots), so only
@@ -473,10 +493,47 @@ impl Wide {
     /// them (and the collapse's plans go) before [`Collapsed::assemble`] joins the parts and
     /// copies them onto their pages.
     pub(crate) fn collapse(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Collapsed {
-        let plans = plan(bvh2);
+        let (plans, _) = plan(bvh2);
+        Wide::collapse_planned(bvh2, &plans, tris, ids)
+    }
+
+    /// One chunk of a larger scene (see `chunks.rs`): the wide BVH of `bvh2` as [`Wide::new`]
+    /// builds it, with its root's box and costs for the top above the chunks.
+    pub(crate) fn chunk(bvh2: &Bvh2, tris: &[Triangle], ids: &[u32]) -> Chunk {
+        let (plans, costs) = plan(bvh2);
+        let part = Wide::collapse_planned(bvh2, &plans, tris, ids).join();
+        let root = &bvh2.nodes[0];
+        // the root is always a wide node, holding the plan's slots (one leaf if the plan
+        // makes the whole chunk a leaf)
+        let below = if plans[0].leaf {
+            costs.cost[0]
+        } else {
+            costs.cost[WIDTH - 1]
+        };
+        let slots = part.nodes[0]
+            .items
+            .iter()
+            .filter(|&&item| item != EMPTY)
+            .count();
+        Chunk {
+            // (in maps of their own where they are large, given back to the system when the
+            // top has copied them: freed heap memory may stay with the process)
+            nodes: Pages::copy_of(&part.nodes),
+            packets: Pages::copy_of(&part.packets),
+            stack: part.stack,
+            aabb: root.aabb,
+            count: costs.count,
+            as_node: NODE_COST * area(root) + below,
+            below,
+            slots,
+        }
+    }
+
+    /// [`Wide::collapse`] with the plans made.
+    fn collapse_planned(bvh2: &Bvh2, plans: &[Plan], tris: &[Triangle], ids: &[u32]) -> Collapsed {
         let collapse = Collapse {
             bvh2,
-            plans: &plans,
+            plans,
             tris,
             ids,
         };
@@ -616,11 +673,12 @@ fn collect_prims(bvh2: &Bvh2, b: usize, out: &mut [u32; LEAF_MAX]) -> usize {
 /// PLOC) are leaves; an inner node becomes a leaf of at most [`LEAF_MAX`] triangles when
 /// that costs no more than a wide node. The subtrees below the top [`TOP_JOBS`] nodes
 /// (breadth first) are planned in parallel.
-fn plan(bvh2: &Bvh2) -> Vec<Plan> {
+fn plan(bvh2: &Bvh2) -> (Vec<Plan>, Costs) {
     let n = bvh2.nodes.len();
-    let mut plans = vec![Plan::leaf(0, 0.0).0; n];
+    let (empty, none) = Plan::leaf(0, 0.0);
+    let mut plans = vec![empty; n];
     if n == 0 {
-        return plans;
+        return (plans, none);
     }
     // the top, breadth first (children after parents), and the subtree roots below it
     let mut top = Vec::new();
@@ -658,7 +716,8 @@ fn plan(bvh2: &Bvh2) -> Vec<Plan> {
         plans[b] = p;
         costs.insert(b, c);
     }
-    plans
+    let root = costs[&0];
+    (plans, root)
 }
 
 /// The plans of the binary subtree of `root`, node by node, and the costs of `root`'s.
@@ -700,6 +759,55 @@ fn plan_subtree(bvh2: &Bvh2, root: usize) -> (Vec<(u32, Plan)>, Costs) {
 /// The surface area (halved) of a binary node's box.
 fn area(node: &Bvh2Node) -> f32 {
     node.aabb.half_area().max(0.0)
+}
+
+/// The wide BVH of one chunk of a larger scene (see `chunks.rs`), with what the top above the
+/// chunks needs to place it: as one child slot (its root node) or opened (its root's children
+/// as slots of a top node).
+pub(crate) struct Chunk {
+    /// The chunk's wide nodes (local indices; its root is node 0) ...
+    pub(crate) nodes: Pages<Node>,
+    /// ... its packets (local indices) ...
+    pub(crate) packets: Pages<Packet>,
+    /// ... and its traversal stack bound (see [`Wide::stack`]).
+    pub(crate) stack: usize,
+    /// The box of the chunk's triangles (padded, canonical units).
+    pub(crate) aabb: Aabb,
+    /// Triangles in the chunk.
+    pub(crate) count: u32,
+    /// The surface-area-heuristic cost of the chunk as one child slot (its root node).
+    pub(crate) as_node: f32,
+    /// The cost of its root's children as slots of the node above (`as_node` without the
+    /// root's own test).
+    pub(crate) below: f32,
+    /// Children of its root node.
+    pub(crate) slots: usize,
+}
+
+impl Chunk {
+    /// Whether the top may open the chunk's root into the node above: only a chunk of one
+    /// node (its root's children all leaves: the small pieces of a cut), whose nodes then
+    /// all go. (A chunk of more nodes has a full root wherever it has 16 slots' worth of
+    /// subtrees, which a node above could only hold alone.)
+    pub(crate) fn openable(&self) -> bool {
+        self.nodes.len() == 1
+    }
+
+    /// The chunk's costs as 1 to [`WIDTH`] child slots (see [`Costs`]): its root node, or, if
+    /// it is [`openable`](Chunk::openable), its root's children from `slots` slots on.
+    pub(crate) fn costs(&self) -> Costs {
+        let mut cost = [self.as_node; WIDTH];
+        let mut useful = 1;
+        if self.openable() {
+            cost[self.slots - 1..].fill(self.below);
+            useful = self.slots;
+        }
+        Costs {
+            count: self.count,
+            cost,
+            useful,
+        }
+    }
 }
 
 #[cfg(test)]
