@@ -32,8 +32,8 @@ use crate::subdivide::{Cutter, Target};
 use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Scene, SceneTextures};
 use rayon::prelude::*;
+use rustc_hash::FxBuildHasher;
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -720,25 +720,6 @@ fn vertex_bucket(k: &[u32; 3]) -> usize {
     (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize % VERTEX_BUCKETS
 }
 
-/// A fast hash of corner keys (the keys are no one's input to attack).
-#[derive(Default)]
-struct KeyHasher(u64);
-
-impl Hasher for KeyHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut b = [0u8; 8];
-            b[..chunk.len()].copy_from_slice(chunk);
-            self.0 =
-                (self.0.rotate_left(5) ^ u64::from_le_bytes(b)).wrapping_mul(0x517C_C1B7_2722_0A95);
-        }
-    }
-}
-
 /// The mesh of `leaves`: vertices shared where corners are equal as `f32`, numbered in the
 /// order their first corner comes (leaf by leaf, corner by corner); leaf `i` (not a back side)
 /// is a patch followed by its back side when its template is two-sided. Made in parallel on
@@ -806,8 +787,9 @@ fn build_mesh(
         .map(|_| AtomicU32::new(u32::MAX))
         .collect();
     bucket_ranges.into_par_iter().for_each(|range| {
-        let mut seen: HashMap<[u32; 3], u32, BuildHasherDefault<KeyHasher>> =
-            HashMap::with_capacity_and_hasher(range.len(), BuildHasherDefault::default());
+        // corner keys are no one's input to attack: a fast hash
+        let mut seen: HashMap<[u32; 3], u32, FxBuildHasher> =
+            HashMap::with_capacity_and_hasher(range.len(), FxBuildHasher);
         for &slot in &slots[range] {
             let p = leaves[slot as usize / 4].corners[slot as usize % 4];
             let f = *seen.entry(vertex_key(p)).or_insert(slot);

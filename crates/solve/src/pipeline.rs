@@ -402,60 +402,32 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         _ => Clusters::default(),
     };
-    // Groups of them that the refinement's estimate shows evenly lit, and across which no
-    // light changes visibility, are one element each of the transport: the method runs on that
-    // coarser mesh, and its answers come back per patch. The refinement's estimate is pooled
-    // over the same groups (its faces' estimates are independent, the transport's are one per
-    // group), and the answer's pooling leaves them alone.
-    let mut transport_counts = PoolCounts::default();
+    // Groups of them that are evenly lit are one element each of the transport: the method
+    // runs on that coarser mesh, its answers come back per patch, and the answer's pooling
+    // leaves those groups alone.
     let transport = match (refinement.as_mut(), problem.clustering) {
         (Some(r), Clustering::Transport) if !clusters.is_empty() && problem.resume.is_none() => {
-            let (_, counts, mut groups) = pool_clusters(&mesh, &clusters, &r.pooled, true)?;
-            transport_counts.splits = counts.splits;
-            transport_counts.splits += split_shadowed(
-                &mesh,
-                &bvh,
-                &config.lights,
-                r.pooled.radiosity(),
-                &mut groups,
-                ShadowSplit {
-                    rays: SHADOW_SPLIT_RAYS,
-                    tolerance: AdaptiveConfig::default().tolerance,
-                    seed: derive_seed(settings.seed, SHADOW_SPLIT_STREAM),
-                },
-            );
-            let coarse = mesh.clustered(&groups).map_err(|source| Error::Mesh {
-                source,
-                max_edge: None,
-            })?;
-            let members = coarse.clusters();
-            transport_counts.groups = members.len();
-            transport_counts.faces = members.patches();
-            (coarse.mesh.patches().len() < mesh.patches().len()).then(|| {
-                r.pooled = pool_clusters(&mesh, &members, &r.pooled, false)
-                    .map(|p| p.0)
-                    .unwrap_or_else(|_| r.pooled.clone());
-                (coarse, members)
-            })
+            let seed = derive_seed(settings.seed, SHADOW_SPLIT_STREAM);
+            transport_groups(&mesh, &bvh, &clusters, r, &config.lights, seed)?
         }
         _ => None,
     };
     let transport_bvh = match &transport {
-        Some((c, _)) => Some(c.mesh.caster()?),
+        Some((c, ..)) => Some(c.mesh.caster()?),
         None => None,
     };
     let formed = (clusters.len(), clusters.patches());
     // the answer's pooling: over the clusters less the transport's members
     let clusters = match &transport {
-        Some((c, _)) => {
+        Some((c, ..)) => {
             let elements = c.mesh.patches();
             clusters.without(|i| elements[c.element[i as usize] as usize].is_cluster())
         }
         None => clusters,
     };
-    let (transport, transport_groups) = match transport {
-        Some((c, members)) => (Some(c), members),
-        None => (None, Clusters::default()),
+    let (transport, transport_members, transport_counts) = match transport {
+        Some((c, members, counts)) => (Some(c), members, counts),
+        None => (None, Clusters::default(), PoolCounts::default()),
     };
     phases.clusters_seconds = clustering.elapsed().as_secs_f64();
     // The caller's work after the solve, timed now that the mesh and caster exist.
@@ -485,7 +457,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         resumed: problem.resume,
         lighting,
         clusters: &clusters,
-        transport: (&transport_groups, transport_counts),
+        transport: (&transport_members, transport_counts),
         pooled: std::sync::Mutex::new((PoolCounts::default(), Groups::new())),
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
@@ -699,6 +671,50 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         sky_direct: if no_direct { None } else { sky_direct },
         face_correlation: if cancelled { None } else { face_correlation },
     })
+}
+
+/// The coarser mesh on which the method runs with clusters as elements of transport (see
+/// [`solve`]): the `clusters` of `mesh` tested against the refinement's estimate
+/// ([`pool_clusters`]) and split where a light's shadow crosses them ([`split_shadowed`], shadow
+/// rays through `bvh` from the streams of `seed`), its groups as [`Clusters`] and what forming
+/// them did; `None` when no group is left. The refinement's estimate is pooled over the same
+/// groups (its faces' estimates are independent, the transport's one per group).
+fn transport_groups(
+    mesh: &Mesh,
+    bvh: &Bvh,
+    clusters: &Clusters,
+    refined: &mut Refined,
+    lights: &[mcrad_scene_io::Light],
+    seed: u64,
+) -> Result<Option<(ClusteredMesh, Clusters, PoolCounts)>, Error> {
+    let (_, tested, mut groups) = pool_clusters(mesh, clusters, &refined.pooled, true)?;
+    let shadowed = split_shadowed(
+        mesh,
+        bvh,
+        lights,
+        refined.pooled.radiosity(),
+        &mut groups,
+        ShadowSplit {
+            rays: SHADOW_SPLIT_RAYS,
+            tolerance: AdaptiveConfig::default().tolerance,
+            seed,
+        },
+    );
+    let coarse = mesh.clustered(&groups).map_err(|source| Error::Mesh {
+        source,
+        max_edge: None,
+    })?;
+    if coarse.mesh.patches().len() == mesh.patches().len() {
+        return Ok(None);
+    }
+    let members = coarse.clusters();
+    refined.pooled = pool_clusters(mesh, &members, &refined.pooled, false)?.0;
+    let counts = PoolCounts {
+        groups: members.len(),
+        faces: members.patches(),
+        splits: tested.splits + shadowed,
+    };
+    Ok(Some((coarse, members, counts)))
 }
 
 /// `estimate`, per element of `transport`'s coarser mesh, carried back to the patches of
