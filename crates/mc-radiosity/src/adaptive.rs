@@ -278,7 +278,12 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // The caster over the mesh as it is (built anew after each split): a round's marks and the
     // caller reuse it.
     let mut current = Some(bvh);
-    let mut pooled = estimate.clone();
+    // What the pilot says of a patch no ray reached is no information, not a certain 0: the
+    // pool carries it with the variance of one hit (the schedules' final outputs' floor), so
+    // that pooling it with a later estimate does not trust it fully (a floor of many tiny
+    // faces, most of them unreached, would be pooled to a fraction of its light). The marks
+    // read the pilot's own variances.
+    let mut pooled = crate::shoot::unreached_variance(mesh.mesh(), estimate.clone())?;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
