@@ -127,7 +127,9 @@ pub struct Refined {
     /// Every estimate the refinement made of each leaf's own value, pooled ([`pool`]): a leaf
     /// not split since the pilot pools the pilot and every round's gathering; a leaf made by a
     /// split starts from the gathering that followed it (its parent's estimates are of the
-    /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance.
+    /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance; a
+    /// reflecting leaf the pilot did not reach carries the variance of one hit of the pilot's
+    /// (`(rho p / A)²`, `p` its mean power per ray), not 0, until a round gathers it.
     pub pooled: Estimate,
     /// Whether `pooled` may be pooled into the answer: false when it holds only a pilot that
     /// the clock stopped before it shipped all its power (short of light).
