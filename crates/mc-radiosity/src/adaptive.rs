@@ -127,7 +127,9 @@ pub struct Refined {
     /// Every estimate the refinement made of each leaf's own value, pooled ([`pool`]): a leaf
     /// not split since the pilot pools the pilot and every round's gathering; a leaf made by a
     /// split starts from the gathering that followed it (its parent's estimates are of the
-    /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance.
+    /// parent's mean, not of the leaf's value, and are dropped). W/m² and its variance; a
+    /// reflecting leaf the pilot did not reach carries the variance of one hit of the pilot's
+    /// (`(rho p / A)²`, `p` its mean power per ray), not 0, until a round gathers it.
     pub pooled: Estimate,
     /// Whether `pooled` may be pooled into the answer: false when it holds only a pilot that
     /// the clock stopped before it shipped all its power (short of light).
@@ -278,7 +280,12 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // The caster over the mesh as it is (built anew after each split): a round's marks and the
     // caller reuse it.
     let mut current = Some(bvh);
-    let mut pooled = estimate.clone();
+    // What the pilot says of a patch no ray reached is no information, not a certain 0: the
+    // pool carries it with the variance of one hit (the schedules' final outputs' floor), so
+    // that pooling it with a later estimate does not trust it fully (a floor of many tiny
+    // faces, most of them unreached, would be pooled to a fraction of its light). The marks
+    // read the pilot's own variances.
+    let mut pooled = crate::shoot::unreached_variance(mesh.mesh(), estimate.clone())?;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
