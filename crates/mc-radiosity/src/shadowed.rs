@@ -15,7 +15,7 @@
 //! a group (in `mcrad-solve`) sees.
 
 use glam::DVec3;
-use mcrad_meshing::{Mesh, UNGROUPED};
+use mcrad_meshing::{Clusters, Mesh, UNGROUPED};
 use mcrad_random::Stream;
 use mcrad_raycast::{RayCaster, SurfacePoint};
 use mcrad_scene_io::Light;
@@ -118,24 +118,9 @@ impl<C: RayCaster> Probe<'_, C> {
             out.push(members.to_vec());
             return 0;
         }
-        // along the centroids' longest extent, ties by patch index: the test's points are
-        // stratified in this order, and a split cuts it at the median
-        let patches = self.mesh.patches();
-        let (lo, hi) = members.iter().fold(
-            (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
-            |(lo, hi), &i| {
-                let c = patches[i as usize].centroid.as_dvec3();
-                (lo.min(c), hi.max(c))
-            },
-        );
-        let axis = (hi - lo).max_position();
-        members.sort_by(|&x, &y| {
-            let (cx, cy) = (
-                patches[x as usize].centroid[axis],
-                patches[y as usize].centroid[axis],
-            );
-            cx.total_cmp(&cy).then(x.cmp(&y))
-        });
+        // along the centroids' longest extent: the test's points are stratified in this
+        // order, and a split cuts it at the median
+        Clusters::sort_along_extent(self.mesh, members);
         if path >= 1 << 62 || !self.shadowed(members, g, path) {
             out.push(members.to_vec());
             return 0;
