@@ -3,22 +3,26 @@
 //! not straddle.
 //!
 //! A group is tested as an element of the refinement is (the visibility mark of
-//! [`refine`](crate::refine)): `rays` shadow rays from uniform points of the group (a member
-//! drawn by area, a uniform point on it, its own normal) to points of the emitters drawn by
-//! power, and one to each light without a surface (point, spot, sun) per point. The group's
-//! direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct irradiance
-//! estimate, `f` its visible share, `rho` the members' area-weighted mean reflectance), is
-//! compared with `tolerance` of its luminance (from `radiosity`, the area-weighted mean of its
-//! members'). A group over it is cut in two at the median of its members' centroids along
-//! their longest extent, and each half is tested again, down to single patches. The sky is
-//! not tested: its visibility changes smoothly, which the estimates' test of the light across
-//! a group (in `mcrad-solve`) sees.
+//! [`refine`](crate::refine)): `rays` points of the group (a member drawn by area, stratified
+//! along the members' centroids' longest extent so that a shadow over more than `1 / rays` of
+//! the group is seen; a uniform point on it, its own normal), from each a shadow ray to a point
+//! of the emitters drawn by power, one to each light without a surface (point, spot, sun) and
+//! one cosine-distributed ray towards the sky where there is one. The group's direct light that
+//! varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct irradiance estimate, `f` its
+//! visible share, `rho` the members' area-weighted mean reflectance), is compared with
+//! `tolerance` of its luminance (from `radiosity`, the area-weighted mean of its members'). A
+//! group over it is cut in two at the median of its members' centroids along their longest
+//! extent, and each half is tested again, down to single patches. A group that sees part of
+//! the sky from everywhere is split too (the test does not tell a change across the group from
+//! an even partial view): measured on the sun- and sky-lit atrium, testing the sky's change
+//! between the group's halves instead kept a third fewer elements but raised the image error
+//! (docs/meshing.md).
 
 use glam::DVec3;
-use mcrad_meshing::{Mesh, UNGROUPED};
+use mcrad_meshing::{Clusters, Mesh, UNGROUPED};
 use mcrad_random::Stream;
 use mcrad_raycast::{RayCaster, SurfacePoint};
-use mcrad_scene_io::Light;
+use mcrad_scene_io::{Light, Sky};
 use rayon::prelude::*;
 
 use crate::adaptive::{Lights, luminance, point_on};
@@ -39,7 +43,8 @@ pub struct ShadowSplit {
 }
 
 /// Splits the groups of `mesh`'s patches (`group[i]`: patch `i`'s group, or [`UNGROUPED`])
-/// across which the direct light of its emitters and of `lights` (in the scene's frame) changes
+/// across which the direct light of its emitters, of `lights` (in the scene's frame) and of the
+/// `sky` changes
 /// visibility (see the module documentation), casting through `caster` (over `mesh`);
 /// `radiosity` per patch (W/m²) gives each group's luminance. Renumbers the groups (in order of
 /// their first appearance, each half after the other) and returns the splits made. The same on
@@ -48,6 +53,7 @@ pub fn split_shadowed<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     lights: &[Light],
+    sky: Option<&Sky>,
     radiosity: &[DVec3],
     group: &mut [u32],
     split: ShadowSplit,
@@ -70,6 +76,7 @@ pub fn split_shadowed<C: RayCaster>(
             .iter()
             .map(|l| l.translated(-mesh.origin()))
             .collect(),
+        sky: sky.filter(|s| !s.is_dark()),
         far: mesh.escape_distance(),
         radiosity,
         split,
@@ -104,6 +111,7 @@ struct Probe<'a, C> {
     emitters: Option<Lights>,
     /// The lights without a surface, in the mesh's frame.
     lights: Vec<Light>,
+    sky: Option<&'a Sky>,
     far: f64,
     radiosity: &'a [DVec3],
     split: ShadowSplit,
@@ -118,24 +126,9 @@ impl<C: RayCaster> Probe<'_, C> {
             out.push(members.to_vec());
             return 0;
         }
-        // along the centroids' longest extent, ties by patch index: the test's points are
-        // stratified in this order, and a split cuts it at the median
-        let patches = self.mesh.patches();
-        let (lo, hi) = members.iter().fold(
-            (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
-            |(lo, hi), &i| {
-                let c = patches[i as usize].centroid.as_dvec3();
-                (lo.min(c), hi.max(c))
-            },
-        );
-        let axis = (hi - lo).max_position();
-        members.sort_by(|&x, &y| {
-            let (cx, cy) = (
-                patches[x as usize].centroid[axis],
-                patches[y as usize].centroid[axis],
-            );
-            cx.total_cmp(&cy).then(x.cmp(&y))
-        });
+        // along the centroids' longest extent: the test's points are stratified in this
+        // order, and a split cuts it at the median
+        Clusters::sort_along_extent(self.mesh, members);
         if path >= 1 << 62 || !self.shadowed(members, g, path) {
             out.push(members.to_vec());
             return 0;
@@ -173,9 +166,9 @@ impl<C: RayCaster> Probe<'_, C> {
             }
         };
         let rays = self.split.rays;
-        for r in 0..rays {
+        for point in 0..rays {
             // stratified along the members' order
-            let u = (f64::from(r) + rng.uniform_f64()) / f64::from(rays) * area;
+            let u = (f64::from(point) + rng.uniform_f64()) / f64::from(rays) * area;
             let k = cumulative
                 .partition_point(|&c| c <= u)
                 .min(members.len() - 1);
@@ -209,6 +202,18 @@ impl<C: RayCaster> Probe<'_, C> {
                     let occluded = self.caster.occluded(&from, &SurfacePoint::free(target));
                     shade(luminance(e), occluded);
                 }
+            }
+            if let Some(sky) = self.sky {
+                // a cosine direction: its irradiance estimate pi L(w) where it leaves the scene
+                let n = p.normal.as_dvec3();
+                let (t, b) = n.any_orthonormal_pair();
+                let r = rng.uniform_f64().sqrt();
+                let phi = std::f64::consts::TAU * rng.uniform_f64();
+                let z = (1.0 - r * r).max(0.0).sqrt();
+                let w = (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize();
+                let target = (x.as_dvec3() + w * self.far).as_vec3();
+                let occluded = self.caster.occluded(&from, &SurfacePoint::free(target));
+                shade(std::f64::consts::PI * luminance(sky.radiance(w)), occluded);
             }
         }
         if seen == 0 || blocked == 0 || all <= 0.0 {

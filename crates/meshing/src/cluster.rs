@@ -172,6 +172,27 @@ impl Clusters {
         Clusters::from_lists(lists.iter().map(Vec::as_slice))
     }
 
+    /// Sorts `members` (patch indices of `mesh`) along their centroids' longest extent, ties
+    /// by patch index: the order in which a cluster is cut in two at its median.
+    pub fn sort_along_extent(mesh: &Mesh, members: &mut [u32]) {
+        let patches = mesh.patches();
+        let (lo, hi) = members.iter().fold(
+            (glam::DVec3::splat(f64::MAX), glam::DVec3::splat(f64::MIN)),
+            |(lo, hi), &i| {
+                let c = patches[i as usize].centroid.as_dvec3();
+                (lo.min(c), hi.max(c))
+            },
+        );
+        let axis = (hi - lo).max_position();
+        members.sort_by(|&x, &y| {
+            let (cx, cy) = (
+                patches[x as usize].centroid[axis],
+                patches[y as usize].centroid[axis],
+            );
+            cx.total_cmp(&cy).then(x.cmp(&y))
+        });
+    }
+
     /// The number of clusters.
     pub fn len(&self) -> usize {
         self.offsets.len().saturating_sub(1)

@@ -108,22 +108,8 @@ fn settle(
     }
     let pooled = DVec3::select(weight.cmpgt(DVec3::ZERO), power / weight, DVec3::ZERO);
     if test && varies(mesh, members, b, v, pooled) {
-        // cut at the median along the centroids' longest extent, ties by patch index
-        let (lo, hi) = members.iter().fold(
-            (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
-            |(lo, hi), &i| {
-                let c = patches[i as usize].centroid.as_dvec3();
-                (lo.min(c), hi.max(c))
-            },
-        );
-        let axis = (hi - lo).max_position();
-        members.sort_by(|&x, &y| {
-            let (cx, cy) = (
-                patches[x as usize].centroid[axis],
-                patches[y as usize].centroid[axis],
-            );
-            cx.total_cmp(&cy).then(x.cmp(&y))
-        });
+        // cut at the median along the centroids' longest extent
+        Clusters::sort_along_extent(mesh, members);
         counts.splits += 1;
         let (left, right) = members.split_at_mut(members.len() / 2);
         settle(mesh, left, b, v, groups, counts, test);

@@ -408,7 +408,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let transport = match (refinement.as_mut(), problem.clustering) {
         (Some(r), Clustering::Transport) if !clusters.is_empty() && problem.resume.is_none() => {
             let seed = derive_seed(settings.seed, SHADOW_SPLIT_STREAM);
-            transport_groups(&mesh, &bvh, &clusters, r, &config.lights, seed)?
+            let sky = config.sky.as_ref();
+            transport_groups(&mesh, &bvh, &clusters, r, (&config.lights, sky), seed)?
         }
         _ => None,
     };
@@ -675,8 +676,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
 
 /// The coarser mesh on which the method runs with clusters as elements of transport (see
 /// [`solve`]): the `clusters` of `mesh` tested against the refinement's estimate
-/// ([`pool_clusters`]) and split where a light's shadow crosses them ([`split_shadowed`], shadow
-/// rays through `bvh` from the streams of `seed`), its groups as [`Clusters`] and what forming
+/// ([`pool_clusters`]) and split where the shadow of a light or of the sky crosses them
+/// ([`split_shadowed`], shadow rays through `bvh` from the streams of `seed`), its groups as [`Clusters`] and what forming
 /// them did; `None` when no group is left. The refinement's estimate is pooled over the same
 /// groups (its faces' estimates are independent, the transport's one per group).
 fn transport_groups(
@@ -684,7 +685,7 @@ fn transport_groups(
     bvh: &Bvh,
     clusters: &Clusters,
     refined: &mut Refined,
-    lights: &[mcrad_scene_io::Light],
+    (lights, sky): (&[mcrad_scene_io::Light], Option<&mcrad_scene_io::Sky>),
     seed: u64,
 ) -> Result<Option<(ClusteredMesh, Clusters, PoolCounts)>, Error> {
     let (_, tested, mut groups) = pool_clusters(mesh, clusters, &refined.pooled, true)?;
@@ -692,6 +693,7 @@ fn transport_groups(
         mesh,
         bvh,
         lights,
+        sky,
         refined.pooled.radiosity(),
         &mut groups,
         ShadowSplit {
