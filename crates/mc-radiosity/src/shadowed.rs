@@ -3,14 +3,14 @@
 //! not straddle.
 //!
 //! A group is tested as an element of the refinement is (the visibility mark of
-//! [`refine`](crate::refine)): `rays` points of the group (a member drawn by area, stratified
-//! along the members' centroids' longest extent so that a shadow over more than `1 / rays` of
-//! the group is seen; a uniform point on it, its own normal), from each a shadow ray to a point
-//! of the emitters drawn by power, one to each light without a surface (point, spot, sun) and
-//! one cosine-distributed ray towards the sky where there is one. The group's direct light that
-//! varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct irradiance estimate, `f` its
-//! visible share, `rho` the members' area-weighted mean reflectance), is compared with
-//! `tolerance` of its luminance (from `radiosity`, the area-weighted mean of its members'). A
+//! [`refine`](crate::refine)): `rays` points of the group, at most 4 a member (a member drawn
+//! by area, stratified along the members' centroids' longest extent so that a shadow over more
+//! than `1 / rays` of the group is seen; a uniform point on it, its own normal), from each a
+//! shadow ray to a point of the emitters drawn by power, one to each light without a surface
+//! (point, spot, sun) and one cosine-distributed ray towards the sky where there is one. The
+//! group's direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
+//! irradiance estimate, `f` its visible share, `rho` the members' area-weighted mean
+//! reflectance), is compared with `tolerance` of its luminance (from `radiosity`, the area-weighted mean of its members'). A
 //! group over it is cut in two at the median of its members' centroids along their longest
 //! extent, and each half is tested again, down to single patches. A group that sees part of
 //! the sky from everywhere is split too (the test does not tell a change across the group from
@@ -33,7 +33,7 @@ const SPLIT_TAG: u64 = 0xada5_0000;
 /// Settings of [`split_shadowed`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ShadowSplit {
-    /// Shadow rays per test of a group (`>= 1`).
+    /// Points per test of a group (`>= 1`; at most 4 a member), each with its shadow rays.
     pub rays: u32,
     /// The share of a group's luminance that its varying direct light must exceed to split it
     /// (`>= 0`; the refinement's 2%).
@@ -165,7 +165,12 @@ impl<C: RayCaster> Probe<'_, C> {
                 seen += 1;
             }
         };
-        let rays = self.split.rays;
+        // at most 4 points a member: stratified, they cover every member of a small group
+        let rays = self
+            .split
+            .rays
+            .min(u32::try_from(4 * members.len()).unwrap_or(u32::MAX))
+            .max(1);
         for point in 0..rays {
             // stratified along the members' order
             let u = (f64::from(point) + rng.uniform_f64()) / f64::from(rays) * area;
