@@ -10,10 +10,10 @@
 //! (point, spot, sun) and one cosine-distributed ray towards the sky where there is one. The
 //! group's direct light that varies, `rho D min(f, 1 - f)` (`D` the unoccluded direct
 //! irradiance estimate, `f` its visible share, `rho` the members' area-weighted mean
-//! reflectance), is compared with `tolerance` of its luminance (from `radiosity`, the area-weighted mean of its members'). A
-//! group over it is cut in two at the median of its members' centroids along their longest
-//! extent, and each half is tested again, down to single patches. A group that sees part of
-//! the sky from everywhere is split too (the test does not tell a change across the group from
+//! reflectance), is compared with `tolerance` of its luminance (from `radiosity`, the
+//! area-weighted mean of its members'). A group over it is cut in two at the median of its
+//! members' centroids along their longest extent, and each half is tested again, down to
+//! single patches. A group that sees part of the sky from everywhere is split too (the test does not tell a change across the group from
 //! an even partial view): measured on the sun- and sky-lit atrium, testing the sky's change
 //! between the group's halves instead kept a third fewer elements but raised the image error
 //! (docs/meshing.md).
