@@ -13,10 +13,10 @@
 //! reflectance), is compared with `tolerance` of its luminance (from `radiosity`, the
 //! area-weighted mean of its members'). A group over it is cut in two at the median of its
 //! members' centroids along their longest extent, and each half is tested again, down to
-//! single patches. A group that sees part of the sky from everywhere is split too (the test does not tell a change across the group from
-//! an even partial view): measured on the sun- and sky-lit atrium, testing the sky's change
-//! between the group's halves instead kept a third fewer elements but raised the image error
-//! (docs/meshing.md).
+//! single patches. A group that sees part of the sky from everywhere is split too (the test
+//! does not tell a change across the group from an even partial view): measured on the sun-
+//! and sky-lit atrium, testing the sky's change between the group's halves instead kept a
+//! third fewer elements but raised the image error (docs/meshing.md).
 
 use glam::DVec3;
 use mcrad_meshing::{Clusters, Mesh, UNGROUPED};
