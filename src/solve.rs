@@ -193,8 +193,13 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
+        // clusters as elements of transport: how many the method ran on
+        let transport = match answer.stats.clusters.and_then(|c| c.transport_elements) {
+            Some(n) => format!("; the method ran on {n} elements, small faces in clusters"),
+            None => String::new(),
+        };
         println!(
-            "adaptive mesh: {} elements after {} refinement rounds ({} rays, counted above)",
+            "adaptive mesh: {} elements after {} refinement rounds ({} rays, counted above){transport}",
             answer.stats.patches,
             rounds.iter().filter(|r| r.split > 0).count(),
             rounds.iter().map(|r| r.rays).sum::<u64>()
