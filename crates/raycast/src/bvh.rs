@@ -1018,6 +1018,18 @@ mod tests {
         }
     }
 
+    /// A uniform point of a triangle of `tris` drawn with `next`'s uniforms (the triangle, then
+    /// the point), with the triangle's index and its unnormalised normal `(b - a) x (c - a)`.
+    fn on_some_triangle(tris: &[[Vec3; 3]], next: &mut impl FnMut() -> f32) -> (usize, Vec3, Vec3) {
+        let i = (next() * tris.len() as f32) as usize % tris.len();
+        let [a, b, c] = tris[i];
+        let (mut u, mut v) = (next(), next());
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        (i, a + (b - a) * u + (c - a) * v, (b - a).cross(c - a))
+    }
+
     /// A soup of `n` triangles: clusters of small ones (many sharing a Morton cell, so some
     /// cuts fall in the middle of equal codes) and a few large ones across the scene.
     fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
@@ -1092,15 +1104,10 @@ mod tests {
                 let ray = if k.is_multiple_of(2) {
                     Ray::new(Vec3::new(next(), next(), next()) * 10.0, dir)
                 } else {
-                    let i = (next() * n as f32) as usize % n;
-                    let [a, b, c] = tris[i];
-                    let normal = (b - a).cross(c - a).normalize_or(Vec3::Y);
-                    let (mut u, mut v) = (next(), next());
-                    if u + v > 1.0 {
-                        (u, v) = (1.0 - u, 1.0 - v);
-                    }
+                    let (i, x, normal) = on_some_triangle(&tris, &mut next);
+                    let normal = normal.normalize_or(Vec3::Y);
                     let dir = if dir.dot(normal) < 0.0 { -dir } else { dir };
-                    Ray::from_surface(a + (b - a) * u + (c - a) * v, normal, dir, ids[i])
+                    Ray::from_surface(x, normal, dir, ids[i])
                 };
                 let hit = bvh.closest_hit(&ray);
                 assert_eq!(hit, whole.closest_hit(&ray), "{what}: {ray:?}");
@@ -1128,14 +1135,8 @@ mod tests {
                     if m.is_multiple_of(3) {
                         return SurfacePoint::free(Vec3::new(next(), next(), next()) * 10.0);
                     }
-                    let i = (next() * n as f32) as usize % n;
-                    let [a, b, c] = tris[i];
-                    let (mut u, mut v) = (next(), next());
-                    if u + v > 1.0 {
-                        (u, v) = (1.0 - u, 1.0 - v);
-                    }
-                    let normal = (b - a).cross(c - a).normalize_or_zero();
-                    SurfacePoint::new(a + (b - a) * u + (c - a) * v, normal, ids[i])
+                    let (i, x, normal) = on_some_triangle(&tris, &mut next);
+                    SurfacePoint::new(x, normal.normalize_or_zero(), ids[i])
                 };
                 let (a, b) = (point(k), point(k + 1));
                 let occluded = bvh.occluded(&a, &b);
@@ -1285,14 +1286,8 @@ mod tests {
                 if k.is_multiple_of(5) {
                     return SurfacePoint::free(Vec3::new(next(), next(), next()) * 4.0);
                 }
-                let i = (next() * n as f32) as usize % n;
-                let [a, b, c] = tris[i];
-                let (mut u, mut v) = (next(), next());
-                if u + v > 1.0 {
-                    (u, v) = (1.0 - u, 1.0 - v);
-                }
-                let normal = (b - a).cross(c - a).normalize_or_zero();
-                SurfacePoint::new(a + (b - a) * u + (c - a) * v, normal, i as u32)
+                let (i, x, normal) = on_some_triangle(&tris, &mut next);
+                SurfacePoint::new(x, normal.normalize_or_zero(), i as u32)
             };
             let (mut blocked, mut differ) = (0, 0);
             for k in 0..4000 {
