@@ -58,16 +58,7 @@ pub fn split_shadowed<C: RayCaster>(
     group: &mut [u32],
     split: ShadowSplit,
 ) -> usize {
-    let groups = group
-        .iter()
-        .filter(|&&g| g != UNGROUPED)
-        .map(|&g| g as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let mut members: Vec<Vec<u32>> = vec![Vec::new(); groups];
-    for (i, &g) in group.iter().enumerate().filter(|(_, g)| **g != UNGROUPED) {
-        members[g as usize].push(i as u32);
-    }
+    let groups = Clusters::from_groups(group, |_| true);
     let probe = Probe {
         mesh,
         caster,
@@ -81,12 +72,14 @@ pub fn split_shadowed<C: RayCaster>(
         radiosity,
         split,
     };
-    let leaves: Vec<(Vec<Vec<u32>>, usize)> = members
+    let leaves: Vec<(Vec<Vec<u32>>, usize)> = (0..groups.len())
         .into_par_iter()
-        .enumerate()
-        .map(|(g, mut m)| {
+        .map(|k| {
+            let mut m = groups.get(k).to_vec();
+            // the streams keyed by the group's own number
+            let g = u64::from(group[m[0] as usize]);
             let mut out = Vec::new();
-            let splits = probe.settle(&mut m, g as u64, 1, &mut out);
+            let splits = probe.settle(&mut m, g, 1, &mut out);
             (out, splits)
         })
         .collect();

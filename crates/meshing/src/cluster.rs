@@ -162,6 +162,33 @@ impl Clusters {
         clusters
     }
 
+    /// The groups of `group` (per patch its group number, or [`crate::UNGROUPED`]) as
+    /// clusters, in the order of their numbers, each's members in patch order; only the
+    /// patches `keep` accepts count, and a group left with fewer than two forms none. Linear in
+    /// the patches and the largest group number.
+    pub fn from_groups(group: &[u32], keep: impl Fn(usize) -> bool) -> Clusters {
+        let kept = || (0..group.len()).filter(|&i| group[i] != crate::UNGROUPED && keep(i));
+        let groups = kept().map(|i| group[i] as usize + 1).max().unwrap_or(0);
+        // a counting sort by group number
+        let mut start = vec![0u32; groups + 1];
+        for i in kept() {
+            start[group[i] as usize + 1] += 1;
+        }
+        for g in 0..groups {
+            start[g + 1] += start[g];
+        }
+        let mut fill = start.clone();
+        let mut members = vec![0u32; start[groups] as usize];
+        for i in kept() {
+            let g = group[i] as usize;
+            members[fill[g] as usize] = i as u32;
+            fill[g] += 1;
+        }
+        Clusters::from_lists(
+            (0..groups).map(|g| &members[start[g] as usize..start[g + 1] as usize]),
+        )
+    }
+
     /// These clusters without the patches for which `drop` is true (a cluster left with fewer
     /// than two patches goes).
     pub fn without(&self, drop: impl Fn(u32) -> bool) -> Clusters {

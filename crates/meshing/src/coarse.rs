@@ -56,46 +56,17 @@ impl Mesh {
                 && p.emission == Vec3::ZERO
                 && !alpha.as_ref().is_some_and(|a| a[p.face as usize])
         };
-        // members per group, in mesh order (a counting sort)
-        let groups = (0..patches.len())
-            .filter(|&i| joins(i))
-            .map(|i| group[i] as usize + 1)
-            .max()
-            .unwrap_or(0);
-        let mut count = vec![0u32; groups + 1];
-        for i in (0..patches.len()).filter(|&i| joins(i)) {
-            count[group[i] as usize + 1] += 1;
-        }
-        for g in 0..groups {
-            count[g + 1] += count[g];
-        }
-        let mut fill = count.clone();
-        let mut members = vec![0u32; count[groups] as usize];
-        for i in (0..patches.len()).filter(|&i| joins(i)) {
-            let g = group[i] as usize;
-            members[fill[g] as usize] = i as u32;
-            fill[g] += 1;
-        }
-        drop(fill);
-        // each group's runs of at most MAX_CLUSTER_MEMBERS, keyed by their first member
+        // each group's runs of at most MAX_CLUSTER_MEMBERS (members in mesh order)
+        let groups = crate::Clusters::from_groups(group, joins);
+        let runs: Vec<&[u32]> = groups
+            .iter()
+            .flat_map(|c| c.chunks(MAX_CLUSTER_MEMBERS))
+            .filter(|r| r.len() >= 2)
+            .collect();
         let mut run_of = vec![u32::MAX; patches.len()];
-        let mut runs: Vec<(u32, u32)> = Vec::new(); // (start, end) in `members`
-        for g in 0..groups {
-            let (s, e) = (count[g] as usize, count[g + 1] as usize);
-            let mut a = s;
-            while a < e {
-                let b = (a + MAX_CLUSTER_MEMBERS).min(e);
-                if b - a >= 2 {
-                    run_of[members[a] as usize] = runs.len() as u32;
-                    runs.push((a as u32, b as u32));
-                }
-                a = b;
-            }
-        }
-        let mut in_run = vec![false; patches.len()];
-        for &(s, e) in &runs {
-            for &i in &members[s as usize..e as usize] {
-                in_run[i as usize] = true;
+        for (k, r) in runs.iter().enumerate() {
+            for &i in *r {
+                run_of[i as usize] = k as u32;
             }
         }
         let (mut corners, mut triangles, mut triangle_patch) = (Vec::new(), Vec::new(), Vec::new());
@@ -103,7 +74,7 @@ impl Mesh {
         let mut element = vec![0u32; patches.len()];
         for (i, p) in patches.iter().enumerate() {
             let run = run_of[i];
-            if in_run[i] && run == u32::MAX {
+            if run != u32::MAX && runs[run as usize][0] != i as u32 {
                 continue; // a later member of a run: made with its first
             }
             let id = elements.len() as u32;
@@ -113,8 +84,7 @@ impl Mesh {
             let part: &[u32] = if run == u32::MAX {
                 &alone
             } else {
-                let (s, e) = runs[run as usize];
-                &members[s as usize..e as usize]
+                runs[run as usize]
             };
             for &m in part {
                 let q = &patches[m as usize];
