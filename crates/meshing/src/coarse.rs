@@ -213,13 +213,9 @@ impl ClusteredMesh {
     /// cluster in element order.
     pub fn clusters(&self) -> crate::Clusters {
         let elements = self.mesh.patches();
-        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); elements.len()];
-        for (i, &e) in self.element.iter().enumerate() {
-            if elements[e as usize].is_cluster() {
-                lists[e as usize].push(i as u32);
-            }
-        }
-        crate::Clusters::from_lists(lists.iter().map(Vec::as_slice))
+        crate::Clusters::from_groups(&self.element, |i| {
+            elements[self.element[i] as usize].is_cluster()
+        })
     }
 
     /// Per-element irradiances `coarse` (W/m² per channel, shared by an element's members, such
