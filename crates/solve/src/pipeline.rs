@@ -313,8 +313,16 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             let refine_seconds = budget
                 .seconds
                 .map(|t| refine_share(t, clock.elapsed().as_secs_f64()));
-            let (mesh, refined, history) =
-                adaptive_refine(start, settings, refine_seconds, &config, &mut warnings)?;
+            // with clusters as elements of transport, the pilot runs on them too
+            let pilot =
+                (problem.clustering == Clustering::Transport).then(|| cluster_bounds(diagonal));
+            let (mesh, refined, history) = adaptive_refine(
+                start,
+                settings,
+                (refine_seconds, pilot),
+                &config,
+                &mut warnings,
+            )?;
             if config.rays != u64::MAX {
                 // The method gets what the refinement left, and at least half the budget.
                 config.rays = config
@@ -392,13 +400,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let clustering = Instant::now();
     let clusters = match (problem.input, settings.mesh) {
         (Input::Scene(_) | Input::SceneOnce(_), MeshPlan::Adaptive { .. }) if !deterministic => {
-            Clusters::build(
-                &mesh,
-                ClusterBounds {
-                    max_size: diagonal as f32 * DEFAULT_COARSE_EDGE_FRACTION,
-                    cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
-                },
-            )
+            Clusters::build(&mesh, cluster_bounds(diagonal))
         }
         _ => Clusters::default(),
     };
@@ -944,13 +946,23 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
     AdaptiveMesh::new(scene, start, bounds).map_err(mesh_error(start))
 }
 
+/// The bounds of the clusters of small faces of a scene whose bounding box's diagonal is
+/// `diagonal` (scene units).
+fn cluster_bounds(diagonal: f64) -> ClusterBounds {
+    ClusterBounds {
+        max_size: diagonal as f32 * DEFAULT_COARSE_EDGE_FRACTION,
+        cone_degrees: DEFAULT_CLUSTER_CONE_DEGREES,
+    }
+}
+
 /// The adaptive mesh `mesh` ([`adaptive_start`]) refined with a quarter of the ray budget and
 /// `seconds` of the time ([`refine_share`]; `config`: the run's schedule, with the scene's
-/// lights and sky), as a mesh, the refinement and its history.
+/// lights and sky; `pilot`: [`AdaptiveConfig::pilot_clusters`]), as a mesh, the refinement and
+/// its history.
 fn adaptive_refine(
     mut mesh: AdaptiveMesh,
     settings: &Settings,
-    seconds: Option<f64>,
+    (seconds, pilot): (Option<f64>, Option<ClusterBounds>),
     config: &ScheduleConfig,
     warnings: &mut Vec<String>,
 ) -> Result<(Mesh, Refined, History), Error> {
@@ -965,6 +977,7 @@ fn adaptive_refine(
         seed: settings.seed,
         lights: config.lights.clone(),
         sky: config.sky.clone(),
+        pilot_clusters: pilot,
         ..Default::default()
     };
     let mut refined = refine(&mut mesh, &config)?;
