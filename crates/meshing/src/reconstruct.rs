@@ -15,6 +15,7 @@
 use crate::build::Mesh;
 use crate::smooth::{PointKey, point_key, same_surface};
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 
 /// Least-squares gradients closer to singular than this (the smaller eigenvalue of the
 /// normal matrix relative to its trace, roughly) are not trusted: the neighbours lie on a line.
@@ -51,105 +52,137 @@ pub(crate) fn limited_gradients(
     min_cosine: f64,
 ) -> Vec<[DVec3; 3]> {
     let patches = mesh.patches();
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
-    // there make a full turn).
-    let mut closed: Vec<bool> = Vec::with_capacity(incidences.len());
-    for group in incidences.chunk_by(|a, b| a.0 == b.0) {
-        let point = Vec3::from_array(group[0].0.map(f32::from_bits));
-        let angles: Vec<f64> = group
-            .iter()
-            .map(|&(_, q)| angle_at(mesh, q as usize, point))
-            .collect();
-        for &(_, p) in group {
-            let own = &patches[p as usize];
-            let mut turn = 0.0;
-            for (&(_, q), angle) in group.iter().zip(&angles) {
-                if q == p || same_surface(own, &patches[q as usize], min_cosine) {
-                    turn += angle;
-                    if q != p {
-                        pairs.push((p, q));
+    // there make a full turn); and the pairs of patches of one surface that meet at a point.
+    let per_point: Vec<PointParts> = incidences
+        .par_chunk_by(|a, b| a.0 == b.0)
+        .map(|group| {
+            let point = Vec3::from_array(group[0].0.map(f32::from_bits));
+            let angles: Vec<f64> = group
+                .iter()
+                .map(|&(_, q)| angle_at(mesh, q as usize, point))
+                .collect();
+            let (mut closed, mut pairs) = (Vec::with_capacity(group.len()), Vec::new());
+            for &(_, p) in group {
+                let own = &patches[p as usize];
+                let mut turn = 0.0;
+                for (&(_, q), angle) in group.iter().zip(&angles) {
+                    if q == p || same_surface(own, &patches[q as usize], min_cosine) {
+                        turn += angle;
+                        if q != p {
+                            pairs.push((p, q));
+                        }
                     }
                 }
+                closed.push(turn > std::f64::consts::TAU * CLOSED_TURN);
             }
-            closed.push(turn > std::f64::consts::TAU * CLOSED_TURN);
-        }
-    }
-    pairs.sort_unstable();
+            (closed, pairs)
+        })
+        .collect();
+    let closed: Vec<bool> = per_point
+        .iter()
+        .flat_map(|(c, _)| c.iter().copied())
+        .collect();
+    let mut pairs: Vec<(u32, u32)> = per_point.into_iter().flat_map(|(_, p)| p).collect();
+    pairs.par_sort_unstable();
     pairs.dedup();
     let mut gradients = vec![[DVec3::ZERO; 3]; patches.len()];
+    let fitted: Vec<(usize, [DVec3; 3])> = pairs
+        .par_chunk_by(|a, b| a.0 == b.0)
+        .filter_map(|run| {
+            let p = run[0].0 as usize;
+            fit(mesh, values, incidences, &closed, p, run).map(|g| (p, g))
+        })
+        .collect();
+    for (p, g) in fitted {
+        gradients[p] = g;
+    }
+    gradients
+}
+
+/// What [`limited_gradients`] learns at one point: per incidence there, whether its patch's
+/// surface closes round the point; and the pairs `(p, q)` of patches of one surface that meet
+/// there.
+type PointParts = (Vec<bool>, Vec<(u32, u32)>);
+
+/// Patch `p`'s limited gradient (see [`limited_gradients`]) from its neighbours `run` (pairs
+/// `(p, q)`), or `None` where the fit is singular.
+fn fit(
+    mesh: &Mesh,
+    values: &[DVec3],
+    incidences: &[(PointKey, u32)],
+    closed: &[bool],
+    p: usize,
+    run: &[(u32, u32)],
+) -> Option<[DVec3; 3]> {
+    let patches = mesh.patches();
+    let own = &patches[p];
+    let (t1, t2) = own.normal.as_dvec3().any_orthonormal_pair();
+    let centre = own.centroid.as_dvec3();
+    let in_plane = |x: DVec3| {
+        let d = x - centre;
+        (d.dot(t1), d.dot(t2))
+    };
     // Per neighbour: its centroid in the patch's plane, its weight and its value's difference.
-    let mut around: Vec<(f64, f64, f64, DVec3)> = Vec::new();
-    for run in pairs.chunk_by(|a, b| a.0 == b.0) {
-        let p = run[0].0 as usize;
-        let own = &patches[p];
-        let (t1, t2) = own.normal.as_dvec3().any_orthonormal_pair();
-        let centre = own.centroid.as_dvec3();
-        let in_plane = |x: DVec3| {
-            let d = x - centre;
-            (d.dot(t1), d.dot(t2))
-        };
-        around.clear();
-        around.extend(run.iter().map(|&(_, q)| {
+    let around: Vec<(f64, f64, f64, DVec3)> = run
+        .iter()
+        .map(|&(_, q)| {
             let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
             let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
             (x, y, w, values[q as usize] - values[p])
-        }));
-        // The weighted normal equations [sxx sxy; sxy syy] g = [rx; ry], per channel.
-        let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-        let (mut rx, mut ry) = (DVec3::ZERO, DVec3::ZERO);
-        let (mut lo, mut hi) = (values[p], values[p]);
-        for (&(x, y, w, dv), &(_, q)) in around.iter().zip(run) {
-            sxx += w * x * x;
-            sxy += w * x * y;
-            syy += w * y * y;
-            rx += w * x * dv;
-            ry += w * y * dv;
-            lo = lo.min(values[q as usize]);
-            hi = hi.max(values[q as usize]);
-        }
-        let det = sxx * syy - sxy * sxy;
-        // NaN (a non-finite value) counts as singular too.
-        let trusted = det > SINGULAR * (sxx + syy) * (sxx + syy);
-        if !trusted {
-            continue;
-        }
-        let (gx, gy) = ((rx * syy - ry * sxy) / det, (ry * sxx - rx * sxy) / det);
-        // How much of the neighbours' differences the plane leaves unexplained, per channel.
-        let (mut unexplained, mut total) = (DVec3::ZERO, DVec3::ZERO);
-        for &(x, y, w, dv) in &around {
-            let miss = dv - (gx * x + gy * y);
-            unexplained += w * miss * miss;
-            total += w * dv * dv;
-        }
-        let smooth = unexplained.cmple(total * SMOOTH_RESIDUAL);
-        let mut phi = DVec3::ONE;
-        for &v in mesh.corners(own) {
-            let point = mesh.positions()[v as usize];
-            let i = incidences
-                .binary_search(&(point_key(point), p as u32))
-                .expect("a patch's corner is one of its incidences");
-            let (x, y) = in_plane(point.as_dvec3());
-            let step = gx * x + gy * y;
-            for k in 0..3 {
-                if !closed[i] && smooth.test(k) {
-                    continue;
-                }
-                let room = if step[k] > 0.0 {
-                    hi[k] - values[p][k]
-                } else {
-                    lo[k] - values[p][k]
-                };
-                if step[k] != 0.0 {
-                    phi[k] = phi[k].min((room / step[k]).clamp(0.0, 1.0));
-                }
+        })
+        .collect();
+    // The weighted normal equations [sxx sxy; sxy syy] g = [rx; ry], per channel.
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    let (mut rx, mut ry) = (DVec3::ZERO, DVec3::ZERO);
+    let (mut lo, mut hi) = (values[p], values[p]);
+    for (&(x, y, w, dv), &(_, q)) in around.iter().zip(run) {
+        sxx += w * x * x;
+        sxy += w * x * y;
+        syy += w * y * y;
+        rx += w * x * dv;
+        ry += w * y * dv;
+        lo = lo.min(values[q as usize]);
+        hi = hi.max(values[q as usize]);
+    }
+    let det = sxx * syy - sxy * sxy;
+    // NaN (a non-finite value) counts as singular too.
+    let trusted = det > SINGULAR * (sxx + syy) * (sxx + syy);
+    if !trusted {
+        return None;
+    }
+    let (gx, gy) = ((rx * syy - ry * sxy) / det, (ry * sxx - rx * sxy) / det);
+    // How much of the neighbours' differences the plane leaves unexplained, per channel.
+    let (mut unexplained, mut total) = (DVec3::ZERO, DVec3::ZERO);
+    for &(x, y, w, dv) in &around {
+        let miss = dv - (gx * x + gy * y);
+        unexplained += w * miss * miss;
+        total += w * dv * dv;
+    }
+    let smooth = unexplained.cmple(total * SMOOTH_RESIDUAL);
+    let mut phi = DVec3::ONE;
+    for &v in mesh.corners(own) {
+        let point = mesh.positions()[v as usize];
+        let i = incidences
+            .binary_search(&(point_key(point), p as u32))
+            .expect("a patch's corner is one of its incidences");
+        let (x, y) = in_plane(point.as_dvec3());
+        let step = gx * x + gy * y;
+        for k in 0..3 {
+            if !closed[i] && smooth.test(k) {
+                continue;
+            }
+            let room = if step[k] > 0.0 {
+                hi[k] - values[p][k]
+            } else {
+                lo[k] - values[p][k]
+            };
+            if step[k] != 0.0 {
+                phi[k] = phi[k].min((room / step[k]).clamp(0.0, 1.0));
             }
         }
-        for k in 0..3 {
-            gradients[p][k] = (t1 * gx[k] + t2 * gy[k]) * phi[k];
-        }
     }
-    gradients
+    Some(std::array::from_fn(|k| (t1 * gx[k] + t2 * gy[k]) * phi[k]))
 }
 
 /// The interior angle (radians) of patch `q` at its corner `point` (0 if it has none there).

@@ -11,6 +11,7 @@ use crate::adaptive::midpoint;
 use crate::build::{Mesh, Patch};
 use crate::reconstruct::{extrapolate, limited_gradients};
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 /// The default crease angle (degrees): neighbours whose normals differ from a corner's patch
@@ -112,53 +113,58 @@ impl Mesh {
         // For display, each patch's limited linear extrapolation (module `reconstruct`).
         let gradients =
             seamless.then(|| limited_gradients(self, patch_values, &incidences, min_cosine));
+        let gradients = gradients.as_deref();
         // The smoothed value of each incidence: its patch's surface around the point.
-        let mut smoothed = Vec::with_capacity(incidences.len());
-        for group in incidences.chunk_by(|a, b| a.0 == b.0) {
-            let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
-            let at = |q: u32| match &gradients {
-                Some(g) => extrapolate(
-                    patch_values[q as usize],
-                    &g[q as usize],
-                    point - patches[q as usize].centroid.as_dvec3(),
-                ),
-                None => patch_values[q as usize],
-            };
-            for &(_, p) in group {
-                let own = &patches[p as usize];
-                // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written so
-                // that a lone patch or a constant solution comes out exactly.
-                let own_value = at(p);
-                let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
-                let mut lowest = patch_values[p as usize];
-                for &(_, q) in group {
-                    let other = &patches[q as usize];
-                    if q == p || same_surface(own, other, min_cosine) {
-                        weighted += other.area * (at(q) - own_value);
-                        area += other.area;
-                        lowest = lowest.min(patch_values[q as usize]);
+        let mut smoothed: Vec<DVec3> = incidences
+            .par_chunk_by(|a, b| a.0 == b.0)
+            .flat_map_iter(|group| {
+                let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
+                let at = move |q: u32| match gradients {
+                    Some(g) => extrapolate(
+                        patch_values[q as usize],
+                        &g[q as usize],
+                        point - patches[q as usize].centroid.as_dvec3(),
+                    ),
+                    None => patch_values[q as usize],
+                };
+                group.iter().map(move |&(_, p)| {
+                    let own = &patches[p as usize];
+                    // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written
+                    // so that a lone patch or a constant solution comes out exactly.
+                    let own_value = at(p);
+                    let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
+                    let mut lowest = patch_values[p as usize];
+                    for &(_, q) in group {
+                        let other = &patches[q as usize];
+                        if q == p || same_surface(own, other, min_cosine) {
+                            weighted += other.area * (at(q) - own_value);
+                            area += other.area;
+                            lowest = lowest.min(patch_values[q as usize]);
+                        }
                     }
-                }
-                // An extrapolation at a border never goes below zero (nor below the lowest
-                // value there, for signed quantities).
-                smoothed.push((own_value + weighted / area).max(lowest.min(DVec3::ZERO)));
-            }
-        }
+                    // An extrapolation at a border never goes below zero (nor below the lowest
+                    // value there, for signed quantities).
+                    (own_value + weighted / area).max(lowest.min(DVec3::ZERO))
+                })
+            })
+            .collect();
         if seamless {
             self.tie_t_vertices(&incidences, &mut smoothed, min_cosine);
         }
 
-        let mut out = Vec::with_capacity(self.corner_count());
-        for (p, patch) in patches.iter().enumerate() {
-            for &v in self.corners(patch) {
-                let key = (point_key(self.positions()[v as usize]), p as u32);
-                let i = incidences
-                    .binary_search(&key)
-                    .expect("every corner was recorded as an incidence");
-                out.push(smoothed[i]);
-            }
-        }
-        out
+        (0..patches.len())
+            .into_par_iter()
+            .flat_map_iter(|p| {
+                let (incidences, smoothed) = (&incidences, &smoothed);
+                self.corners(&patches[p]).iter().map(move |&v| {
+                    let key = (point_key(self.positions()[v as usize]), p as u32);
+                    let i = incidences
+                        .binary_search(&key)
+                        .expect("every corner was recorded as an incidence");
+                    smoothed[i]
+                })
+            })
+            .collect()
     }
 
     /// Ties the values at T-vertices to the edges they lie on (see
@@ -229,7 +235,8 @@ impl Mesh {
                 incidences.push((point_key(self.positions()[v as usize]), p as u32));
             }
         }
-        incidences.sort_unstable();
+        // equal entries are equal: the order is the same on any thread count
+        incidences.par_sort_unstable();
         incidences.dedup();
         incidences
     }
