@@ -184,7 +184,7 @@ impl Refined {
 /// mesh. Deterministic for a seed on any thread count.
 ///
 /// [`refine`] solves a pilot on the starting mesh (shooting; on its clusters of small faces when
-/// the pilot's rays are fewer than [`PILOT_RAYS_PER_LEAF`] a leaf and
+/// the pilot's rays are fewer than 8 a leaf and
 /// [`AdaptiveConfig::pilot_clusters`] asks for them) and then, for a few rounds, marks
 /// the elements whose solution is not resolved, splits them ([`AdaptiveMesh::refine`]), lets
 /// the children start from their parent's estimate and re-estimates them by one split
