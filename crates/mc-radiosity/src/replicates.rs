@@ -242,23 +242,19 @@ pub(crate) struct Measure {
 /// understate it on that account.)
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Waves {
-    /// Per patch, its entry in `wave` in this wave ([`NO_SLOT`]: no deposit yet).
-    slot: Vec<u32>,
     /// This wave's sums of the patches that received a deposit, in the order of their first:
     /// the patch, its sums per replicate and its `sum x²` (channels summed). A wave reaches
     /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
     /// a patch, not 56.
     wave: Vec<(u32, Halves, f64)>,
-    /// The run's sums per patch.
-    total: Vec<Halves>,
-    /// `sum_w |d_w|²` per patch.
-    differences: Vec<f64>,
-    /// `sum_w v_w` and `sum_w v_w²` per patch.
-    model: Vec<(f64, f64)>,
-    /// Per patch, its entry in the rows `sketch`, `pending`, `projected` and `raw`
-    /// ([`NO_SLOT`]: no deposit yet, its rows all zero). Rows are made for the patches that
-    /// receive a deposit only, in the order of their first: a run of fewer rays than
-    /// patches leaves most without (384 bytes each).
+    /// Per patch with a row, the run's sums ([`Sums`]): a patch without a deposit has none,
+    /// so they are kept with the rows, not per patch (80 bytes a patch that a run of fewer
+    /// rays than patches mostly leaves at zero).
+    sums: Blocks<Sums>,
+    /// Per patch, its entry in the rows `sums`, `sketch`, `pending`, `projected` and `raw`
+    /// ([`NO_SLOT`]: no deposit yet, its sums and rows all zero). Rows are made for the
+    /// patches that receive a deposit only, in the order of their first: a run of fewer rays
+    /// than patches leaves most without (464 bytes each).
     row: Vec<u32>,
     /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
     /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
@@ -277,9 +273,6 @@ pub(crate) struct Waves {
     /// deposit's error is power the patch reflects, so it travels on with the patch's next
     /// rays.
     pending: Rows,
-    /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
-    /// power; most of all the emitters' first wave, the largest, carries nothing).
-    carrier: Vec<u32>,
     /// The error power each ray of a carrying patch carries in this wave, in patch order
     /// (sparse as `wave` is: only patches that shoot in the wave carry), and whether the patch
     /// casts fewer than [`RECENT`] rays in it.
@@ -301,6 +294,32 @@ pub(crate) struct Waves {
     /// `sketch`, without what the later waves carried ([`Waves::carry_factor`]).
     raw: Rows,
 }
+
+/// The run's sums of one patch with a row ([`Waves::sums`]).
+#[derive(Debug, Clone, Copy)]
+struct Sums {
+    /// Its sums per replicate over the run.
+    total: Halves,
+    /// `sum_w |d_w|²`.
+    differences: f64,
+    /// `sum_w v_w` and `sum_w v_w²`.
+    model: (f64, f64),
+    /// Its entry in `wave` in this wave ([`NO_SLOT`]: no deposit in it yet).
+    slot: u32,
+    /// Its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error power).
+    carrier: u32,
+}
+
+/// The sums of a patch before its first deposit.
+const NO_SUMS: Sums = Sums {
+    total: Halves {
+        sum: [DVec3::ZERO; 2],
+    },
+    differences: 0.0,
+    model: (0.0, 0.0),
+    slot: NO_SLOT,
+    carrier: NO_SLOT,
+};
 
 /// Rows in blocks of [`ROW_BLOCK`], each made whole and never moved: the store grows without
 /// copies, and so without the freed copies a growing array leaves in the allocator's heap
@@ -356,6 +375,15 @@ impl<T> Blocks<T> {
     }
 }
 
+/// The sums of entry `slot` of `sums` (all zero for [`NO_SLOT`]).
+#[inline]
+fn sums_at(sums: &Blocks<Sums>, slot: u32) -> &Sums {
+    match slot {
+        NO_SLOT => &NO_SUMS,
+        s => sums.get(s as usize),
+    }
+}
+
 /// The row of entry `slot` of `rows` (all zero for [`NO_SLOT`]).
 #[inline]
 fn row_at(rows: &Rows, slot: u32) -> &Row {
@@ -392,17 +420,13 @@ impl Waves {
             row: vec![NO_SLOT; patches],
             projected: Rows::default(),
             raw: Rows::default(),
-            slot: vec![NO_SLOT; patches],
             wave: Vec::new(),
-            total: vec![Halves::default(); patches],
-            differences: vec![0.0; patches],
-            model: vec![(0.0, 0.0); patches],
+            sums: Blocks::default(),
             sketch: Rows::default(),
             closed: 0,
             dropped: [DVec3::ZERO; SKETCHES],
             recent: Blocks::default(),
             pending: Rows::default(),
-            carrier: vec![NO_SLOT; patches],
             carried: Vec::new(),
         }
     }
@@ -412,11 +436,12 @@ impl Waves {
     /// unshot power).
     pub fn begin_wave(&mut self, counts: &[u64]) {
         self.carried.clear();
-        for ((carrier, &row), &n) in self.carrier.iter_mut().zip(&self.row).zip(counts) {
-            *carrier = NO_SLOT;
+        for (&row, &n) in self.row.iter().zip(counts) {
             if row == NO_SLOT {
                 continue;
             }
+            let carrier = &mut self.sums.get_mut(row as usize).carrier;
+            *carrier = NO_SLOT;
             let (sketch, pending) = (
                 self.sketch.get_mut(row as usize),
                 self.pending.get_mut(row as usize),
@@ -448,7 +473,7 @@ impl Waves {
                 Some(*slots)
             }
         };
-        let (q, few) = match self.carrier[i] {
+        let (q, few) = match sums_at(&self.sums, self.row[i]).carrier {
             NO_SLOT => return,
             s => self.carried[s as usize],
         };
@@ -517,18 +542,19 @@ impl Waves {
     /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
-        if self.slot[j] == NO_SLOT {
-            self.slot[j] = self.wave.len() as u32;
+        let row = self.row_of(j);
+        let slot = &mut self.sums.get_mut(row).slot;
+        if *slot == NO_SLOT {
+            *slot = self.wave.len() as u32;
             self.wave.push((j as u32, Halves::default(), 0.0));
         }
-        let (_, halves, squares) = &mut self.wave[self.slot[j] as usize];
+        let (_, halves, squares) = &mut self.wave[*slot as usize];
         halves.push(r, x * scale.unwrap_or(1.0));
         *squares += x.length_squared();
         // The difference as the run's totals take it (a lone ray's value too).
         let y = x * scale.unwrap_or(1.0);
         let y = if r == 0 { y } else { -y };
         let y = [y.x as f32, y.y as f32, y.z as f32];
-        let row = self.row_of(j);
         for ((a, s), k) in self.projected.get_mut(row).iter_mut().zip(signs).zip(0..) {
             *a += *s * y[k % 3];
         }
@@ -554,6 +580,7 @@ impl Waves {
                 rows.push(ZERO_ROW);
             }
             self.recent.push([EMPTY; RECENT]);
+            self.sums.push(NO_SUMS);
             self.row[j] = len as u32;
         }
         self.row[j] as usize
@@ -564,11 +591,12 @@ impl Waves {
         self.closed += 1;
         for (j, wave, v) in self.wave.drain(..) {
             let j = j as usize;
-            self.slot[j] = NO_SLOT;
-            self.differences[j] += wave.variance_of_sum();
-            self.model[j].0 += v;
-            self.model[j].1 += v * v;
-            self.total[j] = self.total[j].merge(wave);
+            let sums = self.sums.get_mut(self.row[j] as usize);
+            sums.slot = NO_SLOT;
+            sums.differences += wave.variance_of_sum();
+            sums.model.0 += v;
+            sums.model.1 += v * v;
+            sums.total = sums.total.merge(wave);
             let f = self.face[j] as usize;
             let s = match self.face_slot[f] {
                 NO_SLOT => {
@@ -592,9 +620,7 @@ impl Waves {
     /// (the per-wave sums, the carried error power, the per-face sums of a wave), before the
     /// gains and the samples are measured, the run's peak of memory.
     pub fn end_run(&mut self) {
-        for v in [&mut self.slot, &mut self.carrier, &mut self.face_slot] {
-            *v = Vec::new();
-        }
+        self.face_slot = Vec::new();
         self.wave = Vec::new();
         self.carried = Vec::new();
         self.recent = Blocks::default();
@@ -617,8 +643,12 @@ impl Waves {
             count[f as usize] += 1;
         }
         let mut totals = vec![DVec3::ZERO; count.len()];
-        for (t, &f) in self.total.iter().zip(&self.face) {
-            totals[f as usize] += t.sum[0] - t.sum[1];
+        // (a patch without a row adds zero)
+        for (&slot, &f) in self.row.iter().zip(&self.face) {
+            if slot != NO_SLOT {
+                let t = &self.sums.get(slot as usize).total;
+                totals[f as usize] += t.sum[0] - t.sum[1];
+            }
         }
         let (mut d, mut w) = (0.0, 0.0);
         for ((total, &c), &waves) in totals.iter().zip(&count).zip(&self.face_differences) {
@@ -662,11 +692,12 @@ impl Waves {
         // what the later waves' carrying makes of the error.
         let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
         let measures = face.enumerate().map(move |(j, face)| {
-            let (v, v2) = self.model[j];
-            let total = self.total[j].sum[0] + self.total[j].sum[1];
+            let sums = sums_at(&self.sums, self.row[j]);
+            let (v, v2) = sums.model;
+            let total = sums.total.sum[0] + sums.total.sum[1];
             Measure {
                 face,
-                replicate: (v > 0.0).then_some(kappa * self.differences[j]),
+                replicate: (v > 0.0).then_some(kappa * sums.differences),
                 model: v,
                 dof: if v2 > 0.0 { v * v / v2 } else { 1.0 },
                 deposits: if v > 0.0 {
@@ -698,14 +729,15 @@ impl Waves {
     /// row of [`SKETCHES`] × 3 adds per deposit.
     fn kappa_by_sources(&self) -> f64 {
         let (mut d, mut w) = (0.0, 0.0);
-        for (j, &slot) in self.row.iter().enumerate() {
+        for &slot in &self.row {
             let row = row_at(&self.projected, slot);
-            if self.model[j].0 > 0.0 {
+            let sums = sums_at(&self.sums, slot);
+            if sums.model.0 > 0.0 {
                 d += (0..SKETCHES)
                     .map(|g| sample(row, g).length_squared())
                     .sum::<f64>()
                     / SKETCHES as f64;
-                w += self.differences[j];
+                w += sums.differences;
             }
         }
         if w > 0.0 { d / w } else { 1.0 }
@@ -978,15 +1010,14 @@ mod tests {
     /// The bytes `w` holds on the heap (its arrays' capacities).
     fn heap_bytes(w: &Waves) -> usize {
         let rows = rows_bytes;
-        b(&w.slot)
-            + b(&w.row)
+        b(&w.row)
             + b(&w.wave)
-            + b(&w.total)
-            + b(&w.differences)
-            + b(&w.model)
+            + b(&w.sums.blocks)
+            + w.sums.blocks.iter().map(b).sum::<usize>()
             + rows(&w.sketch)
             + rows(&w.pending)
-            + b(&w.carrier)
+            + b(&w.recent.blocks)
+            + w.recent.blocks.iter().map(b).sum::<usize>()
             + b(&w.carried)
             + b(&w.face)
             + b(&w.face_slot)
@@ -997,13 +1028,14 @@ mod tests {
     }
 
     #[test]
-    fn waves_hold_100_bytes_a_patch_and_rows_where_deposits_land() {
-        // Memory per element (issue 35): the run's sums are dense (88 bytes a patch, 12 a
-        // face), the error samples' rows (384) made at a patch's first deposit, a wave's sums
-        // sparse.
+    fn waves_hold_20_bytes_a_patch_and_rows_where_deposits_land() {
+        // Memory per element (issue 35): 8 bytes a patch (its face and its row), 12 a face;
+        // the run's sums (80) and the error samples' rows (384) made at a patch's first
+        // deposit, a wave's sums sparse.
         let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());
-        assert_eq!(heap_bytes(&w), 100 * n);
+        assert_eq!(heap_bytes(&w), 20 * n);
+        let sums = |w: &Waves, j: usize| *sums_at(&w.sums, w.row[j]);
         let signs = source_signs(0);
         let x = DVec3::new(1.0, 2.0, 3.0);
         let mut counts = vec![0u64; n];
@@ -1015,16 +1047,16 @@ mod tests {
         w.push(7, 1, 0.5 * x, Some(1.0), &signs);
         w.end_wave();
         let (d, v) = ((0.5 * x).length_squared(), 1.25 * x.length_squared());
-        assert_eq!(w.differences[7], d);
-        assert_eq!(w.model[7], (v, v * v));
+        assert_eq!(sums(&w, 7).differences, d);
+        assert_eq!(sums(&w, 7).model, (v, v * v));
         assert_eq!(w.face_differences[7], d);
-        assert_eq!(w.differences.iter().sum::<f64>(), d);
+        assert_eq!(sums(&w, 6).differences, 0.0);
         // The next wave starts from nothing.
         w.begin_wave(&counts);
         w.push(7, 1, x, Some(1.0), &signs);
         w.end_wave();
-        assert_eq!(w.differences[7], d + x.length_squared());
-        assert_eq!(w.total[7].sum, [x, 1.5 * x]);
+        assert_eq!(sums(&w, 7).differences, d + x.length_squared());
+        assert_eq!(sums(&w, 7).total.sum, [x, 1.5 * x]);
         assert_eq!(w.face_differences[7], d + x.length_squared());
         // One patch with rows: one block of each.
         assert_eq!(w.row.iter().filter(|&&r| r != NO_SLOT).count(), 1);
@@ -1033,8 +1065,11 @@ mod tests {
         assert!(rows.iter().all(|r| r.len() == 1 && r.blocks.len() == 1));
         // (a block's rows, and the list of blocks: room for 4)
         assert!(row_bytes <= 4 * (size_of::<Row>() * ROW_BLOCK + 4 * size_of::<Vec<Row>>()));
+        let sums_bytes = b(&w.sums.blocks) + w.sums.blocks.iter().map(b).sum::<usize>();
+        assert_eq!(w.sums.len(), 1);
+        assert!(sums_bytes <= size_of::<Sums>() * ROW_BLOCK + 4 * size_of::<Vec<Sums>>());
         w.end_run();
-        assert_eq!(heap_bytes(&w), 88 * n + row_bytes);
+        assert_eq!(heap_bytes(&w), 16 * n + row_bytes + sums_bytes);
     }
 
     /// A source whose lone rays keep power on patch 1 (probability 0.3, reflectance 0.5) or

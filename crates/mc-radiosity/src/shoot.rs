@@ -349,7 +349,6 @@ pub fn shoot<C: RayCaster>(
         extrapolated: DVec3::ZERO,
         stop: StopReason::BudgetSpent,
     };
-    let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
     // The budget, lowered when the observer limits the rays left.
@@ -503,7 +502,9 @@ pub fn shoot<C: RayCaster>(
         if let Some(waves) = waves.as_mut() {
             waves.end_wave();
         }
-        radiosity_so_far(patches, &reflected, &mut radiosity);
+        // Made for the observer and dropped after it (24 bytes a patch not held through the
+        // waves: the observer keeps its own copy).
+        let radiosity = radiosity_so_far(patches, &reflected);
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
@@ -605,12 +606,15 @@ pub fn shoot<C: RayCaster>(
         *row = crate::replicates::scaled(row, factor);
         *u *= (scale / a) * (scale / a);
     }
-    radiosity_so_far(patches, &reflected, &mut radiosity);
-    let variance = squares
-        .iter()
-        .zip(patches)
-        .map(|(s, p)| *s / (p.area * p.area))
-        .collect();
+    // The answer in the arrays of the sums (made in place, not beside them).
+    let mut radiosity = reflected;
+    for (b, p) in radiosity.iter_mut().zip(patches) {
+        *b = p.emission.as_dvec3() + *b / p.area;
+    }
+    let mut variance = squares;
+    for (v, p) in variance.iter_mut().zip(patches) {
+        *v /= p.area * p.area;
+    }
     let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {
         estimate,
@@ -807,11 +811,13 @@ fn wave_jobs(counts: &[u64], cast: &[u64]) -> Vec<Job> {
     jobs
 }
 
-/// `B_i = E_i + reflected_i / A_i` into `out`.
-fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3], out: &mut [DVec3]) {
-    for ((b, p), r) in out.iter_mut().zip(patches).zip(reflected) {
-        *b = p.emission.as_dvec3() + *r / p.area;
-    }
+/// `B_i = E_i + reflected_i / A_i`.
+fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3]) -> Vec<DVec3> {
+    patches
+        .iter()
+        .zip(reflected)
+        .map(|(p, r)| p.emission.as_dvec3() + *r / p.area)
+        .collect()
 }
 
 /// Ray counts of one wave: systematic sampling of the cumulative power, `n_i = floor(C_i + u) -
@@ -957,10 +963,7 @@ pub(crate) fn unreached_variance(
     mesh: &mcrad_meshing::Mesh,
     estimate: Estimate,
 ) -> Result<Estimate, Error> {
-    let Some(variance) = estimate.variance() else {
-        return Ok(estimate);
-    };
-    if estimate.rays() == 0 {
+    if estimate.variance().is_none() || estimate.rays() == 0 {
         return Ok(estimate);
     }
     let patches = mesh.patches();
@@ -970,20 +973,16 @@ pub(crate) fn unreached_variance(
         .zip(patches)
         .map(|(b, p)| *b * p.area)
         .sum();
-    let per_ray = power / estimate.rays() as f64;
-    let variance: Vec<DVec3> = variance
-        .iter()
-        .zip(patches)
-        .map(|(v, p)| {
-            let x = p.reflectance.as_dvec3() * per_ray / p.area;
-            DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v)
-        })
-        .collect();
-    Ok(Estimate::new(
-        estimate.radiosity().to_vec(),
-        Some(variance),
-        estimate.rays(),
-    )?)
+    let rays = estimate.rays();
+    let per_ray = power / rays as f64;
+    // In place: the estimate's arrays are handed on, not copied.
+    let (radiosity, variance, _) = estimate.into_parts();
+    let mut variance = variance.unwrap_or_default();
+    for (v, p) in variance.iter_mut().zip(patches) {
+        let x = p.reflectance.as_dvec3() * per_ray / p.area;
+        *v = DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v);
+    }
+    Ok(Estimate::new(radiosity, Some(variance), rays)?)
 }
 
 #[cfg(test)]
