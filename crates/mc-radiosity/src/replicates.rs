@@ -777,11 +777,13 @@ impl Waves {
     /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
     /// Also returns the samples of the error power still pending and of the error power the
     /// finishing roulette dropped ([`Waves::drop_pending`]), each summed over the patches.
-    pub fn sketch(self) -> (Vec<Row>, [DVec3; SKETCHES], [DVec3; SKETCHES]) {
+    /// The samples are kept where they were made, for the patches a deposit reached only
+    /// ([`Sketch`]).
+    pub fn sketch(self) -> (Sketch, [DVec3; SKETCHES], [DVec3; SKETCHES]) {
         let k = self.kappa_by_sources().sqrt();
         let dropped = self.dropped.map(|d| d * k);
         // What the samples need, the rest goes first.
-        let (slots, sketch, pending) = {
+        let (slots, mut sketch, pending) = {
             let waves = self;
             (waves.row, waves.sketch, waves.pending)
         };
@@ -793,14 +795,73 @@ impl Waves {
             }
         }
         let k = k as f32;
-        let rows = slots
-            .iter()
-            .map(|&slot| {
-                let (row, pending) = (row_at(&sketch, slot), row_at(&pending, slot));
-                std::array::from_fn(|x| (row[x] + pending[x]) * k)
-            })
-            .collect();
+        for (r, block) in sketch.blocks.iter_mut().enumerate() {
+            for (x, row) in block.iter_mut().enumerate() {
+                let pending = pending.get(r * ROW_BLOCK + x);
+                *row = std::array::from_fn(|x| (row[x] + pending[x]) * k);
+            }
+        }
+        let rows = Sketch {
+            slot: slots,
+            rows: sketch,
+        };
         (rows, sums, dropped)
+    }
+}
+
+/// Error samples of a shooting run ([`Waves::sketch`]), one [`Row`] per patch, kept only for
+/// the patches a deposit reached (the rest are zero): 4 bytes a patch and 96 a patch reached,
+/// where a dense array held 96 a patch (a run of fewer rays than patches reaches a few of
+/// them).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Sketch {
+    /// Per patch, its entry in `rows` ([`NO_SLOT`]: none, its samples zero).
+    slot: Vec<u32>,
+    /// The rows of the patches reached.
+    rows: Rows,
+}
+
+impl Sketch {
+    /// The number of patches (0 when no wave ran).
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+
+    /// Whether it has no patch.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
+    }
+
+    /// Patch `i`'s samples (`i < len`).
+    #[inline]
+    pub fn get(&self, i: usize) -> &Row {
+        row_at(&self.rows, self.slot[i])
+    }
+
+    /// Each patch's samples, in patch order.
+    pub fn iter(&self) -> impl Iterator<Item = &Row> {
+        self.slot.iter().map(|&s| row_at(&self.rows, s))
+    }
+
+    /// Patch `i`'s samples to change, `None` for a patch without a row (its samples zero,
+    /// which a change that keeps zero at zero leaves as they are).
+    #[inline]
+    pub fn get_mut(&mut self, i: usize) -> Option<&mut Row> {
+        match self.slot[i] {
+            NO_SLOT => None,
+            s => Some(self.rows.get_mut(s as usize)),
+        }
+    }
+
+    /// One row per patch, in patch order (the rows go as they are copied).
+    pub fn into_dense(self) -> Vec<Row> {
+        let mut dense = vec![ZERO_ROW; self.slot.len()];
+        for (d, &s) in dense.iter_mut().zip(&self.slot) {
+            if s != NO_SLOT {
+                *d = *self.rows.get(s as usize);
+            }
+        }
+        dense
     }
 }
 
@@ -1104,7 +1165,7 @@ mod tests {
             );
             assert!(lone.unpaired(rho).is_empty());
             let (rows, _, _) = waves.sketch();
-            let (d1, d2) = (f64::from(rows[1][0]), f64::from(rows[2][0]));
+            let (d1, d2) = (f64::from(rows.get(1)[0]), f64::from(rows.get(2)[0]));
             let c2 = (pa * pa + pb * pb) / 2.0;
             s11.push(d1 * d1 / (2.0 * c2));
             s22.push(d2 * d2 / (2.0 * c2));

@@ -225,12 +225,13 @@ pub struct Shooting {
     /// Counters and the power balance.
     pub stats: ShootStats,
     /// Error samples of `estimate`'s radiosity (W/m² per channel, [`SKETCHES`] per patch,
-    /// mesh order; [`Waves::sketch`] divided by the areas): for weights `c`,
+    /// mesh order, kept for the patches reached only; [`Waves::sketch`] divided by the
+    /// areas): for weights `c`,
     /// `sum_g (sum_j c_j z_gj)²` estimates the variance of `sum_j c_j B_j`, the correlation
     /// between patches included. Empty when no wave ran.
     ///
     /// [`SKETCHES`]: crate::replicates::SKETCHES
-    pub sketch: Vec<crate::replicates::Row>,
+    pub sketch: crate::replicates::Sketch,
     /// The part of `estimate`'s variance that `sketch` does not hold ((W/m²)², per patch and
     /// channel, by the independent-ray formula): deposits of rays alone in their replicate
     /// in a wave (a roulette tail's, mostly) and an extrapolated remainder's.
@@ -546,7 +547,7 @@ pub fn shoot<C: RayCaster>(
         let (u, so_far): (DVec3, DVec3) = (unshot.iter().sum(), reflected.iter().sum());
         let x = scale - DVec3::ONE;
         let mut sums = [DVec3::ZERO; crate::replicates::SKETCHES];
-        for row in &sketch {
+        for row in sketch.iter() {
             for (g, s) in sums.iter_mut().enumerate() {
                 *s += crate::replicates::sample(row, g);
             }
@@ -554,7 +555,12 @@ pub fn shoot<C: RayCaster>(
         let shift: Vec<DVec3> = (0..crate::replicates::SKETCHES)
             .map(|g| x * (ratio(pending[g], u) - ratio(sums[g], so_far)))
             .collect();
-        for (row, q) in sketch.iter_mut().zip(&reflected) {
+        // (a patch without a row was reached by no deposit: nothing reflected, its samples
+        // stay zero)
+        for (i, q) in reflected.iter().enumerate() {
+            let Some(row) = sketch.get_mut(i) else {
+                continue;
+            };
             for (g, shift) in shift.iter().enumerate() {
                 let z = crate::replicates::sample(row, g) * scale + *q * *shift;
                 row[3 * g..3 * g + 3].copy_from_slice(&z.as_vec3().to_array());
@@ -589,7 +595,10 @@ pub fn shoot<C: RayCaster>(
             .map(|(d, p)| ratio(*d + *p, actual))
             .collect();
         if shift.iter().any(|s| *s != DVec3::ZERO) {
-            for (row, q) in sketch.iter_mut().zip(&reflected) {
+            for (i, q) in reflected.iter().enumerate() {
+                let Some(row) = sketch.get_mut(i) else {
+                    continue;
+                };
                 for (g, shift) in shift.iter().enumerate() {
                     crate::replicates::add_sample(row, g, *q * *shift);
                 }
@@ -600,11 +609,14 @@ pub fn shoot<C: RayCaster>(
         *r *= scale;
         *q *= scale * scale;
     }
-    for ((row, u), p) in sketch.iter_mut().zip(&mut unsampled).zip(patches) {
-        let a = p.area;
-        let factor = (scale / a).as_vec3();
-        *row = crate::replicates::scaled(row, factor);
-        *u *= (scale / a) * (scale / a);
+    if !sketch.is_empty() {
+        for (i, (u, p)) in unsampled.iter_mut().zip(patches).enumerate() {
+            let a = p.area;
+            if let Some(row) = sketch.get_mut(i) {
+                *row = crate::replicates::scaled(row, (scale / a).as_vec3());
+            }
+            *u *= (scale / a) * (scale / a);
+        }
     }
     // The answer in the arrays of the sums (made in place, not beside them).
     let mut radiosity = reflected;
