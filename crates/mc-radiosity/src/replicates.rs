@@ -247,14 +247,14 @@ pub(crate) struct Waves {
     /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
     /// a patch, not 56.
     wave: Vec<(u32, Halves, f64)>,
-    /// Per patch with a row, the run's sums ([`Sums`]): a patch without a deposit has none,
-    /// so they are kept with the rows, not per patch (80 bytes a patch that a run of fewer
-    /// rays than patches mostly leaves at zero).
+    /// Per patch with a row, the run's sums ([`Sums`], 152 bytes): a patch without a deposit
+    /// has none, so they are kept with the rows, not per patch (a run of fewer rays than
+    /// patches leaves most patches at zero).
     sums: Blocks<Sums>,
     /// Per patch, its entry in the rows `sums`, `sketch`, `pending`, `projected` and `raw`
     /// ([`NO_SLOT`]: no deposit yet, its sums and rows all zero). Rows are made for the
     /// patches that receive a deposit only, in the order of their first: a run of fewer rays
-    /// than patches leaves most without (464 bytes each).
+    /// than patches leaves most without (536 bytes each).
     row: Vec<u32>,
     /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
     /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
@@ -308,6 +308,13 @@ struct Sums {
     slot: u32,
     /// Its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error power).
     carrier: u32,
+    /// The power its front kept from the rays (W per channel), shooting's `reflected`.
+    reflected: DVec3,
+    /// The sum of the squares of those deposits (W² per channel).
+    squares: DVec3,
+    /// The part of `squares` the error samples do not hold (W² per channel): deposits of
+    /// rays alone in their replicate ([`LoneRays`]).
+    unsampled: DVec3,
 }
 
 /// The sums of a patch before its first deposit.
@@ -319,6 +326,9 @@ const NO_SUMS: Sums = Sums {
     model: (0.0, 0.0),
     slot: NO_SLOT,
     carrier: NO_SLOT,
+    reflected: DVec3::ZERO,
+    squares: DVec3::ZERO,
+    unsampled: DVec3::ZERO,
 };
 
 /// Rows in blocks of [`ROW_BLOCK`], each made whole and never moved: the store grows without
@@ -543,7 +553,10 @@ impl Waves {
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
         let row = self.row_of(j);
-        let slot = &mut self.sums.get_mut(row).slot;
+        let sums = self.sums.get_mut(row);
+        sums.reflected += x;
+        sums.squares += x * x;
+        let slot = &mut sums.slot;
         if *slot == NO_SLOT {
             *slot = self.wave.len() as u32;
             self.wave.push((j as u32, Halves::default(), 0.0));
@@ -565,6 +578,36 @@ impl Waves {
             add_sample(self.pending.get_mut(row), self.closed % SKETCHES, d);
             add_sample(self.raw.get_mut(row), self.closed % SKETCHES, d);
         }
+    }
+
+    /// Adds `x` (W² per channel) to patch `j`'s squares of deposits that the error samples
+    /// do not hold.
+    pub fn add_unsampled(&mut self, j: usize, x: DVec3) {
+        let r = self.row_of(j);
+        self.sums.get_mut(r).unsampled += x;
+    }
+
+    /// The power patch `i`'s front kept so far (W per channel; zero before a deposit).
+    #[inline]
+    pub fn reflected(&self, i: usize) -> DVec3 {
+        sums_at(&self.sums, self.row[i]).reflected
+    }
+
+    /// Per patch, in patch order: the power its front kept (W per channel), the sum of the
+    /// squares of those deposits and the part of it the error samples do not hold (W² per
+    /// channel, [`Waves::add_unsampled`]), zero for a patch no deposit reached.
+    pub fn deposits(&self) -> (Vec<DVec3>, Vec<DVec3>, Vec<DVec3>) {
+        let dense = |f: fn(&Sums) -> DVec3| -> Vec<DVec3> {
+            self.row
+                .iter()
+                .map(|&s| f(sums_at(&self.sums, s)))
+                .collect()
+        };
+        (
+            dense(|s| s.reflected),
+            dense(|s| s.squares),
+            dense(|s| s.unsampled),
+        )
     }
 
     /// The entry of patch `j` in the rows, made (all zero) at its first deposit.
@@ -1091,8 +1134,8 @@ mod tests {
     #[test]
     fn waves_hold_20_bytes_a_patch_and_rows_where_deposits_land() {
         // Memory per element (issue 35): 8 bytes a patch (its face and its row), 12 a face;
-        // the run's sums (80) and the error samples' rows (384) made at a patch's first
-        // deposit, a wave's sums sparse.
+        // the run's sums (152, shooting's reflected power and squares among them) and the
+        // error samples' rows (384) made at a patch's first deposit, a wave's sums sparse.
         let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());
         assert_eq!(heap_bytes(&w), 20 * n);

@@ -324,15 +324,13 @@ pub fn shoot<C: RayCaster>(
     // Rays each patch has cast in the waves so far: where its sequence goes on.
     let mut cast = vec![0u64; patches.len()];
 
-    let mut reflected = vec![DVec3::ZERO; patches.len()];
-    let mut squares = vec![DVec3::ZERO; patches.len()];
-    // The part of `squares` the error samples do not hold: deposits of rays alone in their
-    // replicate (`replicate_scale`).
-    let mut unsampled = vec![DVec3::ZERO; patches.len()];
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
     // sequence, wave by wave (crate::replicates).
-    // Kept under either sampler: their error samples (`Waves::sketch`) serve both.
-    let mut waves = Some(Waves::new(patches.iter().map(|p| p.face).collect()));
+    // Kept under either sampler: their error samples (`Waves::sketch`) serve both. They also
+    // hold, for the patches a deposit reaches only, the reflected power, its sum of squares
+    // and the part of those the error samples do not hold (deposits of rays alone in their
+    // replicate, `replicate_scale`), made dense once the waves end (`Waves::deposits`).
+    let mut waves = Waves::new(patches.iter().map(|p| p.face).collect());
     // Rays alone in their replicate, waiting for their pair (`replicates::LoneRays`).
     let mut lone = replicates::LoneRays::default();
     let mut stats = ShootStats {
@@ -399,20 +397,16 @@ pub fn shoot<C: RayCaster>(
             let held: Vec<bool> = unshot.iter().map(|u| total(*u) > 0.0).collect();
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
-            if let Some(waves) = waves.as_mut() {
-                // The error power pending with the power the roulette dropped goes with it.
-                for (i, (&held, &n)) in held.iter().zip(&counts).enumerate() {
-                    if held && n == 0 {
-                        waves.drop_pending(i);
-                    }
+            // The error power pending with the power the roulette dropped goes with it.
+            for (i, (&held, &n)) in held.iter().zip(&counts).enumerate() {
+                if held && n == 0 {
+                    waves.drop_pending(i);
                 }
             }
             counts
         };
         let mut jobs = wave_jobs(&counts, &cast);
-        if let Some(waves) = waves.as_mut() {
-            waves.begin_wave(&counts);
-        }
+        waves.begin_wave(&counts);
         for job in &mut jobs {
             let i = job.patch as usize;
             job.power = unshot[i] / counts[i] as f64;
@@ -446,14 +440,11 @@ pub fn shoot<C: RayCaster>(
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
-                if let Some(waves) = waves.as_mut() {
-                    // The error power the rays carry, if any, goes on with them
-                    // (`Waves::ray`).
-                    let rho = |j: usize| patches[j].reflectance;
-                    for (t, &h) in hits.iter().enumerate() {
-                        let front = (h != MISS && h & BACK == 0).then_some(h as usize);
-                        waves.ray(i, job.first + t as u64, front, rho);
-                    }
+                // The error power the rays carry, if any, goes on with them (`Waves::ray`).
+                let rho = |j: usize| patches[j].reflectance;
+                for (t, &h) in hits.iter().enumerate() {
+                    let front = (h != MISS && h & BACK == 0).then_some(h as usize);
+                    waves.ray(i, job.first + t as u64, front, rho);
                 }
                 for (t, &h) in hits.iter().enumerate() {
                     if h == MISS {
@@ -464,28 +455,23 @@ pub fn shoot<C: RayCaster>(
                     } else {
                         let j = h as usize;
                         let kept = patches[j].reflectance.as_dvec3() * p;
-                        reflected[j] += kept;
                         unshot[j] += kept;
-                        squares[j] += kept * kept;
-                        if let Some(waves) = waves.as_mut() {
-                            let r = replicate(job.first + t as u64);
-                            waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
-                        } else if scale.is_none() {
-                            unsampled[j] += kept * kept;
-                        }
+                        // (with the reflected power and its square)
+                        let r = replicate(job.first + t as u64);
+                        waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
                         kept_sum += kept;
                         kept_squares += kept * kept;
                         absorbed += p - kept;
                     }
                 }
-                if let (None, [h], Some(waves)) = (scale, hits.as_slice(), waves.as_mut()) {
+                if let (None, [h]) = (scale, hits.as_slice()) {
                     // A ray alone in its replicate: paired with the patch's next lone ray of
                     // the other replicate (`replicates::LoneRays`), or left to the formula.
                     let front = (*h != MISS && *h & BACK == 0).then_some(*h);
                     let rho = |j: u32| patches[j as usize].reflectance.as_dvec3();
                     let r = replicate(job.first);
-                    if let Some((j, kept)) = lone.ray(job.patch, r, front, p, waves, rho) {
-                        unsampled[j as usize] += kept * kept;
+                    if let Some((j, kept)) = lone.ray(job.patch, r, front, p, &mut waves, rho) {
+                        waves.add_unsampled(j as usize, kept * kept);
                     }
                 }
                 returning.add(p, hits.len() as f64, kept_sum, kept_squares);
@@ -500,12 +486,14 @@ pub fn shoot<C: RayCaster>(
             *c += n;
         }
         stats.waves += 1;
-        if let Some(waves) = waves.as_mut() {
-            waves.end_wave();
-        }
+        waves.end_wave();
         // Made for the observer and dropped after it (24 bytes a patch not held through the
         // waves: the observer keeps its own copy).
-        let radiosity = radiosity_so_far(patches, &reflected);
+        let radiosity: Vec<DVec3> = patches
+            .iter()
+            .enumerate()
+            .map(|(i, p)| p.emission.as_dvec3() + waves.reflected(i) / p.area)
+            .collect();
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
@@ -522,23 +510,22 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    // What the waves needed goes before the replicates' gains are measured (the run's peak).
+    drop(cast);
+    waves.end_run();
+    let (mut reflected, mut squares, mut unsampled) = waves.deposits();
     for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
         unsampled[j as usize] += kept * kept;
     }
-    // What the waves needed goes before the replicates' gains are measured (the run's peak).
-    drop(cast);
-    if let Some(waves) = waves.as_mut() {
-        waves.end_run();
-    }
-    if let Some(waves) = waves.as_ref().filter(|_| ctx.sampling() == Sampler::Qmc) {
+    if ctx.sampling() == Sampler::Qmc {
         // The sums of squares assume independent rays: scale them by the gain the replicates
         // measure, wave by wave (crate::replicates).
         let gains = waves.gains(patches.iter().map(|p| p.face));
         replicates::scale(&mut squares, &gains);
         replicates::scale(&mut unsampled, &gains);
     }
-    let face_scale = waves.as_ref().map_or(1.0, Waves::face_scale);
-    let (mut sketch, pending, dropped) = waves.map(|w| w.sketch()).unwrap_or_default();
+    let face_scale = waves.face_scale();
+    let (mut sketch, pending, dropped) = waves.sketch();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
         // The extrapolation `reflected_i (1 + x)`, `x = |U| r / ((1 - r) sum reflected)`, is
@@ -821,15 +808,6 @@ fn wave_jobs(counts: &[u64], cast: &[u64]) -> Vec<Job> {
         }
     }
     jobs
-}
-
-/// `B_i = E_i + reflected_i / A_i`.
-fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3]) -> Vec<DVec3> {
-    patches
-        .iter()
-        .zip(reflected)
-        .map(|(p, r)| p.emission.as_dvec3() + *r / p.area)
-        .collect()
 }
 
 /// Ray counts of one wave: systematic sampling of the cumulative power, `n_i = floor(C_i + u) -
