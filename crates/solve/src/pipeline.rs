@@ -569,6 +569,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         },
         Err(e) => return Err(e.into()),
     };
+    // the last step's copy, kept for a cancelled step, is not needed past here
+    drop(last_step);
     let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
     drop((transport, transport_bvh));
     let seconds = start.elapsed().as_secs_f64();
