@@ -247,14 +247,14 @@ pub(crate) struct Waves {
     /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
     /// a patch, not 56.
     wave: Vec<(u32, Halves, f64)>,
-    /// Per patch with a row, the run's sums ([`Sums`], 152 bytes): a patch without a deposit
+    /// Per patch with a row, the run's sums ([`Sums`], 128 bytes): a patch without a deposit
     /// has none, so they are kept with the rows, not per patch (a run of fewer rays than
     /// patches leaves most patches at zero).
     sums: Blocks<Sums>,
     /// Per patch, its entry in the rows `sums`, `sketch`, `pending`, `projected` and `raw`
     /// ([`NO_SLOT`]: no deposit yet, its sums and rows all zero). Rows are made for the
     /// patches that receive a deposit only, in the order of their first: a run of fewer rays
-    /// than patches leaves most without (536 bytes each).
+    /// than patches leaves most without (512 bytes each).
     row: Vec<u32>,
     /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
     /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
@@ -308,8 +308,6 @@ struct Sums {
     slot: u32,
     /// Its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error power).
     carrier: u32,
-    /// The power its front kept from the rays (W per channel), shooting's `reflected`.
-    reflected: DVec3,
     /// The sum of the squares of those deposits (W² per channel).
     squares: DVec3,
     /// The part of `squares` the error samples do not hold (W² per channel): deposits of
@@ -326,7 +324,6 @@ const NO_SUMS: Sums = Sums {
     model: (0.0, 0.0),
     slot: NO_SLOT,
     carrier: NO_SLOT,
-    reflected: DVec3::ZERO,
     squares: DVec3::ZERO,
     unsampled: DVec3::ZERO,
 };
@@ -554,7 +551,6 @@ impl Waves {
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
         let row = self.row_of(j);
         let sums = self.sums.get_mut(row);
-        sums.reflected += x;
         sums.squares += x * x;
         let slot = &mut sums.slot;
         if *slot == NO_SLOT {
@@ -587,27 +583,17 @@ impl Waves {
         self.sums.get_mut(r).unsampled += x;
     }
 
-    /// The power patch `i`'s front kept so far (W per channel; zero before a deposit).
-    #[inline]
-    pub fn reflected(&self, i: usize) -> DVec3 {
-        sums_at(&self.sums, self.row[i]).reflected
-    }
-
-    /// Per patch, in patch order: the power its front kept (W per channel), the sum of the
-    /// squares of those deposits and the part of it the error samples do not hold (W² per
-    /// channel, [`Waves::add_unsampled`]), zero for a patch no deposit reached.
-    pub fn deposits(&self) -> (Vec<DVec3>, Vec<DVec3>, Vec<DVec3>) {
+    /// Per patch, in patch order: the sum of the squares of its deposits (W² per channel,
+    /// the power its front kept from each ray) and the part of it the error samples do not
+    /// hold ([`Waves::add_unsampled`]), zero for a patch no deposit reached.
+    pub fn deposits(&self) -> (Vec<DVec3>, Vec<DVec3>) {
         let dense = |f: fn(&Sums) -> DVec3| -> Vec<DVec3> {
             self.row
                 .iter()
                 .map(|&s| f(sums_at(&self.sums, s)))
                 .collect()
         };
-        (
-            dense(|s| s.reflected),
-            dense(|s| s.squares),
-            dense(|s| s.unsampled),
-        )
+        (dense(|s| s.squares), dense(|s| s.unsampled))
     }
 
     /// The entry of patch `j` in the rows, made (all zero) at its first deposit.
@@ -1134,7 +1120,7 @@ mod tests {
     #[test]
     fn waves_hold_20_bytes_a_patch_and_rows_where_deposits_land() {
         // Memory per element (issue 35): 8 bytes a patch (its face and its row), 12 a face;
-        // the run's sums (152, shooting's reflected power and squares among them) and the
+        // the run's sums (128, shooting's squares of deposits among them) and the
         // error samples' rows (384) made at a patch's first deposit, a wave's sums sparse.
         let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());

@@ -327,10 +327,15 @@ pub fn shoot<C: RayCaster>(
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
     // sequence, wave by wave (crate::replicates).
     // Kept under either sampler: their error samples (`Waves::sketch`) serve both. They also
-    // hold, for the patches a deposit reaches only, the reflected power, its sum of squares
-    // and the part of those the error samples do not hold (deposits of rays alone in their
+    // hold, for the patches a deposit reaches only, the sum of the squares of the deposits
+    // and the part of it the error samples do not hold (deposits of rays alone in their
     // replicate, `replicate_scale`), made dense once the waves end (`Waves::deposits`).
     let mut waves = Waves::new(patches.iter().map(|p| p.face).collect());
+    // The reflected power per patch, dense: every wave reads it in patch order.
+    let mut reflected = vec![DVec3::ZERO; patches.len()];
+    // The radiosity the observer sees, made after every wave (held, not made anew: a fresh
+    // array a wave cost its page faults every wave).
+    let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // Rays alone in their replicate, waiting for their pair (`replicates::LoneRays`).
     let mut lone = replicates::LoneRays::default();
     let mut stats = ShootStats {
@@ -455,8 +460,9 @@ pub fn shoot<C: RayCaster>(
                     } else {
                         let j = h as usize;
                         let kept = patches[j].reflectance.as_dvec3() * p;
+                        reflected[j] += kept;
                         unshot[j] += kept;
-                        // (with the reflected power and its square)
+                        // (with the square of the deposit)
                         let r = replicate(job.first + t as u64);
                         waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
                         kept_sum += kept;
@@ -487,13 +493,9 @@ pub fn shoot<C: RayCaster>(
         }
         stats.waves += 1;
         waves.end_wave();
-        // Made for the observer and dropped after it (24 bytes a patch not held through the
-        // waves: the observer keeps its own copy).
-        let radiosity: Vec<DVec3> = patches
-            .iter()
-            .enumerate()
-            .map(|(i, p)| p.emission.as_dvec3() + waves.reflected(i) / p.area)
-            .collect();
+        for ((b, p), r) in radiosity.iter_mut().zip(patches).zip(&reflected) {
+            *b = p.emission.as_dvec3() + *r / p.area;
+        }
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
@@ -513,7 +515,8 @@ pub fn shoot<C: RayCaster>(
     // What the waves needed goes before the replicates' gains are measured (the run's peak).
     drop(cast);
     waves.end_run();
-    let (mut reflected, mut squares, mut unsampled) = waves.deposits();
+    drop(radiosity);
+    let (mut squares, mut unsampled) = waves.deposits();
     for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
         unsampled[j as usize] += kept * kept;
     }
