@@ -516,14 +516,16 @@ pub fn shoot<C: RayCaster>(
     drop(cast);
     waves.end_run();
     drop(radiosity);
+    // The sums of squares assume independent rays: scale them by the gain the replicates
+    // measure, wave by wave (crate::replicates). Measured before the dense sums are made
+    // (its per-face sums, 36 bytes a face, go first).
+    let gains =
+        (ctx.sampling() == Sampler::Qmc).then(|| waves.gains(patches.iter().map(|p| p.face)));
     let (mut squares, mut unsampled) = waves.deposits();
     for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
         unsampled[j as usize] += kept * kept;
     }
-    if ctx.sampling() == Sampler::Qmc {
-        // The sums of squares assume independent rays: scale them by the gain the replicates
-        // measure, wave by wave (crate::replicates).
-        let gains = waves.gains(patches.iter().map(|p| p.face));
+    if let Some(gains) = gains {
         replicates::scale(&mut squares, &gains);
         replicates::scale(&mut unsampled, &gains);
     }
