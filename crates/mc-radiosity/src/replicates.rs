@@ -273,6 +273,11 @@ pub(crate) struct Waves {
     /// deposit's error is power the patch reflects, so it travels on with the patch's next
     /// rays.
     pending: Rows,
+    /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
+    /// power; most of all the emitters' first wave, the largest, carries nothing). Dense:
+    /// every wave sets it for every patch with a row, in patch order (kept with the rows, it
+    /// cost a cache miss a patch a wave).
+    carrier: Vec<u32>,
     /// The error power each ray of a carrying patch carries in this wave, in patch order
     /// (sparse as `wave` is: only patches that shoot in the wave carry), and whether the patch
     /// casts fewer than [`RECENT`] rays in it.
@@ -306,8 +311,6 @@ struct Sums {
     model: (f64, f64),
     /// Its entry in `wave` in this wave ([`NO_SLOT`]: no deposit in it yet).
     slot: u32,
-    /// Its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error power).
-    carrier: u32,
     /// The sum of the squares of those deposits (W² per channel).
     squares: DVec3,
     /// The part of `squares` the error samples do not hold (W² per channel): deposits of
@@ -323,7 +326,6 @@ const NO_SUMS: Sums = Sums {
     differences: 0.0,
     model: (0.0, 0.0),
     slot: NO_SLOT,
-    carrier: NO_SLOT,
     squares: DVec3::ZERO,
     unsampled: DVec3::ZERO,
 };
@@ -434,6 +436,7 @@ impl Waves {
             dropped: [DVec3::ZERO; SKETCHES],
             recent: Blocks::default(),
             pending: Rows::default(),
+            carrier: vec![NO_SLOT; patches],
             carried: Vec::new(),
         }
     }
@@ -443,12 +446,11 @@ impl Waves {
     /// unshot power).
     pub fn begin_wave(&mut self, counts: &[u64]) {
         self.carried.clear();
-        for (&row, &n) in self.row.iter().zip(counts) {
+        for ((carrier, &row), &n) in self.carrier.iter_mut().zip(&self.row).zip(counts) {
+            *carrier = NO_SLOT;
             if row == NO_SLOT {
                 continue;
             }
-            let carrier = &mut self.sums.get_mut(row as usize).carrier;
-            *carrier = NO_SLOT;
             let (sketch, pending) = (
                 self.sketch.get_mut(row as usize),
                 self.pending.get_mut(row as usize),
@@ -480,7 +482,7 @@ impl Waves {
                 Some(*slots)
             }
         };
-        let (q, few) = match sums_at(&self.sums, self.row[i]).carrier {
+        let (q, few) = match self.carrier[i] {
             NO_SLOT => return,
             s => self.carried[s as usize],
         };
@@ -650,6 +652,7 @@ impl Waves {
     /// gains and the samples are measured, the run's peak of memory.
     pub fn end_run(&mut self) {
         self.face_slot = Vec::new();
+        self.carrier = Vec::new();
         self.wave = Vec::new();
         self.carried = Vec::new();
         self.recent = Blocks::default();
@@ -1108,6 +1111,7 @@ mod tests {
             + rows(&w.pending)
             + b(&w.recent.blocks)
             + w.recent.blocks.iter().map(b).sum::<usize>()
+            + b(&w.carrier)
             + b(&w.carried)
             + b(&w.face)
             + b(&w.face_slot)
@@ -1118,13 +1122,14 @@ mod tests {
     }
 
     #[test]
-    fn waves_hold_20_bytes_a_patch_and_rows_where_deposits_land() {
-        // Memory per element (issue 35): 8 bytes a patch (its face and its row), 12 a face;
+    fn waves_hold_24_bytes_a_patch_and_rows_where_deposits_land() {
+        // Memory per element (issue 35): 12 bytes a patch (its face, row and carrier), 12 a
+        // face;
         // the run's sums (128, shooting's squares of deposits among them) and the
         // error samples' rows (384) made at a patch's first deposit, a wave's sums sparse.
         let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());
-        assert_eq!(heap_bytes(&w), 20 * n);
+        assert_eq!(heap_bytes(&w), 24 * n);
         let sums = |w: &Waves, j: usize| *sums_at(&w.sums, w.row[j]);
         let signs = source_signs(0);
         let x = DVec3::new(1.0, 2.0, 3.0);

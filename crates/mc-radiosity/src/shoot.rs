@@ -518,7 +518,8 @@ pub fn shoot<C: RayCaster>(
     drop(radiosity);
     // The sums of squares assume independent rays: scale them by the gain the replicates
     // measure, wave by wave (crate::replicates). Measured before the dense sums are made
-    // (its per-face sums, 36 bytes a face, go first).
+    // (its per-face sums, 36 bytes a face, go first, as do the face scale's, 28).
+    let face_scale = waves.face_scale();
     let gains =
         (ctx.sampling() == Sampler::Qmc).then(|| waves.gains(patches.iter().map(|p| p.face)));
     let (mut squares, mut unsampled) = waves.deposits();
@@ -529,7 +530,6 @@ pub fn shoot<C: RayCaster>(
         replicates::scale(&mut squares, &gains);
         replicates::scale(&mut unsampled, &gains);
     }
-    let face_scale = waves.face_scale();
     let (mut sketch, pending, dropped) = waves.sketch();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
