@@ -13,8 +13,9 @@ use mcrad_scene_io::Scene;
 /// arrays (shooting's unshot and reflected power and rays cast, the steps' copy, the
 /// refinement's pooled estimate, the answer) and the allocator's slack. Measured peak RSS on
 /// the generated atrium of 10^6 elements at 2e6 rays, where a tenth of the patches get a
-/// deposit (docs/meshing.md, "Memory per element"): 565-580 bytes per element, of which
-/// about 65 are the rows of the patches reached ([`BYTES_PER_REACHED`]) and 66 the fixed part.
+/// deposit (docs/meshing.md, "Memory per element"): 575-620 bytes per element (median 589,
+/// against 651 before), of which about 60 are the rows of the patches reached
+/// ([`BYTES_PER_REACHED`]) and 66 the fixed part.
 pub const BYTES_PER_ELEMENT: u64 = 400;
 
 /// Bytes per element a shooting ray's first deposit adds: its error samples (four rows of
