@@ -141,6 +141,8 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         // the render, after the solve, is on the same clock
         after: Some(mcrad_solve::AfterSolve(&image_seconds)),
         clustering: args.clusters.into(),
+        // the state is only saved, never read here
+        keep_state: args.save.is_some(),
     };
     let bar = progress_bar(args.quiet);
     let mut tracer: Option<Tracer> = None;

@@ -240,6 +240,7 @@ fn solve_input(
         closure: false,
         after: None,
         clustering: mcrad_solve::Clustering::default(),
+        keep_state: false,
     };
     mcrad_solve::solve(&problem, observer)
 }

@@ -194,13 +194,23 @@ pub(crate) fn with_independent(
     before: &[DVec3],
     added: &[DVec3],
 ) {
+    with_independent_of(mesh, factors, |i| before[i], |i| added[i]);
+}
+
+/// [`with_independent`] with patch `i`'s variances given by `before(i)` and `added(i)`.
+pub(crate) fn with_independent_of(
+    mesh: &Mesh,
+    factors: &mut [DVec3],
+    before: impl Fn(usize) -> DVec3,
+    added: impl Fn(usize) -> DVec3,
+) {
     let back = mesh.back_face_offset();
     let mut sums = vec![(DVec3::ZERO, DVec3::ZERO); factors.len()];
     for (i, p) in mesh.patches().iter().enumerate() {
         let a2 = p.area * p.area;
         let s = &mut sums[face_key(mesh, i, back)];
-        s.0 += a2 * before[i];
-        s.1 += a2 * added[i];
+        s.0 += a2 * before(i);
+        s.1 += a2 * added(i);
     }
     for (k, (v, d)) in factors.iter_mut().zip(sums) {
         for c in 0..3 {

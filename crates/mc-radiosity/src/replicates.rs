@@ -242,23 +242,19 @@ pub(crate) struct Measure {
 /// understate it on that account.)
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Waves {
-    /// Per patch, its entry in `wave` in this wave ([`NO_SLOT`]: no deposit yet).
-    slot: Vec<u32>,
     /// This wave's sums of the patches that received a deposit, in the order of their first:
     /// the patch, its sums per replicate and its `sum x²` (channels summed). A wave reaches
     /// at most as many patches as it casts rays: kept sparse, the per-wave sums cost 4 bytes
     /// a patch, not 56.
     wave: Vec<(u32, Halves, f64)>,
-    /// The run's sums per patch.
-    total: Vec<Halves>,
-    /// `sum_w |d_w|²` per patch.
-    differences: Vec<f64>,
-    /// `sum_w v_w` and `sum_w v_w²` per patch.
-    model: Vec<(f64, f64)>,
-    /// Per patch, its entry in the rows `sketch`, `pending`, `projected` and `raw`
-    /// ([`NO_SLOT`]: no deposit yet, its rows all zero). Rows are made for the patches that
-    /// receive a deposit only, in the order of their first: a run of fewer rays than
-    /// patches leaves most without (384 bytes each).
+    /// Per patch with a row, the run's sums ([`Sums`], 128 bytes): a patch without a deposit
+    /// has none, so they are kept with the rows, not per patch (a run of fewer rays than
+    /// patches leaves most patches at zero).
+    sums: Blocks<Sums>,
+    /// Per patch, its entry in the rows `sums`, `sketch`, `pending`, `projected` and `raw`
+    /// ([`NO_SLOT`]: no deposit yet, its sums and rows all zero). Rows are made for the
+    /// patches that receive a deposit only, in the order of their first: a run of fewer rays
+    /// than patches leaves most without (512 bytes each).
     row: Vec<u32>,
     /// Per patch with a row, the differences `d_w` summed over the waves of each group (wave
     /// `w` in group `w mod SKETCHES`), with what the later waves' rays carried there, as far
@@ -278,7 +274,9 @@ pub(crate) struct Waves {
     /// rays.
     pending: Rows,
     /// Per patch, its entry in `carried` in this wave ([`NO_SLOT`]: its rays carry no error
-    /// power; most of all the emitters' first wave, the largest, carries nothing).
+    /// power; most of all the emitters' first wave, the largest, carries nothing). Dense:
+    /// every wave sets it for every patch with a row, in patch order (kept with the rows, it
+    /// cost a cache miss a patch a wave).
     carrier: Vec<u32>,
     /// The error power each ray of a carrying patch carries in this wave, in patch order
     /// (sparse as `wave` is: only patches that shoot in the wave carry), and whether the patch
@@ -301,6 +299,36 @@ pub(crate) struct Waves {
     /// `sketch`, without what the later waves carried ([`Waves::carry_factor`]).
     raw: Rows,
 }
+
+/// The run's sums of one patch with a row ([`Waves::sums`]).
+#[derive(Debug, Clone, Copy)]
+struct Sums {
+    /// Its sums per replicate over the run.
+    total: Halves,
+    /// `sum_w |d_w|²`.
+    differences: f64,
+    /// `sum_w v_w` and `sum_w v_w²`.
+    model: (f64, f64),
+    /// Its entry in `wave` in this wave ([`NO_SLOT`]: no deposit in it yet).
+    slot: u32,
+    /// The sum of the squares of those deposits (W² per channel).
+    squares: DVec3,
+    /// The part of `squares` the error samples do not hold (W² per channel): deposits of
+    /// rays alone in their replicate ([`LoneRays`]).
+    unsampled: DVec3,
+}
+
+/// The sums of a patch before its first deposit.
+const NO_SUMS: Sums = Sums {
+    total: Halves {
+        sum: [DVec3::ZERO; 2],
+    },
+    differences: 0.0,
+    model: (0.0, 0.0),
+    slot: NO_SLOT,
+    squares: DVec3::ZERO,
+    unsampled: DVec3::ZERO,
+};
 
 /// Rows in blocks of [`ROW_BLOCK`], each made whole and never moved: the store grows without
 /// copies, and so without the freed copies a growing array leaves in the allocator's heap
@@ -356,6 +384,15 @@ impl<T> Blocks<T> {
     }
 }
 
+/// The sums of entry `slot` of `sums` (all zero for [`NO_SLOT`]).
+#[inline]
+fn sums_at(sums: &Blocks<Sums>, slot: u32) -> &Sums {
+    match slot {
+        NO_SLOT => &NO_SUMS,
+        s => sums.get(s as usize),
+    }
+}
+
 /// The row of entry `slot` of `rows` (all zero for [`NO_SLOT`]).
 #[inline]
 fn row_at(rows: &Rows, slot: u32) -> &Row {
@@ -392,11 +429,8 @@ impl Waves {
             row: vec![NO_SLOT; patches],
             projected: Rows::default(),
             raw: Rows::default(),
-            slot: vec![NO_SLOT; patches],
             wave: Vec::new(),
-            total: vec![Halves::default(); patches],
-            differences: vec![0.0; patches],
-            model: vec![(0.0, 0.0); patches],
+            sums: Blocks::default(),
             sketch: Rows::default(),
             closed: 0,
             dropped: [DVec3::ZERO; SKETCHES],
@@ -517,18 +551,21 @@ impl Waves {
     /// `signs` are the source patch's ([`source_signs`]).
     #[inline]
     pub fn push(&mut self, j: usize, r: usize, x: DVec3, scale: Option<f64>, signs: &Row) {
-        if self.slot[j] == NO_SLOT {
-            self.slot[j] = self.wave.len() as u32;
+        let row = self.row_of(j);
+        let sums = self.sums.get_mut(row);
+        sums.squares += x * x;
+        let slot = &mut sums.slot;
+        if *slot == NO_SLOT {
+            *slot = self.wave.len() as u32;
             self.wave.push((j as u32, Halves::default(), 0.0));
         }
-        let (_, halves, squares) = &mut self.wave[self.slot[j] as usize];
+        let (_, halves, squares) = &mut self.wave[*slot as usize];
         halves.push(r, x * scale.unwrap_or(1.0));
         *squares += x.length_squared();
         // The difference as the run's totals take it (a lone ray's value too).
         let y = x * scale.unwrap_or(1.0);
         let y = if r == 0 { y } else { -y };
         let y = [y.x as f32, y.y as f32, y.z as f32];
-        let row = self.row_of(j);
         for ((a, s), k) in self.projected.get_mut(row).iter_mut().zip(signs).zip(0..) {
             *a += *s * y[k % 3];
         }
@@ -539,6 +576,26 @@ impl Waves {
             add_sample(self.pending.get_mut(row), self.closed % SKETCHES, d);
             add_sample(self.raw.get_mut(row), self.closed % SKETCHES, d);
         }
+    }
+
+    /// Adds `x` (W² per channel) to patch `j`'s squares of deposits that the error samples
+    /// do not hold.
+    pub fn add_unsampled(&mut self, j: usize, x: DVec3) {
+        let r = self.row_of(j);
+        self.sums.get_mut(r).unsampled += x;
+    }
+
+    /// Per patch, in patch order: the sum of the squares of its deposits (W² per channel,
+    /// the power its front kept from each ray) and the part of it the error samples do not
+    /// hold ([`Waves::add_unsampled`]), zero for a patch no deposit reached.
+    pub fn deposits(&self) -> (Vec<DVec3>, Vec<DVec3>) {
+        let dense = |f: fn(&Sums) -> DVec3| -> Vec<DVec3> {
+            self.row
+                .iter()
+                .map(|&s| f(sums_at(&self.sums, s)))
+                .collect()
+        };
+        (dense(|s| s.squares), dense(|s| s.unsampled))
     }
 
     /// The entry of patch `j` in the rows, made (all zero) at its first deposit.
@@ -554,6 +611,7 @@ impl Waves {
                 rows.push(ZERO_ROW);
             }
             self.recent.push([EMPTY; RECENT]);
+            self.sums.push(NO_SUMS);
             self.row[j] = len as u32;
         }
         self.row[j] as usize
@@ -564,11 +622,12 @@ impl Waves {
         self.closed += 1;
         for (j, wave, v) in self.wave.drain(..) {
             let j = j as usize;
-            self.slot[j] = NO_SLOT;
-            self.differences[j] += wave.variance_of_sum();
-            self.model[j].0 += v;
-            self.model[j].1 += v * v;
-            self.total[j] = self.total[j].merge(wave);
+            let sums = self.sums.get_mut(self.row[j] as usize);
+            sums.slot = NO_SLOT;
+            sums.differences += wave.variance_of_sum();
+            sums.model.0 += v;
+            sums.model.1 += v * v;
+            sums.total = sums.total.merge(wave);
             let f = self.face[j] as usize;
             let s = match self.face_slot[f] {
                 NO_SLOT => {
@@ -592,9 +651,8 @@ impl Waves {
     /// (the per-wave sums, the carried error power, the per-face sums of a wave), before the
     /// gains and the samples are measured, the run's peak of memory.
     pub fn end_run(&mut self) {
-        for v in [&mut self.slot, &mut self.carrier, &mut self.face_slot] {
-            *v = Vec::new();
-        }
+        self.face_slot = Vec::new();
+        self.carrier = Vec::new();
         self.wave = Vec::new();
         self.carried = Vec::new();
         self.recent = Blocks::default();
@@ -617,8 +675,12 @@ impl Waves {
             count[f as usize] += 1;
         }
         let mut totals = vec![DVec3::ZERO; count.len()];
-        for (t, &f) in self.total.iter().zip(&self.face) {
-            totals[f as usize] += t.sum[0] - t.sum[1];
+        // (a patch without a row adds zero)
+        for (&slot, &f) in self.row.iter().zip(&self.face) {
+            if slot != NO_SLOT {
+                let t = &self.sums.get(slot as usize).total;
+                totals[f as usize] += t.sum[0] - t.sum[1];
+            }
         }
         let (mut d, mut w) = (0.0, 0.0);
         for ((total, &c), &waves) in totals.iter().zip(&count).zip(&self.face_differences) {
@@ -662,11 +724,12 @@ impl Waves {
         // what the later waves' carrying makes of the error.
         let kappa = self.kappa_by_sources() * self.carry_factor().min(1.0);
         let measures = face.enumerate().map(move |(j, face)| {
-            let (v, v2) = self.model[j];
-            let total = self.total[j].sum[0] + self.total[j].sum[1];
+            let sums = sums_at(&self.sums, self.row[j]);
+            let (v, v2) = sums.model;
+            let total = sums.total.sum[0] + sums.total.sum[1];
             Measure {
                 face,
-                replicate: (v > 0.0).then_some(kappa * self.differences[j]),
+                replicate: (v > 0.0).then_some(kappa * sums.differences),
                 model: v,
                 dof: if v2 > 0.0 { v * v / v2 } else { 1.0 },
                 deposits: if v > 0.0 {
@@ -698,14 +761,15 @@ impl Waves {
     /// row of [`SKETCHES`] × 3 adds per deposit.
     fn kappa_by_sources(&self) -> f64 {
         let (mut d, mut w) = (0.0, 0.0);
-        for (j, &slot) in self.row.iter().enumerate() {
+        for &slot in &self.row {
             let row = row_at(&self.projected, slot);
-            if self.model[j].0 > 0.0 {
+            let sums = sums_at(&self.sums, slot);
+            if sums.model.0 > 0.0 {
                 d += (0..SKETCHES)
                     .map(|g| sample(row, g).length_squared())
                     .sum::<f64>()
                     / SKETCHES as f64;
-                w += self.differences[j];
+                w += sums.differences;
             }
         }
         if w > 0.0 { d / w } else { 1.0 }
@@ -745,11 +809,13 @@ impl Waves {
     /// the run is such a function (`crate::schedule::combined`), and so is a face's power.
     /// Also returns the samples of the error power still pending and of the error power the
     /// finishing roulette dropped ([`Waves::drop_pending`]), each summed over the patches.
-    pub fn sketch(self) -> (Vec<Row>, [DVec3; SKETCHES], [DVec3; SKETCHES]) {
+    /// The samples are kept where they were made, for the patches a deposit reached only
+    /// ([`Sketch`]).
+    pub fn sketch(self) -> (Sketch, [DVec3; SKETCHES], [DVec3; SKETCHES]) {
         let k = self.kappa_by_sources().sqrt();
         let dropped = self.dropped.map(|d| d * k);
         // What the samples need, the rest goes first.
-        let (slots, sketch, pending) = {
+        let (slots, mut sketch, pending) = {
             let waves = self;
             (waves.row, waves.sketch, waves.pending)
         };
@@ -761,14 +827,73 @@ impl Waves {
             }
         }
         let k = k as f32;
-        let rows = slots
-            .iter()
-            .map(|&slot| {
-                let (row, pending) = (row_at(&sketch, slot), row_at(&pending, slot));
-                std::array::from_fn(|x| (row[x] + pending[x]) * k)
-            })
-            .collect();
+        for (r, block) in sketch.blocks.iter_mut().enumerate() {
+            for (x, row) in block.iter_mut().enumerate() {
+                let pending = pending.get(r * ROW_BLOCK + x);
+                *row = std::array::from_fn(|x| (row[x] + pending[x]) * k);
+            }
+        }
+        let rows = Sketch {
+            slot: slots,
+            rows: sketch,
+        };
         (rows, sums, dropped)
+    }
+}
+
+/// Error samples of a shooting run ([`Waves::sketch`]), one [`Row`] per patch, kept only for
+/// the patches a deposit reached (the rest are zero): 4 bytes a patch and 96 a patch reached,
+/// where a dense array held 96 a patch (a run of fewer rays than patches reaches a few of
+/// them).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Sketch {
+    /// Per patch, its entry in `rows` ([`NO_SLOT`]: none, its samples zero).
+    slot: Vec<u32>,
+    /// The rows of the patches reached.
+    rows: Rows,
+}
+
+impl Sketch {
+    /// The number of patches (0 when no wave ran).
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+
+    /// Whether it has no patch.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
+    }
+
+    /// Patch `i`'s samples (`i < len`).
+    #[inline]
+    pub fn get(&self, i: usize) -> &Row {
+        row_at(&self.rows, self.slot[i])
+    }
+
+    /// Each patch's samples, in patch order.
+    pub fn iter(&self) -> impl Iterator<Item = &Row> {
+        self.slot.iter().map(|&s| row_at(&self.rows, s))
+    }
+
+    /// Patch `i`'s samples to change, `None` for a patch without a row (its samples zero,
+    /// which a change that keeps zero at zero leaves as they are).
+    #[inline]
+    pub fn get_mut(&mut self, i: usize) -> Option<&mut Row> {
+        match self.slot[i] {
+            NO_SLOT => None,
+            s => Some(self.rows.get_mut(s as usize)),
+        }
+    }
+
+    /// One row per patch, in patch order (the rows go as they are copied).
+    pub fn into_dense(self) -> Vec<Row> {
+        let mut dense = vec![ZERO_ROW; self.slot.len()];
+        for (d, &s) in dense.iter_mut().zip(&self.slot) {
+            if s != NO_SLOT {
+                *d = *self.rows.get(s as usize);
+            }
+        }
+        dense
     }
 }
 
@@ -978,14 +1103,14 @@ mod tests {
     /// The bytes `w` holds on the heap (its arrays' capacities).
     fn heap_bytes(w: &Waves) -> usize {
         let rows = rows_bytes;
-        b(&w.slot)
-            + b(&w.row)
+        b(&w.row)
             + b(&w.wave)
-            + b(&w.total)
-            + b(&w.differences)
-            + b(&w.model)
+            + b(&w.sums.blocks)
+            + w.sums.blocks.iter().map(b).sum::<usize>()
             + rows(&w.sketch)
             + rows(&w.pending)
+            + b(&w.recent.blocks)
+            + w.recent.blocks.iter().map(b).sum::<usize>()
             + b(&w.carrier)
             + b(&w.carried)
             + b(&w.face)
@@ -997,13 +1122,15 @@ mod tests {
     }
 
     #[test]
-    fn waves_hold_100_bytes_a_patch_and_rows_where_deposits_land() {
-        // Memory per element (issue 35): the run's sums are dense (88 bytes a patch, 12 a
-        // face), the error samples' rows (384) made at a patch's first deposit, a wave's sums
-        // sparse.
+    fn waves_hold_24_bytes_a_patch_and_rows_where_deposits_land() {
+        // Memory per element (issue 35): 12 bytes a patch (its face, row and carrier), 12 a
+        // face;
+        // the run's sums (128, shooting's squares of deposits among them) and the
+        // error samples' rows (384) made at a patch's first deposit, a wave's sums sparse.
         let n = 5000;
         let mut w = Waves::new((0..n as u32).collect());
-        assert_eq!(heap_bytes(&w), 100 * n);
+        assert_eq!(heap_bytes(&w), 24 * n);
+        let sums = |w: &Waves, j: usize| *sums_at(&w.sums, w.row[j]);
         let signs = source_signs(0);
         let x = DVec3::new(1.0, 2.0, 3.0);
         let mut counts = vec![0u64; n];
@@ -1015,16 +1142,16 @@ mod tests {
         w.push(7, 1, 0.5 * x, Some(1.0), &signs);
         w.end_wave();
         let (d, v) = ((0.5 * x).length_squared(), 1.25 * x.length_squared());
-        assert_eq!(w.differences[7], d);
-        assert_eq!(w.model[7], (v, v * v));
+        assert_eq!(sums(&w, 7).differences, d);
+        assert_eq!(sums(&w, 7).model, (v, v * v));
         assert_eq!(w.face_differences[7], d);
-        assert_eq!(w.differences.iter().sum::<f64>(), d);
+        assert_eq!(sums(&w, 6).differences, 0.0);
         // The next wave starts from nothing.
         w.begin_wave(&counts);
         w.push(7, 1, x, Some(1.0), &signs);
         w.end_wave();
-        assert_eq!(w.differences[7], d + x.length_squared());
-        assert_eq!(w.total[7].sum, [x, 1.5 * x]);
+        assert_eq!(sums(&w, 7).differences, d + x.length_squared());
+        assert_eq!(sums(&w, 7).total.sum, [x, 1.5 * x]);
         assert_eq!(w.face_differences[7], d + x.length_squared());
         // One patch with rows: one block of each.
         assert_eq!(w.row.iter().filter(|&&r| r != NO_SLOT).count(), 1);
@@ -1033,8 +1160,11 @@ mod tests {
         assert!(rows.iter().all(|r| r.len() == 1 && r.blocks.len() == 1));
         // (a block's rows, and the list of blocks: room for 4)
         assert!(row_bytes <= 4 * (size_of::<Row>() * ROW_BLOCK + 4 * size_of::<Vec<Row>>()));
+        let sums_bytes = b(&w.sums.blocks) + w.sums.blocks.iter().map(b).sum::<usize>();
+        assert_eq!(w.sums.len(), 1);
+        assert!(sums_bytes <= size_of::<Sums>() * ROW_BLOCK + 4 * size_of::<Vec<Sums>>());
         w.end_run();
-        assert_eq!(heap_bytes(&w), 88 * n + row_bytes);
+        assert_eq!(heap_bytes(&w), 16 * n + row_bytes + sums_bytes);
     }
 
     /// A source whose lone rays keep power on patch 1 (probability 0.3, reflectance 0.5) or
@@ -1069,7 +1199,7 @@ mod tests {
             );
             assert!(lone.unpaired(rho).is_empty());
             let (rows, _, _) = waves.sketch();
-            let (d1, d2) = (f64::from(rows[1][0]), f64::from(rows[2][0]));
+            let (d1, d2) = (f64::from(rows.get(1)[0]), f64::from(rows.get(2)[0]));
             let c2 = (pa * pa + pb * pb) / 2.0;
             s11.push(d1 * d1 / (2.0 * c2));
             s22.push(d2 * d2 / (2.0 * c2));

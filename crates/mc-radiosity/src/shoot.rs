@@ -225,12 +225,13 @@ pub struct Shooting {
     /// Counters and the power balance.
     pub stats: ShootStats,
     /// Error samples of `estimate`'s radiosity (W/m² per channel, [`SKETCHES`] per patch,
-    /// mesh order; [`Waves::sketch`] divided by the areas): for weights `c`,
+    /// mesh order, kept for the patches reached only; [`Waves::sketch`] divided by the
+    /// areas): for weights `c`,
     /// `sum_g (sum_j c_j z_gj)²` estimates the variance of `sum_j c_j B_j`, the correlation
     /// between patches included. Empty when no wave ran.
     ///
     /// [`SKETCHES`]: crate::replicates::SKETCHES
-    pub sketch: Vec<crate::replicates::Row>,
+    pub sketch: crate::replicates::Sketch,
     /// The part of `estimate`'s variance that `sketch` does not hold ((W/m²)², per patch and
     /// channel, by the independent-ray formula): deposits of rays alone in their replicate
     /// in a wave (a roulette tail's, mostly) and an extrapolated remainder's.
@@ -323,15 +324,18 @@ pub fn shoot<C: RayCaster>(
     // Rays each patch has cast in the waves so far: where its sequence goes on.
     let mut cast = vec![0u64; patches.len()];
 
-    let mut reflected = vec![DVec3::ZERO; patches.len()];
-    let mut squares = vec![DVec3::ZERO; patches.len()];
-    // The part of `squares` the error samples do not hold: deposits of rays alone in their
-    // replicate (`replicate_scale`).
-    let mut unsampled = vec![DVec3::ZERO; patches.len()];
     // Quasi-Monte Carlo rays: each patch's deposits split by the replicate of the ray's source
     // sequence, wave by wave (crate::replicates).
-    // Kept under either sampler: their error samples (`Waves::sketch`) serve both.
-    let mut waves = Some(Waves::new(patches.iter().map(|p| p.face).collect()));
+    // Kept under either sampler: their error samples (`Waves::sketch`) serve both. They also
+    // hold, for the patches a deposit reaches only, the sum of the squares of the deposits
+    // and the part of it the error samples do not hold (deposits of rays alone in their
+    // replicate, `replicate_scale`), made dense once the waves end (`Waves::deposits`).
+    let mut waves = Waves::new(patches.iter().map(|p| p.face).collect());
+    // The reflected power per patch, dense: every wave reads it in patch order.
+    let mut reflected = vec![DVec3::ZERO; patches.len()];
+    // The radiosity the observer sees, made after every wave (held, not made anew: a fresh
+    // array a wave cost its page faults every wave).
+    let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // Rays alone in their replicate, waiting for their pair (`replicates::LoneRays`).
     let mut lone = replicates::LoneRays::default();
     let mut stats = ShootStats {
@@ -349,7 +353,6 @@ pub fn shoot<C: RayCaster>(
         extrapolated: DVec3::ZERO,
         stop: StopReason::BudgetSpent,
     };
-    let mut radiosity = vec![DVec3::ZERO; patches.len()];
     // The energy per ray of the first wave: the finishing roulette's.
     let mut phi_0: Option<f64> = None;
     // The budget, lowered when the observer limits the rays left.
@@ -399,20 +402,16 @@ pub fn shoot<C: RayCaster>(
             let held: Vec<bool> = unshot.iter().map(|u| total(*u) > 0.0).collect();
             let counts = roulette(&mut unshot, phi, config.seed, wave, &mut stats.roulette);
             stats.finishing_rays += counts.iter().sum::<u64>();
-            if let Some(waves) = waves.as_mut() {
-                // The error power pending with the power the roulette dropped goes with it.
-                for (i, (&held, &n)) in held.iter().zip(&counts).enumerate() {
-                    if held && n == 0 {
-                        waves.drop_pending(i);
-                    }
+            // The error power pending with the power the roulette dropped goes with it.
+            for (i, (&held, &n)) in held.iter().zip(&counts).enumerate() {
+                if held && n == 0 {
+                    waves.drop_pending(i);
                 }
             }
             counts
         };
         let mut jobs = wave_jobs(&counts, &cast);
-        if let Some(waves) = waves.as_mut() {
-            waves.begin_wave(&counts);
-        }
+        waves.begin_wave(&counts);
         for job in &mut jobs {
             let i = job.patch as usize;
             job.power = unshot[i] / counts[i] as f64;
@@ -446,14 +445,11 @@ pub fn shoot<C: RayCaster>(
                 let (mut absorbed, mut escaped) = (DVec3::ZERO, 0u64);
                 let mut kept_sum = DVec3::ZERO;
                 let mut kept_squares = DVec3::ZERO;
-                if let Some(waves) = waves.as_mut() {
-                    // The error power the rays carry, if any, goes on with them
-                    // (`Waves::ray`).
-                    let rho = |j: usize| patches[j].reflectance;
-                    for (t, &h) in hits.iter().enumerate() {
-                        let front = (h != MISS && h & BACK == 0).then_some(h as usize);
-                        waves.ray(i, job.first + t as u64, front, rho);
-                    }
+                // The error power the rays carry, if any, goes on with them (`Waves::ray`).
+                let rho = |j: usize| patches[j].reflectance;
+                for (t, &h) in hits.iter().enumerate() {
+                    let front = (h != MISS && h & BACK == 0).then_some(h as usize);
+                    waves.ray(i, job.first + t as u64, front, rho);
                 }
                 for (t, &h) in hits.iter().enumerate() {
                     if h == MISS {
@@ -466,26 +462,22 @@ pub fn shoot<C: RayCaster>(
                         let kept = patches[j].reflectance.as_dvec3() * p;
                         reflected[j] += kept;
                         unshot[j] += kept;
-                        squares[j] += kept * kept;
-                        if let Some(waves) = waves.as_mut() {
-                            let r = replicate(job.first + t as u64);
-                            waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
-                        } else if scale.is_none() {
-                            unsampled[j] += kept * kept;
-                        }
+                        // (with the square of the deposit)
+                        let r = replicate(job.first + t as u64);
+                        waves.push(j, r, kept, scale.map(|h| h[r]), &signs);
                         kept_sum += kept;
                         kept_squares += kept * kept;
                         absorbed += p - kept;
                     }
                 }
-                if let (None, [h], Some(waves)) = (scale, hits.as_slice(), waves.as_mut()) {
+                if let (None, [h]) = (scale, hits.as_slice()) {
                     // A ray alone in its replicate: paired with the patch's next lone ray of
                     // the other replicate (`replicates::LoneRays`), or left to the formula.
                     let front = (*h != MISS && *h & BACK == 0).then_some(*h);
                     let rho = |j: u32| patches[j as usize].reflectance.as_dvec3();
                     let r = replicate(job.first);
-                    if let Some((j, kept)) = lone.ray(job.patch, r, front, p, waves, rho) {
-                        unsampled[j as usize] += kept * kept;
+                    if let Some((j, kept)) = lone.ray(job.patch, r, front, p, &mut waves, rho) {
+                        waves.add_unsampled(j as usize, kept * kept);
                     }
                 }
                 returning.add(p, hits.len() as f64, kept_sum, kept_squares);
@@ -500,10 +492,10 @@ pub fn shoot<C: RayCaster>(
             *c += n;
         }
         stats.waves += 1;
-        if let Some(waves) = waves.as_mut() {
-            waves.end_wave();
+        waves.end_wave();
+        for ((b, p), r) in radiosity.iter_mut().zip(patches).zip(&reflected) {
+            *b = p.emission.as_dvec3() + *r / p.area;
         }
-        radiosity_so_far(patches, &reflected, &mut radiosity);
         let progress = ShootProgress {
             waves: stats.waves,
             rays: stats.rays,
@@ -520,23 +512,25 @@ pub fn shoot<C: RayCaster>(
         budget = budget.min(stats.rays.saturating_add(limit.get()));
     }
     stats.unshot = unshot.iter().sum();
+    // What the waves needed goes before the replicates' gains are measured (the run's peak).
+    drop(cast);
+    waves.end_run();
+    drop(radiosity);
+    // The sums of squares assume independent rays: scale them by the gain the replicates
+    // measure, wave by wave (crate::replicates). Measured before the dense sums are made
+    // (its per-face sums, 36 bytes a face, go first, as do the face scale's, 28).
+    let face_scale = waves.face_scale();
+    let gains =
+        (ctx.sampling() == Sampler::Qmc).then(|| waves.gains(patches.iter().map(|p| p.face)));
+    let (mut squares, mut unsampled) = waves.deposits();
     for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
         unsampled[j as usize] += kept * kept;
     }
-    // What the waves needed goes before the replicates' gains are measured (the run's peak).
-    drop(cast);
-    if let Some(waves) = waves.as_mut() {
-        waves.end_run();
-    }
-    if let Some(waves) = waves.as_ref().filter(|_| ctx.sampling() == Sampler::Qmc) {
-        // The sums of squares assume independent rays: scale them by the gain the replicates
-        // measure, wave by wave (crate::replicates).
-        let gains = waves.gains(patches.iter().map(|p| p.face));
+    if let Some(gains) = gains {
         replicates::scale(&mut squares, &gains);
         replicates::scale(&mut unsampled, &gains);
     }
-    let face_scale = waves.as_ref().map_or(1.0, Waves::face_scale);
-    let (mut sketch, pending, dropped) = waves.map(|w| w.sketch()).unwrap_or_default();
+    let (mut sketch, pending, dropped) = waves.sketch();
     if extrapolate {
         let (scale, remainder_variance) = remainder(&reflected, &unshot, &returning);
         // The extrapolation `reflected_i (1 + x)`, `x = |U| r / ((1 - r) sum reflected)`, is
@@ -545,7 +539,7 @@ pub fn shoot<C: RayCaster>(
         let (u, so_far): (DVec3, DVec3) = (unshot.iter().sum(), reflected.iter().sum());
         let x = scale - DVec3::ONE;
         let mut sums = [DVec3::ZERO; crate::replicates::SKETCHES];
-        for row in &sketch {
+        for row in sketch.iter() {
             for (g, s) in sums.iter_mut().enumerate() {
                 *s += crate::replicates::sample(row, g);
             }
@@ -553,7 +547,12 @@ pub fn shoot<C: RayCaster>(
         let shift: Vec<DVec3> = (0..crate::replicates::SKETCHES)
             .map(|g| x * (ratio(pending[g], u) - ratio(sums[g], so_far)))
             .collect();
-        for (row, q) in sketch.iter_mut().zip(&reflected) {
+        // (a patch without a row was reached by no deposit: nothing reflected, its samples
+        // stay zero)
+        for (i, q) in reflected.iter().enumerate() {
+            let Some(row) = sketch.get_mut(i) else {
+                continue;
+            };
             for (g, shift) in shift.iter().enumerate() {
                 let z = crate::replicates::sample(row, g) * scale + *q * *shift;
                 row[3 * g..3 * g + 3].copy_from_slice(&z.as_vec3().to_array());
@@ -588,7 +587,10 @@ pub fn shoot<C: RayCaster>(
             .map(|(d, p)| ratio(*d + *p, actual))
             .collect();
         if shift.iter().any(|s| *s != DVec3::ZERO) {
-            for (row, q) in sketch.iter_mut().zip(&reflected) {
+            for (i, q) in reflected.iter().enumerate() {
+                let Some(row) = sketch.get_mut(i) else {
+                    continue;
+                };
                 for (g, shift) in shift.iter().enumerate() {
                     crate::replicates::add_sample(row, g, *q * *shift);
                 }
@@ -599,18 +601,24 @@ pub fn shoot<C: RayCaster>(
         *r *= scale;
         *q *= scale * scale;
     }
-    for ((row, u), p) in sketch.iter_mut().zip(&mut unsampled).zip(patches) {
-        let a = p.area;
-        let factor = (scale / a).as_vec3();
-        *row = crate::replicates::scaled(row, factor);
-        *u *= (scale / a) * (scale / a);
+    if !sketch.is_empty() {
+        for (i, (u, p)) in unsampled.iter_mut().zip(patches).enumerate() {
+            let a = p.area;
+            if let Some(row) = sketch.get_mut(i) {
+                *row = crate::replicates::scaled(row, (scale / a).as_vec3());
+            }
+            *u *= (scale / a) * (scale / a);
+        }
     }
-    radiosity_so_far(patches, &reflected, &mut radiosity);
-    let variance = squares
-        .iter()
-        .zip(patches)
-        .map(|(s, p)| *s / (p.area * p.area))
-        .collect();
+    // The answer in the arrays of the sums (made in place, not beside them).
+    let mut radiosity = reflected;
+    for (b, p) in radiosity.iter_mut().zip(patches) {
+        *b = p.emission.as_dvec3() + *b / p.area;
+    }
+    let mut variance = squares;
+    for (v, p) in variance.iter_mut().zip(patches) {
+        *v /= p.area * p.area;
+    }
     let estimate = Estimate::new(radiosity, Some(variance), stats.rays)?;
     Ok(Shooting {
         estimate,
@@ -807,13 +815,6 @@ fn wave_jobs(counts: &[u64], cast: &[u64]) -> Vec<Job> {
     jobs
 }
 
-/// `B_i = E_i + reflected_i / A_i` into `out`.
-fn radiosity_so_far(patches: &[mcrad_meshing::Patch], reflected: &[DVec3], out: &mut [DVec3]) {
-    for ((b, p), r) in out.iter_mut().zip(patches).zip(reflected) {
-        *b = p.emission.as_dvec3() + *r / p.area;
-    }
-}
-
 /// Ray counts of one wave: systematic sampling of the cumulative power, `n_i = floor(C_i + u) -
 /// floor(C_{i-1} + u)` with `C_i = sum_{k <= i} |U_k| / phi` and one uniform `u` for the wave,
 /// so `E[n_i] = |U_i| / phi` (each `n_i` is `floor` or `ceil` of it, as stochastic rounding
@@ -957,10 +958,7 @@ pub(crate) fn unreached_variance(
     mesh: &mcrad_meshing::Mesh,
     estimate: Estimate,
 ) -> Result<Estimate, Error> {
-    let Some(variance) = estimate.variance() else {
-        return Ok(estimate);
-    };
-    if estimate.rays() == 0 {
+    if estimate.variance().is_none() || estimate.rays() == 0 {
         return Ok(estimate);
     }
     let patches = mesh.patches();
@@ -970,20 +968,16 @@ pub(crate) fn unreached_variance(
         .zip(patches)
         .map(|(b, p)| *b * p.area)
         .sum();
-    let per_ray = power / estimate.rays() as f64;
-    let variance: Vec<DVec3> = variance
-        .iter()
-        .zip(patches)
-        .map(|(v, p)| {
-            let x = p.reflectance.as_dvec3() * per_ray / p.area;
-            DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v)
-        })
-        .collect();
-    Ok(Estimate::new(
-        estimate.radiosity().to_vec(),
-        Some(variance),
-        estimate.rays(),
-    )?)
+    let rays = estimate.rays();
+    let per_ray = power / rays as f64;
+    // In place: the estimate's arrays are handed on, not copied.
+    let (radiosity, variance, _) = estimate.into_parts();
+    let mut variance = variance.unwrap_or_default();
+    for (v, p) in variance.iter_mut().zip(patches) {
+        let x = p.reflectance.as_dvec3() * per_ray / p.area;
+        *v = DVec3::select(v.cmpeq(DVec3::ZERO), x * x, *v);
+    }
+    Ok(Estimate::new(radiosity, Some(variance), rays)?)
 }
 
 #[cfg(test)]

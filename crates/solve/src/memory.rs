@@ -9,22 +9,25 @@ use mcrad_meshing::{Mesh, Subdivision};
 use mcrad_scene_io::Scene;
 
 /// Bytes per element (patch) a solve holds whatever its rays: the patch and its triangles,
-/// the BVH and its build, the adaptive hierarchy, the sampler, the method's per-patch sums
-/// (shooting's, the steps', the refinement's pooled estimate) and the allocator's slack.
-/// Measured peak RSS on the generated atrium of 10^6 elements at 2e6 rays
-/// (docs/atrium.md, "Memory and scale"): 630-670 bytes per element, of which about 40 are the
-/// error samples of the patches reached ([`BYTES_PER_REACHED`]) and 66 the fixed part.
-pub const BYTES_PER_ELEMENT: u64 = 600;
+/// the BVH and its build, the adaptive hierarchy, the sampler, the method's dense per-patch
+/// arrays (shooting's unshot and reflected power and rays cast, the steps' copy, the
+/// refinement's pooled estimate, the answer) and the allocator's slack. Measured peak RSS on
+/// the generated atrium of 10^6 elements at 2e6 rays, where a tenth of the patches get a
+/// deposit (docs/meshing.md, "Memory per element"): 575-620 bytes per element (median 589,
+/// against 651 before), of which about 60 are the rows of the patches reached
+/// ([`BYTES_PER_REACHED`]) and 66 the fixed part.
+pub const BYTES_PER_ELEMENT: u64 = 400;
 
 /// Bytes per element a shooting ray's first deposit adds: its error samples (four rows of
-/// 24 `f32`, 384 bytes, in blocks that never move), made only for patches a deposit lands
-/// on, so at most `min(elements, rays)` of them.
-pub const BYTES_PER_REACHED: u64 = 400;
+/// 24 `f32`, 384 bytes), the slots of its last rays (64) and its replicate sums and sums of
+/// squares (128), in blocks that never move, made only for patches a deposit lands on, so at
+/// most `min(elements, rays)` of them.
+pub const BYTES_PER_REACHED: u64 = 600;
 
 /// Bytes per element a gathering pass adds (the gathers' merged estimate and their image of
 /// the shooting's error samples, held through the next pass's shooting beside the earlier
 /// passes' shooting estimate and samples): measured with [`BYTES_PER_ELEMENT`] and
-/// [`BYTES_PER_REACHED`] at 2e7 rays on the 10^6-element atrium, about 1,180 bytes per
+/// [`BYTES_PER_REACHED`] at 2e7 rays on the 10^6-element atrium, about 1,150 bytes per
 /// element in all. A method gathers on a mesh of `P` patches only with at least
 /// [`gather_rays_per_element`] `P` rays, so at most `min(elements, rays / k)` elements.
 pub const BYTES_PER_GATHERED: u64 = 250;

@@ -22,6 +22,7 @@ use mcrad_random::derive_seed;
 use mcrad_raycast::Bvh;
 use mcrad_reference::ReferenceConfig;
 use mcrad_scene_io::Scene;
+use std::borrow::Cow;
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -46,8 +47,8 @@ pub struct Answer {
     /// What the run reports of itself.
     pub stats: RunStats,
     /// The run's state, to continue it ([`Problem::resume`]); `None` for a deterministic
-    /// method, or a run stopped in a step that is not a complete solution (a shooting wave, a
-    /// Jacobi round).
+    /// method, a new run without [`Problem::keep_state`], or a run stopped in a step that is
+    /// not a complete solution (a shooting wave, a Jacobi round).
     pub state: Option<RunState>,
     /// Whether the run ended because the error target was reached.
     pub target_reached: bool,
@@ -122,8 +123,8 @@ impl Progress<'_> {
         if !self.complete {
             return Ok(None);
         }
-        let (_, state) = self.run.settle(self.step_estimate, self.step, 0)?;
-        Ok(Some(state))
+        let (_, state) = self.run.settle(self.step_estimate, self.step, 0, true)?;
+        Ok(state)
     }
 }
 
@@ -155,30 +156,31 @@ impl Run<'_> {
     fn answer(&self, estimate: &Estimate) -> Result<Estimate, Error> {
         if let Some(state) = self.resumed {
             return state
-                .continued(&self.clustered(estimate)?, 0, 0)?
+                .continued(&self.clustered(Cow::Borrowed(estimate))?, 0, 0)?
                 .estimate();
         }
         match self.refinement {
             Some(r) => {
                 let all = vec![r.pooled_valid; self.mesh.patches().len()];
-                self.clustered(&pool(self.mesh, estimate, &r.pooled, &all)?)
+                self.clustered(Cow::Owned(pool(self.mesh, estimate, &r.pooled, &all)?))
             }
-            None => self.clustered(estimate),
+            None => self.clustered(Cow::Borrowed(estimate)),
         }
     }
 
     /// `estimate` pooled over the run's clusters (itself without clusters); the groups of
-    /// the transport are counted with the pooling's groups.
-    fn clustered(&self, estimate: &Estimate) -> Result<Estimate, Error> {
+    /// the transport are counted with the pooling's groups. An estimate handed over is
+    /// returned as it is where nothing is pooled (not copied: 48 bytes a patch).
+    fn clustered(&self, estimate: Cow<'_, Estimate>) -> Result<Estimate, Error> {
         let (transport, formed) = self.transport;
         if self.clusters.is_empty() && transport.is_empty() {
-            return Ok(estimate.clone());
+            return Ok(estimate.into_owned());
         }
         let (pooled, mut counts, mut groups) = if self.clusters.is_empty() {
             let alone = vec![ALONE; self.mesh.patches().len()];
-            (estimate.clone(), PoolCounts::default(), alone)
+            (estimate.into_owned(), PoolCounts::default(), alone)
         } else {
-            pool_clusters(self.mesh, self.clusters, estimate, true)?
+            pool_clusters(self.mesh, self.clusters, &estimate, true)?
         };
         for (k, members) in transport.iter().enumerate() {
             for &i in members {
@@ -195,17 +197,24 @@ impl Run<'_> {
     }
 
     /// The answer and the state after this piece's `estimate` (`steps` steps, `escaped_rays`
-    /// escaped rays), each made once: the state holds the answer.
+    /// escaped rays), each made once: the state holds the answer. A new run's state is made
+    /// only when `keep` says so ([`Problem::keep_state`]); a continued run's always (its
+    /// answer is read from it).
     fn settle(
         &self,
         estimate: &Estimate,
         steps: u32,
         escaped_rays: u64,
-    ) -> Result<(Estimate, RunState), Error> {
+        keep: bool,
+    ) -> Result<(Estimate, Option<RunState>), Error> {
         match self.resumed {
             Some(saved) => {
-                let state = saved.continued(&self.clustered(estimate)?, steps, escaped_rays)?;
-                Ok((state.estimate()?, state))
+                let state = saved.continued(
+                    &self.clustered(Cow::Borrowed(estimate))?,
+                    steps,
+                    escaped_rays,
+                )?;
+                Ok((state.estimate()?, Some(state)))
             }
             None => {
                 let id = Identity {
@@ -216,7 +225,7 @@ impl Run<'_> {
                     lighting: self.lighting,
                 };
                 let answer = self.answer(estimate)?;
-                let state = RunState::new(&id, &answer, 1, steps, escaped_rays);
+                let state = keep.then(|| RunState::new(&id, &answer, 1, steps, escaped_rays));
                 Ok((answer, state))
             }
         }
@@ -571,6 +580,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         },
         Err(e) => return Err(e.into()),
     };
+    // the last step's copy, kept for a cancelled step, is not needed past here
+    drop(last_step);
     let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
     drop((transport, transport_bvh));
     let seconds = start.elapsed().as_secs_f64();
@@ -592,8 +603,18 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         (k, ..) => k.clone(),
     };
-    let (estimate, state) =
-        run.settle(&solution.estimate, solution.steps, solution.escaped_rays)?;
+    let (estimate, state) = run.settle(
+        &solution.estimate,
+        solution.steps,
+        solution.escaped_rays,
+        problem.keep_state,
+    )?;
+    // over all pieces (a new run's own without a state)
+    let (steps, escaped_rays) = state
+        .as_ref()
+        .map_or((solution.steps, solution.escaped_rays), |s| {
+            (s.steps(), s.escaped_rays())
+        });
     // a run stopped in a step that is not an answer lacks part of its light
     let state_complete = solution.stop != StopReason::Stopped || complete_steps;
     let solved_rays = match problem.resume {
@@ -631,11 +652,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         rays: solved_rays + refinement_rays,
         seconds,
         rays_per_second: piece_rays as f64 / seconds.max(1e-9),
-        iterations: state.steps(),
+        iterations: steps,
         seed: settings.seed,
         threads: rayon::current_num_threads(),
         // Not counted by the steps: unknown when a step was abandoned.
-        escaped_rays: (!cancelled).then_some(state.escaped_rays()),
+        escaped_rays: (!cancelled).then_some(escaped_rays),
         unshot_fraction: (!cancelled).then_some(solution.unshot_fraction),
         stop: solution.stop,
         setup_seconds,
@@ -665,7 +686,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         estimate,
         patch,
         stats,
-        state: (!deterministic && state_complete).then_some(state),
+        state: state.filter(|_| !deterministic && state_complete),
         target_reached,
         cancelled,
         complete_steps,

@@ -219,6 +219,10 @@ pub struct Problem<'a> {
     pub after: Option<AfterSolve<'a>>,
     /// How clusters of small faces serve an adaptive solve.
     pub clustering: Clustering,
+    /// Make a new run's state to continue it ([`Answer::state`](crate::Answer::state)):
+    /// `false` leaves it out (about 60 bytes a patch, made at the end of the solve beside the
+    /// answer) when nothing will be saved. A continued run's state is always made.
+    pub keep_state: bool,
 }
 
 /// How the clusters of small faces ([`mcrad_meshing::Clusters`]) serve a new solve on the
@@ -263,6 +267,7 @@ impl<'a> Problem<'a> {
             closure: false,
             after: None,
             clustering: Clustering::default(),
+            keep_state: true,
         }
     }
 }

@@ -118,9 +118,12 @@ fn the_estimate_follows_the_rays_and_bounds_the_runs_terms() {
 
 /// The model's constants bound the peaks measured on the generated atrium of about 10^6
 /// elements (docs/atrium.md, "Memory and scale": peak RSS of `mcrad solve`, `combined`, 2
-/// threads, the largest of three runs), with the scene counted as nothing (it is dropped
-/// before the peak): at 2e6 rays 658,952 KiB, at 2e7 rays 1,171,908 KiB. The per-element terms beyond the fixed part are at
-/// most a fifth above what these peaks need at 2e7 rays, where the budget reaches every element.
+/// threads, the largest of the runs, `--clusters pool`), with the scene counted as nothing
+/// (it is dropped before the peak): at 2e6 rays 658,952 KiB (before the cuts of
+/// docs/meshing.md, "Memory per element"; 577,000-623,000 KiB after), at 2e7 rays 1,171,908
+/// KiB (1,139,000-1,147,000 after). The
+/// per-element terms beyond the fixed part are at most a fifth above what these peaks need at
+/// 2e7 rays, where the budget reaches every element.
 #[test]
 fn the_model_bounds_the_measured_peaks() {
     for (elements, rays, peak_kib) in [

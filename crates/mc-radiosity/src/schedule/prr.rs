@@ -52,11 +52,11 @@ pub(crate) fn run<C: RayCaster>(
         face_scale = (1.0 - w) * face_scale + w * s.face_scale;
         if rows.is_empty() {
             (rows, unsampled) = (
-                std::mem::take(&mut s.sketch),
+                std::mem::take(&mut s.sketch).into_dense(),
                 std::mem::take(&mut s.unsampled),
             );
         } else if s.sketch.len() == rows.len() {
-            rows = blend(rows, &s.sketch, w);
+            rows = blend(rows, s.sketch.iter(), w);
             unsampled = by_rays(&unsampled, &s.unsampled, w);
         }
         passes.refund(held);

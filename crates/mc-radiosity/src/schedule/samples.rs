@@ -81,7 +81,7 @@ impl ShotSamples {
     /// The samples of one shooting pass (taken out of it).
     pub(crate) fn take(s: &mut crate::shoot::Shooting) -> ShotSamples {
         ShotSamples {
-            sketch: std::mem::take(&mut s.sketch),
+            sketch: std::mem::take(&mut s.sketch).into_dense(),
             unsampled: std::mem::take(&mut s.unsampled),
         }
     }
@@ -481,7 +481,7 @@ pub(crate) fn by_rays(a: &[DVec3], b: &[DVec3], w: f64) -> Vec<DVec3> {
 
 /// `(1 - w) a + w b`, sample by sample: error samples of two independent estimates merged
 /// with weight `w` on the second.
-pub(crate) fn blend(mut a: Vec<Row>, b: &[Row], w: f64) -> Vec<Row> {
+pub(crate) fn blend<'a>(mut a: Vec<Row>, b: impl IntoIterator<Item = &'a Row>, w: f64) -> Vec<Row> {
     let w = w as f32;
     for (a, b) in a.iter_mut().zip(b) {
         for (a, b) in a.iter_mut().zip(b) {

@@ -36,7 +36,14 @@ pub(crate) fn run<C: RayCaster>(
     let escaped_rays = s.stats.escaped_rays;
     let face_correlation = (ctx.sampling() == crate::Sampler::Qmc
         && s.sketch.len() == mesh.patches().len())
-    .then(|| crate::correlation::face_factors(mesh, &s.sketch, &s.unsampled, s.face_scale));
+    .then(|| {
+        crate::correlation::factors_of(
+            mesh,
+            |i, g| crate::replicates::sample(s.sketch.get(i), g),
+            |i| s.unsampled[i],
+            s.face_scale,
+        )
+    });
     Ok(Solution {
         // A patch no ray reached: "no information", not a zero variance.
         estimate: crate::shoot::unreached_variance(mesh, with_ambient(mesh, config, s)?)?,

@@ -80,7 +80,7 @@ fn the_error_samples_conserve_power_as_shooting_does() {
         let (mut total, mut size) = (0.0, 0.0);
         for g in 0..crate::replicates::SKETCHES {
             let mut sum = DVec3::ZERO;
-            for (p, row) in mesh.patches().iter().zip(&s.sketch) {
+            for (p, row) in mesh.patches().iter().zip(s.sketch.iter()) {
                 let z = crate::replicates::sample(row, g) * p.area;
                 sum += z;
                 size += z.length_squared();
