@@ -904,12 +904,13 @@ fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
 }
 
 /// The adaptive mesh's start: the scene cut to the diagonal / 40 when the cut adds at most
-/// 1 / [`START_SHARE`] of the patch budget to one element per face (small faces stay whole:
-/// only faces larger than the cut are split), else to the uniform default when that adds at
-/// most the budget, else one element per face (every start within the elements the ray budget
-/// pays [`START_RAYS_PER_ELEMENT`] for), within the budget raised to one element per face plus
-/// half of it ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement
-/// off. Refined by [`adaptive_refine`] (which needs the scene no more).
+/// 1 / [`START_SHARE`] of the patch budget (or of the room the budget raised for the faces
+/// leaves beyond one element per face, when that is more) to one element per face (small
+/// faces stay whole: only faces larger than the cut are split), else to the uniform default
+/// when that adds at most the budget, else one element per face (every start within the
+/// elements the ray budget pays [`START_RAYS_PER_ELEMENT`] for), within the budget raised to
+/// two elements per face ([`AdaptiveBounds::for_faces`]): no count of input faces switches the
+/// refinement off. Refined by [`adaptive_refine`] (which needs the scene no more).
 fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<AdaptiveMesh, Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
@@ -917,8 +918,11 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
         scene.faces().len(),
         plan_bounds(scene, settings).max_patches,
     );
+    // The room beyond one element per face: the budget asked, or what the budget raised for
+    // the faces leaves beyond them when that is more.
+    let room = asked.max(bounds.max_patches.saturating_sub(faces));
     let fits = |len: usize, share: usize| {
-        len.saturating_sub(faces) <= asked / share && len <= bounds.max_patches.min(affordable)
+        len.saturating_sub(faces) <= room / share && len <= bounds.max_patches.min(affordable)
     };
     let mesh_error = |start: Subdivision| {
         move |source| Error::Mesh {
