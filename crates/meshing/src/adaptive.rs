@@ -124,16 +124,15 @@ pub const DEFAULT_MAX_PATCHES: usize = 40_000;
 
 impl AdaptiveBounds {
     /// These bounds for a scene of `faces` input faces: the patch budget raised to
-    /// `2 faces` when that is more, so that a mesh may always hold at least half of
-    /// `max_patches` elements beyond one per face, and as many more as the scene has faces,
-    /// however many faces there are (a scene of many small faces, each kept whole, still has
-    /// its large faces cut and refined: the generated atrium's 102,066 faces, whose large
-    /// faces cut to the diagonal / 40 add 49,256 elements, measured 2.70% -> 2.43% image
-    /// error at 3e7 rays with that start against the uniform default's, docs/atrium.md). A
+    /// `faces + max_patches / 2` when that is more, so that a mesh may always hold at least
+    /// half of `max_patches` elements beyond one per face, however many faces there are (a
+    /// scene of many small faces, each kept whole, still has its large faces refined). A
     /// scene of at most half as many faces as the budget keeps the budget as it is.
     pub fn for_faces(self, faces: usize) -> AdaptiveBounds {
         AdaptiveBounds {
-            max_patches: self.max_patches.max(faces.saturating_mul(2)),
+            max_patches: self
+                .max_patches
+                .max(faces.saturating_add(self.max_patches / 2)),
             ..self
         }
     }
