@@ -52,58 +52,45 @@ pub(crate) fn limited_gradients(
     min_cosine: f64,
 ) -> Vec<[DVec3; 3]> {
     let patches = mesh.patches();
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
-    // there make a full turn); and the pairs of patches of one surface that meet at a point.
-    let per_point: Vec<PointParts> = incidences
-        .par_chunk_by(|a, b| a.0 == b.0)
-        .map(|group| {
-            let point = Vec3::from_array(group[0].0.map(f32::from_bits));
-            let angles: Vec<f64> = group
-                .iter()
-                .map(|&(_, q)| angle_at(mesh, q as usize, point))
-                .collect();
-            let (mut closed, mut pairs) = (Vec::with_capacity(group.len()), Vec::new());
-            for &(_, p) in group {
-                let own = &patches[p as usize];
-                let mut turn = 0.0;
-                for (&(_, q), angle) in group.iter().zip(&angles) {
-                    if q == p || same_surface(own, &patches[q as usize], min_cosine) {
-                        turn += angle;
-                        if q != p {
-                            pairs.push((p, q));
-                        }
+    // there make a full turn).
+    let mut closed: Vec<bool> = Vec::with_capacity(incidences.len());
+    for group in incidences.chunk_by(|a, b| a.0 == b.0) {
+        let point = Vec3::from_array(group[0].0.map(f32::from_bits));
+        let angles: Vec<f64> = group
+            .iter()
+            .map(|&(_, q)| angle_at(mesh, q as usize, point))
+            .collect();
+        for &(_, p) in group {
+            let own = &patches[p as usize];
+            let mut turn = 0.0;
+            for (&(_, q), angle) in group.iter().zip(&angles) {
+                if q == p || same_surface(own, &patches[q as usize], min_cosine) {
+                    turn += angle;
+                    if q != p {
+                        pairs.push((p, q));
                     }
                 }
-                closed.push(turn > std::f64::consts::TAU * CLOSED_TURN);
             }
-            (closed, pairs)
-        })
-        .collect();
-    let closed: Vec<bool> = per_point
-        .iter()
-        .flat_map(|(c, _)| c.iter().copied())
-        .collect();
-    let mut pairs: Vec<(u32, u32)> = per_point.into_iter().flat_map(|(_, p)| p).collect();
+            closed.push(turn > std::f64::consts::TAU * CLOSED_TURN);
+        }
+    }
     pairs.par_sort_unstable();
     pairs.dedup();
+    // Each patch's fit from its run of pairs, in parallel, in place.
     let mut gradients = vec![[DVec3::ZERO; 3]; patches.len()];
-    let fitted: Vec<(usize, [DVec3; 3])> = pairs
-        .par_chunk_by(|a, b| a.0 == b.0)
-        .filter_map(|run| {
-            let p = run[0].0 as usize;
-            fit(mesh, values, incidences, &closed, p, run).map(|g| (p, g))
-        })
-        .collect();
-    for (p, g) in fitted {
-        gradients[p] = g;
-    }
+    gradients.par_iter_mut().enumerate().for_each(|(p, g)| {
+        let from = pairs.partition_point(|&(a, _)| (a as usize) < p);
+        let to = from + pairs[from..].partition_point(|&(a, _)| a as usize == p);
+        if to > from
+            && let Some(fitted) = fit(mesh, values, incidences, &closed, p, &pairs[from..to])
+        {
+            *g = fitted;
+        }
+    });
     gradients
 }
-
-/// What [`limited_gradients`] learns at one point: per incidence there, whether its patch's
-/// surface closes round the point; and the pairs `(p, q)` of patches of one surface that meet
-/// there.
-type PointParts = (Vec<bool>, Vec<(u32, u32)>);
 
 /// Patch `p`'s limited gradient (see [`limited_gradients`]) from its neighbours `run` (pairs
 /// `(p, q)`), or `None` where the fit is singular.

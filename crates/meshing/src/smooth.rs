@@ -114,57 +114,78 @@ impl Mesh {
         let gradients =
             seamless.then(|| limited_gradients(self, patch_values, &incidences, min_cosine));
         let gradients = gradients.as_deref();
-        // The smoothed value of each incidence: its patch's surface around the point.
-        let mut smoothed: Vec<DVec3> = incidences
-            .par_chunk_by(|a, b| a.0 == b.0)
-            .flat_map_iter(|group| {
-                let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
-                let at = move |q: u32| match gradients {
-                    Some(g) => extrapolate(
-                        patch_values[q as usize],
-                        &g[q as usize],
-                        point - patches[q as usize].centroid.as_dvec3(),
-                    ),
-                    None => patch_values[q as usize],
-                };
-                group.iter().map(move |&(_, p)| {
-                    let own = &patches[p as usize];
-                    // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean, written
-                    // so that a lone patch or a constant solution comes out exactly.
-                    let own_value = at(p);
-                    let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
-                    let mut lowest = patch_values[p as usize];
-                    for &(_, q) in group {
-                        let other = &patches[q as usize];
-                        if q == p || same_surface(own, other, min_cosine) {
-                            weighted += other.area * (at(q) - own_value);
-                            area += other.area;
-                            lowest = lowest.min(patch_values[q as usize]);
+        // The smoothed value of each incidence: its patch's surface around the point. Filled
+        // in place by blocks of whole points, in parallel (no copy of the output).
+        let mut smoothed = vec![DVec3::ZERO; incidences.len()];
+        let blocks = point_blocks(&incidences);
+        split_by(&mut smoothed, &blocks)
+            .into_par_iter()
+            .for_each(|(start, out)| {
+                let block = &incidences[start..start + out.len()];
+                let mut k = 0;
+                for group in block.chunk_by(|a, b| a.0 == b.0) {
+                    let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
+                    let at = |q: u32| match gradients {
+                        Some(g) => extrapolate(
+                            patch_values[q as usize],
+                            &g[q as usize],
+                            point - patches[q as usize].centroid.as_dvec3(),
+                        ),
+                        None => patch_values[q as usize],
+                    };
+                    for &(_, p) in group {
+                        let own = &patches[p as usize];
+                        // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean,
+                        // written so that a lone patch or a constant solution comes out
+                        // exactly.
+                        let own_value = at(p);
+                        let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
+                        let mut lowest = patch_values[p as usize];
+                        for &(_, q) in group {
+                            let other = &patches[q as usize];
+                            if q == p || same_surface(own, other, min_cosine) {
+                                weighted += other.area * (at(q) - own_value);
+                                area += other.area;
+                                lowest = lowest.min(patch_values[q as usize]);
+                            }
                         }
+                        // An extrapolation at a border never goes below zero (nor below the
+                        // lowest value there, for signed quantities).
+                        out[k] = (own_value + weighted / area).max(lowest.min(DVec3::ZERO));
+                        k += 1;
                     }
-                    // An extrapolation at a border never goes below zero (nor below the lowest
-                    // value there, for signed quantities).
-                    (own_value + weighted / area).max(lowest.min(DVec3::ZERO))
-                })
-            })
-            .collect();
+                }
+            });
         if seamless {
             self.tie_t_vertices(&incidences, &mut smoothed, min_cosine);
         }
 
-        (0..patches.len())
+        // Each corner's value, by blocks of whole patches in parallel.
+        let mut out = vec![DVec3::ZERO; self.corner_count()];
+        let ends: Vec<usize> = (PATCH_BLOCK..patches.len())
+            .step_by(PATCH_BLOCK)
+            .chain([patches.len()])
+            .map(|p| self.corner_offset(p))
+            .collect();
+        split_by(&mut out, &ends)
             .into_par_iter()
-            .flat_map_iter(|p| {
-                let (incidences, smoothed) = (&incidences, &smoothed);
-                self.corners(&patches[p]).iter().map(move |&v| {
-                    let key = (point_key(self.positions()[v as usize]), p as u32);
-                    let i = incidences
-                        .binary_search(&key)
-                        .expect("every corner was recorded as an incidence");
-                    smoothed[i]
-                })
-            })
-            .collect()
+            .enumerate()
+            .for_each(|(block, (_, out))| {
+                let first = block * PATCH_BLOCK;
+                let last = (first + PATCH_BLOCK).min(patches.len());
+                let mut k = 0;
+                for (p, patch) in patches.iter().enumerate().take(last).skip(first) {
+                    for &v in self.corners(patch) {
+                        let key = (point_key(self.positions()[v as usize]), p as u32);
+                        let i = incidences
+                            .binary_search(&key)
+                            .expect("every corner was recorded as an incidence");
+                        out[k] = smoothed[i];
+                        k += 1;
+                    }
+                }
+            });
+        out
     }
 
     /// Ties the values at T-vertices to the edges they lie on (see
@@ -426,6 +447,40 @@ impl CornerGroups {
     pub fn corner_groups(&self) -> &[u32] {
         &self.corner_group
     }
+}
+
+/// Patches per block of the parallel corner lookup.
+const PATCH_BLOCK: usize = 16_384;
+
+/// Incidences per block of the parallel smoothing, about (blocks end at a point's end).
+const POINT_BLOCK: usize = 65_536;
+
+/// The ends of blocks of about [`POINT_BLOCK`] incidences of whole points (sorted `(point,
+/// patch)` incidences), the last at `incidences.len()`.
+fn point_blocks(incidences: &[(PointKey, u32)]) -> Vec<usize> {
+    let mut ends = Vec::new();
+    let mut end = 0;
+    while end < incidences.len() {
+        end = (end + POINT_BLOCK).min(incidences.len());
+        while end < incidences.len() && incidences[end].0 == incidences[end - 1].0 {
+            end += 1;
+        }
+        ends.push(end);
+    }
+    ends
+}
+
+/// `data` cut at the increasing `ends` (the last `data.len()`), each piece with its start.
+fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {
+    let mut pieces = Vec::with_capacity(ends.len());
+    let mut start = 0;
+    for &end in ends {
+        let (piece, rest) = data.split_at_mut(end - start);
+        pieces.push((start, piece));
+        data = rest;
+        start = end;
+    }
+    pieces
 }
 
 #[cfg(test)]
