@@ -152,9 +152,7 @@ pub struct Solve {
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub min_edge: Option<f32>,
     /// Adaptive meshes: at most N elements, or one per input face plus N/2 when that is more
-    /// (a scene of many small faces keeps each whole and still refines its large ones; when
-    /// its large faces cut to the diagonal / 40 add more than N/2 but at most one element per
-    /// face, it starts at that cut, within the cut plus N/2).
+    /// (a scene of many small faces keeps each whole and still refines its large ones).
     #[arg(long, value_name = "N", default_value_t = mcrad_meshing::DEFAULT_MAX_PATCHES)]
     pub max_patches: usize,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's

@@ -65,9 +65,7 @@ pub fn peak_bytes(elements: u64, rays: u64, method: Method, scene_bytes: u64) ->
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MemoryEstimate {
     /// The most elements (patches) the plan can make: the adaptive budget (one per input face
-    /// plus half of `max_patches` when that is more, or the coarse start plus half of
-    /// `max_patches` where a scene of many faces takes it, back sides included), an upper
-    /// estimate of
+    /// plus half of `max_patches` when that is more, back sides included), an upper estimate of
     /// a uniform cut, or one per face and side; for the reference solver at most one past its
     /// patch limit (it refuses a larger mesh itself, as it builds it).
     pub elements: u64,
@@ -148,11 +146,7 @@ fn plan_elements(scene: &Scene, problem: &Problem) -> u64 {
                 .saturating_mul(if two_sided > 0 { 2 } else { 1 })
         }
         MeshPlan::Adaptive { max_patches, .. } => {
-            // the budget raised for the coarse start of a scene of many faces, when it is
-            let budget = crate::pipeline::adaptive_bounds(scene, &problem.settings).map_or(
-                (max_patches as u64).max(faces.saturating_add(max_patches as u64 / 2)),
-                |b| b.max_patches as u64,
-            );
+            let budget = (max_patches as u64).max(faces.saturating_add(max_patches as u64 / 2));
             budget.max(per_face)
         }
     };

@@ -305,8 +305,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         (Input::Mesh(mesh), ..) => (mesh.clone(), None, None),
         (_, None, ..) => return Err(Error::SceneTaken),
         (_, Some(scene), MeshPlan::Adaptive { .. }, Some(history)) => {
-            let bounds = adaptive_bounds(scene, settings).map_err(Error::StateReplay)?;
-            let mesh = AdaptiveMesh::replay(scene, &history, bounds).map_err(Error::StateReplay)?;
+            let mesh = AdaptiveMesh::replay(scene, &history, adaptive_bounds(scene, settings))
+                .map_err(Error::StateReplay)?;
             (mesh.into_mesh(), None, Some(history))
         }
         (_, Some(_), MeshPlan::Adaptive { .. }, None) if problem.resume.is_some() => {
@@ -905,62 +905,9 @@ fn sliver_warning(mesh: &Mesh) -> Option<String> {
 }
 
 /// The adaptive plan's bounds on `scene`: its settings' ([`plan_bounds`]) for the scene's
-/// face count ([`AdaptiveBounds::for_faces`]), raised to hold the coarse start and half the
-/// budget asked beyond it where [`many_faces_start`] takes that start. Errors: the coarse cut
-/// cannot be counted.
-pub(crate) fn adaptive_bounds(
-    scene: &Scene,
-    settings: &Settings,
-) -> Result<AdaptiveBounds, mcrad_meshing::MeshError> {
-    adaptive_bounds_and_start(scene, settings).map(|(bounds, _)| bounds)
-}
-
-/// [`adaptive_bounds`], and the coarse start's element count when [`many_faces_start`] takes
-/// it.
-fn adaptive_bounds_and_start(
-    scene: &Scene,
-    settings: &Settings,
-) -> Result<(AdaptiveBounds, Option<usize>), mcrad_meshing::MeshError> {
-    let plan = plan_bounds(scene, settings);
-    let mut bounds = plan.for_faces(scene.faces().len());
-    let coarse = many_faces_start(scene, plan, bounds)?;
-    if let Some(len) = coarse {
-        bounds.max_patches = bounds
-            .max_patches
-            .max(len.saturating_add(plan.max_patches / 2));
-    }
-    Ok((bounds, coarse))
-}
-
-/// For a scene of more faces than half the patch budget asked (`plan`; `bounds`, the budget
-/// raised for the faces), the element count of the coarse start (the diagonal / 40) when the
-/// cut adds more than 1 / [`START_SHARE`] of the budget asked to one element per face (where
-/// the start does not take it on its own) but at most as many elements as the scene has faces:
-/// such a scene's large faces are few among many small ones, and the budget is raised to the
-/// cut plus half the budget asked (the refinement's room as for fewer large faces). On the
-/// generated atrium (102,066 faces; the cut adds 49,256 elements, against 12,212 for the
-/// uniform default's start) the image error at `--rays 3e7` went from 2.70% / 2.56% to 2.43% /
-/// 2.45% (seeds 1 / 2), at `--rays 1e8` from 2.07% / 1.96% to 1.89% / 1.78%: the indirect
-/// light of the large faces next to the sun-lit court is first order in the element's size
-/// (docs/atrium.md). `None` otherwise.
-fn many_faces_start(
-    scene: &Scene,
-    plan: AdaptiveBounds,
-    bounds: AdaptiveBounds,
-) -> Result<Option<usize>, mcrad_meshing::MeshError> {
-    let faces = scene.faces().len();
-    if faces <= plan.max_patches / 2 {
-        return Ok(None);
-    }
-    let len = AdaptiveMesh::start_len(scene, coarse_start(scene), bounds)?;
-    let extra = len.saturating_sub(faces);
-    Ok((extra > plan.max_patches / START_SHARE && extra <= faces).then_some(len))
-}
-
-/// The coarse start: no element edge longer than the diagonal / 40.
-fn coarse_start(scene: &Scene) -> Subdivision {
-    let diagonal = scene.bounds().diagonal() as f32;
-    Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION)
+/// face count ([`AdaptiveBounds::for_faces`]).
+fn adaptive_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
+    plan_bounds(scene, settings).for_faces(scene.faces().len())
 }
 
 /// The adaptive plan's bounds on `scene` as its settings give them.
@@ -987,15 +934,7 @@ fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
 /// half of it ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement
 /// off. Refined by [`adaptive_refine`] (which needs the scene no more).
 fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<AdaptiveMesh, Error> {
-    let coarse = coarse_start(scene);
-    let (bounds, many_faces) =
-        adaptive_bounds_and_start(scene, settings).map_err(|source| Error::Mesh {
-            source,
-            max_edge: match coarse {
-                Subdivision::None => None,
-                Subdivision::MaxEdge(l) => Some(l),
-            },
-        })?;
+    let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
     let (faces, asked) = (
         scene.faces().len(),
@@ -1013,18 +952,18 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
             },
         }
     };
-    // Each start is counted before it is built: only the one taken is built (a scene of many
-    // faces takes the coarse start within its raised budget, when affordable).
+    // Each start is counted before it is built: only the one taken is built.
+    let diagonal = scene.bounds().diagonal() as f32;
+    let coarse = Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION);
     let uniform = Subdivision::default_for(scene);
     let count = |start| AdaptiveMesh::start_len(scene, start, bounds).map_err(mesh_error(start));
-    let start =
-        if many_faces.is_some_and(|len| len <= affordable) || fits(count(coarse)?, START_SHARE) {
-            coarse
-        } else if fits(count(uniform)?, 1) {
-            uniform
-        } else {
-            Subdivision::None
-        };
+    let start = if fits(count(coarse)?, START_SHARE) {
+        coarse
+    } else if fits(count(uniform)?, 1) {
+        uniform
+    } else {
+        Subdivision::None
+    };
     AdaptiveMesh::new(scene, start, bounds).map_err(mesh_error(start))
 }
 

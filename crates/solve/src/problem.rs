@@ -18,14 +18,10 @@ pub enum MeshPlan {
     /// when the cut adds at most half of `max_patches` elements to one per face, else the
     /// uniform default when it adds at most `max_patches` and fits the budget, else one element
     /// per face; refined with a quarter of the budget, within `max_patches` or one element per
-    /// face plus half of it, whichever is more. A scene of more faces than half of `max_patches`
-    /// whose cut at the diagonal / 40 adds more than that half but at most as many elements as
-    /// it has faces starts at that cut (when the ray budget pays for it), within the cut plus
-    /// half of `max_patches`.
+    /// face plus half of it, whichever is more.
     Adaptive {
         /// The most elements (patches), `>= 1`, or one per input face plus half of it when
-        /// that is more (`AdaptiveBounds::for_faces`), or the coarse start of a scene of many
-        /// faces plus half of it (see above).
+        /// that is more (`AdaptiveBounds::for_faces`).
         max_patches: usize,
         /// The shortest edge a split may make (scene units, `> 0`); `None`: the diagonal / 640.
         min_edge: Option<f32>,

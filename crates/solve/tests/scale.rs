@@ -57,10 +57,15 @@ fn horizontal(y: f32, [x0, x1, z0, z1]: [f32; 4], up: bool) -> Vec<Vec3> {
     if up { q } else { vec![q[0], q[3], q[2], q[1]] }
 }
 
-/// An atrium in miniature: a 40 m x 40 m floor of one face (its face number returned), lit by
-/// a 10 m x 10 m panel 20 m above it (10 W/m²), and a 4 m x 2 m wall standing on it made of
-/// 201 x 101 tiles of 2 cm (40,602 triangles).
-fn miniature_atrium() -> (Scene, u32) {
+#[test]
+fn many_small_faces_do_not_switch_off_the_refinement_of_the_huge_ones() {
+    // An atrium in miniature: a 40 m x 40 m floor of one face, lit by a 10 m x 10 m panel 20 m
+    // above it (10 W/m²), and a 4 m x 2 m wall standing on it made of 201 x 101 tiles of
+    // 2 cm (40,602 triangles: more faces than the default budget of 40,000 elements). The
+    // wall's shadow crosses the floor. Before, more input faces than half the budget made the
+    // start one element per face and left the refinement nothing to add: the floor stayed one
+    // element. Now the start keeps the tiles whole and cuts the floor to the diagonal / 40,
+    // and the refinement may add half the budget beyond its start.
     let mut b = Builder::default();
     let floor = b.face(&horizontal(0.0, [-20.0, 20.0, -20.0, 20.0], true), 0);
     b.face(&horizontal(20.0, [-5.0, 5.0, -5.0, 5.0], false), 1);
@@ -79,19 +84,6 @@ fn miniature_atrium() -> (Scene, u32) {
         material("grey", 0.5, 0.0),
         material("panel", 0.0, 10.0),
     ]);
-    (scene, floor)
-}
-
-#[test]
-fn many_small_faces_do_not_switch_off_the_refinement_of_the_huge_ones() {
-    // An atrium in miniature: a 40 m x 40 m floor of one face, lit by a 10 m x 10 m panel 20 m
-    // above it (10 W/m²), and a 4 m x 2 m wall standing on it made of 201 x 101 tiles of
-    // 2 cm (40,602 triangles: more faces than the default budget of 40,000 elements). The
-    // wall's shadow crosses the floor. Before, more input faces than half the budget made the
-    // start one element per face and left the refinement nothing to add: the floor stayed one
-    // element. Now the start keeps the tiles whole and cuts the floor to the diagonal / 40,
-    // and the refinement may add half the budget beyond its start.
-    let (scene, floor) = miniature_atrium();
     assert!(scene.faces().len() > AdaptiveBounds::default_for(&scene).max_patches);
     let diagonal = scene.bounds().diagonal() as f32;
     let start = Mesh::build(
@@ -115,45 +107,6 @@ fn many_small_faces_do_not_switch_off_the_refinement_of_the_huge_ones() {
     );
     // every tile is still its own element
     assert!(answer.mesh.patches().len() >= scene.faces().len() + after - 1);
-}
-
-#[test]
-fn a_scene_of_many_faces_starts_at_the_coarse_cut_when_its_large_faces_need_more_than_half_the_budget()
- {
-    // The miniature atrium with a budget of 1,000 elements: the floor cut to the diagonal / 40
-    // adds 777 elements to one per face, more than half the budget (which the start may take
-    // otherwise) but fewer than the scene's faces. Before, the start was the uniform default's
-    // coarser cut and the budget one element per face plus 500, so the floor ended with fewer
-    // elements than the coarse cut gives it; now the start is that cut, within the cut plus 500.
-    let (scene, floor) = miniature_atrium();
-    let faces = scene.faces().len();
-    let diagonal = scene.bounds().diagonal() as f32;
-    let start = Mesh::build(
-        &scene,
-        Subdivision::MaxEdge(diagonal * DEFAULT_COARSE_EDGE_FRACTION),
-    )
-    .unwrap();
-    let extra = start.patches().len() - faces;
-    assert!(extra > 500 && extra <= faces, "the cut adds {extra}");
-    let on_floor = |mesh: &Mesh| mesh.patches().iter().filter(|p| p.face == floor).count();
-    let mut problem = Problem::new(&scene);
-    problem.settings.mesh = MeshPlan::Adaptive {
-        max_patches: 1_000,
-        min_edge: None,
-    };
-    problem.budget.rays = Some(16_000_000);
-    let answer = solve(&problem, &mut go).unwrap();
-    let (before, after) = (on_floor(&start), on_floor(&answer.mesh));
-    assert!(
-        after >= before,
-        "floor elements: start {before}, refined {after}"
-    );
-    let len = answer.mesh.patches().len();
-    assert!(
-        len >= start.patches().len() && len <= start.patches().len() + 500,
-        "{len} elements, the start {}",
-        start.patches().len()
-    );
 }
 
 #[test]
