@@ -541,7 +541,7 @@ pub fn pool_correlation(
         let w = DVec3::ONE - weights[i];
         w * w * ve[i]
     };
-    crate::correlation::with_independent_of(mesh, &mut k, own, added);
+    crate::correlation::with_independent(mesh, &mut k, own, added);
     Ok(k)
 }
 

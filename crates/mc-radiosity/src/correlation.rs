@@ -185,20 +185,10 @@ pub(crate) fn factors_of(
 }
 
 /// `factors` ([`face_factors`], per face as [`face_key`] numbers them) of an estimate of
-/// variances `before` once a part independent between patches, of variances `added`, is added
-/// to it (the lights' direct light, sampled per patch): per face and channel
-/// `k'_f = (k_f sum_i A_i² V_i + sum_i A_i² D_i) / sum_i A_i² (V_i + D_i)`.
+/// variances `before(i)` (patch `i`) once a part independent between patches, of variances
+/// `added(i)`, is added to it (the lights' direct light, sampled per patch): per face and
+/// channel `k'_f = (k_f sum_i A_i² V_i + sum_i A_i² D_i) / sum_i A_i² (V_i + D_i)`.
 pub(crate) fn with_independent(
-    mesh: &Mesh,
-    factors: &mut [DVec3],
-    before: &[DVec3],
-    added: &[DVec3],
-) {
-    with_independent_of(mesh, factors, |i| before[i], |i| added[i]);
-}
-
-/// [`with_independent`] with patch `i`'s variances given by `before(i)` and `added(i)`.
-pub(crate) fn with_independent_of(
     mesh: &Mesh,
     factors: &mut [DVec3],
     before: impl Fn(usize) -> DVec3,

@@ -690,8 +690,7 @@ impl Lit {
         ) {
             // The pass's part taken as independent between patches (its error in the
             // reflected light is not: a scene-wide share, small beside the rest).
-            let added: Vec<DVec3> = total.iter().zip(v).map(|(t, v)| *t - *v).collect();
-            crate::correlation::with_independent(&self.mesh, k, v, &added);
+            crate::correlation::with_independent(&self.mesh, k, |i| v[i], |i| total[i] - v[i]);
         }
         solution.estimate = Estimate::new(e.radiosity().to_vec(), variance, e.rays() + self.rays)?;
         solution.direct = Some(self.direct.clone());
