@@ -13,10 +13,11 @@
 //! reflectance), is compared with `tolerance` of its luminance (from `radiosity`, the
 //! area-weighted mean of its members'). A group over it is cut in two at the median of its
 //! members' centroids along their longest extent, and each half is tested again, down to
-//! single patches. A group that sees part of the sky from everywhere is split too (the test
-//! does not tell a change across the group from an even partial view): measured on the sun-
-//! and sky-lit atrium, testing the sky's change between the group's halves instead kept a
-//! third fewer elements but raised the image error (docs/meshing.md).
+//! single patches or to groups smaller than [`ShadowSplit::min_span`]. A group that sees part
+//! of the sky from everywhere is split too (the test does not tell a change across the group
+//! from an even partial view): measured on the sun- and sky-lit atrium, testing the sky's
+//! change between the group's halves instead kept a third fewer elements but raised the image
+//! error (docs/meshing.md).
 
 use glam::DVec3;
 use mcrad_meshing::{Clusters, Mesh, UNGROUPED};
@@ -40,6 +41,10 @@ pub struct ShadowSplit {
     pub tolerance: f64,
     /// The seed of the shadow rays' streams, keyed by group and place in the splits.
     pub seed: u64,
+    /// A group whose members span less than this ([`Clusters::span`], scene units, `>= 0`) is
+    /// not tested or split: twice the refinement's smallest edge, so that a group is cut no
+    /// finer than a large face would be, whatever its faces' tessellation.
+    pub min_span: f64,
 }
 
 /// Splits the groups of `mesh`'s patches (`group[i]`: patch `i`'s group, or [`UNGROUPED`])
@@ -122,7 +127,10 @@ impl<C: RayCaster> Probe<'_, C> {
         // along the centroids' longest extent: the test's points are stratified in this
         // order, and a split cuts it at the median
         Clusters::sort_along_extent(self.mesh, members);
-        if path >= 1 << 62 || !self.shadowed(members, g, path) {
+        if path >= 1 << 62
+            || Clusters::span(self.mesh, members) < self.split.min_span
+            || !self.shadowed(members, g, path)
+        {
             out.push(members.to_vec());
             return 0;
         }

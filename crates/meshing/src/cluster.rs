@@ -220,6 +220,28 @@ impl Clusters {
         });
     }
 
+    /// The longest side of the axis-aligned box round the corners of `members` (patch
+    /// indices of `mesh`; scene units, 0 for none): a group's size, which its splits compare
+    /// with an element's smallest.
+    pub fn span(mesh: &Mesh, members: &[u32]) -> f64 {
+        let (patches, positions) = (mesh.patches(), mesh.positions());
+        let (lo, hi) = members
+            .iter()
+            .flat_map(|&i| mesh.corners(&patches[i as usize]))
+            .fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(lo, hi), &v| {
+                    let x = positions[v as usize];
+                    (lo.min(x), hi.max(x))
+                },
+            );
+        if members.is_empty() {
+            0.0
+        } else {
+            f64::from((hi - lo).max_element())
+        }
+    }
+
     /// The number of clusters.
     pub fn len(&self) -> usize {
         self.offsets.len().saturating_sub(1)

@@ -155,6 +155,7 @@ mod exact;
 mod frame;
 mod pages;
 mod query;
+mod renumbered;
 mod traverse;
 mod wide;
 
@@ -176,6 +177,7 @@ use glam::Vec3;
 pub use brute::BruteForce;
 pub use bvh::{Bvh, BvhPreset, Simd};
 pub use error::BuildError;
+pub use renumbered::Renumbered;
 
 /// The "no primitive" id: rays that exclude nothing, points on no surface. No triangle may carry
 /// it ([`BuildError::ReservedId`]).

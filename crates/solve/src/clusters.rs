@@ -17,7 +17,9 @@
 //! [`SPLIT_RELATIVE`] of `H` (a shadow or a gradient across it, beyond its noise and large
 //! enough to matter): its members are cut in two at the median of their centroids along the
 //! centroids' longest extent, and each half is tested again, down to single faces, which keep
-//! their own estimates.
+//! their own estimates, or to groups smaller than the test's smallest span ([`Clusters::span`]:
+//! twice the refinement's smallest edge, so that a group is cut no finer than a large face
+//! would be, whatever its faces' tessellation).
 
 use glam::DVec3;
 use mcrad_combine::{Estimate, EstimateError};
@@ -50,14 +52,15 @@ pub(crate) type Groups = Vec<u32>;
 pub(crate) const ALONE: u32 = u32::MAX;
 
 /// `estimate` pooled over `clusters` of `mesh` (see the module documentation), what the
-/// pooling did, and the groups that share an estimate; `test`: a cluster the light varies
-/// across is split first, else every cluster is pooled whole. An estimate without variances
+/// pooling did, and the groups that share an estimate; `test`: the smallest span (scene units)
+/// of a cluster that is tested and split first where the light varies across it, or `None`
+/// to pool every cluster whole. An estimate without variances
 /// is returned as it is (nothing to test against).
 pub(crate) fn pool_clusters(
     mesh: &Mesh,
     clusters: &Clusters,
     estimate: &Estimate,
-    test: bool,
+    test: Option<f64>,
 ) -> Result<(Estimate, PoolCounts, Groups), EstimateError> {
     let mut counts = PoolCounts::default();
     let mut groups = vec![ALONE; mesh.patches().len()];
@@ -92,7 +95,7 @@ fn settle(
     v: &mut [DVec3],
     groups: &mut [u32],
     counts: &mut PoolCounts,
-    test: bool,
+    test: Option<f64>,
 ) {
     if members.len() < 2 {
         return;
@@ -107,7 +110,8 @@ fn settle(
         spread += v[i] * p.area * p.area;
     }
     let pooled = DVec3::select(weight.cmpgt(DVec3::ZERO), power / weight, DVec3::ZERO);
-    if test && varies(mesh, members, b, v, pooled) {
+    let tested = test.is_some_and(|min| Clusters::span(mesh, members) >= min);
+    if tested && varies(mesh, members, b, v, pooled) {
         // cut at the median along the centroids' longest extent
         Clusters::sort_along_extent(mesh, members);
         counts.splits += 1;

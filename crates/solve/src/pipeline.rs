@@ -19,7 +19,7 @@ use mcrad_meshing::{
     DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
 };
 use mcrad_random::derive_seed;
-use mcrad_raycast::Bvh;
+use mcrad_raycast::{Bvh, Renumbered};
 use mcrad_reference::ReferenceConfig;
 use mcrad_scene_io::Scene;
 use std::borrow::Cow;
@@ -144,6 +144,8 @@ struct Run<'a> {
     /// Small faces that share one estimate of irradiance where the light allows
     /// ([`crate::clusters`]); empty but on the adaptive plan.
     clusters: &'a Clusters,
+    /// The smallest span of a cluster that pooling tests and splits (scene units).
+    min_span: f64,
     /// The groups of faces that were one element each of the transport (their estimates
     /// already share one irradiance, and their errors are one), and what forming them did.
     transport: (&'a Clusters, PoolCounts),
@@ -180,7 +182,7 @@ impl Run<'_> {
             let alone = vec![ALONE; self.mesh.patches().len()];
             (estimate.into_owned(), PoolCounts::default(), alone)
         } else {
-            pool_clusters(self.mesh, self.clusters, &estimate, true)?
+            pool_clusters(self.mesh, self.clusters, &estimate, Some(self.min_span))?
         };
         for (k, members) in transport.iter().enumerate() {
             for &i in members {
@@ -295,6 +297,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     }
     let lighting = crate::state::lighting_fingerprint(&config.lights, config.sky.as_ref());
     let diagonal = scene.map_or(0.0, |s| s.bounds().diagonal());
+    // a group of small faces is split no finer than a large face is: twice the smallest edge
+    let min_span = scene.map_or(0.0, |s| 2.0 * f64::from(plan_bounds(s, settings).min_edge));
 
     // The mesh: replayed from a saved run, refined anew, or fixed.
     let history = problem.resume.and_then(RunState::history);
@@ -420,13 +424,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         (Some(r), Clustering::Transport) if !clusters.is_empty() && problem.resume.is_none() => {
             let seed = derive_seed(settings.seed, SHADOW_SPLIT_STREAM);
             let sky = config.sky.as_ref();
-            transport_groups(&mesh, &bvh, &clusters, r, (&config.lights, sky), seed)?
+            let split = ShadowSplit {
+                rays: SHADOW_SPLIT_RAYS,
+                tolerance: AdaptiveConfig::default().tolerance,
+                seed,
+                min_span,
+            };
+            transport_groups(&mesh, &bvh, &clusters, r, (&config.lights, sky), split)?
         }
         _ => None,
-    };
-    let transport_bvh = match &transport {
-        Some((c, ..)) => Some(c.mesh.caster()?),
-        None => None,
     };
     let formed = (clusters.len(), clusters.patches());
     // the answer's pooling: over the clusters less the transport's members
@@ -469,6 +475,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         resumed: problem.resume,
         lighting,
         clusters: &clusters,
+        min_span,
         transport: (&transport_members, transport_counts),
         pooled: std::sync::Mutex::new((PoolCounts::default(), Groups::new())),
     };
@@ -494,79 +501,77 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let groups = budget
         .target_error
         .map(|_| mesh.corner_groups(mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES));
-    let (solved_mesh, solved_bvh) = match (&transport, &transport_bvh) {
-        (Some(c), Some(b)) => (&c.mesh, b),
-        _ => (&mesh, &bvh),
-    };
-    let result = run_cancellable(
-        method,
-        solved_mesh,
-        solved_bvh,
-        &config,
-        cancel,
-        &mut |step| {
-            let seconds = start.elapsed().as_secs_f64();
-            complete_steps = step.variance.is_some();
-            // the last step's copy goes before this one's is made (one copy at a time)
-            last_step = None;
-            let estimate =
-                match step_estimate(step).and_then(|e| carried(transport.as_ref(), &mesh, e)) {
-                    Ok(e) => e,
-                    Err(e) => {
-                        failure = Some(e);
-                        return ControlFlow::Break(());
-                    }
-                };
-            let progress = Progress {
-                step: step.index,
-                rays: step.rays,
-                budget_rays: if deterministic { u64::MAX } else { rays },
-                seconds,
-                complete: complete_steps,
-                run: &run,
-                step_estimate: &estimate,
-            };
-            let flow = observer(&progress);
-            let target = match (budget.target_error, step.variance.is_some()) {
-                (Some(target), true) => match run.answer(&estimate) {
-                    Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
-                    Err(e) => {
-                        failure = Some(e);
-                        return ControlFlow::Break(());
-                    }
-                },
-                _ => false,
-            };
-            last_step = Some(Solution {
-                estimate,
-                steps: step.index,
-                escaped_rays: 0,
-                unshot_fraction: f64::NAN,
-                stop: StopReason::Stopped,
-                direct: None,
-                sky_direct: None,
-                face_correlation: None,
-            });
-            if flow.is_break() {
+    let mut observe = |step: &Step| {
+        let seconds = start.elapsed().as_secs_f64();
+        complete_steps = step.variance.is_some();
+        // the last step's copy goes before this one's is made (one copy at a time)
+        last_step = None;
+        let estimate = match step_estimate(step).and_then(|e| carried(transport.as_ref(), &mesh, e))
+        {
+            Ok(e) => e,
+            Err(e) => {
+                failure = Some(e);
                 return ControlFlow::Break(());
             }
-            if target {
-                target_reached = true;
-                return ControlFlow::Break(());
-            }
-            if let Some(seconds_budget) = deadline {
-                // The time left is measured from the budget's clock. At the speed of the run so
-                // far, size the rest to what fits: time up is a budget spent, not an
-                // interruption (a shooting extrapolates what it could not shoot).
-                let left = seconds_budget - clock.elapsed().as_secs_f64();
-                let fits = rays_that_fit(left, seconds, step.rays, after);
-                if step.next_rays > fits {
-                    step.limit_rays_left(fits);
+        };
+        let progress = Progress {
+            step: step.index,
+            rays: step.rays,
+            budget_rays: if deterministic { u64::MAX } else { rays },
+            seconds,
+            complete: complete_steps,
+            run: &run,
+            step_estimate: &estimate,
+        };
+        let flow = observer(&progress);
+        let target = match (budget.target_error, step.variance.is_some()) {
+            (Some(target), true) => match run.answer(&estimate) {
+                Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
+                Err(e) => {
+                    failure = Some(e);
+                    return ControlFlow::Break(());
                 }
+            },
+            _ => false,
+        };
+        last_step = Some(Solution {
+            estimate,
+            steps: step.index,
+            escaped_rays: 0,
+            unshot_fraction: f64::NAN,
+            stop: StopReason::Stopped,
+            direct: None,
+            sky_direct: None,
+            face_correlation: None,
+        });
+        if flow.is_break() {
+            return ControlFlow::Break(());
+        }
+        if target {
+            target_reached = true;
+            return ControlFlow::Break(());
+        }
+        if let Some(seconds_budget) = deadline {
+            // The time left is measured from the budget's clock. At the speed of the run so
+            // far, size the rest to what fits: time up is a budget spent, not an
+            // interruption (a shooting extrapolates what it could not shoot).
+            let left = seconds_budget - clock.elapsed().as_secs_f64();
+            let fits = rays_that_fit(left, seconds, step.rays, after);
+            if step.next_rays > fits {
+                step.limit_rays_left(fits);
             }
-            ControlFlow::Continue(())
-        },
-    );
+        }
+        ControlFlow::Continue(())
+    };
+    let result = match &transport {
+        Some(c) => {
+            // the transport's elements are groups of the fine mesh's patches: its caster,
+            // renumbered, is theirs (one hierarchy for both)
+            let caster = Renumbered::new(&bvh, &c.element);
+            run_cancellable(method, &c.mesh, &caster, &config, cancel, &mut observe)
+        }
+        None => run_cancellable(method, &mesh, &bvh, &config, cancel, &mut observe),
+    };
     if let Some(e) = failure {
         return Err(e);
     }
@@ -583,7 +588,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     // the last step's copy, kept for a cancelled step, is not needed past here
     drop(last_step);
     let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
-    drop((transport, transport_bvh));
+    drop(transport);
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     let direct = solution.direct.clone();
@@ -700,7 +705,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
 /// The coarser mesh on which the method runs with clusters as elements of transport (see
 /// [`solve`]): the `clusters` of `mesh` tested against the refinement's estimate
 /// ([`pool_clusters`]) and split where the shadow of a light or of the sky crosses them
-/// ([`split_shadowed`], shadow rays through `bvh` from the streams of `seed`), its groups as [`Clusters`] and what forming
+/// ([`split_shadowed`] by `split`, shadow rays through `bvh`), its groups as [`Clusters`] and what forming
 /// them did; `None` when no group is left. The refinement's estimate is pooled over the same
 /// groups (its faces' estimates are independent, the transport's one per group).
 fn transport_groups(
@@ -709,9 +714,10 @@ fn transport_groups(
     clusters: &Clusters,
     refined: &mut Refined,
     (lights, sky): (&[mcrad_scene_io::Light], Option<&mcrad_scene_io::Sky>),
-    seed: u64,
+    split: ShadowSplit,
 ) -> Result<Option<(ClusteredMesh, Clusters, PoolCounts)>, Error> {
-    let (_, tested, mut groups) = pool_clusters(mesh, clusters, &refined.pooled, true)?;
+    let test = Some(split.min_span);
+    let (_, tested, mut groups) = pool_clusters(mesh, clusters, &refined.pooled, test)?;
     let shadowed = split_shadowed(
         mesh,
         bvh,
@@ -719,11 +725,7 @@ fn transport_groups(
         sky,
         refined.pooled.radiosity(),
         &mut groups,
-        ShadowSplit {
-            rays: SHADOW_SPLIT_RAYS,
-            tolerance: AdaptiveConfig::default().tolerance,
-            seed,
-        },
+        split,
     );
     let coarse = mesh.clustered(&groups).map_err(|source| Error::Mesh {
         source,
@@ -733,7 +735,7 @@ fn transport_groups(
         return Ok(None);
     }
     let members = coarse.clusters();
-    refined.pooled = pool_clusters(mesh, &members, &refined.pooled, false)?.0;
+    refined.pooled = pool_clusters(mesh, &members, &refined.pooled, None)?.0;
     let counts = PoolCounts {
         groups: members.len(),
         faces: members.patches(),

@@ -16,4 +16,5 @@ mod figure2;
 mod gathering;
 mod qmc;
 mod reference;
+mod shadowed;
 mod shooting;
