@@ -8,6 +8,7 @@ use mcrad_export::{GltfOptions, write_glb};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
 use mcrad_render::{Camera, RenderSettings, Shading, render, write_exr, write_png};
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
@@ -408,8 +409,10 @@ pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) ->
     let corners = (smooth || args.gltf.is_some())
         .then(|| mesh.seamless_corner_radiosity(&zeros, args.crease));
     let corner_seconds = clock.elapsed().as_secs_f64();
-    // as `write`: for the GLB or smooth shading, and again for the drawn part
-    let corner_passes = u32::from(corners.is_some()) + u32::from(smooth && per_sample);
+    // as `write`: the solution's for the GLB or a smooth image without drawn direct light,
+    // the drawn part's for a smooth image with it
+    let corner_passes =
+        u32::from(args.gltf.is_some() || (smooth && !per_sample)) + u32::from(smooth && per_sample);
     let Ok(camera) = camera(args, scenery.camera, mesh, bvh) else {
         // the render proper will say what is wrong
         return 0.0;
@@ -451,21 +454,20 @@ pub fn write(
     file_camera: Option<mcrad_scene_io::Camera>,
     bar: &ProgressBar,
 ) -> Result<()> {
-    let needs_corners =
-        args.gltf.is_some() || (args.image.is_some() && args.shading == ShadingArg::Smooth);
-    let corners = needs_corners.then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
+    let smooth = args.image.is_some() && args.shading == ShadingArg::Smooth;
+    // the solution's corners: for the GLB, and for a smooth image that draws no direct light
+    let corners = (args.gltf.is_some() || (smooth && lighting.direct.is_none()))
+        .then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
     if let Some(path) = &args.image {
         let (drawn, lights) = match lighting.direct {
             Some(direct) => (
-                without_direct(mesh, radiosity, Some(direct)),
+                Cow::Owned(without_direct(mesh, radiosity, Some(direct))),
                 lighting.lights.to_vec(),
             ),
-            None => (radiosity.to_vec(), Vec::new()),
+            None => (Cow::Borrowed(radiosity), Vec::new()),
         };
-        let drawn_corners = match (&corners, lighting.direct) {
-            (Some(_), Some(_)) => Some(mesh.seamless_corner_radiosity(&drawn, args.crease)),
-            _ => None,
-        };
+        let drawn_corners = (smooth && lighting.direct.is_some())
+            .then(|| mesh.seamless_corner_radiosity(&drawn, args.crease));
         let corners = drawn_corners.as_ref().or(corners.as_ref());
         let radiosity: &[DVec3] = &drawn;
         let format = image_format(path)?;

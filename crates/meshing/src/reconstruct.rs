@@ -13,7 +13,7 @@
 //! border included, and a step (a shadow's edge) makes no new extremes inside the surface.
 
 use crate::build::Mesh;
-use crate::smooth::{PointKey, point_key, same_surface};
+use crate::smooth::{PointKey, point_blocks, point_key, same_surface, split_by};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
@@ -52,55 +52,72 @@ pub(crate) fn limited_gradients(
     min_cosine: f64,
 ) -> Vec<[DVec3; 3]> {
     let patches = mesh.patches();
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
-    // there make a full turn).
-    let mut closed: Vec<bool> = Vec::with_capacity(incidences.len());
-    for group in incidences.chunk_by(|a, b| a.0 == b.0) {
-        let point = Vec3::from_array(group[0].0.map(f32::from_bits));
-        let angles: Vec<f64> = group
-            .iter()
-            .map(|&(_, q)| angle_at(mesh, q as usize, point))
-            .collect();
-        for &(_, p) in group {
-            let own = &patches[p as usize];
-            let mut turn = 0.0;
-            for (&(_, q), angle) in group.iter().zip(&angles) {
-                if q == p || same_surface(own, &patches[q as usize], min_cosine) {
-                    turn += angle;
-                    if q != p {
-                        pairs.push((p, q));
-                    }
+    // there make a full turn); by blocks of whole points in parallel, in place.
+    let mut closed = vec![false; incidences.len()];
+    split_by(&mut closed, &point_blocks(incidences))
+        .into_par_iter()
+        .for_each(|(start, out)| {
+            let block = &incidences[start..start + out.len()];
+            let mut k = 0;
+            for group in block.chunk_by(|a, b| a.0 == b.0) {
+                let point = Vec3::from_array(group[0].0.map(f32::from_bits));
+                let angles: Vec<f64> = group
+                    .iter()
+                    .map(|&(_, q)| angle_at(mesh, q as usize, point))
+                    .collect();
+                for &(_, p) in group {
+                    let own = &patches[p as usize];
+                    let turn: f64 = group
+                        .iter()
+                        .zip(&angles)
+                        .filter(|&(&(_, q), _)| {
+                            q == p || same_surface(own, &patches[q as usize], min_cosine)
+                        })
+                        .map(|(_, angle)| angle)
+                        .sum();
+                    out[k] = turn > std::f64::consts::TAU * CLOSED_TURN;
+                    k += 1;
                 }
             }
-            closed.push(turn > std::f64::consts::TAU * CLOSED_TURN);
-        }
-    }
-    pairs.par_sort_unstable();
-    pairs.dedup();
-    // Each patch's fit from its run of pairs, in parallel, in place.
+        });
+    // Each patch's fit from its neighbours (gathered at its corners' points, in order), in
+    // parallel, in place.
     let mut gradients = vec![[DVec3::ZERO; 3]; patches.len()];
-    gradients.par_iter_mut().enumerate().for_each(|(p, g)| {
-        let from = pairs.partition_point(|&(a, _)| (a as usize) < p);
-        let to = from + pairs[from..].partition_point(|&(a, _)| a as usize == p);
-        if to > from
-            && let Some(fitted) = fit(mesh, values, incidences, &closed, p, &pairs[from..to])
-        {
-            *g = fitted;
-        }
-    });
+    gradients
+        .par_iter_mut()
+        .enumerate()
+        .for_each_init(Vec::new, |run, (p, g)| {
+            let own = &patches[p];
+            run.clear();
+            for &v in mesh.corners(own) {
+                let key = point_key(mesh.positions()[v as usize]);
+                let from = incidences.partition_point(|(k, _)| *k < key);
+                let to = from + incidences[from..].partition_point(|(k, _)| *k == key);
+                run.extend(incidences[from..to].iter().map(|&(_, q)| q).filter(|&q| {
+                    q as usize != p && same_surface(own, &patches[q as usize], min_cosine)
+                }));
+            }
+            run.sort_unstable();
+            run.dedup();
+            if !run.is_empty()
+                && let Some(fitted) = fit(mesh, values, incidences, &closed, p, run)
+            {
+                *g = fitted;
+            }
+        });
     gradients
 }
 
-/// Patch `p`'s limited gradient (see [`limited_gradients`]) from its neighbours `run` (pairs
-/// `(p, q)`), or `None` where the fit is singular.
+/// Patch `p`'s limited gradient (see [`limited_gradients`]) from its neighbours `run` (patch
+/// indices, ascending), or `None` where the fit is singular.
 fn fit(
     mesh: &Mesh,
     values: &[DVec3],
     incidences: &[(PointKey, u32)],
     closed: &[bool],
     p: usize,
-    run: &[(u32, u32)],
+    run: &[u32],
 ) -> Option<[DVec3; 3]> {
     let patches = mesh.patches();
     let own = &patches[p];
@@ -113,7 +130,7 @@ fn fit(
     // Per neighbour: its centroid in the patch's plane, its weight and its value's difference.
     let around: Vec<(f64, f64, f64, DVec3)> = run
         .iter()
-        .map(|&(_, q)| {
+        .map(|&q| {
             let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
             let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
             (x, y, w, values[q as usize] - values[p])
@@ -123,7 +140,7 @@ fn fit(
     let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
     let (mut rx, mut ry) = (DVec3::ZERO, DVec3::ZERO);
     let (mut lo, mut hi) = (values[p], values[p]);
-    for (&(x, y, w, dv), &(_, q)) in around.iter().zip(run) {
+    for (&(x, y, w, dv), &q) in around.iter().zip(run) {
         sxx += w * x * x;
         sxy += w * x * y;
         syy += w * y * y;

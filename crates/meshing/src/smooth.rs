@@ -111,9 +111,9 @@ impl Mesh {
         let incidences = self.incidences();
 
         // For display, each patch's limited linear extrapolation (module `reconstruct`).
-        let gradients =
+        let fitted =
             seamless.then(|| limited_gradients(self, patch_values, &incidences, min_cosine));
-        let gradients = gradients.as_deref();
+        let gradients = fitted.as_deref();
         // The smoothed value of each incidence: its patch's surface around the point. Filled
         // in place by blocks of whole points, in parallel (no copy of the output).
         let mut smoothed = vec![DVec3::ZERO; incidences.len()];
@@ -156,18 +156,20 @@ impl Mesh {
                     }
                 }
             });
+        // (each array goes as soon as it has served: at 10^7 patches they are GiBs)
+        drop(fitted);
         if seamless {
             self.tie_t_vertices(&incidences, &mut smoothed, min_cosine);
         }
 
-        // Each corner's value, by blocks of whole patches in parallel.
-        let mut out = vec![DVec3::ZERO; self.corner_count()];
+        // Each corner's incidence, by blocks of whole patches in parallel; then its value.
+        let mut incidence = vec![0u32; self.corner_count()];
         let ends: Vec<usize> = (PATCH_BLOCK..patches.len())
             .step_by(PATCH_BLOCK)
             .chain([patches.len()])
             .map(|p| self.corner_offset(p))
             .collect();
-        split_by(&mut out, &ends)
+        split_by(&mut incidence, &ends)
             .into_par_iter()
             .enumerate()
             .for_each(|(block, (_, out))| {
@@ -180,12 +182,16 @@ impl Mesh {
                         let i = incidences
                             .binary_search(&key)
                             .expect("every corner was recorded as an incidence");
-                        out[k] = smoothed[i];
+                        out[k] = i as u32;
                         k += 1;
                     }
                 }
             });
-        out
+        drop(incidences);
+        incidence
+            .par_iter()
+            .map(|&i| smoothed[i as usize])
+            .collect()
     }
 
     /// Ties the values at T-vertices to the edges they lie on (see
@@ -457,7 +463,7 @@ const POINT_BLOCK: usize = 65_536;
 
 /// The ends of blocks of about [`POINT_BLOCK`] incidences of whole points (sorted `(point,
 /// patch)` incidences), the last at `incidences.len()`.
-fn point_blocks(incidences: &[(PointKey, u32)]) -> Vec<usize> {
+pub(crate) fn point_blocks(incidences: &[(PointKey, u32)]) -> Vec<usize> {
     let mut ends = Vec::new();
     let mut end = 0;
     while end < incidences.len() {
@@ -471,7 +477,7 @@ fn point_blocks(incidences: &[(PointKey, u32)]) -> Vec<usize> {
 }
 
 /// `data` cut at the increasing `ends` (the last `data.len()`), each piece with its start.
-fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {
+pub(crate) fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {
     let mut pieces = Vec::with_capacity(ends.len());
     let mut start = 0;
     for &end in ends {
