@@ -257,6 +257,18 @@ pub fn drawn_direct(args: &Solve, answer: &mcrad_solve::Answer) -> Option<Vec<DV
     }
 }
 
+/// [`drawn_direct`] taken out of `answer`, whose direct irradiances go (no copy of them).
+pub fn take_drawn_direct(args: &Solve, answer: &mut mcrad_solve::Answer) -> Option<Vec<DVec3>> {
+    let sky = answer.sky_direct.take();
+    let mut direct = answer.direct.take().filter(|_| !args.no_direct_rays)?;
+    if let (Some(sky), 0) = (sky, args.sky_rays) {
+        for (d, s) in direct.iter_mut().zip(sky) {
+            *d -= s;
+        }
+    }
+    Some(direct)
+}
+
 /// `B_i - rho_i H_d,i` per patch (W/m², clamped at 0): the radiosity without the punctual
 /// lights' and the sky's direct light `direct` (`H_d` per patch, W/m²) that renders and bakes
 /// then draw per sample; `radiosity` itself without `direct`.

@@ -166,7 +166,7 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
     if let Some(e) = failure {
         return Err(e);
     }
-    let answer = answer.map_err(|e| solve_error(e, args, &problem.settings))?;
+    let mut answer = answer.map_err(|e| solve_error(e, args, &problem.settings))?;
     for warning in &answer.warnings {
         eprintln!("warning: {warning}");
     }
@@ -191,7 +191,14 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
             ),
         }
     }
-    finish(args, &scenery, kept.as_ref(), &answer, &bar, load_seconds)?;
+    finish(
+        args,
+        &scenery,
+        kept.as_ref(),
+        &mut answer,
+        &bar,
+        load_seconds,
+    )?;
     if let Some(rounds) = &answer.stats.refinement
         && !args.quiet
     {
@@ -331,17 +338,16 @@ fn finish(
     args: &Solve,
     scenery: &Scenery,
     kept: Option<&mcrad_scene_io::Loaded>,
-    answer: &Answer,
+    answer: &mut Answer,
     bar: &ProgressBar,
     load_seconds: f64,
 ) -> Result<()> {
-    let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     if let Some(path) = &args.patches {
         let rows = patch_rows(
-            mesh,
+            &answer.mesh,
             &answer.patch,
-            estimate.radiosity(),
-            estimate.variance(),
+            answer.estimate.radiosity(),
+            answer.estimate.variance(),
         );
         if args.per_face {
             write_patch_csv(
@@ -352,8 +358,16 @@ fn finish(
             write_patch_csv(create(path)?, rows)?;
         }
     }
-    // With per-pixel direct light, the solution's own direct part is taken out of it.
-    let direct = crate::output::drawn_direct(args, answer);
+    // With per-pixel direct light, the solution's own direct part is taken out of it. What
+    // the outputs below no longer read goes (at 10^7 patches, hundreds of MiB each); a bake
+    // reads it all.
+    let direct = if args.bake.is_some() {
+        crate::output::drawn_direct(args, answer)
+    } else {
+        answer.face_correlation = None;
+        crate::output::take_drawn_direct(args, answer)
+    };
+    let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     let render = Instant::now();
     crate::output::write(
         args,

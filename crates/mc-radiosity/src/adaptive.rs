@@ -11,7 +11,7 @@ use mcrad_meshing::{
     AdaptiveMesh, ClusteredMesh, Clusters, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, UNGROUPED,
 };
 use mcrad_random::{Stream, StreamKey, derive_seed};
-use mcrad_raycast::{BuildError, Bvh, Ray, RayCaster, SurfacePoint};
+use mcrad_raycast::{BuildError, Bvh, Ray, RayCaster, Renumbered, SurfacePoint};
 use rayon::prelude::*;
 use std::ops::ControlFlow;
 use std::sync::Arc;
@@ -250,8 +250,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     } else {
         (config.rays / 3).max(1)
     };
-    let pilot_seconds = config.seconds.map(|s| s / 3.0);
-    let mut rays = 0;
     // The pilot's mesh: the leaves, or clusters of the small ones (dropped after the pilot).
     let planned = match config.seconds {
         Some(s) if pilot_rays == u64::MAX => {
@@ -265,63 +263,31 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         }
         _ => None,
     };
-    let pilot_mesh = coarse.as_ref().map_or(mesh.mesh(), |c| &c.mesh);
-    let bvh = caster(pilot_mesh)?;
-    let mut lit = light(pilot_mesh, &bvh, config, pilot_rays, 0)?;
-    if let Some(l) = &lit
-        && l.mesh
-            .patches()
-            .iter()
-            .all(|p| p.emission.max_element() <= 0.0)
-    {
+    // One hierarchy over the leaves' triangles: the pilot's clusters see it renumbered.
+    let bvh = caster(mesh.mesh())?;
+    let pilot = match &coarse {
+        Some(c) => run_pilot(&c.mesh, &Renumbered::new(&bvh, &c.element), config, start)?,
+        None => run_pilot(mesh.mesh(), &bvh, config, start)?,
+    };
+    let Pilot {
+        mut lit,
+        estimate,
+        mut rays,
+        complete: mut pilot_complete,
+    } = pilot;
+    let Some(mut estimate) = estimate else {
         // Nothing lit (a closed room under the sky): B = 0 exactly, nothing to refine.
         drop(coarse);
-        let bvh = caster(mesh.mesh())?;
         let zero = vec![DVec3::ZERO; mesh.len()];
-        let estimate = Estimate::new(zero.clone(), Some(zero), l.rays).map_err(Error::from)?;
+        let estimate = Estimate::new(zero.clone(), Some(zero), rays).map_err(Error::from)?;
         return Ok(Refined {
             pooled: estimate.clone(),
             pooled_valid: true,
             estimate,
-            rays: l.rays,
+            rays,
             rounds: Vec::new(),
             caster: Some(Arc::new(bvh)),
         });
-    }
-    // A pilot stopped by the clock before it shipped all its power is short of light: its
-    // estimate places the marks but is not pooled into the answer.
-    let mut pilot_complete: bool;
-    let mut estimate = {
-        let ctx = Context::new(lit.as_ref().map_or(pilot_mesh, |l| &l.mesh), &bvh);
-        let s = shoot(
-            &ctx,
-            &ShootConfig {
-                rays: pilot_rays,
-                unshot_threshold: config.unshot_threshold,
-                seed: derive_seed(config.seed, PILOT_TAG),
-                ..Default::default()
-            },
-            &mut |p| {
-                if let Some(seconds) = pilot_seconds {
-                    let fits = rays_that_fit(seconds, start, p.rays);
-                    if fits == 0 {
-                        return ControlFlow::Break(());
-                    }
-                    p.limit_rays_left(fits);
-                }
-                ControlFlow::Continue(())
-            },
-        )?;
-        rays += s.stats.rays;
-        pilot_complete = s.stats.unshot.element_sum()
-            <= 1e-9 * s.stats.emitted.element_sum().max(f64::MIN_POSITIVE);
-        match &lit {
-            Some(l) => {
-                rays += l.rays;
-                l.include(s.estimate)?
-            }
-            None => s.estimate,
-        }
     };
     // The caster over the mesh as it is (built anew after each split): a round's marks and the
     // caller reuse it.
@@ -340,7 +306,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         }
         // its members share one error: the pilot places the marks only
         pilot_complete = false;
-        current = None;
     }
     drop(coarse);
     // What the pilot says of a patch no ray reached is no information, not a certain 0: the
@@ -623,6 +588,82 @@ fn rays_that_fit(seconds: f64, start: Instant, rays: u64) -> u64 {
         return u64::MAX;
     }
     ((seconds - elapsed) * rays as f64 / elapsed).min(u64::MAX as f64) as u64
+}
+
+/// What the refinement's pilot found (see [`run_pilot`]).
+struct Pilot {
+    /// The lights' direct light on the pilot's mesh, if the scene has lights or a sky.
+    lit: Option<crate::lights::Lit>,
+    /// The pilot's estimate per element of its mesh; `None` when nothing is lit (no emitter,
+    /// and no light reaches a surface).
+    estimate: Option<Estimate>,
+    /// Rays cast, the lights' included.
+    rays: u64,
+    /// Whether the shooting shipped all its power (not stopped by the clock).
+    complete: bool,
+}
+
+/// The refinement's pilot on `mesh` through `caster`: the lights' direct light, then a
+/// shooting of a third of the rays (or of the time, from `start`).
+fn run_pilot<C: RayCaster>(
+    mesh: &Mesh,
+    caster: &C,
+    config: &AdaptiveConfig,
+    start: Instant,
+) -> Result<Pilot, AdaptiveError> {
+    let pilot_rays = if config.rays == u64::MAX {
+        u64::MAX
+    } else {
+        (config.rays / 3).max(1)
+    };
+    let pilot_seconds = config.seconds.map(|s| s / 3.0);
+    let lit = light(mesh, caster, config, pilot_rays, 0)?;
+    if let Some(l) = &lit
+        && l.mesh
+            .patches()
+            .iter()
+            .all(|p| p.emission.max_element() <= 0.0)
+    {
+        let rays = l.rays;
+        return Ok(Pilot {
+            lit,
+            estimate: None,
+            rays,
+            complete: true,
+        });
+    }
+    let ctx = Context::new(lit.as_ref().map_or(mesh, |l| &l.mesh), caster);
+    let s = shoot(
+        &ctx,
+        &ShootConfig {
+            rays: pilot_rays,
+            unshot_threshold: config.unshot_threshold,
+            seed: derive_seed(config.seed, PILOT_TAG),
+            ..Default::default()
+        },
+        &mut |p| {
+            if let Some(seconds) = pilot_seconds {
+                let fits = rays_that_fit(seconds, start, p.rays);
+                if fits == 0 {
+                    return ControlFlow::Break(());
+                }
+                p.limit_rays_left(fits);
+            }
+            ControlFlow::Continue(())
+        },
+    )?;
+    let complete =
+        s.stats.unshot.element_sum() <= 1e-9 * s.stats.emitted.element_sum().max(f64::MIN_POSITIVE);
+    let (estimate, rays) = match &lit {
+        Some(l) => (l.include(s.estimate)?, s.stats.rays + l.rays),
+        None => (s.estimate, s.stats.rays),
+    };
+    Ok(Pilot {
+        lit,
+        estimate: Some(estimate),
+        rays,
+        complete,
+    })
 }
 
 /// The BVH of `mesh`'s triangles tagged with their patch indices.

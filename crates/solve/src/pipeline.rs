@@ -162,11 +162,11 @@ impl Run<'_> {
                 .estimate();
         }
         match self.refinement {
-            Some(r) => {
-                let all = vec![r.pooled_valid; self.mesh.patches().len()];
+            Some(r) if r.pooled_valid => {
+                let all = vec![true; self.mesh.patches().len()];
                 self.clustered(Cow::Owned(pool(self.mesh, estimate, &r.pooled, &all)?))
             }
-            None => self.clustered(Cow::Borrowed(estimate)),
+            _ => self.clustered(Cow::Borrowed(estimate)),
         }
     }
 
@@ -447,6 +447,10 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         Some((c, members, counts)) => (Some(c), members, counts),
         None => (None, Clusters::default(), PoolCounts::default()),
     };
+    // a refinement's estimate that the answer does not pool is not kept (48 bytes a patch)
+    if let Some(r) = refinement.as_mut().filter(|r| !r.pooled_valid) {
+        r.pooled = Estimate::new(Vec::new(), None, 0)?;
+    }
     phases.clusters_seconds = clustering.elapsed().as_secs_f64();
     // The caller's work after the solve, timed now that the mesh and caster exist.
     let timing = Instant::now();
@@ -577,7 +581,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     }
     // A cancelled step: the answer is the last complete one.
     let cancelled = matches!(result, Err(MethodError::Cancelled));
-    let solution = match result {
+    let mut solution = match result {
         Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
         Ok(solution) => match &transport {
             Some(c) => carried_solution(c, &mesh, solution)?,
@@ -591,13 +595,12 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     drop(transport);
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
-    let direct = solution.direct.clone();
-    let sky_direct = solution.sky_direct.clone();
+    let (direct, sky_direct) = (solution.direct.take(), solution.sky_direct.take());
     // The refinement's pool adds its earlier estimate's part, taken as independent between
     // patches; a continued run's pieces (the same method on the same mesh) share the factors.
     let face_correlation = match (&solution.face_correlation, &refinement, problem.resume) {
-        (Some(k), Some(r), None) => {
-            let all = vec![r.pooled_valid; mesh.patches().len()];
+        (Some(k), Some(r), None) if r.pooled_valid => {
+            let all = vec![true; mesh.patches().len()];
             Some(pool_correlation(
                 &mesh,
                 &solution.estimate,
@@ -735,7 +738,9 @@ fn transport_groups(
         return Ok(None);
     }
     let members = coarse.clusters();
-    refined.pooled = pool_clusters(mesh, &members, &refined.pooled, None)?.0;
+    if refined.pooled_valid {
+        refined.pooled = pool_clusters(mesh, &members, &refined.pooled, None)?.0;
+    }
     let counts = PoolCounts {
         groups: members.len(),
         faces: members.patches(),
