@@ -273,14 +273,17 @@ pub fn take_drawn_direct(args: &Solve, answer: &mut mcrad_solve::Answer) -> Opti
 /// lights' and the sky's direct light `direct` (`H_d` per patch, W/m²) that renders and bakes
 /// then draw per sample; `radiosity` itself without `direct`.
 pub fn without_direct(mesh: &Mesh, radiosity: &[DVec3], direct: Option<&[DVec3]>) -> Vec<DVec3> {
-    match direct {
-        Some(h) => mesh
-            .patches()
-            .iter()
-            .zip(radiosity.iter().zip(h))
-            .map(|(p, (&b, &h))| (b - p.reflectance.as_dvec3() * h).max(DVec3::ZERO))
-            .collect(),
-        None => radiosity.to_vec(),
+    let mut b = radiosity.to_vec();
+    if let Some(h) = direct {
+        take_out_direct(mesh, &mut b, h);
+    }
+    b
+}
+
+/// [`without_direct`] in place: `radiosity` becomes `B_i - rho_i H_d,i`, clamped at 0.
+pub fn take_out_direct(mesh: &Mesh, radiosity: &mut [DVec3], direct: &[DVec3]) {
+    for ((b, p), &h) in radiosity.iter_mut().zip(mesh.patches()).zip(direct) {
+        *b = (*b - p.reflectance.as_dvec3() * h).max(DVec3::ZERO);
     }
 }
 
@@ -301,10 +304,28 @@ pub struct Lighting<'a> {
     pub sky: Option<mcrad_scene_io::Sky>,
     /// Punctual lights and the sun, in the scene's frame.
     pub lights: &'a [mcrad_scene_io::Light],
-    /// Their and the sky's direct irradiance `H_d` per patch in the solution (W/m²): `Some`
-    /// draws it per sample with shadow rays instead of from the solution; `None` draws the
-    /// solution only.
-    pub direct: Option<&'a [DVec3]>,
+    /// Their and the sky's direct light: drawn from the solution, or per sample with shadow
+    /// rays instead.
+    pub direct: Direct<'a>,
+}
+
+/// How a render draws the lights' and the sky's direct light ([`Lighting::direct`]).
+#[derive(Clone, Copy)]
+pub enum Direct<'a> {
+    /// From the solution, with the rest of the radiosity.
+    InSolution,
+    /// Per sample, the radiosity drawn without it: `H_d` per patch in the solution (W/m²),
+    /// taken out of the radiosity given (`B - rho H_d`).
+    PerSample(&'a [DVec3]),
+    /// Per sample, the radiosity given already without it.
+    PerSampleTakenOut,
+}
+
+impl Direct<'_> {
+    /// Whether the direct light is drawn per sample.
+    fn per_sample(&self) -> bool {
+        !matches!(self, Direct::InSolution)
+    }
 }
 
 /// The relative error of every patch's incident irradiance, `(noise, mesh)`: the noise its
@@ -455,8 +476,9 @@ pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) ->
 }
 
 /// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image
-/// with `lighting`'s sky and, where `lighting.direct` is given, its lights' direct light drawn
-/// per sample in place of the solution's (the GLB's vertex colours keep the solution's).
+/// with `lighting`'s sky and, as `lighting.direct` says, its lights' direct light drawn per
+/// sample in place of the solution's (the GLB's vertex colours keep the solution's: with
+/// [`Direct::PerSampleTakenOut`] there is none).
 pub fn write(
     args: &Solve,
     mesh: &Mesh,
@@ -468,18 +490,21 @@ pub fn write(
 ) -> Result<()> {
     let smooth = args.image.is_some() && args.shading == ShadingArg::Smooth;
     // the solution's corners: for the GLB, and for a smooth image that draws no direct light
-    let corners = (args.gltf.is_some() || (smooth && lighting.direct.is_none()))
+    let per_sample = lighting.direct.per_sample();
+    let corners = (args.gltf.is_some() || (smooth && !per_sample))
         .then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
     if let Some(path) = &args.image {
-        let (drawn, lights) = match lighting.direct {
-            Some(direct) => (
-                Cow::Owned(without_direct(mesh, radiosity, Some(direct))),
-                lighting.lights.to_vec(),
-            ),
-            None => (Cow::Borrowed(radiosity), Vec::new()),
+        let drawn = match lighting.direct {
+            Direct::PerSample(direct) => Cow::Owned(without_direct(mesh, radiosity, Some(direct))),
+            Direct::InSolution | Direct::PerSampleTakenOut => Cow::Borrowed(radiosity),
         };
-        let drawn_corners = (smooth && lighting.direct.is_some())
-            .then(|| mesh.seamless_corner_radiosity(&drawn, args.crease));
+        let lights = if per_sample {
+            lighting.lights.to_vec()
+        } else {
+            Vec::new()
+        };
+        let drawn_corners =
+            (smooth && per_sample).then(|| mesh.seamless_corner_radiosity(&drawn, args.crease));
         let corners = drawn_corners.as_ref().or(corners.as_ref());
         let radiosity: &[DVec3] = &drawn;
         let format = image_format(path)?;
@@ -489,11 +514,7 @@ pub fn write(
             _ => Shading::Flat(radiosity),
         };
         // the sky's direct light (in `direct` with the lights') drawn per sample as well
-        let sky_rays = if lighting.direct.is_some() {
-            args.sky_rays
-        } else {
-            0
-        };
+        let sky_rays = if per_sample { args.sky_rays } else { 0 };
         let settings = RenderSettings {
             width: args.size.0,
             height: args.size.1,

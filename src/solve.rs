@@ -3,7 +3,7 @@
 
 use crate::cli::Solve;
 use crate::interrupt;
-use crate::output::Scenery;
+use crate::output::{Direct, Scenery};
 use crate::state;
 use crate::trace::Tracer;
 use anyhow::{Context, Result, anyhow, bail};
@@ -367,31 +367,62 @@ fn finish(
         answer.face_correlation = None;
         crate::output::take_drawn_direct(args, answer)
     };
-    let (mesh, estimate, run) = (&answer.mesh, &answer.estimate, &answer.stats);
     let render = Instant::now();
-    crate::output::write(
-        args,
-        mesh,
-        &answer.bvh,
-        estimate.radiosity(),
-        crate::output::Lighting {
-            sky: scenery.sky.clone(),
-            lights: &scenery.lights,
-            direct: direct.as_deref(),
-        },
-        scenery.camera,
-        bar,
-    )?;
-    crate::output::write_error_image(
-        args,
-        mesh,
-        &answer.bvh,
-        estimate.radiosity(),
-        estimate.variance(),
-        direct.as_deref(),
-        scenery.camera,
-    )?;
+    let lighting = |direct| crate::output::Lighting {
+        sky: scenery.sky.clone(),
+        lights: &scenery.lights,
+        direct,
+    };
+    // A render alone (no GLB, error image or bake) reads the radiosity less the direct light
+    // it draws per sample, and nothing else: made in place of the answer's, whose variances go
+    // (the answer's estimate is not read past here).
+    let alone = args.gltf.is_none() && args.error_image.is_none() && args.bake.is_none();
+    match direct {
+        Some(h) if alone => {
+            let empty = mcrad_combine::Estimate::new(Vec::new(), None, 0)?;
+            let (mut drawn, variance, _) =
+                std::mem::replace(&mut answer.estimate, empty).into_parts();
+            drop(variance);
+            crate::output::take_out_direct(&answer.mesh, &mut drawn, &h);
+            drop(h);
+            crate::output::write(
+                args,
+                &answer.mesh,
+                &answer.bvh,
+                &drawn,
+                lighting(Direct::PerSampleTakenOut),
+                scenery.camera,
+                bar,
+            )?;
+        }
+        direct => {
+            let (mesh, estimate) = (&answer.mesh, &answer.estimate);
+            let per_sample = match direct.as_deref() {
+                Some(h) => Direct::PerSample(h),
+                None => Direct::InSolution,
+            };
+            crate::output::write(
+                args,
+                mesh,
+                &answer.bvh,
+                estimate.radiosity(),
+                lighting(per_sample),
+                scenery.camera,
+                bar,
+            )?;
+            crate::output::write_error_image(
+                args,
+                mesh,
+                &answer.bvh,
+                estimate.radiosity(),
+                estimate.variance(),
+                direct.as_deref(),
+                scenery.camera,
+            )?;
+        }
+    }
     let render_seconds = render.elapsed().as_secs_f64();
+    let run = &answer.stats;
     let baked = match (&args.bake, kept) {
         (Some(target), Some(loaded)) => {
             Some(crate::output::bake(args, target, loaded, answer, bar)?)

@@ -12,7 +12,7 @@
 //! ([`limited_gradients`]): a field linear over a face comes out exact at every corner, the
 //! border included, and a step (a shadow's edge) makes no new extremes inside the surface.
 
-use crate::build::Mesh;
+use crate::build::{Mesh, Patch};
 use crate::smooth::{PointKey, point_blocks, point_key, same_surface, split_by};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -29,7 +29,7 @@ const SMOOTH_RESIDUAL: f64 = 0.1;
 const CLOSED_TURN: f64 = 1.0 - 1e-3;
 
 /// Per patch and RGB channel, the gradient of `values` in the patch's plane (value per scene
-/// unit; a vector, one per channel).
+/// unit), as its two components along the patch's tangent frame ([`Slope`]).
 ///
 /// With `c_p` the patch's centroid and `q` over its neighbours (patches with a corner at one of
 /// `p`'s corner points and on `p`'s surface, the same test as [`Mesh::corner_radiosity`]'s),
@@ -50,7 +50,7 @@ pub(crate) fn limited_gradients(
     values: &[DVec3],
     incidences: &[(PointKey, u32)],
     min_cosine: f64,
-) -> Vec<[DVec3; 3]> {
+) -> Vec<Slope> {
     let patches = mesh.patches();
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
     // there make a full turn); by blocks of whole points in parallel, in place.
@@ -83,7 +83,7 @@ pub(crate) fn limited_gradients(
         });
     // Each patch's fit from its neighbours (gathered at its corners' points, in order), in
     // parallel, in place.
-    let mut gradients = vec![[DVec3::ZERO; 3]; patches.len()];
+    let mut gradients = vec![[[0.0; 2]; 3]; patches.len()];
     gradients
         .par_iter_mut()
         .enumerate()
@@ -118,10 +118,10 @@ fn fit(
     closed: &[bool],
     p: usize,
     run: &[u32],
-) -> Option<[DVec3; 3]> {
+) -> Option<Slope> {
     let patches = mesh.patches();
     let own = &patches[p];
-    let (t1, t2) = own.normal.as_dvec3().any_orthonormal_pair();
+    let (t1, t2) = tangents(own);
     let centre = own.centroid.as_dvec3();
     let in_plane = |x: DVec3| {
         let d = x - centre;
@@ -186,7 +186,7 @@ fn fit(
             }
         }
     }
-    Some(std::array::from_fn(|k| (t1 * gx[k] + t2 * gy[k]) * phi[k]))
+    Some(std::array::from_fn(|k| [gx[k] * phi[k], gy[k] * phi[k]]))
 }
 
 /// The interior angle (radians) of patch `q` at its corner `point` (0 if it has none there).
@@ -202,9 +202,25 @@ fn angle_at(mesh: &Mesh, q: usize, point: Vec3) -> f64 {
         })
 }
 
-/// `value + g . d` per channel: a patch's linear extrapolation by `d` from its centroid.
-pub(crate) fn extrapolate(value: DVec3, gradient: &[DVec3; 3], d: DVec3) -> DVec3 {
-    value + DVec3::new(gradient[0].dot(d), gradient[1].dot(d), gradient[2].dot(d))
+/// A patch's gradient per RGB channel in its plane: the components along the two tangents of
+/// [`tangents`] (value per scene unit), 48 bytes a patch.
+pub(crate) type Slope = [[f64; 2]; 3];
+
+/// The tangent frame of `patch`'s plane that its [`Slope`] is given in (from its unit normal).
+pub(crate) fn tangents(patch: &Patch) -> (DVec3, DVec3) {
+    patch.normal.as_dvec3().any_orthonormal_pair()
+}
+
+/// `value + g . d` per channel: a patch's linear extrapolation by `d` from its centroid, `g`
+/// its `slope` in the frame `(t1, t2)` of [`tangents`].
+pub(crate) fn extrapolate(
+    value: DVec3,
+    slope: &Slope,
+    (t1, t2): (DVec3, DVec3),
+    d: DVec3,
+) -> DVec3 {
+    let (x, y) = (t1.dot(d), t2.dot(d));
+    value + DVec3::from_array(std::array::from_fn(|k| slope[k][0] * x + slope[k][1] * y))
 }
 
 #[cfg(test)]

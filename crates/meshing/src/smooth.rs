@@ -9,7 +9,7 @@
 use crate::AdaptiveMesh;
 use crate::adaptive::midpoint;
 use crate::build::{Mesh, Patch};
-use crate::reconstruct::{extrapolate, limited_gradients};
+use crate::reconstruct::{extrapolate, limited_gradients, tangents};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -129,6 +129,7 @@ impl Mesh {
                         Some(g) => extrapolate(
                             patch_values[q as usize],
                             &g[q as usize],
+                            tangents(&patches[q as usize]),
                             point - patches[q as usize].centroid.as_dvec3(),
                         ),
                         None => patch_values[q as usize],

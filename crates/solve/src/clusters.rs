@@ -24,6 +24,7 @@
 use glam::DVec3;
 use mcrad_combine::{Estimate, EstimateError};
 use mcrad_meshing::{Clusters, Mesh};
+use std::borrow::Cow;
 
 /// A cluster is split when its chi-square exceeds its degrees of freedom by this many of its
 /// standard deviations (`sqrt(2 d)`) in some channel (see the module documentation).
@@ -54,21 +55,22 @@ pub(crate) const ALONE: u32 = u32::MAX;
 /// `estimate` pooled over `clusters` of `mesh` (see the module documentation), what the
 /// pooling did, and the groups that share an estimate; `test`: the smallest span (scene units)
 /// of a cluster that is tested and split first where the light varies across it, or `None`
-/// to pool every cluster whole. An estimate without variances
-/// is returned as it is (nothing to test against).
+/// to pool every cluster whole. An estimate without variances is returned as it is (nothing
+/// to test against). An estimate handed over is pooled in place (not copied: 48 bytes a patch).
 pub(crate) fn pool_clusters(
     mesh: &Mesh,
     clusters: &Clusters,
-    estimate: &Estimate,
+    estimate: Cow<'_, Estimate>,
     test: Option<f64>,
 ) -> Result<(Estimate, PoolCounts, Groups), EstimateError> {
     let mut counts = PoolCounts::default();
     let mut groups = vec![ALONE; mesh.patches().len()];
-    let Some(variance) = estimate.variance() else {
-        return Ok((estimate.clone(), counts, groups));
-    };
-    let mut b = estimate.radiosity().to_vec();
-    let mut v = variance.to_vec();
+    if estimate.variance().is_none() {
+        return Ok((estimate.into_owned(), counts, groups));
+    }
+    let rays = estimate.rays();
+    let (mut b, v, _) = estimate.into_owned().into_parts();
+    let mut v = v.unwrap_or_default();
     let mut members: Vec<u32> = Vec::new();
     for cluster in clusters.iter() {
         members.clear();
@@ -83,7 +85,7 @@ pub(crate) fn pool_clusters(
             test,
         );
     }
-    Ok((Estimate::new(b, Some(v), estimate.rays())?, counts, groups))
+    Ok((Estimate::new(b, Some(v), rays)?, counts, groups))
 }
 
 /// Tests `members` and pools them into `b`, `v` (numbering their group in `groups`), or

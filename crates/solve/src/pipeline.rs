@@ -114,7 +114,7 @@ impl Progress<'_> {
     /// The answer the run would give if it stopped now: the step pooled with the adaptive
     /// refinement's estimates, or merged with the saved pieces of a continued run.
     pub fn answer(&self) -> Result<Estimate, Error> {
-        self.run.answer(self.step_estimate)
+        self.run.answer(Cow::Borrowed(self.step_estimate))
     }
 
     /// The run's state after the step, to save and continue; `None` for steps that are not
@@ -123,7 +123,9 @@ impl Progress<'_> {
         if !self.complete {
             return Ok(None);
         }
-        let (_, state) = self.run.settle(self.step_estimate, self.step, 0, true)?;
+        let (_, state) = self
+            .run
+            .settle(Cow::Borrowed(self.step_estimate), self.step, 0, true)?;
         Ok(state)
     }
 }
@@ -155,18 +157,18 @@ struct Run<'a> {
 
 impl Run<'_> {
     /// The answer from this piece's `estimate` (see [`Progress::answer`]).
-    fn answer(&self, estimate: &Estimate) -> Result<Estimate, Error> {
+    fn answer(&self, estimate: Cow<'_, Estimate>) -> Result<Estimate, Error> {
         if let Some(state) = self.resumed {
             return state
-                .continued(&self.clustered(Cow::Borrowed(estimate))?, 0, 0)?
+                .continued(&self.clustered(estimate)?, 0, 0)?
                 .estimate();
         }
         match self.refinement {
             Some(r) if r.pooled_valid => {
                 let all = vec![true; self.mesh.patches().len()];
-                self.clustered(Cow::Owned(pool(self.mesh, estimate, &r.pooled, &all)?))
+                self.clustered(Cow::Owned(pool(self.mesh, &estimate, &r.pooled, &all)?))
             }
-            _ => self.clustered(Cow::Borrowed(estimate)),
+            _ => self.clustered(estimate),
         }
     }
 
@@ -182,7 +184,7 @@ impl Run<'_> {
             let alone = vec![ALONE; self.mesh.patches().len()];
             (estimate.into_owned(), PoolCounts::default(), alone)
         } else {
-            pool_clusters(self.mesh, self.clusters, &estimate, Some(self.min_span))?
+            pool_clusters(self.mesh, self.clusters, estimate, Some(self.min_span))?
         };
         for (k, members) in transport.iter().enumerate() {
             for &i in members {
@@ -204,18 +206,14 @@ impl Run<'_> {
     /// answer is read from it).
     fn settle(
         &self,
-        estimate: &Estimate,
+        estimate: Cow<'_, Estimate>,
         steps: u32,
         escaped_rays: u64,
         keep: bool,
     ) -> Result<(Estimate, Option<RunState>), Error> {
         match self.resumed {
             Some(saved) => {
-                let state = saved.continued(
-                    &self.clustered(Cow::Borrowed(estimate))?,
-                    steps,
-                    escaped_rays,
-                )?;
+                let state = saved.continued(&self.clustered(estimate)?, steps, escaped_rays)?;
                 Ok((state.estimate()?, Some(state)))
             }
             None => {
@@ -529,7 +527,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         };
         let flow = observer(&progress);
         let target = match (budget.target_error, step.variance.is_some()) {
-            (Some(target), true) => match run.answer(&estimate) {
+            (Some(target), true) => match run.answer(Cow::Borrowed(&estimate)) {
                 Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
                 Err(e) => {
                     failure = Some(e);
@@ -583,13 +581,17 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let cancelled = matches!(result, Err(MethodError::Cancelled));
     let mut solution = match result {
         Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
-        Ok(solution) => match &transport {
-            Some(c) => carried_solution(c, &mesh, solution)?,
-            None => solution,
-        },
+        Ok(solution) => {
+            // the last step's copy, kept for a cancelled step, goes before the solution is
+            // carried to the patches (each 48 bytes a patch or more)
+            last_step = None;
+            match &transport {
+                Some(c) => carried_solution(c, &mesh, solution)?,
+                None => solution,
+            }
+        }
         Err(e) => return Err(e.into()),
     };
-    // the last step's copy, kept for a cancelled step, is not needed past here
     drop(last_step);
     let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
     drop(transport);
@@ -598,7 +600,11 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     let (direct, sky_direct) = (solution.direct.take(), solution.sky_direct.take());
     // The refinement's pool adds its earlier estimate's part, taken as independent between
     // patches; a continued run's pieces (the same method on the same mesh) share the factors.
-    let face_correlation = match (&solution.face_correlation, &refinement, problem.resume) {
+    let face_correlation = match (
+        solution.face_correlation.take(),
+        &refinement,
+        problem.resume,
+    ) {
         (Some(k), Some(r), None) if r.pooled_valid => {
             let all = vec![true; mesh.patches().len()];
             Some(pool_correlation(
@@ -606,13 +612,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
                 &solution.estimate,
                 &r.pooled,
                 &all,
-                k,
+                &k,
             )?)
         }
-        (k, ..) => k.clone(),
+        (k, ..) => k,
     };
+    // the solution's estimate goes into the answer (pooled in place)
+    let solved = std::mem::replace(&mut solution.estimate, Estimate::new(Vec::new(), None, 0)?);
     let (estimate, state) = run.settle(
-        &solution.estimate,
+        Cow::Owned(solved),
         solution.steps,
         solution.escaped_rays,
         problem.keep_state,
@@ -720,7 +728,8 @@ fn transport_groups(
     split: ShadowSplit,
 ) -> Result<Option<(ClusteredMesh, Clusters, PoolCounts)>, Error> {
     let test = Some(split.min_span);
-    let (_, tested, mut groups) = pool_clusters(mesh, clusters, &refined.pooled, test)?;
+    let (_, tested, mut groups) =
+        pool_clusters(mesh, clusters, Cow::Borrowed(&refined.pooled), test)?;
     let shadowed = split_shadowed(
         mesh,
         bvh,
@@ -739,7 +748,8 @@ fn transport_groups(
     }
     let members = coarse.clusters();
     if refined.pooled_valid {
-        refined.pooled = pool_clusters(mesh, &members, &refined.pooled, None)?.0;
+        let own = std::mem::replace(&mut refined.pooled, Estimate::new(Vec::new(), None, 0)?);
+        refined.pooled = pool_clusters(mesh, &members, Cow::Owned(own), None)?.0;
     }
     let counts = PoolCounts {
         groups: members.len(),
