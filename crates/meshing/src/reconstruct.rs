@@ -13,7 +13,7 @@
 //! border included, and a step (a shadow's edge) makes no new extremes inside the surface.
 
 use crate::build::{Mesh, Patch};
-use crate::smooth::{PointKey, point_blocks, point_key, same_surface, split_by};
+use crate::smooth::{Points, point_blocks, point_key, same_surface, split_by};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
@@ -43,15 +43,15 @@ const CLOSED_TURN: f64 = 1.0 - 1e-3;
 /// to the face's edge instead of flattening into the last element; noise and steps are limited
 /// there too). A patch whose neighbours do not span two directions gets `g = 0`.
 ///
-/// `incidences` are the mesh's `(point, patch)` pairs sorted without repeats
-/// (`Mesh::incidences`), `min_cosine` the crease test's.
+/// `points` index the mesh's `(point, patch)` incidences, sorted without repeats
+/// (`Mesh::incidences`), `min_cosine` is the crease test's.
 pub(crate) fn limited_gradients(
     mesh: &Mesh,
     values: &[DVec3],
-    incidences: &[(PointKey, u32)],
+    points: &Points<'_>,
     min_cosine: f64,
 ) -> Vec<Slope> {
-    let patches = mesh.patches();
+    let (patches, incidences) = (mesh.patches(), points.incidences);
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
     // there make a full turn); by blocks of whole points in parallel, in place.
     let mut closed = vec![false; incidences.len()];
@@ -92,8 +92,7 @@ pub(crate) fn limited_gradients(
             run.clear();
             for &v in mesh.corners(own) {
                 let key = point_key(mesh.positions()[v as usize]);
-                let from = incidences.partition_point(|(k, _)| *k < key);
-                let to = from + incidences[from..].partition_point(|(k, _)| *k == key);
+                let (from, to) = points.range(key).unwrap_or((0, 0));
                 run.extend(incidences[from..to].iter().map(|&(_, q)| q).filter(|&q| {
                     q as usize != p && same_surface(own, &patches[q as usize], min_cosine)
                 }));
@@ -101,7 +100,7 @@ pub(crate) fn limited_gradients(
             run.sort_unstable();
             run.dedup();
             if !run.is_empty()
-                && let Some(fitted) = fit(mesh, values, incidences, &closed, p, run)
+                && let Some(fitted) = fit(mesh, values, points, &closed, p, run)
             {
                 *g = fitted;
             }
@@ -114,7 +113,7 @@ pub(crate) fn limited_gradients(
 fn fit(
     mesh: &Mesh,
     values: &[DVec3],
-    incidences: &[(PointKey, u32)],
+    points: &Points<'_>,
     closed: &[bool],
     p: usize,
     run: &[u32],
@@ -167,8 +166,8 @@ fn fit(
     let mut phi = DVec3::ONE;
     for &v in mesh.corners(own) {
         let point = mesh.positions()[v as usize];
-        let i = incidences
-            .binary_search(&(point_key(point), p as u32))
+        let i = points
+            .incidence(point_key(point), p as u32)
             .expect("a patch's corner is one of its incidences");
         let (x, y) = in_plane(point.as_dvec3());
         let step = gx * x + gy * y;

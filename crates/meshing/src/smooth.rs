@@ -12,6 +12,7 @@ use crate::build::{Mesh, Patch};
 use crate::reconstruct::{extrapolate, limited_gradients, tangents};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
+use rustc_hash::FxBuildHasher;
 use std::collections::HashMap;
 
 /// The default crease angle (degrees): neighbours whose normals differ from a corner's patch
@@ -109,10 +110,10 @@ impl Mesh {
         );
         let min_cosine = min_cosine(crease_angle_degrees);
         let incidences = self.incidences();
+        let points = Points::new(&incidences);
 
         // For display, each patch's limited linear extrapolation (module `reconstruct`).
-        let fitted =
-            seamless.then(|| limited_gradients(self, patch_values, &incidences, min_cosine));
+        let fitted = seamless.then(|| limited_gradients(self, patch_values, &points, min_cosine));
         let gradients = fitted.as_deref();
         // The smoothed value of each incidence: its patch's surface around the point. Filled
         // in place by blocks of whole points, in parallel (no copy of the output).
@@ -160,7 +161,7 @@ impl Mesh {
         // (each array goes as soon as it has served: at 10^7 patches they are GiBs)
         drop(fitted);
         if seamless {
-            self.tie_t_vertices(&incidences, &mut smoothed, min_cosine);
+            self.tie_t_vertices(&points, &mut smoothed, min_cosine);
         }
 
         // Each corner's incidence, by blocks of whole patches in parallel; then its value.
@@ -179,15 +180,16 @@ impl Mesh {
                 let mut k = 0;
                 for (p, patch) in patches.iter().enumerate().take(last).skip(first) {
                     for &v in self.corners(patch) {
-                        let key = (point_key(self.positions()[v as usize]), p as u32);
-                        let i = incidences
-                            .binary_search(&key)
+                        let key = point_key(self.positions()[v as usize]);
+                        let i = points
+                            .incidence(key, p as u32)
                             .expect("every corner was recorded as an incidence");
                         out[k] = i as u32;
                         k += 1;
                     }
                 }
             });
+        drop(points);
         drop(incidences);
         incidence
             .par_iter()
@@ -201,39 +203,32 @@ impl Mesh {
     /// `(v_q(a) + v_q(b)) / 2`, and the halves `(a, m)` and `(m, b)` are tied in turn. Edges are
     /// tied longest first, repeated until nothing changes (a T-vertex depends only on longer
     /// edges, so this ends).
-    fn tie_t_vertices(
-        &self,
-        incidences: &[(PointKey, u32)],
-        smoothed: &mut [DVec3],
-        min_cosine: f64,
-    ) {
-        let mut at: HashMap<PointKey, (usize, usize)> = HashMap::new();
-        let mut start = 0;
-        for group in incidences.chunk_by(|a, b| a.0 == b.0) {
-            at.insert(group[0].0, (start, start + group.len()));
-            start += group.len();
-        }
+    fn tie_t_vertices(&self, points: &Points<'_>, smoothed: &mut [DVec3], min_cosine: f64) {
         let positions = self.positions();
-        let mut edges: Vec<(f64, u32, Vec3, Vec3)> = Vec::new();
-        for (q, patch) in self.patches().iter().enumerate() {
-            let c = self.corners(patch);
-            for k in 0..c.len() {
-                let (a, b) = (
-                    positions[c[k] as usize],
-                    positions[c[(k + 1) % c.len()] as usize],
-                );
-                if at.contains_key(&point_key(midpoint(a, b))) {
-                    edges.push((a.as_dvec3().distance(b.as_dvec3()), q as u32, a, b));
-                }
-            }
-        }
+        // the edges whose midpoint is a point of the mesh, patch by patch (in order)
+        let mut edges: Vec<(f64, u32, Vec3, Vec3)> = self
+            .patches()
+            .par_iter()
+            .enumerate()
+            .flat_map_iter(|(q, patch)| {
+                let c = self.corners(patch);
+                (0..c.len()).filter_map(move |k| {
+                    let (a, b) = (
+                        positions[c[k] as usize],
+                        positions[c[(k + 1) % c.len()] as usize],
+                    );
+                    points
+                        .range(point_key(midpoint(a, b)))
+                        .map(|_| (a.as_dvec3().distance(b.as_dvec3()), q as u32, a, b))
+                })
+            })
+            .collect();
         if edges.is_empty() {
             return;
         }
         edges.sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
         let tie = Tie {
-            incidences,
-            at: &at,
+            points,
             patches: self.patches(),
             min_cosine,
         };
@@ -241,8 +236,8 @@ impl Mesh {
             let mut changed = false;
             for &(_, q, a, b) in &edges {
                 let value = |p: Vec3| {
-                    let i = incidences
-                        .binary_search(&(point_key(p), q))
+                    let i = points
+                        .incidence(point_key(p), q)
                         .expect("a patch's corner is one of its incidences");
                     smoothed[i]
                 };
@@ -336,8 +331,7 @@ impl Mesh {
 
 /// What tying an edge's T-vertices reads: see [`Mesh::tie_t_vertices`].
 struct Tie<'a> {
-    incidences: &'a [(PointKey, u32)],
-    at: &'a HashMap<PointKey, (usize, usize)>,
+    points: &'a Points<'a>,
     patches: &'a [Patch],
     min_cosine: f64,
 }
@@ -364,13 +358,13 @@ impl Tie<'_> {
         if m == a || m == b {
             return false;
         }
-        let Some(&(start, end)) = self.at.get(&point_key(m)) else {
+        let Some((start, end)) = self.points.range(point_key(m)) else {
             return false;
         };
         let own = &self.patches[q as usize];
         let vm = (va + vb) * 0.5;
         let (mut found, mut changed) = (false, false);
-        for (&(_, p), value) in self.incidences[start..end]
+        for (&(_, p), value) in self.points.incidences[start..end]
             .iter()
             .zip(&mut smoothed[start..end])
         {
@@ -388,6 +382,50 @@ impl Tie<'_> {
         let left = self.edge(smoothed, q, a, m, va, vm, depth + 1);
         let right = self.edge(smoothed, q, m, b, vm, vb, depth + 1);
         changed | left | right
+    }
+}
+
+/// Where each point's run of the sorted `(point, patch)` incidences is: a point's key to the
+/// range of its run (about 20 bytes a point), so that a corner's incidence is found without a
+/// search over all of them.
+pub(crate) struct Points<'a> {
+    /// The incidences, sorted by point and then patch.
+    pub(crate) incidences: &'a [(PointKey, u32)],
+    /// A point's key to its number.
+    number: HashMap<PointKey, u32, FxBuildHasher>,
+    /// Point `k`'s run is `starts[k]..starts[k + 1]`.
+    starts: Vec<u32>,
+}
+
+impl<'a> Points<'a> {
+    /// The points of `incidences` (sorted by point, then patch).
+    pub(crate) fn new(incidences: &'a [(PointKey, u32)]) -> Points<'a> {
+        let mut number = HashMap::with_hasher(FxBuildHasher);
+        let mut starts = vec![0u32];
+        for run in incidences.chunk_by(|a, b| a.0 == b.0) {
+            number.insert(run[0].0, (starts.len() - 1) as u32);
+            starts.push(starts[starts.len() - 1] + run.len() as u32);
+        }
+        Points {
+            incidences,
+            number,
+            starts,
+        }
+    }
+
+    /// The range of the incidences at the point `key`, if it is one of their points.
+    pub(crate) fn range(&self, key: PointKey) -> Option<(usize, usize)> {
+        let k = *self.number.get(&key)? as usize;
+        Some((self.starts[k] as usize, self.starts[k + 1] as usize))
+    }
+
+    /// The index of the incidence `(key, patch)`, if there is one.
+    pub(crate) fn incidence(&self, key: PointKey, patch: u32) -> Option<usize> {
+        let (start, end) = self.range(key)?;
+        let run = &self.incidences[start..end];
+        run.binary_search_by(|(_, p)| p.cmp(&patch))
+            .ok()
+            .map(|i| start + i)
     }
 }
 
