@@ -147,8 +147,8 @@ pub struct Solve {
     /// uniform; --save keeps the adaptive mesh in the state and --resume continues on it.
     #[arg(long, value_enum, value_name = "KIND")]
     pub mesh: Option<MeshArg>,
-    /// Adaptive meshes: no element edge below L (scene units). Default: the scene's
-    /// bounding-box diagonal / 640.
+    /// Adaptive meshes: no element edge below L (scene units), and no group of small faces
+    /// split below 2 L across. Default: the scene's bounding-box diagonal / 640.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length)]
     pub min_edge: Option<f32>,
     /// Adaptive meshes: at most N elements, or one per input face plus N/2 when that is more
