@@ -266,8 +266,11 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // One hierarchy over the leaves' triangles: the pilot's clusters see it renumbered.
     let bvh = caster(mesh.mesh())?;
     let pilot = match &coarse {
-        Some(c) => run_pilot(&c.mesh, &Renumbered::new(&bvh, &c.element), config, start)?,
-        None => run_pilot(mesh.mesh(), &bvh, config, start)?,
+        Some(c) => {
+            let caster = Renumbered::new(&bvh, &c.element);
+            run_pilot(&c.mesh, &caster, config, (pilot_rays, start))?
+        }
+        None => run_pilot(mesh.mesh(), &bvh, config, (pilot_rays, start))?,
     };
     let Pilot {
         mut lit,
@@ -599,23 +602,19 @@ struct Pilot {
     estimate: Option<Estimate>,
     /// Rays cast, the lights' included.
     rays: u64,
-    /// Whether the shooting shipped all its power (not stopped by the clock).
+    /// Whether the shooting shipped all its power: a pilot stopped by the clock is short of
+    /// light, and its estimate places the marks but is not pooled into the answer.
     complete: bool,
 }
 
 /// The refinement's pilot on `mesh` through `caster`: the lights' direct light, then a
-/// shooting of a third of the rays (or of the time, from `start`).
+/// shooting of `pilot_rays` (or of a third of the time, from `start`).
 fn run_pilot<C: RayCaster>(
     mesh: &Mesh,
     caster: &C,
     config: &AdaptiveConfig,
-    start: Instant,
+    (pilot_rays, start): (u64, Instant),
 ) -> Result<Pilot, AdaptiveError> {
-    let pilot_rays = if config.rays == u64::MAX {
-        u64::MAX
-    } else {
-        (config.rays / 3).max(1)
-    };
     let pilot_seconds = config.seconds.map(|s| s / 3.0);
     let lit = light(mesh, caster, config, pilot_rays, 0)?;
     if let Some(l) = &lit
