@@ -571,7 +571,9 @@ fn pass_variance<C: RayCaster>(
         let x = positions[c as usize];
         (side(patch), [x.x.to_bits(), x.y.to_bits(), x.z.to_bits()])
     };
-    for (i, p) in patches.iter().enumerate() {
+    // A cluster of whole faces shares its faces' sides with no other patch: it has no
+    // neighbours here, and its members' corners (all of a 10^7-face scene's) are left out.
+    for (i, p) in patches.iter().enumerate().filter(|(_, p)| !p.is_cluster()) {
         for &c in mesh.corners(p) {
             at.entry(key(p, c)).or_default().push(i);
         }
@@ -602,7 +604,9 @@ fn pass_variance<C: RayCaster>(
             let mut around: Vec<usize> = mesh
                 .corners(&patches[i])
                 .iter()
-                .flat_map(|&c| at[&key(&patches[i], c)].iter().copied())
+                .filter_map(|&c| at.get(&key(&patches[i], c)))
+                .flatten()
+                .copied()
                 .filter(|&j| j != i)
                 .collect();
             around.sort_unstable();

@@ -191,6 +191,27 @@ pub struct AdaptiveMesh {
     history: History,
 }
 
+/// An [`AdaptiveMesh`]'s starting leaves without their mesh ([`AdaptiveMesh::leaves`]): what
+/// it needs of its scene, which may go before [`AdaptiveStart::build`] makes the mesh.
+#[derive(Debug, Clone)]
+pub struct AdaptiveStart {
+    /// The hierarchy, its mesh empty.
+    mesh: AdaptiveMesh,
+    /// Faces kept whole rather than cut ([`Mesh::kept_whole`]).
+    kept: usize,
+}
+
+impl AdaptiveStart {
+    /// The starting mesh of these leaves (that of [`AdaptiveMesh::new`]).
+    pub fn build(self) -> AdaptiveMesh {
+        let AdaptiveStart { mut mesh, kept } = self;
+        let origin = mesh.mesh.origin();
+        mesh.mesh = build_mesh(origin, &mesh.templates, &mesh.leaves, mesh.textures.clone());
+        mesh.mesh.set_kept_whole(kept);
+        mesh
+    }
+}
+
 /// How an adaptive mesh was made from its scene: its start and, refinement by refinement, the
 /// leaves split (indices into the leaves before that refinement, ascending). Replaying it
 /// ([`AdaptiveMesh::replay`]) on the same scene and bounds gives the same mesh, bit for bit.
@@ -212,6 +233,16 @@ impl AdaptiveMesh {
         start: Subdivision,
         bounds: AdaptiveBounds,
     ) -> Result<AdaptiveMesh, MeshError> {
+        Ok(AdaptiveMesh::leaves(scene, start, bounds)?.build())
+    }
+
+    /// The leaves of [`AdaptiveMesh::new`], their mesh not yet built: all it needs of `scene`,
+    /// so that a caller can let the scene go before the mesh is made ([`AdaptiveStart::build`]).
+    pub fn leaves(
+        scene: &Scene,
+        start: Subdivision,
+        bounds: AdaptiveBounds,
+    ) -> Result<AdaptiveStart, MeshError> {
         bounds.check()?;
         let (leaves, origin, resolved, kept) = start_leaves(scene, start)?;
         // one template a material (its factors: a textured face's patches multiply them anew);
@@ -228,24 +259,23 @@ impl AdaptiveMesh {
                 two_sided: scene.is_two_sided(m as u32),
             })
             .collect();
-        let textures = scene.textures().cloned();
-        let mut mesh = build_mesh(origin, &templates, &leaves, textures.clone());
-        mesh.set_kept_whole(kept);
-        let start = match start {
-            Subdivision::None => None,
-            Subdivision::MaxEdge(l) => Some(l),
-        };
-        Ok(AdaptiveMesh {
-            textures,
-            templates,
-            leaves,
-            mesh,
-            bounds,
-            resolved,
-            history: History {
-                start,
-                splits: Vec::new(),
+        Ok(AdaptiveStart {
+            mesh: AdaptiveMesh {
+                textures: scene.textures().cloned(),
+                templates,
+                leaves,
+                mesh: Mesh::empty(origin, None),
+                bounds,
+                resolved,
+                history: History {
+                    start: match start {
+                        Subdivision::None => None,
+                        Subdivision::MaxEdge(l) => Some(l),
+                    },
+                    splits: Vec::new(),
+                },
             },
+            kept,
         })
     }
 

@@ -25,7 +25,7 @@ mod smooth;
 mod subdivide;
 
 pub use adaptive::{
-    AdaptiveBounds, AdaptiveMesh, DEFAULT_COARSE_EDGE_FRACTION, DEFAULT_MAX_PATCHES,
+    AdaptiveBounds, AdaptiveMesh, AdaptiveStart, DEFAULT_COARSE_EDGE_FRACTION, DEFAULT_MAX_PATCHES,
     DEFAULT_MIN_EDGE_FRACTION, History, Refinement,
 };
 pub use alpha::AlphaTest;

@@ -15,8 +15,9 @@ use mcrad_mc_radiosity::{
     StopReason, pool, pool_correlation, refine, run_cancellable, split_shadowed,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, ClusterBounds, ClusteredMesh, Clusters, CornerGroups,
-    DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh, Subdivision,
+    AdaptiveBounds, AdaptiveMesh, AdaptiveStart, ClusterBounds, ClusteredMesh, Clusters,
+    CornerGroups, DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh,
+    Subdivision,
 };
 use mcrad_random::derive_seed;
 use mcrad_raycast::{Bvh, Renumbered};
@@ -318,8 +319,10 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         (_, Some(scene), MeshPlan::Adaptive { .. }, None) if !deterministic => {
             let start = adaptive_start(scene, settings, config.rays)?;
-            // meshed: a scene handed over goes before the refinement builds its casters
+            // a scene handed over goes before the start's mesh is built (what the mesh needs
+            // of it, the leaves hold)
             drop(owned.take());
+            let start = start.build();
             refined_at = Some(Instant::now());
             let refine_seconds = budget
                 .seconds
@@ -949,8 +952,9 @@ fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
 /// most the budget, else one element per face (every start within the elements the ray budget
 /// pays [`START_RAYS_PER_ELEMENT`] for), within the budget raised to one element per face plus
 /// half of it ([`AdaptiveBounds::for_faces`]): no count of input faces switches the refinement
-/// off. Refined by [`adaptive_refine`] (which needs the scene no more).
-fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<AdaptiveMesh, Error> {
+/// off. Its leaves, the mesh built by [`AdaptiveStart::build`] (which needs the scene no more),
+/// then refined by [`adaptive_refine`].
+fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<AdaptiveStart, Error> {
     let bounds = adaptive_bounds(scene, settings);
     let affordable = usize::try_from(rays / START_RAYS_PER_ELEMENT).unwrap_or(usize::MAX);
     let (faces, asked) = (
@@ -981,7 +985,7 @@ fn adaptive_start(scene: &Scene, settings: &Settings, rays: u64) -> Result<Adapt
     } else {
         Subdivision::None
     };
-    AdaptiveMesh::new(scene, start, bounds).map_err(mesh_error(start))
+    AdaptiveMesh::leaves(scene, start, bounds).map_err(mesh_error(start))
 }
 
 /// The bounds of the clusters of small faces of a scene whose bounding box's diagonal is
