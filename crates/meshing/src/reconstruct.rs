@@ -91,8 +91,7 @@ pub(crate) fn limited_gradients(
             let own = &patches[p];
             run.clear();
             for &v in mesh.corners(own) {
-                let key = point_key(mesh.positions()[v as usize]);
-                let (from, to) = points.range(key).unwrap_or((0, 0));
+                let (from, to) = points.range_of_vertex(v).unwrap_or((0, 0));
                 run.extend(incidences[from..to].iter().map(|&(_, q)| q).filter(|&q| {
                     q as usize != p && same_surface(own, &patches[q as usize], min_cosine)
                 }));
@@ -167,7 +166,7 @@ fn fit(
     for &v in mesh.corners(own) {
         let point = mesh.positions()[v as usize];
         let i = points
-            .incidence(point_key(point), p as u32)
+            .incidence_of_vertex(v, p as u32)
             .expect("a patch's corner is one of its incidences");
         let (x, y) = in_plane(point.as_dvec3());
         let step = gx * x + gy * y;

@@ -110,7 +110,7 @@ impl Mesh {
         );
         let min_cosine = min_cosine(crease_angle_degrees);
         let incidences = self.incidences();
-        let points = Points::new(&incidences);
+        let points = Points::new(self, &incidences);
 
         // For display, each patch's limited linear extrapolation (module `reconstruct`).
         let fitted = seamless.then(|| limited_gradients(self, patch_values, &points, min_cosine));
@@ -180,9 +180,8 @@ impl Mesh {
                 let mut k = 0;
                 for (p, patch) in patches.iter().enumerate().take(last).skip(first) {
                     for &v in self.corners(patch) {
-                        let key = point_key(self.positions()[v as usize]);
                         let i = points
-                            .incidence(key, p as u32)
+                            .incidence_of_vertex(v, p as u32)
                             .expect("every corner was recorded as an incidence");
                         out[k] = i as u32;
                         k += 1;
@@ -385,9 +384,9 @@ impl Tie<'_> {
     }
 }
 
-/// Where each point's run of the sorted `(point, patch)` incidences is: a point's key to the
-/// range of its run (about 20 bytes a point), so that a corner's incidence is found without a
-/// search over all of them.
+/// Where each point's run of the sorted `(point, patch)` incidences is: a point's key, or a
+/// mesh vertex, to the range of its run (about 20 bytes a point and 4 a vertex), so that a
+/// corner's incidence is found without a search over all of them.
 pub(crate) struct Points<'a> {
     /// The incidences, sorted by point and then patch.
     pub(crate) incidences: &'a [(PointKey, u32)],
@@ -395,33 +394,63 @@ pub(crate) struct Points<'a> {
     number: HashMap<PointKey, u32, FxBuildHasher>,
     /// Point `k`'s run is `starts[k]..starts[k + 1]`.
     starts: Vec<u32>,
+    /// Each vertex's point number ([`u32::MAX`] for a position no patch has as a corner).
+    of_vertex: Vec<u32>,
 }
 
 impl<'a> Points<'a> {
-    /// The points of `incidences` (sorted by point, then patch).
-    pub(crate) fn new(incidences: &'a [(PointKey, u32)]) -> Points<'a> {
+    /// The points of `incidences` (`mesh`'s, sorted by point, then patch).
+    pub(crate) fn new(mesh: &Mesh, incidences: &'a [(PointKey, u32)]) -> Points<'a> {
         let mut number = HashMap::with_hasher(FxBuildHasher);
         let mut starts = vec![0u32];
         for run in incidences.chunk_by(|a, b| a.0 == b.0) {
             number.insert(run[0].0, (starts.len() - 1) as u32);
             starts.push(starts[starts.len() - 1] + run.len() as u32);
         }
+        let of_vertex = mesh
+            .positions()
+            .par_iter()
+            .map(|&x| number.get(&point_key(x)).copied().unwrap_or(u32::MAX))
+            .collect();
         Points {
             incidences,
             number,
             starts,
+            of_vertex,
         }
+    }
+
+    /// Point `k`'s range of incidences.
+    fn run(&self, k: u32) -> Option<(usize, usize)> {
+        let k = k as usize;
+        Some((
+            *self.starts.get(k)? as usize,
+            *self.starts.get(k + 1)? as usize,
+        ))
     }
 
     /// The range of the incidences at the point `key`, if it is one of their points.
     pub(crate) fn range(&self, key: PointKey) -> Option<(usize, usize)> {
-        let k = *self.number.get(&key)? as usize;
-        Some((self.starts[k] as usize, self.starts[k + 1] as usize))
+        self.run(*self.number.get(&key)?)
+    }
+
+    /// The range of the incidences at mesh vertex `v`'s point, if it is a corner.
+    pub(crate) fn range_of_vertex(&self, v: u32) -> Option<(usize, usize)> {
+        self.run(*self.of_vertex.get(v as usize)?)
     }
 
     /// The index of the incidence `(key, patch)`, if there is one.
     pub(crate) fn incidence(&self, key: PointKey, patch: u32) -> Option<usize> {
-        let (start, end) = self.range(key)?;
+        self.within(self.range(key)?, patch)
+    }
+
+    /// The index of the incidence of mesh vertex `v`'s point and `patch`, if there is one.
+    pub(crate) fn incidence_of_vertex(&self, v: u32, patch: u32) -> Option<usize> {
+        self.within(self.range_of_vertex(v)?, patch)
+    }
+
+    /// The index of `patch`'s incidence in the run `(start, end)`.
+    fn within(&self, (start, end): (usize, usize), patch: u32) -> Option<usize> {
         let run = &self.incidences[start..end];
         run.binary_search_by(|(_, p)| p.cmp(&patch))
             .ok()
