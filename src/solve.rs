@@ -379,9 +379,7 @@ fn finish(
     let alone = args.gltf.is_none() && args.error_image.is_none() && args.bake.is_none();
     match direct {
         Some(h) if alone => {
-            let empty = mcrad_combine::Estimate::new(Vec::new(), None, 0)?;
-            let (mut drawn, variance, _) =
-                std::mem::replace(&mut answer.estimate, empty).into_parts();
+            let (mut drawn, variance, _) = std::mem::take(&mut answer.estimate).into_parts();
             drop(variance);
             crate::output::take_out_direct(&answer.mesh, &mut drawn, &h);
             drop(h);

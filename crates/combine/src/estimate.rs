@@ -5,8 +5,9 @@ use glam::DVec3;
 /// An estimate of the radiosity of every patch of a mesh.
 ///
 /// Invariants (checked by [`Estimate::new`]): `radiosity` and `variance` (when present) have one
-/// entry per patch, all finite; variances are `>= 0`.
-#[derive(Debug, Clone, PartialEq)]
+/// entry per patch, all finite; variances are `>= 0`. The default is the estimate of no
+/// patches (what is left where an estimate was taken, `std::mem::take`).
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Estimate {
     radiosity: Vec<DVec3>,
     variance: Option<Vec<DVec3>>,

@@ -296,7 +296,7 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // caller reuse it.
     let mut current = Some(bvh);
     if let Some(c) = &coarse {
-        // carried back to the leaves; the clusters' caster and mesh go
+        // carried back to the leaves; the clusters' mesh goes
         let fine = mesh.mesh();
         estimate = Estimate::new(
             c.refine(fine, estimate.radiosity(), true),

@@ -59,13 +59,15 @@ pub(crate) fn limited_gradients(
         .into_par_iter()
         .for_each(|(start, out)| {
             let block = &incidences[start..start + out.len()];
-            let mut k = 0;
+            let (mut k, mut angles) = (0, Vec::new());
             for group in block.chunk_by(|a, b| a.0 == b.0) {
                 let point = Vec3::from_array(group[0].0.map(f32::from_bits));
-                let angles: Vec<f64> = group
-                    .iter()
-                    .map(|&(_, q)| angle_at(mesh, q as usize, point))
-                    .collect();
+                angles.clear();
+                angles.extend(
+                    group
+                        .iter()
+                        .map(|&(_, q)| angle_at(mesh, q as usize, point)),
+                );
                 for &(_, p) in group {
                     let own = &patches[p as usize];
                     let turn: f64 = group
@@ -84,10 +86,9 @@ pub(crate) fn limited_gradients(
     // Each patch's fit from its neighbours (gathered at its corners' points, in order), in
     // parallel, in place.
     let mut gradients = vec![[[0.0; 2]; 3]; patches.len()];
-    gradients
-        .par_iter_mut()
-        .enumerate()
-        .for_each_init(Vec::new, |run, (p, g)| {
+    gradients.par_iter_mut().enumerate().for_each_init(
+        || (Vec::<u32>::new(), Vec::new()),
+        |(run, around), (p, g)| {
             let own = &patches[p];
             run.clear();
             for &v in mesh.corners(own) {
@@ -99,23 +100,29 @@ pub(crate) fn limited_gradients(
             run.sort_unstable();
             run.dedup();
             if !run.is_empty()
-                && let Some(fitted) = fit(mesh, values, points, &closed, p, run)
+                && let Some(fitted) = fit(mesh, values, points, &closed, p, (run, around))
             {
                 *g = fitted;
             }
-        });
+        },
+    );
     gradients
 }
 
+/// A neighbour's term in a patch's fit: its centroid in the patch's plane `(x, y)` (scene
+/// units), its weight `1 / (x² + y²)` and its value's difference from the patch's.
+type Term = (f64, f64, f64, DVec3);
+
 /// Patch `p`'s limited gradient (see [`limited_gradients`]) from its neighbours `run` (patch
-/// indices, ascending), or `None` where the fit is singular.
+/// indices, ascending), or `None` where the fit is singular; `around` is room for the
+/// neighbours' terms (reused from patch to patch).
 fn fit(
     mesh: &Mesh,
     values: &[DVec3],
     points: &Points<'_>,
     closed: &[bool],
     p: usize,
-    run: &[u32],
+    (run, around): (&[u32], &mut Vec<Term>),
 ) -> Option<Slope> {
     let patches = mesh.patches();
     let own = &patches[p];
@@ -126,14 +133,12 @@ fn fit(
         (d.dot(t1), d.dot(t2))
     };
     // Per neighbour: its centroid in the patch's plane, its weight and its value's difference.
-    let around: Vec<(f64, f64, f64, DVec3)> = run
-        .iter()
-        .map(|&q| {
-            let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
-            let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
-            (x, y, w, values[q as usize] - values[p])
-        })
-        .collect();
+    around.clear();
+    around.extend(run.iter().map(|&q| {
+        let (x, y) = in_plane(patches[q as usize].centroid.as_dvec3());
+        let w = 1.0 / (x * x + y * y).max(f64::MIN_POSITIVE);
+        (x, y, w, values[q as usize] - values[p])
+    }));
     // The weighted normal equations [sxx sxy; sxy syy] g = [rx; ry], per channel.
     let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
     let (mut rx, mut ry) = (DVec3::ZERO, DVec3::ZERO);
@@ -156,7 +161,7 @@ fn fit(
     let (gx, gy) = ((rx * syy - ry * sxy) / det, (ry * sxx - rx * sxy) / det);
     // How much of the neighbours' differences the plane leaves unexplained, per channel.
     let (mut unexplained, mut total) = (DVec3::ZERO, DVec3::ZERO);
-    for &(x, y, w, dv) in &around {
+    for &(x, y, w, dv) in around.iter() {
         let miss = dv - (gx * x + gy * y);
         unexplained += w * miss * miss;
         total += w * dv * dv;

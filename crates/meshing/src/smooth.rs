@@ -164,7 +164,20 @@ impl Mesh {
             self.tie_t_vertices(&points, &mut smoothed, min_cosine);
         }
 
-        // Each corner's incidence, by blocks of whole patches in parallel; then its value.
+        // Each corner's incidence, then its value.
+        let incidence = self.corner_incidences(&points);
+        drop(points);
+        drop(incidences);
+        incidence
+            .par_iter()
+            .map(|&i| smoothed[i as usize])
+            .collect()
+    }
+
+    /// The index in `points`' incidences of every corner (global corner order), by blocks of
+    /// whole patches in parallel.
+    fn corner_incidences(&self, points: &Points<'_>) -> Vec<u32> {
+        let patches = self.patches();
         let mut incidence = vec![0u32; self.corner_count()];
         let ends: Vec<usize> = (PATCH_BLOCK..patches.len())
             .step_by(PATCH_BLOCK)
@@ -188,12 +201,7 @@ impl Mesh {
                     }
                 }
             });
-        drop(points);
-        drop(incidences);
         incidence
-            .par_iter()
-            .map(|&i| smoothed[i as usize])
-            .collect()
     }
 
     /// Ties the values at T-vertices to the edges they lie on (see
@@ -286,7 +294,7 @@ impl Mesh {
             points: Vec::new(),
             first_patch: vec![0],
             patches: Vec::new(),
-            corner_group: Vec::with_capacity(self.corner_count()),
+            corner_group: Vec::new(),
         };
         // The group of each incidence.
         let mut incidence_group = Vec::with_capacity(incidences.len());
@@ -315,15 +323,12 @@ impl Mesh {
                 incidence_group.push(g as u32);
             }
         }
-        for (p, patch) in patches.iter().enumerate() {
-            for &v in self.corners(patch) {
-                let key = (point_key(self.positions()[v as usize]), p as u32);
-                let i = incidences
-                    .binary_search(&key)
-                    .expect("every corner was recorded as an incidence");
-                groups.corner_group.push(incidence_group[i]);
-            }
-        }
+        let points = Points::new(self, &incidences);
+        groups.corner_group = self
+            .corner_incidences(&points)
+            .into_iter()
+            .map(|i| incidence_group[i as usize])
+            .collect();
         groups
     }
 }

@@ -450,7 +450,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     // a refinement's estimate that the answer does not pool is not kept (48 bytes a patch)
     if let Some(r) = refinement.as_mut().filter(|r| !r.pooled_valid) {
-        r.pooled = Estimate::new(Vec::new(), None, 0)?;
+        r.pooled = Estimate::default();
     }
     phases.clusters_seconds = clustering.elapsed().as_secs_f64();
     // The caller's work after the solve, timed now that the mesh and caster exist.
@@ -621,7 +621,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         (k, ..) => k,
     };
     // the solution's estimate goes into the answer (pooled in place)
-    let solved = std::mem::replace(&mut solution.estimate, Estimate::new(Vec::new(), None, 0)?);
+    let solved = std::mem::take(&mut solution.estimate);
     let (estimate, state) = run.settle(
         Cow::Owned(solved),
         solution.steps,
@@ -751,7 +751,7 @@ fn transport_groups(
     }
     let members = coarse.clusters();
     if refined.pooled_valid {
-        let own = std::mem::replace(&mut refined.pooled, Estimate::new(Vec::new(), None, 0)?);
+        let own = std::mem::take(&mut refined.pooled);
         refined.pooled = pool_clusters(mesh, &members, Cow::Owned(own), None)?.0;
     }
     let counts = PoolCounts {
@@ -1025,9 +1025,7 @@ fn adaptive_refine(
     let mut refined = refine(&mut mesh, &config)?;
     // The answer pools the refinement's `pooled` estimate only: its last estimate would hold
     // 48 bytes per element through the whole run.
-    if let Ok(empty) = Estimate::new(Vec::new(), None, 0) {
-        refined.estimate = empty;
-    }
+    refined.estimate = Estimate::default();
     let unrefinable = refined.unrefinable();
     if unrefinable > 0 {
         warnings.push(format!(

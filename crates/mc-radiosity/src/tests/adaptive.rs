@@ -39,6 +39,14 @@ fn shadow_scene() -> Scene {
     Scene::new(p, faces, materials).unwrap().0
 }
 
+/// Bounds of a smallest edge `min_edge` and at most `max_patches` leaves.
+fn bounds(min_edge: f32, max_patches: usize) -> AdaptiveBounds {
+    AdaptiveBounds {
+        min_edge,
+        max_patches,
+    }
+}
+
 fn config(seed: u64) -> AdaptiveConfig {
     AdaptiveConfig {
         // (300k sufficed before shooting planned its waves by the measured share of power that
@@ -51,10 +59,7 @@ fn config(seed: u64) -> AdaptiveConfig {
 }
 
 fn refined(scene: &Scene, max_patches: usize, seed: u64) -> AdaptiveMesh {
-    let bounds = AdaptiveBounds {
-        min_edge: 0.05,
-        max_patches,
-    };
+    let bounds = bounds(0.05, max_patches);
     let mut mesh = AdaptiveMesh::new(scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
     refine(&mut mesh, &config(seed)).unwrap();
     mesh.mesh().validate().unwrap();
@@ -158,10 +163,7 @@ fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
     };
     for seed in 1..=3 {
         for proximity_rays in [16, 0] {
-            let bounds = AdaptiveBounds {
-                min_edge: 0.05,
-                max_patches: 100_000,
-            };
+            let bounds = bounds(0.05, 100_000);
             let mut mesh =
                 AdaptiveMesh::new(&wall_on_a_floor(), Subdivision::MaxEdge(0.25), bounds).unwrap();
             let config = AdaptiveConfig {
@@ -194,10 +196,7 @@ fn a_round_adds_at_most_half_of_what_the_budget_has_left() {
     // Room for 40 more elements than the start, where the first round marks some 25 elements
     // (75 more): it adds at most 20, the later ones fill the rest within the budget.
     let start = |max_patches| {
-        let bounds = AdaptiveBounds {
-            min_edge: 0.05,
-            max_patches,
-        };
+        let bounds = bounds(0.05, max_patches);
         AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
     };
     let budget = start(100_000).len() + 40;
@@ -219,10 +218,7 @@ fn a_round_adds_at_most_half_of_what_the_budget_has_left() {
 fn an_evenly_lit_furnace_is_not_refined() {
     for seed in 1..=3 {
         let scene = furnace(0.5);
-        let bounds = AdaptiveBounds {
-            min_edge: 0.01,
-            max_patches: 100_000,
-        };
+        let bounds = bounds(0.01, 100_000);
         let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.25), bounds).unwrap();
         let before = mesh.len();
         let r = refine(&mut mesh, &config(seed)).unwrap();
@@ -266,10 +262,7 @@ fn refined_children_average_to_their_faces_exact_radiosity() {
     let mut means = vec![Vec::new(); 6];
     for seed in 0..SEEDS {
         let scene = furnace(0.5);
-        let bounds = AdaptiveBounds {
-            min_edge: 0.05,
-            max_patches: 100_000,
-        };
+        let bounds = bounds(0.05, 100_000);
         let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
         let before = mesh.len();
         let config = AdaptiveConfig {
@@ -343,10 +336,7 @@ fn pooling_the_refinement_with_a_solve_is_unbiased_and_less_noisy() {
     let (mut error_fresh, mut error_pool) = (0.0, 0.0);
     for seed in 0..SEEDS {
         let scene = furnace(0.5);
-        let bounds = AdaptiveBounds {
-            min_edge: 0.05,
-            max_patches: 60,
-        };
+        let bounds = bounds(0.05, 60);
         let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
         let config = AdaptiveConfig {
             rays: 200_000,
@@ -433,10 +423,7 @@ fn a_suns_shadow_edge_is_refined_and_its_even_dark_is_not() {
     .unwrap()
     .0;
     for seed in 1..=3 {
-        let bounds = AdaptiveBounds {
-            min_edge: 0.05,
-            max_patches: 100_000,
-        };
+        let bounds = bounds(0.05, 100_000);
         let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
         let config = AdaptiveConfig {
             lights: vec![sun.clone()],
@@ -479,10 +466,7 @@ fn a_pilot_stopped_by_the_clock_is_not_pooled_into_the_answer() {
     // it may place marks but must not be pooled (the sun- and sky-lit atrium's answer was
     // 0.36% dark at `--time 30`). With a ray budget it completes and is pooled.
     let scene = furnace(0.5);
-    let bounds = AdaptiveBounds {
-        min_edge: 0.01,
-        max_patches: 100_000,
-    };
+    let bounds = bounds(0.01, 100_000);
     let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.25), bounds).unwrap();
     let stopped = AdaptiveConfig {
         seconds: Some(1e-9),
@@ -503,10 +487,7 @@ fn a_pilot_stopped_by_the_clock_is_not_pooled_into_the_answer() {
 fn the_caster_refine_hands_back_is_the_refined_meshs() {
     use mcrad_raycast::{Ray, RayCaster};
     let scene = shadow_scene();
-    let bounds = AdaptiveBounds {
-        min_edge: 0.05,
-        max_patches: 400,
-    };
+    let bounds = bounds(0.05, 400);
     // (rays, rounds): the pilot alone; one round that splits (its caster is built after the
     // split); four rounds
     for (rays, rounds, splits) in [
@@ -593,10 +574,7 @@ fn tiled_box(n: u32) -> Scene {
 fn a_pilot_short_of_rays_runs_on_clusters_of_small_faces() {
     use mcrad_meshing::ClusterBounds;
     let scene = tiled_box(24);
-    let bounds = AdaptiveBounds {
-        min_edge: 0.05,
-        max_patches: 100_000,
-    };
+    let bounds = bounds(0.05, 100_000);
     let clusters = ClusterBounds {
         max_size: 0.3,
         cone_degrees: 20.0,
