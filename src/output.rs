@@ -436,7 +436,8 @@ pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) ->
     let small = ((w / 8).max(16).min(w), (h / 8).max(16).min(h));
     // as `drawn_direct`: the lights' and the sky's direct light drawn per sample
     let per_sample = !args.no_direct_rays && (!scenery.lights.is_empty() || scenery.sky.is_some());
-    let zeros = vec![DVec3::ZERO; mesh.patches().len()];
+    // allocated zeroed, so that reading it maps no memory (at 10^7 patches 240 MB)
+    let zeros: Vec<DVec3> = bytemuck::zeroed_vec(mesh.patches().len());
     let smooth = args.shading == ShadingArg::Smooth;
     let clock = Instant::now();
     let corners = (smooth || args.gltf.is_some())

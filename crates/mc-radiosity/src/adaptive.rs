@@ -148,8 +148,10 @@ pub struct RoundStats {
 /// What [`refine`] returns.
 #[derive(Debug, Clone)]
 pub struct Refined {
-    /// The last estimate, one per leaf of the refined mesh (W/m² and its variance): the
-    /// children of the last split inherit their parent's value and were gathered once from it.
+    /// The last round's gathering, one per leaf of the refined mesh (W/m² and its variance):
+    /// the children of the last split inherit their parent's value and were gathered once from
+    /// it. Empty (no patches, no rays) when no round gathered: the pilot's estimate is then
+    /// [`Refined::pooled`]'s, handed over rather than copied (at 10^7 leaves 480 MB).
     pub estimate: Estimate,
     /// Every estimate the refinement made of each leaf's own value, pooled ([`pool`]): a leaf
     /// not split since the pilot pools the pilot and every round's gathering; a leaf made by a
@@ -316,7 +318,10 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // that pooling it with a later estimate does not trust it fully (a floor of many tiny
     // faces, most of them unreached, would be pooled to a fraction of its light). The marks
     // read the pilot's own variances.
-    let mut pooled = crate::shoot::unreached_variance(mesh.mesh(), estimate.clone())?;
+    // It is made from the pilot's estimate where a round first needs it (a copy, 48 bytes a
+    // leaf), or at the end from the estimate itself when no round gathered.
+    let mut pooled: Option<Estimate> = None;
+    let mut gathered_once = false;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
@@ -382,11 +387,16 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         } else {
             drop(bvh);
         }
+        let earlier = match pooled.take() {
+            Some(p) => p,
+            None => crate::shoot::unreached_variance(mesh.mesh(), estimate.clone())?,
+        };
         let r = mesh.refine_within(&order, share);
         stats.split = r.split;
         stats.held = r.held;
         stats.unrefinable = r.unrefinable;
         if r.split == 0 {
+            pooled = Some(earlier);
             rounds.push(stats);
             break;
         }
@@ -430,19 +440,26 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
             .map(|&p| children[p as usize] == 1 && (pilot_complete || !rounds.is_empty()))
             .collect();
         let carried = Estimate::new(
-            inherit(pooled.radiosity()),
-            pooled.variance().map(inherit),
-            pooled.rays(),
+            inherit(earlier.radiosity()),
+            earlier.variance().map(inherit),
+            earlier.rays(),
         )
         .map_err(Error::from)?;
-        pooled = pool(mesh.mesh(), &gathered, &carried, &kept).map_err(Error::from)?;
+        drop(earlier);
+        pooled = Some(pool(mesh.mesh(), &gathered, &carried, &kept).map_err(Error::from)?);
         estimate = gathered;
+        gathered_once = true;
         rounds.push(stats);
         drop(ctx);
         current = Some(bvh);
     }
-    // Without a gathering round the pool holds the pilot alone.
+    // Without a gathering round the pool holds the pilot alone, and the pilot's estimate is
+    // handed over to it (not copied).
     let pooled_valid = pilot_complete || rounds.iter().any(|r| r.split > 0);
+    let pooled = match pooled {
+        Some(p) if gathered_once => p,
+        _ => crate::shoot::unreached_variance(mesh.mesh(), std::mem::take(&mut estimate))?,
+    };
     Ok(Refined {
         estimate,
         pooled,

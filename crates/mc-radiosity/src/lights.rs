@@ -136,22 +136,23 @@ pub(crate) fn light_mesh<C: RayCaster>(
     let far = mesh.escape_distance();
     let seed = config.seed;
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
-    // `n` stratified points a patch from sub-stream `sub`.
+    // `n` stratified points of patch `i` from sub-stream `sub`.
+    let patch_moments = |i: usize, n: u32, sub: u64| {
+        if cancelled() {
+            return Moments::default();
+        }
+        let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, sub);
+        let normal = patches[i].normal;
+        let sources = Sources {
+            lights: &lights,
+            sky,
+        };
+        irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
+    };
     let round = |n: u32, sub: u64| -> Result<Vec<Moments>, Error> {
         let moments: Vec<Moments> = (0..patches.len())
             .into_par_iter()
-            .map(|i| {
-                if cancelled() {
-                    return Moments::default();
-                }
-                let mut rng = Stream::new(seed, LIGHT_PASS, i as u64, sub);
-                let normal = patches[i].normal;
-                let sources = Sources {
-                    lights: &lights,
-                    sky,
-                };
-                irradiance_moments(i, normal, n, &sources, &sampler, caster, far, &mut rng)
-            })
+            .map(|i| patch_moments(i, n, sub))
             .collect();
         if cancelled() {
             return Err(Error::Cancelled);
@@ -167,19 +168,21 @@ pub(crate) fn light_mesh<C: RayCaster>(
             // ray budget of `--rays 1e12` alone, with `--time 30`, the pass cast 256 points
             // a patch, minutes on the atrium, before the clock was read.)
             let clock = std::time::Instant::now();
-            let first = round(FIRST_POINTS, 0)?;
+            let mut first = round(FIRST_POINTS, 0)?;
             let took = clock.elapsed().as_secs_f64().max(1e-9);
             let more = more_points(allowed, took, cap);
             if more == 0 {
                 (FIRST_POINTS, first)
             } else {
-                let second = round(more, 1)?;
-                let merged = first
-                    .iter()
-                    .zip(&second)
-                    .map(|(a, b)| a.merge(FIRST_POINTS, b, more))
-                    .collect();
-                (FIRST_POINTS + more, merged)
+                // each patch's second round merged into its first where it is made (one
+                // array of moments, not three: about 200 bytes a patch each)
+                first.par_iter_mut().enumerate().for_each(|(i, a)| {
+                    *a = a.merge(FIRST_POINTS, &patch_moments(i, more, 1), more);
+                });
+                if cancelled() {
+                    return Err(Error::Cancelled);
+                }
+                (FIRST_POINTS + more, first)
             }
         }
         _ => (cap, round(cap, 0)?),

@@ -109,23 +109,23 @@ impl Mesh {
             "corner_radiosity needs one value per patch"
         );
         let min_cosine = min_cosine(crease_angle_degrees);
-        let incidences = self.incidences();
-        let points = Points::new(self, &incidences);
+        let points = Points::new(self);
 
         // For display, each patch's limited linear extrapolation (module `reconstruct`).
         let fitted = seamless.then(|| limited_gradients(self, patch_values, &points, min_cosine));
         let gradients = fitted.as_deref();
         // The smoothed value of each incidence: its patch's surface around the point. Filled
         // in place by blocks of whole points, in parallel (no copy of the output).
-        let mut smoothed = vec![DVec3::ZERO; incidences.len()];
-        let blocks = point_blocks(&incidences);
-        split_by(&mut smoothed, &blocks)
+        let mut smoothed = vec![DVec3::ZERO; points.patches.len()];
+        let blocks = points.blocks();
+        split_by(&mut smoothed, &points.block_ends(&blocks))
             .into_par_iter()
-            .for_each(|(start, out)| {
-                let block = &incidences[start..start + out.len()];
+            .zip(blocks)
+            .for_each(|((_, out), (first, end))| {
                 let mut k = 0;
-                for group in block.chunk_by(|a, b| a.0 == b.0) {
-                    let point = Vec3::from_array(group[0].0.map(f32::from_bits)).as_dvec3();
+                for at in first..end {
+                    let group = points.at(at);
+                    let point = points.point(at).as_dvec3();
                     let at = |q: u32| match gradients {
                         Some(g) => extrapolate(
                             patch_values[q as usize],
@@ -135,7 +135,7 @@ impl Mesh {
                         ),
                         None => patch_values[q as usize],
                     };
-                    for &(_, p) in group {
+                    for &p in group {
                         let own = &patches[p as usize];
                         // `v_p + sum_q A_q (v_q - v_p) / sum_q A_q`: the area-weighted mean,
                         // written so that a lone patch or a constant solution comes out
@@ -143,7 +143,7 @@ impl Mesh {
                         let own_value = at(p);
                         let (mut weighted, mut area) = (DVec3::ZERO, 0.0);
                         let mut lowest = patch_values[p as usize];
-                        for &(_, q) in group {
+                        for &q in group {
                             let other = &patches[q as usize];
                             if q == p || same_surface(own, other, min_cosine) {
                                 weighted += other.area * (at(q) - own_value);
@@ -167,7 +167,6 @@ impl Mesh {
         // Each corner's incidence, then its value.
         let incidence = self.corner_incidences(&points);
         drop(points);
-        drop(incidences);
         incidence
             .par_iter()
             .map(|&i| smoothed[i as usize])
@@ -176,7 +175,7 @@ impl Mesh {
 
     /// The index in `points`' incidences of every corner (global corner order), by blocks of
     /// whole patches in parallel.
-    fn corner_incidences(&self, points: &Points<'_>) -> Vec<u32> {
+    fn corner_incidences(&self, points: &Points) -> Vec<u32> {
         let patches = self.patches();
         let mut incidence = vec![0u32; self.corner_count()];
         let ends: Vec<usize> = (PATCH_BLOCK..patches.len())
@@ -210,7 +209,7 @@ impl Mesh {
     /// `(v_q(a) + v_q(b)) / 2`, and the halves `(a, m)` and `(m, b)` are tied in turn. Edges are
     /// tied longest first, repeated until nothing changes (a T-vertex depends only on longer
     /// edges, so this ends).
-    fn tie_t_vertices(&self, points: &Points<'_>, smoothed: &mut [DVec3], min_cosine: f64) {
+    fn tie_t_vertices(&self, points: &Points, smoothed: &mut [DVec3], min_cosine: f64) {
         let positions = self.positions();
         // the edges whose midpoint is a point of the mesh, patch by patch (in order)
         let mut edges: Vec<(f64, u32, Vec3, Vec3)> = self
@@ -289,7 +288,7 @@ impl Mesh {
     pub fn corner_groups(&self, crease_angle_degrees: f32) -> CornerGroups {
         let patches = self.patches();
         let min_cosine = min_cosine(crease_angle_degrees);
-        let incidences = self.incidences();
+        let points = Points::new(self);
         let mut groups = CornerGroups {
             points: Vec::new(),
             first_patch: vec![0],
@@ -297,25 +296,24 @@ impl Mesh {
             corner_group: Vec::new(),
         };
         // The group of each incidence.
-        let mut incidence_group = Vec::with_capacity(incidences.len());
+        let mut incidence_group = Vec::with_capacity(points.patches.len());
         let mut members = Vec::new();
-        for at_point in incidences.chunk_by(|a, b| a.0 == b.0) {
+        for at in 0..points.len() {
+            let at_point = points.at(at);
             let first_group_here = groups.len();
-            for &(key, p) in at_point {
+            for &p in at_point {
                 let own = &patches[p as usize];
                 members.clear();
                 members.extend(
                     at_point
                         .iter()
-                        .map(|&(_, q)| q)
+                        .copied()
                         .filter(|&q| q == p || same_surface(own, &patches[q as usize], min_cosine)),
                 );
                 let existing =
                     (first_group_here..groups.len()).find(|&g| groups.patches(g) == members);
                 let g = existing.unwrap_or_else(|| {
-                    groups
-                        .points
-                        .push(Vec3::from_array(key.map(f32::from_bits)));
+                    groups.points.push(points.point(at));
                     groups.patches.extend_from_slice(&members);
                     groups.first_patch.push(groups.patches.len() as u32);
                     groups.len() - 1
@@ -323,7 +321,6 @@ impl Mesh {
                 incidence_group.push(g as u32);
             }
         }
-        let points = Points::new(self, &incidences);
         groups.corner_group = self
             .corner_incidences(&points)
             .into_iter()
@@ -335,7 +332,7 @@ impl Mesh {
 
 /// What tying an edge's T-vertices reads: see [`Mesh::tie_t_vertices`].
 struct Tie<'a> {
-    points: &'a Points<'a>,
+    points: &'a Points,
     patches: &'a [Patch],
     min_cosine: f64,
 }
@@ -368,7 +365,7 @@ impl Tie<'_> {
         let own = &self.patches[q as usize];
         let vm = (va + vb) * 0.5;
         let (mut found, mut changed) = (false, false);
-        for (&(_, p), value) in self.points.incidences[start..end]
+        for (&p, value) in self.points.patches[start..end]
             .iter()
             .zip(&mut smoothed[start..end])
         {
@@ -389,40 +386,89 @@ impl Tie<'_> {
     }
 }
 
-/// Where each point's run of the sorted `(point, patch)` incidences is: a point's key, or a
-/// mesh vertex, to the range of its run (about 20 bytes a point and 4 a vertex), so that a
-/// corner's incidence is found without a search over all of them.
-pub(crate) struct Points<'a> {
-    /// The incidences, sorted by point and then patch.
-    pub(crate) incidences: &'a [(PointKey, u32)],
+/// A mesh's `(point, patch)` incidences, sorted by point and then patch without repeats, by
+/// point: each point's key and run of patches, a point's key or a mesh vertex to its run (about
+/// 4 bytes an incidence, 36 a point and 4 a vertex), so that a corner's incidence is found
+/// without a search over all of them.
+pub(crate) struct Points {
+    /// Point `k`'s key.
+    keys: Vec<PointKey>,
+    /// The patch of each incidence: point `k`'s are `patches[starts[k]..starts[k + 1]]`,
+    /// ascending.
+    pub(crate) patches: Vec<u32>,
+    starts: Vec<u32>,
     /// A point's key to its number.
     number: HashMap<PointKey, u32, FxBuildHasher>,
-    /// Point `k`'s run is `starts[k]..starts[k + 1]`.
-    starts: Vec<u32>,
     /// Each vertex's point number ([`u32::MAX`] for a position no patch has as a corner).
     of_vertex: Vec<u32>,
 }
 
-impl<'a> Points<'a> {
-    /// The points of `incidences` (`mesh`'s, sorted by point, then patch).
-    pub(crate) fn new(mesh: &Mesh, incidences: &'a [(PointKey, u32)]) -> Points<'a> {
+impl Points {
+    /// The points of `mesh`'s patches' corners.
+    pub(crate) fn new(mesh: &Mesh) -> Points {
+        let incidences = mesh.incidences();
         let mut number = HashMap::with_hasher(FxBuildHasher);
-        let mut starts = vec![0u32];
+        let (mut keys, mut starts) = (Vec::new(), vec![0u32]);
         for run in incidences.chunk_by(|a, b| a.0 == b.0) {
-            number.insert(run[0].0, (starts.len() - 1) as u32);
+            number.insert(run[0].0, keys.len() as u32);
+            keys.push(run[0].0);
             starts.push(starts[starts.len() - 1] + run.len() as u32);
         }
+        // the keys are the points' own: each incidence keeps its patch (16 bytes -> 4)
+        let patches = incidences.par_iter().map(|&(_, p)| p).collect();
+        drop(incidences);
         let of_vertex = mesh
             .positions()
             .par_iter()
             .map(|&x| number.get(&point_key(x)).copied().unwrap_or(u32::MAX))
             .collect();
         Points {
-            incidences,
-            number,
+            keys,
+            patches,
             starts,
+            number,
             of_vertex,
         }
+    }
+
+    /// The number of points.
+    pub(crate) fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Point `k`'s position.
+    pub(crate) fn point(&self, k: usize) -> Vec3 {
+        Vec3::from_array(self.keys[k].map(f32::from_bits))
+    }
+
+    /// The patches at point `k`, ascending.
+    pub(crate) fn at(&self, k: usize) -> &[u32] {
+        &self.patches[self.starts[k] as usize..self.starts[k + 1] as usize]
+    }
+
+    /// Blocks of whole points of about [`POINT_BLOCK`] incidences: each block's first point
+    /// and the point after its last.
+    pub(crate) fn blocks(&self) -> Vec<(usize, usize)> {
+        let mut blocks = Vec::new();
+        let mut first = 0;
+        while first < self.len() {
+            let want = self.starts[first] as usize + POINT_BLOCK;
+            let end = self
+                .starts
+                .partition_point(|&s| (s as usize) < want)
+                .clamp(first + 1, self.len());
+            blocks.push((first, end));
+            first = end;
+        }
+        blocks
+    }
+
+    /// The end of each of `blocks` ([`Points::blocks`]) in the incidences.
+    pub(crate) fn block_ends(&self, blocks: &[(usize, usize)]) -> Vec<usize> {
+        blocks
+            .iter()
+            .map(|&(_, end)| self.starts[end] as usize)
+            .collect()
     }
 
     /// Point `k`'s range of incidences.
@@ -456,8 +502,8 @@ impl<'a> Points<'a> {
 
     /// The index of `patch`'s incidence in the run `(start, end)`.
     fn within(&self, (start, end): (usize, usize), patch: u32) -> Option<usize> {
-        let run = &self.incidences[start..end];
-        run.binary_search_by(|(_, p)| p.cmp(&patch))
+        self.patches[start..end]
+            .binary_search(&patch)
             .ok()
             .map(|i| start + i)
     }
@@ -533,21 +579,6 @@ const PATCH_BLOCK: usize = 16_384;
 
 /// Incidences per block of the parallel smoothing, about (blocks end at a point's end).
 const POINT_BLOCK: usize = 65_536;
-
-/// The ends of blocks of about [`POINT_BLOCK`] incidences of whole points (sorted `(point,
-/// patch)` incidences), the last at `incidences.len()`.
-pub(crate) fn point_blocks(incidences: &[(PointKey, u32)]) -> Vec<usize> {
-    let mut ends = Vec::new();
-    let mut end = 0;
-    while end < incidences.len() {
-        end = (end + POINT_BLOCK).min(incidences.len());
-        while end < incidences.len() && incidences[end].0 == incidences[end - 1].0 {
-            end += 1;
-        }
-        ends.push(end);
-    }
-    ends
-}
 
 /// `data` cut at the increasing `ends` (the last `data.len()`), each piece with its start.
 pub(crate) fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {

@@ -223,7 +223,7 @@ fn an_evenly_lit_furnace_is_not_refined() {
         let before = mesh.len();
         let r = refine(&mut mesh, &config(seed)).unwrap();
         assert_eq!(mesh.len(), before, "seed {seed}: {:?}", r.rounds);
-        assert_eq!(r.estimate.len(), before);
+        assert_eq!(r.pooled.len(), before);
     }
 }
 
@@ -602,13 +602,13 @@ fn a_pilot_short_of_rays_runs_on_clusters_of_small_faces() {
         let r = refine(&mut mesh, &short(Some(clusters))).unwrap();
         assert!(r.rounds.iter().all(|x| x.split == 0), "{:?}", r.rounds);
         assert!(!r.pooled_valid);
-        let b = r.estimate.radiosity();
+        let b = r.pooled.radiosity();
         reached += b.iter().filter(|b| b.x > 0.0).count();
         means.push(floor_mean(&mesh, b));
         let mut mesh = AdaptiveMesh::new(&scene, Subdivision::MaxEdge(0.5), bounds).unwrap();
         let r = refine(&mut mesh, &short(None)).unwrap();
         assert!(r.pooled_valid);
-        reached_per_leaf += r.estimate.radiosity().iter().filter(|b| b.x > 0.0).count();
+        reached_per_leaf += r.pooled.radiosity().iter().filter(|b| b.x > 0.0).count();
     }
     let leaves = 8 * (20 + 24 * 24);
     assert!(
