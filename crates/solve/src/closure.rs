@@ -519,7 +519,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap();
-            pool.install(|| light_delivery(&mesh, &bvh, &[sun.clone()], None, &rays, 7))
+            pool.install(|| light_delivery(&mesh, &bvh, std::slice::from_ref(&sun), None, &rays, 7))
         };
         let one = on(1);
         assert_eq!(one, on(4));
