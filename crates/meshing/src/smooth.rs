@@ -123,9 +123,9 @@ impl Mesh {
             .zip(blocks)
             .for_each(|((_, out), (first, end))| {
                 let mut k = 0;
-                for at in first..end {
-                    let group = points.at(at);
-                    let point = points.point(at).as_dvec3();
+                for number in first..end {
+                    let group = points.at(number);
+                    let point = points.point(number).as_dvec3();
                     let at = |q: u32| match gradients {
                         Some(g) => extrapolate(
                             patch_values[q as usize],
