@@ -321,7 +321,6 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
     // It is made from the pilot's estimate where a round first needs it (a copy, 48 bytes a
     // leaf), or at the end from the estimate itself when no round gathered.
     let mut pooled: Option<Estimate> = None;
-    let mut gathered_once = false;
     let mut rounds = Vec::new();
     for round in 0..config.rounds {
         // The budget: the rays, or those that fit in the time at the speed so far.
@@ -448,16 +447,17 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         drop(earlier);
         pooled = Some(pool(mesh.mesh(), &gathered, &carried, &kept).map_err(Error::from)?);
         estimate = gathered;
-        gathered_once = true;
         rounds.push(stats);
         drop(ctx);
         current = Some(bvh);
     }
     // Without a gathering round the pool holds the pilot alone, and the pilot's estimate is
     // handed over to it (not copied).
-    let pooled_valid = pilot_complete || rounds.iter().any(|r| r.split > 0);
+    // (a round that split gathered; one that did not stopped the refinement)
+    let any_gathered = rounds.iter().any(|r| r.split > 0);
+    let pooled_valid = pilot_complete || any_gathered;
     let pooled = match pooled {
-        Some(p) if gathered_once => p,
+        Some(p) if any_gathered => p,
         _ => crate::shoot::unreached_variance(mesh.mesh(), std::mem::take(&mut estimate))?,
     };
     Ok(Refined {

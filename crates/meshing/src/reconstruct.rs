@@ -13,7 +13,7 @@
 //! border included, and a step (a shadow's edge) makes no new extremes inside the surface.
 
 use crate::build::{Mesh, Patch};
-use crate::smooth::{Points, point_key, same_surface, split_by};
+use crate::smooth::{Points, point_key, same_surface};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
@@ -55,14 +55,13 @@ pub(crate) fn limited_gradients(
     // Per incidence: whether the patch's surface closes around the point (its patches' angles
     // there make a full turn); by blocks of whole points in parallel, in place.
     let mut closed = vec![false; points.patches.len()];
-    let blocks = points.blocks();
-    split_by(&mut closed, &points.block_ends(&blocks))
+    points
+        .split(&mut closed)
         .into_par_iter()
-        .zip(blocks)
-        .for_each(|((_, out), (first, end))| {
+        .for_each(|((first, end), out)| {
             let (mut k, mut angles) = (0, Vec::new());
-            for at in first..end {
-                let (group, point) = (points.at(at), points.point(at));
+            for number in first..end {
+                let (group, point) = (points.at(number), points.point(number));
                 angles.clear();
                 angles.extend(group.iter().map(|&q| angle_at(mesh, q as usize, point)));
                 for &p in group {

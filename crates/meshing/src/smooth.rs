@@ -117,11 +117,10 @@ impl Mesh {
         // The smoothed value of each incidence: its patch's surface around the point. Filled
         // in place by blocks of whole points, in parallel (no copy of the output).
         let mut smoothed = vec![DVec3::ZERO; points.patches.len()];
-        let blocks = points.blocks();
-        split_by(&mut smoothed, &points.block_ends(&blocks))
+        points
+            .split(&mut smoothed)
             .into_par_iter()
-            .zip(blocks)
-            .for_each(|((_, out), (first, end))| {
+            .for_each(|((first, end), out)| {
                 let mut k = 0;
                 for number in first..end {
                     let group = points.at(number);
@@ -446,9 +445,10 @@ impl Points {
         &self.patches[self.starts[k] as usize..self.starts[k + 1] as usize]
     }
 
-    /// Blocks of whole points of about [`POINT_BLOCK`] incidences: each block's first point
-    /// and the point after its last.
-    pub(crate) fn blocks(&self) -> Vec<(usize, usize)> {
+    /// `data` (one item per incidence) cut into blocks of whole points of about
+    /// [`POINT_BLOCK`] incidences, each with its first point and the point after its last.
+    pub(crate) fn split<'d, T>(&self, data: &'d mut [T]) -> Vec<((usize, usize), &'d mut [T])> {
+        debug_assert_eq!(data.len(), self.patches.len());
         let mut blocks = Vec::new();
         let mut first = 0;
         while first < self.len() {
@@ -460,14 +460,14 @@ impl Points {
             blocks.push((first, end));
             first = end;
         }
-        blocks
-    }
-
-    /// The end of each of `blocks` ([`Points::blocks`]) in the incidences.
-    pub(crate) fn block_ends(&self, blocks: &[(usize, usize)]) -> Vec<usize> {
-        blocks
+        let ends: Vec<usize> = blocks
             .iter()
             .map(|&(_, end)| self.starts[end] as usize)
+            .collect();
+        blocks
+            .into_iter()
+            .zip(split_by(data, &ends))
+            .map(|(block, (_, piece))| (block, piece))
             .collect()
     }
 
@@ -581,7 +581,7 @@ const PATCH_BLOCK: usize = 16_384;
 const POINT_BLOCK: usize = 65_536;
 
 /// `data` cut at the increasing `ends` (the last `data.len()`), each piece with its start.
-pub(crate) fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {
+fn split_by<'a, T>(mut data: &'a mut [T], ends: &[usize]) -> Vec<(usize, &'a mut [T])> {
     let mut pieces = Vec::with_capacity(ends.len());
     let mut start = 0;
     for &end in ends {

@@ -227,6 +227,16 @@ pub(crate) struct Delivery {
     pub variance: DVec3,
 }
 
+impl std::ops::Add for Delivery {
+    type Output = Delivery;
+    fn add(self, other: Delivery) -> Delivery {
+        Delivery {
+            power: self.power + other.power,
+            variance: self.variance + other.variance,
+        }
+    }
+}
+
 /// Patches per block of [`light_delivery`]'s sums: blocks are summed in order, so the sums do
 /// not depend on the thread count.
 const DELIVERY_BLOCK: usize = 4096;
@@ -255,17 +265,21 @@ pub(crate) fn light_delivery<C: RayCaster>(
     let positions = mesh.positions();
     let far = mesh.escape_distance();
     let seed = derive_seed(seed, LIGHT_TAG);
-    let patch_delivery = |i: usize| {
+    // patch `i`'s part; `triangles` and `areas` are room reused from patch to patch
+    let patch_delivery = |i: usize, (triangles, areas): &mut (Vec<[DVec3; 3]>, Vec<f64>)| {
         let patch = &mesh.patches()[i];
-        let triangles: Vec<[glam::DVec3; 3]> = mesh
-            .patch_triangles(patch)
-            .iter()
-            .map(|t| t.map(|v| positions[v as usize].as_dvec3()))
-            .collect();
-        let areas: Vec<f64> = triangles
-            .iter()
-            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
-            .collect();
+        triangles.clear();
+        triangles.extend(
+            mesh.patch_triangles(patch)
+                .iter()
+                .map(|t| t.map(|v| positions[v as usize].as_dvec3())),
+        );
+        areas.clear();
+        areas.extend(
+            triangles
+                .iter()
+                .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()),
+        );
         let total: f64 = areas.iter().sum();
         let n = rays[i].max(2);
         let mut rng = mcrad_random::Stream::new(seed, 0, i as u64, 0);
@@ -320,26 +334,23 @@ pub(crate) fn light_delivery<C: RayCaster>(
                 .map(|r| f64::from(u8::from(r > 0.0))),
         );
         let area = patch.area;
-        (area * reflects * mean, area * area * reflects * var)
+        Delivery {
+            power: area * reflects * mean,
+            variance: area * area * reflects * var,
+        }
     };
     let patches = mesh.patches().len();
-    let blocks: Vec<(DVec3, DVec3)> = (0..patches.div_ceil(DELIVERY_BLOCK))
+    let blocks: Vec<Delivery> = (0..patches.div_ceil(DELIVERY_BLOCK))
         .into_par_iter()
         .map(|b| {
+            let mut room = (Vec::new(), Vec::new());
             let end = ((b + 1) * DELIVERY_BLOCK).min(patches);
             (b * DELIVERY_BLOCK..end)
-                .map(patch_delivery)
-                .fold((DVec3::ZERO, DVec3::ZERO), |(p, v), (dp, dv)| {
-                    (p + dp, v + dv)
-                })
+                .map(|i| patch_delivery(i, &mut room))
+                .fold(Delivery::default(), |a, b| a + b)
         })
         .collect();
-    let (power, variance) = blocks
-        .into_iter()
-        .fold((DVec3::ZERO, DVec3::ZERO), |(p, v), (dp, dv)| {
-            (p + dp, v + dv)
-        });
-    Delivery { power, variance }
+    blocks.into_iter().fold(Delivery::default(), |a, b| a + b)
 }
 
 /// A cosine-distributed unit direction about the unit `n` from `u` in `[0, 1)²`.
