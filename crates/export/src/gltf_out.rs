@@ -31,7 +31,7 @@ use json::accessor::{ComponentType, Type};
 use json::buffer::Target;
 use json::mesh::Semantic;
 use json::validation::{Checked::Valid, USize64};
-use mcrad_meshing::Mesh;
+use mcrad_meshing::{CornerValues, Mesh};
 use mcrad_scene_io::glb::{self, BinaryChunk, GlbError, push_accessor, push_view};
 use serde_json::json;
 use std::collections::HashMap;
@@ -97,7 +97,7 @@ struct Geometry {
 pub fn write_glb<W: Write>(
     out: W,
     mesh: &Mesh,
-    corner_radiosity: &[DVec3],
+    corner_radiosity: &CornerValues,
     options: &GltfOptions,
 ) -> Result<(), ExportError> {
     let geometry = deduplicate(mesh, corner_radiosity)?;
@@ -254,7 +254,7 @@ pub fn write_glb<W: Write>(
 
 /// One vertex per distinct (position, normal, f32 radiosity) over the corners, in first-use
 /// order, and the patches' fan triangles over them.
-fn deduplicate(mesh: &Mesh, corner_radiosity: &[DVec3]) -> Result<Geometry, ExportError> {
+fn deduplicate(mesh: &Mesh, corner_radiosity: &CornerValues) -> Result<Geometry, ExportError> {
     if corner_radiosity.len() != mesh.corner_count() {
         return Err(gltf_error(format!(
             "{} radiosity values for {} patch corners",
@@ -321,8 +321,8 @@ fn deduplicate(mesh: &Mesh, corner_radiosity: &[DVec3]) -> Result<Geometry, Expo
         }
         if with_t_vertices {
             // A fan from the patch's centroid over its corners and T-vertices.
-            let mean = corner_radiosity[offset..offset + corners.len()]
-                .iter()
+            let mean = (offset..offset + corners.len())
+                .map(|c| corner_radiosity[c])
                 .sum::<DVec3>()
                 / corners.len() as f64;
             let centre = vertex(&mut geometry, patch.centroid, patch.normal, mean.as_vec3())?;
@@ -389,7 +389,7 @@ mod tests {
     use crate::ExportError;
     use glam::{DVec3, Vec3};
     use gltf::Semantic;
-    use mcrad_meshing::{DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
+    use mcrad_meshing::{CornerValues, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
     use mcrad_scene_io::{Face, Material, Scene};
     use std::collections::HashSet;
     use std::f64::consts::PI;
@@ -489,6 +489,8 @@ mod tests {
             })
             .collect();
         mesh.corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES)
+            .iter()
+            .collect()
     }
 
     struct ReadBack {
@@ -530,7 +532,8 @@ mod tests {
 
     fn write(mesh: &Mesh, values: &[DVec3], options: &GltfOptions) -> Vec<u8> {
         let mut bytes = Vec::new();
-        write_glb(&mut bytes, mesh, values, options).expect("written");
+        let values = CornerValues::per_corner(values.to_vec());
+        write_glb(&mut bytes, mesh, &values, options).expect("written");
         bytes
     }
 
@@ -543,7 +546,7 @@ mod tests {
         write_glb(
             std::fs::File::create(&path).unwrap(),
             &mesh,
-            &values,
+            &CornerValues::per_corner(values.clone()),
             &GltfOptions::default(),
         )
         .unwrap();
@@ -673,7 +676,9 @@ mod tests {
         let mesh = corner_mesh();
         let values = corner_values(&mesh);
         let message = |values: &[DVec3], exposure| {
-            let err = write_glb(Vec::new(), &mesh, values, &GltfOptions { exposure }).unwrap_err();
+            let values = CornerValues::per_corner(values.to_vec());
+            let options = GltfOptions { exposure };
+            let err = write_glb(Vec::new(), &mesh, &values, &options).unwrap_err();
             assert!(matches!(err, ExportError::Gltf { .. }), "{err:?}");
             err.to_string()
         };
@@ -729,6 +734,7 @@ mod tests {
             .map(|p| DVec3::new(1.0 + p as f64, 2.0, 3.0 + (p % 3) as f64))
             .collect();
         let corners = mesh.seamless_corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);
+        let corners: Vec<DVec3> = corners.iter().collect();
         let back = read_back(&write(mesh, &corners, &GltfOptions::default()));
         // Every triangle edge inside the two squares is used by exactly two triangles, in
         // opposite directions, with the same values at its ends: no T-junction, no crack.

@@ -782,9 +782,8 @@ fn marks<C: RayCaster>(
     for (i, p) in patches.iter().enumerate() {
         let offset = mesh.corner_offset(i);
         let n = mesh.corners(p).len();
-        let interpolated = corners[offset..offset + n]
-            .iter()
-            .map(|&c| luminance(c))
+        let interpolated = (offset..offset + n)
+            .map(|c| luminance(corners[c]))
             .sum::<f64>()
             / n as f64;
         let deviation = (lum[i] - interpolated).abs();

@@ -49,6 +49,8 @@ use mcrad_random::Stream;
 use mcrad_raycast::{RayCaster, SurfacePoint};
 use mcrad_scene_io::Light;
 use rayon::prelude::*;
+use rustc_hash::FxBuildHasher;
+use std::collections::HashMap;
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -566,8 +568,7 @@ fn pass_variance<C: RayCaster>(
     let patches = mesh.patches();
     let positions = mesh.positions();
     // patches of a face by corner position
-    let mut at: std::collections::HashMap<(usize, [u32; 3]), Vec<usize>> =
-        std::collections::HashMap::new();
+    let mut at: HashMap<(usize, [u32; 3]), Vec<usize>> = HashMap::new();
     // a side of a face: the back of a two-sided face sees another half-space
     let side = |p: &mcrad_meshing::Patch| 2 * p.face as usize + usize::from(p.back);
     let key = |patch: &mcrad_meshing::Patch, c: u32| {
@@ -581,12 +582,21 @@ fn pass_variance<C: RayCaster>(
             at.entry(key(p, c)).or_default().push(i);
         }
     }
-    // per input face, the sum of its patches' shares of scoring sky rays, their count, the
-    // sky's sum over their rays and the rays that scored
-    let faces = patches.iter().map(|p| side(p) + 1).max().unwrap_or(0);
-    let mut face_sky = vec![(0.0, 0.0, DVec3::ZERO, 0.0); faces];
-    for (p, m) in patches.iter().zip(moments) {
-        let f = &mut face_sky[side(p)];
+    // per side of an input face, the sum of its patches' shares of scoring sky rays, their
+    // count, the sky's sum over their rays and the rays that scored; the sides numbered as
+    // they first come (a coarse mesh of 10^5 elements may number 10^7 faces)
+    let mut numbers: HashMap<usize, u32, FxBuildHasher> = HashMap::default();
+    let number: Vec<u32> = patches
+        .iter()
+        .map(|p| {
+            let next = numbers.len() as u32;
+            *numbers.entry(side(p)).or_insert(next)
+        })
+        .collect();
+    let mut face_sky = vec![(0.0, 0.0, DVec3::ZERO, 0.0); numbers.len()];
+    drop(numbers);
+    for (&k, m) in number.iter().zip(moments) {
+        let f = &mut face_sky[k as usize];
         f.0 += m.sky_scored / m.sky_rays.max(1.0);
         f.1 += 1.0;
         f.2 += m.sky * m.sky_rays;
@@ -651,7 +661,7 @@ fn pass_variance<C: RayCaster>(
                 around.iter().map(|&j| share(j)).sum::<f64>() / around.len() as f64
             } else {
                 // none of them scored either: the rest of the face, if any of it did
-                let (shares, count, face_sum, face_scored) = face_sky[side(&patches[i])];
+                let (shares, count, face_sum, face_scored) = face_sky[number[i] as usize];
                 (sum, scored) = (face_sum, face_scored);
                 if count > 1.0 {
                     (shares - share(i)) / (count - 1.0)

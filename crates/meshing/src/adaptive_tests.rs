@@ -1,6 +1,8 @@
 //! Tests of adaptive refinement and of vertex radiosity at its T-vertices.
 
-use crate::{AdaptiveBounds, AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
+use crate::{
+    AdaptiveBounds, AdaptiveMesh, CornerValues, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision,
+};
 use glam::{DVec3, Vec3};
 use mcrad_scene_io::{Face, Material, Scene};
 use std::collections::BTreeMap;
@@ -212,7 +214,7 @@ fn slivers_tiny_faces_and_faces_far_from_the_origin_terminate() {
 
 /// Linear interpolation of per-corner values along an edge of `patch` at fraction `t` from
 /// corner `k` to corner `k + 1` (what renders do along an element's edge).
-fn along(mesh: &Mesh, values: &[DVec3], patch: usize, k: usize, t: f64) -> (DVec3, DVec3) {
+fn along(mesh: &Mesh, values: &CornerValues, patch: usize, k: usize, t: f64) -> (DVec3, DVec3) {
     let p = &mesh.patches()[patch];
     let c = mesh.corners(p);
     let o = mesh.corner_offset(patch);

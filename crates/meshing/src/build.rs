@@ -157,10 +157,12 @@ impl Patch {
 #[derive(Debug, Clone)]
 pub struct Mesh {
     origin: Vec3,
-    positions: Vec<Vec3>,
-    corners: Vec<u32>,
-    triangles: Vec<[u32; 3]>,
-    triangle_patch: Vec<u32>,
+    // The geometry is shared between clones (a mesh lit for a pass, a coarser mesh over the
+    // same positions) until one of them changes it.
+    positions: Arc<Vec<Vec3>>,
+    corners: Arc<Vec<u32>>,
+    triangles: Arc<Vec<[u32; 3]>>,
+    triangle_patch: Arc<Vec<u32>>,
     patches: Vec<Patch>,
     /// Faces (or fan triangles of polygons) kept whole because cutting them would have made
     /// patches below [`Mesh::resolved_size`].
@@ -188,10 +190,10 @@ impl Mesh {
         let origin = local_origin(scene);
         let mut mesh = Mesh {
             origin,
-            positions: local_positions(scene, origin),
-            corners: Vec::new(),
-            triangles: Vec::new(),
-            triangle_patch: Vec::new(),
+            positions: Arc::new(local_positions(scene, origin)),
+            corners: Arc::default(),
+            triangles: Arc::default(),
+            triangle_patch: Arc::default(),
             patches: Vec::new(),
             kept_whole: 0,
             textures: scene.textures().cloned(),
@@ -252,10 +254,10 @@ impl Mesh {
     pub(crate) fn empty(origin: Vec3, textures: Option<Arc<SceneTextures>>) -> Mesh {
         Mesh {
             origin,
-            positions: Vec::new(),
-            corners: Vec::new(),
-            triangles: Vec::new(),
-            triangle_patch: Vec::new(),
+            positions: Arc::default(),
+            corners: Arc::default(),
+            triangles: Arc::default(),
+            triangle_patch: Arc::default(),
             patches: Vec::new(),
             kept_whole: 0,
             textures,
@@ -306,26 +308,32 @@ impl Mesh {
     ) -> Mesh {
         Mesh {
             origin: self.origin,
-            positions: self.positions.clone(),
-            corners,
-            triangles,
-            triangle_patch,
+            positions: Arc::clone(&self.positions),
+            corners: Arc::new(corners),
+            triangles: Arc::new(triangles),
+            triangle_patch: Arc::new(triangle_patch),
             patches,
             kept_whole: self.kept_whole,
             textures: self.textures.clone(),
         }
     }
 
-    /// Releases the arrays' spare capacity.
+    /// Releases the spare capacity of the arrays it does not share.
     pub(crate) fn shrink_to_fit(&mut self) {
-        self.positions.shrink_to_fit();
-        self.corners.shrink_to_fit();
-        self.triangles.shrink_to_fit();
-        self.triangle_patch.shrink_to_fit();
+        fn shrink<T>(a: &mut Arc<Vec<T>>) {
+            if let Some(v) = Arc::get_mut(a) {
+                v.shrink_to_fit();
+            }
+        }
+        shrink(&mut self.positions);
+        shrink(&mut self.corners);
+        shrink(&mut self.triangles);
+        shrink(&mut self.triangle_patch);
         self.patches.shrink_to_fit();
     }
 
-    /// Bytes of the mesh's arrays (their capacities; allocator overhead not counted).
+    /// Bytes of the mesh's arrays (their capacities, shared ones included; allocator overhead
+    /// not counted).
     pub fn heap_bytes(&self) -> usize {
         self.positions.capacity() * size_of::<Vec3>()
             + self.corners.capacity() * size_of::<u32>()
@@ -336,8 +344,9 @@ impl Mesh {
 
     /// Appends a vertex and returns its index.
     pub(crate) fn push_position(&mut self, p: Vec3) -> u32 {
-        self.positions.push(p);
-        (self.positions.len() - 1) as u32
+        let positions = Arc::make_mut(&mut self.positions);
+        positions.push(p);
+        (positions.len() - 1) as u32
     }
 
     /// Position of vertex `i`.
@@ -417,9 +426,9 @@ impl Mesh {
             }
             triangle_patch.extend(std::iter::repeat_n(i as u32, p.triangle_count()));
         }
-        self.corners = corners;
-        self.triangles = triangles;
-        self.triangle_patch = triangle_patch;
+        self.corners = Arc::new(corners);
+        self.triangles = Arc::new(triangles);
+        self.triangle_patch = Arc::new(triangle_patch);
         self.patches = patches;
     }
 
@@ -431,11 +440,17 @@ impl Mesh {
         let first_corner = self.corners.len() as u32;
         let first_triangle = self.triangles.len() as u32;
         let own = self.corners(&f).to_vec();
-        self.corners.push(own[0]);
-        self.corners.extend(own[1..].iter().rev());
-        for t in self.patch_triangles(&f).to_vec() {
-            self.triangles.push([t[0], t[2], t[1]]);
-            self.triangle_patch.push(id);
+        let turned: Vec<[u32; 3]> = self.patch_triangles(&f).to_vec();
+        let corners = Arc::make_mut(&mut self.corners);
+        corners.push(own[0]);
+        corners.extend(own[1..].iter().rev());
+        let (triangles, triangle_patch) = (
+            Arc::make_mut(&mut self.triangles),
+            Arc::make_mut(&mut self.triangle_patch),
+        );
+        for t in turned {
+            triangles.push([t[0], t[2], t[1]]);
+            triangle_patch.push(id);
         }
         self.patches.push(Patch {
             normal: -f.normal,
@@ -484,10 +499,14 @@ impl Mesh {
         let id = self.patches.len() as u32;
         let first_corner = self.corners.len() as u32;
         let first_triangle = self.triangles.len() as u32;
-        self.corners.extend_from_slice(corners);
+        Arc::make_mut(&mut self.corners).extend_from_slice(corners);
+        let (triangles, triangle_patch) = (
+            Arc::make_mut(&mut self.triangles),
+            Arc::make_mut(&mut self.triangle_patch),
+        );
         for w in corners[1..].windows(2) {
-            self.triangles.push([corners[0], w[0], w[1]]);
-            self.triangle_patch.push(id);
+            triangles.push([corners[0], w[0], w[1]]);
+            triangle_patch.push(id);
         }
         let patch = self.front_patch(corners, t, first_corner, first_triangle);
         self.patches.push(patch);

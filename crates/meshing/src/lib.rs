@@ -18,6 +18,7 @@ mod alpha;
 mod build;
 mod cluster;
 mod coarse;
+mod corner_values;
 mod discretization;
 mod reconstruct;
 mod seams;
@@ -35,6 +36,7 @@ pub use build::{
 };
 pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
 pub use coarse::{ClusteredMesh, MAX_CLUSTER_MEMBERS, UNGROUPED};
+pub use corner_values::CornerValues;
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};
 

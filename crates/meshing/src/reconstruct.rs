@@ -242,7 +242,9 @@ pub(crate) fn extrapolate(
 #[cfg(test)]
 mod tests {
     use crate::adaptive_tests::scene;
-    use crate::{AdaptiveBounds, AdaptiveMesh, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision};
+    use crate::{
+        AdaptiveBounds, AdaptiveMesh, CornerValues, DEFAULT_CREASE_ANGLE_DEGREES, Mesh, Subdivision,
+    };
     use glam::{DVec3, Vec3};
     use mcrad_scene_io::Scene;
 
@@ -263,7 +265,7 @@ mod tests {
     /// Every corner's value with its position.
     fn at_corners<'a>(
         mesh: &'a Mesh,
-        values: &'a [DVec3],
+        values: &'a CornerValues,
     ) -> impl Iterator<Item = (Vec3, DVec3)> + 'a {
         (0..mesh.patches().len()).flat_map(move |p| {
             let o = mesh.corner_offset(p);
@@ -358,7 +360,7 @@ mod tests {
             &vec![c; mesh.patches().len()],
             DEFAULT_CREASE_ANGLE_DEGREES,
         );
-        assert!(display.iter().all(|&v| v == c));
+        assert!(display.iter().all(|v| v == c));
         // Falling steeply to the border x = 4: the slope would reach -1 there.
         let values = of_centroids(&mesh, |p| DVec3::splat((3.0 - p.x).max(0.0) + 0.05));
         let display = mesh.seamless_corner_radiosity(&values, DEFAULT_CREASE_ANGLE_DEGREES);

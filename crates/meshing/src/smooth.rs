@@ -9,6 +9,7 @@
 use crate::AdaptiveMesh;
 use crate::adaptive::midpoint;
 use crate::build::{Mesh, Patch};
+use crate::corner_values::CornerValues;
 use crate::reconstruct::{extrapolate, limited_gradients, tangents};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -60,7 +61,7 @@ impl Mesh {
         &self,
         patch_values: &[DVec3],
         crease_angle_degrees: f32,
-    ) -> Vec<DVec3> {
+    ) -> CornerValues {
         self.corner_values(patch_values, crease_angle_degrees, false)
     }
 
@@ -90,7 +91,7 @@ impl Mesh {
         &self,
         patch_values: &[DVec3],
         crease_angle_degrees: f32,
-    ) -> Vec<DVec3> {
+    ) -> CornerValues {
         self.corner_values(patch_values, crease_angle_degrees, true)
     }
 
@@ -101,7 +102,7 @@ impl Mesh {
         patch_values: &[DVec3],
         crease_angle_degrees: f32,
         seamless: bool,
-    ) -> Vec<DVec3> {
+    ) -> CornerValues {
         let patches = self.patches();
         assert_eq!(
             patch_values.len(),
@@ -163,13 +164,10 @@ impl Mesh {
             self.tie_t_vertices(&points, &mut smoothed, min_cosine);
         }
 
-        // Each corner's incidence, then its value.
+        // Each corner's incidence, through which it reads its value.
         let incidence = self.corner_incidences(&points);
         drop(points);
-        incidence
-            .par_iter()
-            .map(|&i| smoothed[i as usize])
-            .collect()
+        CornerValues::shared(smoothed, incidence)
     }
 
     /// The index in `points`' incidences of every corner (global corner order), by blocks of
@@ -699,7 +697,7 @@ mod tests {
         let out = m.corner_radiosity(&vec![value; m.patches().len()], 45.0);
         assert_eq!(out.len(), m.corner_count());
         for (i, v) in out.iter().enumerate() {
-            assert_eq!(*v, value, "corner {i}");
+            assert_eq!(v, value, "corner {i}");
         }
     }
 
@@ -906,9 +904,9 @@ mod tests {
         let m = mesh(positions, faces, Subdivision::None);
         let values = [DVec3::ONE, DVec3::splat(5.0)];
         let out = m.corner_radiosity(&values, 179.0);
-        assert!(out[..4].iter().all(|&v| v == values[0]));
-        assert!(out[4..].iter().all(|&v| v == values[1]));
+        assert!((0..4).all(|c| out[c] == values[0]));
+        assert!((4..8).all(|c| out[c] == values[1]));
         let out = m.corner_radiosity(&values, 180.0);
-        assert!(out.iter().all(|&v| v == DVec3::splat(3.0)));
+        assert!(out.iter().all(|v| v == DVec3::splat(3.0)));
     }
 }

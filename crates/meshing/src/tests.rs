@@ -226,3 +226,21 @@ fn a_patch_takes_80_bytes() {
     // from its corners').
     assert_eq!(size_of::<crate::Patch>(), 80);
 }
+
+#[test]
+fn a_clone_shares_its_geometry_until_one_of_them_changes_it() {
+    let mesh = Mesh::build(&mixed_scene(), Subdivision::MaxEdge(0.5)).unwrap();
+    let mut lit = mesh.clone();
+    // a pass lights its own copy: the patches are its own, the geometry is not copied
+    lit.set_emission(0, Vec3::ONE);
+    assert!(std::ptr::eq(lit.positions(), mesh.positions()));
+    assert!(std::ptr::eq(lit.triangles(), mesh.triangles()));
+    assert_ne!(lit.patches()[0].emission, mesh.patches()[0].emission);
+    // a clone that grows gets its own positions; the original keeps its own
+    let n = mesh.positions().len();
+    let v = lit.push_position(Vec3::splat(7.0));
+    assert_eq!(v as usize, n);
+    assert_eq!(lit.positions().len(), n + 1);
+    assert_eq!(mesh.positions().len(), n);
+    assert!(std::ptr::eq(lit.triangles(), mesh.triangles()));
+}

@@ -3,7 +3,7 @@
 use std::f64::consts::PI;
 
 use glam::{DVec3, Vec3};
-use mcrad_meshing::Mesh;
+use mcrad_meshing::{CornerValues, Mesh};
 use mcrad_random::Stream;
 use mcrad_raycast::{Hit, RayCaster, SurfacePoint};
 use mcrad_scene_io::Light;
@@ -22,30 +22,32 @@ pub enum Shading<'a> {
     /// (`mesh.corners(p)[k]`), where `first(p)` is the number of corners of all patches before
     /// `p` (`len` = total corner count). A hit is shaded by linear (barycentric) interpolation
     /// over the corners of the fan triangle of its patch that contains it.
-    Smooth(&'a [DVec3]),
+    Smooth(&'a CornerValues),
 }
 
-/// A [`Shading`] checked against its mesh and converted to radiance (W/(m² sr), `f32`).
-pub(crate) enum Shader {
+/// Radiance `L = B / π` (W/(m² sr)) of radiosity `b` (W/m²), in `f32`.
+fn radiance(b: DVec3) -> Vec3 {
+    (b / PI).as_vec3()
+}
+
+/// A [`Shading`] checked against its mesh, giving radiance (W/(m² sr), `f32`): flat, converted
+/// per patch; smooth, converted per corner as it is read (a copy per corner would be 12 bytes
+/// a corner beside the values).
+pub(crate) enum Shader<'a> {
     Flat(Vec<Vec3>),
-    Smooth {
-        /// Radiance per global corner.
-        radiance: Vec<Vec3>,
-        /// `first_corner[p]`: the global index of corner 0 of patch `p`.
-        first_corner: Vec<usize>,
-    },
+    Smooth(&'a CornerValues),
 }
 
-impl Shader {
+impl<'a> Shader<'a> {
     /// Checks lengths and finiteness and converts radiosity to radiance.
-    pub(crate) fn new(mesh: &Mesh, shading: Shading<'_>) -> Result<Shader, RenderError> {
+    pub(crate) fn new(mesh: &Mesh, shading: Shading<'a>) -> Result<Shader<'a>, RenderError> {
         let to_radiance = |values: &[DVec3]| -> Result<Vec<Vec3>, RenderError> {
             values
                 .iter()
                 .enumerate()
                 .map(|(index, &b)| {
                     if b.is_finite() {
-                        Ok((b / PI).as_vec3())
+                        Ok(radiance(b))
                     } else {
                         Err(RenderError::NonFiniteRadiosity { index, value: b })
                     }
@@ -65,23 +67,21 @@ impl Shader {
                 Ok(Shader::Flat(to_radiance(b)?))
             }
             Shading::Smooth(b) => {
-                let mut first_corner = Vec::with_capacity(mesh.patches().len());
-                let mut total = 0;
-                for p in mesh.patches() {
-                    first_corner.push(total);
-                    total += mesh.corners(p).len();
-                }
-                if b.len() != total {
+                let expected = mesh.corner_count();
+                if b.len() != expected {
                     return Err(RenderError::ShadingLength {
                         per: "corner",
-                        expected: total,
+                        expected,
                         got: b.len(),
                     });
                 }
-                Ok(Shader::Smooth {
-                    radiance: to_radiance(b)?,
-                    first_corner,
-                })
+                match b.iter().position(|b| !b.is_finite()) {
+                    Some(index) => Err(RenderError::NonFiniteRadiosity {
+                        index,
+                        value: b[index],
+                    }),
+                    None => Ok(Shader::Smooth(b)),
+                }
             }
         }
     }
@@ -98,13 +98,10 @@ impl Shader {
         };
         match self {
             Shader::Flat(radiance) => radiance[id],
-            Shader::Smooth {
-                radiance,
-                first_corner,
-            } => {
-                let corners = mesh.corners(patch);
-                let values = &radiance[first_corner[id]..first_corner[id] + corners.len()];
-                interpolate(mesh.positions(), corners, values, hit.point)
+            Shader::Smooth(b) => {
+                let first = mesh.corner_offset(id);
+                let radiance = |k: usize| radiance(b[first + k]);
+                interpolate_with(mesh.positions(), mesh.corners(patch), radiance, hit.point)
             }
         }
     }
@@ -213,6 +210,16 @@ pub(crate) fn sky_radiance<C: RayCaster + ?Sized>(
 /// This is how renders shade [`Shading::Smooth`]; bakers sample a solution the same way.
 /// `values` has one entry per corner, in the units of the quantity interpolated.
 pub fn interpolate(positions: &[Vec3], corners: &[u32], values: &[Vec3], point: Vec3) -> Vec3 {
+    interpolate_with(positions, corners, |k| values[k], point)
+}
+
+/// [`interpolate`] with the value at corner `k` given by `value(k)`.
+fn interpolate_with(
+    positions: &[Vec3],
+    corners: &[u32],
+    value: impl Fn(usize) -> Vec3,
+    point: Vec3,
+) -> Vec3 {
     let a = positions[corners[0] as usize];
     let mut best: Option<(f32, usize, [f32; 3])> = None;
     for j in 1..corners.len() - 1 {
@@ -233,10 +240,10 @@ pub fn interpolate(positions: &[Vec3], corners: &[u32], values: &[Vec3], point: 
         Some((_, j, w)) => {
             let w = w.map(|x| x.max(0.0));
             let sum = w[0] + w[1] + w[2];
-            (w[0] * values[0] + w[1] * values[j] + w[2] * values[j + 1]) / sum
+            (w[0] * value(0) + w[1] * value(j) + w[2] * value(j + 1)) / sum
         }
         // every fan triangle degenerate (cannot happen for a valid patch): the corner mean
-        None => values.iter().sum::<Vec3>() / values.len() as f32,
+        None => (0..corners.len()).map(value).sum::<Vec3>() / corners.len() as f32,
     }
 }
 

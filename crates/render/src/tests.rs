@@ -5,7 +5,7 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use glam::{DVec3, Vec2, Vec3};
-use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_meshing::{CornerValues, Mesh, Subdivision};
 use mcrad_raycast::{Bvh, RayCaster};
 
 use super::*;
@@ -44,15 +44,17 @@ fn lamp_at(x: f64, subdivision: Subdivision) -> (Mesh, Bvh) {
 }
 
 /// Per-corner values `f(position of the corner)`, in global corner order.
-fn per_corner(mesh: &Mesh, f: impl Fn(Vec3) -> DVec3) -> Vec<DVec3> {
-    mesh.patches()
-        .iter()
-        .flat_map(|p| {
-            mesh.corners(p)
-                .iter()
-                .map(|&v| f(mesh.positions()[v as usize]))
-        })
-        .collect()
+fn per_corner(mesh: &Mesh, f: impl Fn(Vec3) -> DVec3) -> CornerValues {
+    CornerValues::per_corner(
+        mesh.patches()
+            .iter()
+            .flat_map(|p| {
+                mesh.corners(p)
+                    .iter()
+                    .map(|&v| f(mesh.positions()[v as usize]))
+            })
+            .collect(),
+    )
 }
 
 fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
@@ -437,8 +439,9 @@ fn bad_settings_and_shading_are_typed_errors() {
         go(Shading::Flat(&one), settings(4, 4, 0)),
         RenderError::NoSamples
     );
+    let one_corner = CornerValues::per_corner(one.to_vec());
     assert_eq!(
-        go(Shading::Smooth(&one), settings(4, 4, 1)),
+        go(Shading::Smooth(&one_corner), settings(4, 4, 1)),
         RenderError::ShadingLength {
             per: "corner",
             expected: 4,
