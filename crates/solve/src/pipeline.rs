@@ -486,14 +486,20 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     };
     // The reference solver runs to its accuracy target: no budget, no deadline.
     let deadline = if deterministic { None } else { budget.seconds };
-    let after = After {
-        seconds: after_seconds,
-        probe_per_ray: if problem.closure {
-            let shadow = config.lights.len() + usize::from(config.sky.is_some());
-            (1 + shadow) as f64 / crate::closure::PROBE_SHARE as f64
-        } else {
-            0.0
-        },
+    let after = if problem.closure {
+        // the probe's rays and their shadow rays (one per light and the sky)
+        let per_probe_ray = (1 + config.lights.len() + usize::from(config.sky.is_some())) as f64;
+        After {
+            seconds: after_seconds,
+            probe_per_ray: per_probe_ray / crate::closure::PROBE_SHARE as f64,
+            probe_floor: per_probe_ray
+                * crate::closure::probe_budget(0, mesh.patches().len()) as f64,
+        }
+    } else {
+        After {
+            seconds: after_seconds,
+            ..After::default()
+        }
     };
     let start = Instant::now();
     let mut complete_steps = false;
@@ -1067,12 +1073,16 @@ struct After {
     /// ([`crate::closure::PROBE_SHARE`]) and their shadow rays (one per light and the sky); 0
     /// without a closure.
     probe_per_ray: f64,
+    /// The fewest rays the closure probe casts whatever the method's (its rays' floor per
+    /// patch, [`crate::closure::probe_budget`], and their shadow rays): at 10^7 patches, more
+    /// than a minute's method casts. 0 without a closure.
+    probe_floor: f64,
 }
 
 /// The rays that fit in `left` seconds at the speed of a run that cast `rays` rays in
 /// `seconds` seconds, with [`TIME_FILL`]'s margin, once what runs after the method has its
-/// time: `n` more rays cost `n + p (rays + n)` rays' time, `p` the probe's rays per method
-/// ray, after `after.seconds` (0 when no time is left).
+/// time: `n` more rays cost `n + max(p (rays + n), f)` rays' time, `p` the probe's rays per
+/// method ray and `f` its floor, after `after.seconds` (0 when no time is left).
 fn rays_that_fit(left: f64, seconds: f64, rays: u64, after: After) -> u64 {
     if left <= 0.0 {
         return 0;
@@ -1085,11 +1095,13 @@ fn rays_that_fit(left: f64, seconds: f64, rays: u64, after: After) -> u64 {
         return u64::MAX;
     }
     let p = after.probe_per_ray;
-    let room = TIME_FILL * (left - after.seconds) / per_ray - p * rays as f64;
-    if room <= 0.0 {
+    let time = TIME_FILL * (left - after.seconds) / per_ray;
+    // n + p (rays + n) <= time and n + f <= time
+    let n = ((time - p * rays as f64) / (1.0 + p)).min(time - after.probe_floor);
+    if n <= 0.0 {
         return 0;
     }
-    (room / (1.0 + p)).min(u64::MAX as f64) as u64
+    n.min(u64::MAX as f64) as u64
 }
 
 #[cfg(test)]
@@ -1111,12 +1123,48 @@ mod tests {
         // 1e6 rays took 1 s: 10 s left, 2 s of them the render's, fill 97% of 8 s
         let after = After {
             seconds: 2.0,
-            probe_per_ray: 0.0,
+            ..After::default()
         };
         let fits = rays_that_fit(10.0, 1.0, 1_000_000, after);
         assert!(fits.abs_diff((TIME_FILL * 8.0 * 1e6) as u64) <= 1, "{fits}");
         // the render alone takes the time left: no more rays
         assert_eq!(rays_that_fit(1.5, 1.0, 1_000_000, after), 0);
         assert_eq!(rays_that_fit(0.0, 1.0, 1_000_000, After::default()), 0);
+    }
+
+    #[test]
+    fn the_closure_probe_takes_its_share_of_the_rays_or_its_floor() {
+        // 1e6 rays took 1 s, 10 s left; the probe casts 1 ray per 8 of the method's
+        let share = After {
+            seconds: 0.0,
+            probe_per_ray: 0.125,
+            probe_floor: 0.0,
+        };
+        let time = TIME_FILL * 10.0 * 1e6;
+        let fits = rays_that_fit(10.0, 1.0, 1_000_000, share) as f64;
+        // n + (1e6 + n) / 8 fills the time
+        assert!((fits + (1e6 + fits) / 8.0 - time).abs() <= 2.0, "{fits}");
+        // a floor above the share: the method gets the time less the floor
+        let floor = After {
+            probe_floor: 4e6,
+            ..share
+        };
+        let fits = rays_that_fit(10.0, 1.0, 1_000_000, floor) as f64;
+        assert!((fits - (time - 4e6)).abs() <= 1.0, "{fits}");
+        // a floor below the share changes nothing
+        let low = After {
+            probe_floor: 1e5,
+            ..share
+        };
+        assert_eq!(
+            rays_that_fit(10.0, 1.0, 1_000_000, low),
+            rays_that_fit(10.0, 1.0, 1_000_000, share)
+        );
+        // a floor that takes the whole time leaves the method nothing
+        let all = After {
+            probe_floor: 2e7,
+            ..share
+        };
+        assert_eq!(rays_that_fit(10.0, 1.0, 1_000_000, all), 0);
     }
 }
