@@ -730,6 +730,37 @@ fn a_small_budget_still_solves_an_adaptive_mesh() {
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
+/// A ray budget the sun's and the sky's direct light takes (4 points a patch, 5 shadow rays a
+/// point, on 400 patches: 8000 rays) solves, the method given a ray a patch beyond it, and says
+/// so; a budget that pays for both does not.
+#[test]
+fn a_budget_the_direct_light_takes_is_warned() {
+    let dir = tempfile::tempdir().unwrap();
+    let plane = write(
+        dir.path(),
+        "plane.obj",
+        "v 0 0 0\nv 0 0 1\nv 1 0 1\nv 1 0 0\nf 1 2 3 4\n",
+    );
+    let plane = plane.to_str().unwrap();
+    let run = |rays: &str| {
+        let lit = ["--sun", "0.3,1,0.2,500", "--sky", "10,10,10", "-q"];
+        mcrad(
+            &[
+                &["solve", plane, "--max-edge", "0.05", "--rays", rays][..],
+                &lit,
+            ]
+            .concat(),
+        )
+    };
+    let warned = "could not pay for the direct light of the lights and the sky";
+    let o = run("8e3");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains(warned), "{}", stderr(&o));
+    let o = run("1e5");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains(warned), "{}", stderr(&o));
+}
+
 /// An adaptive solve of the Cornell box on a small budget: its refinement's quarter of the 4e5
 /// rays pays for the pilot and one round (shadow, proximity and 16 gathering rays per element)
 /// on the 943-element start.

@@ -101,6 +101,19 @@ pub(crate) fn points_per_patch(budget: u64, patches: usize, rays: usize) -> u32 
     m * m
 }
 
+impl ScheduleConfig {
+    /// The fewest rays the direct light of its lights without a surface and its sky costs on
+    /// a mesh of `patches` patches: 4 points a patch, each with one shadow ray per light and
+    /// the sky's own (4 for a uniform sky, 8 for a map); 0 without them. Where the ray budget
+    /// does not pay for it and a ray a patch after it, the method is given a ray a patch beyond
+    /// the budget.
+    pub fn fewest_light_rays(&self, patches: usize) -> u64 {
+        let sky = self.sky.as_ref().filter(|s| !s.is_dark());
+        let per_point = self.lights.len() as u64 + u64::from(crate::sky::rays_per_point(sky));
+        u64::from(FIRST_POINTS) * patches as u64 * per_point
+    }
+}
+
 /// Points a patch of a time-budgeted pass's first round ([`ScheduleConfig::lights_seconds`]).
 const FIRST_POINTS: u32 = 4;
 

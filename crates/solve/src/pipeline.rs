@@ -606,6 +606,22 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     drop(transport);
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
+    // the method's share of the budget below its direct light and a ray an element: the
+    // method was given a ray an element beyond it
+    let elements = transport_elements.unwrap_or(mesh.patches().len());
+    let fewest = config.fewest_light_rays(elements);
+    if !deterministic
+        && fewest > 0
+        && rays != u64::MAX
+        && fewest.saturating_add(elements as u64) > rays
+    {
+        warnings.push(format!(
+            "the method's share of the ray budget, {rays} rays, could not pay for the direct \
+             light of the lights and the sky on {elements} elements ({fewest} rays at 4 points \
+             an element) and a ray an element after it: it cast {piece_rays} rays, and its \
+             answer is noisier than its budget says; give a larger --rays, or --time"
+        ));
+    }
     let (direct, sky_direct) = (solution.direct.take(), solution.sky_direct.take());
     // The refinement's pool adds its earlier estimate's part, taken as independent between
     // patches; a continued run's pieces (the same method on the same mesh) share the factors.

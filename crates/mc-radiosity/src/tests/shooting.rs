@@ -456,3 +456,54 @@ fn a_small_budget_over_many_open_patches_takes_few_waves() {
         s.rays
     );
 }
+
+/// A ray budget below what the sun's direct light takes (4 points a patch, one shadow ray
+/// each) still gives the method a ray a patch after it: with the budget's remainder alone it
+/// cast one ray carrying all the power (on a 100k-face atrium at 1e6 rays, one wall at
+/// 479 kW/m²). A floor and a wall facing it (reflectance 0.5), both in the sun.
+#[test]
+fn a_budget_the_direct_light_takes_still_leaves_the_method_a_ray_a_patch() {
+    use crate::{Method, ScheduleConfig, run};
+    use mcrad_scene_io::{Light, Sun};
+    let positions = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 0.0),
+        Vec3::new(0.0, 1.0, 1.0),
+        Vec3::new(0.0, 0.0, 1.0),
+    ];
+    // the floor faces +Z, the wall at x = 0 faces +X
+    let faces = vec![
+        common::quad([0, 1, 2, 3], 0, 0),
+        common::quad([0, 3, 4, 5], 0, 1),
+    ];
+    let sun = Light::Sun(Sun {
+        direction: Vec3::new(1.0, 0.0, 1.0),
+        irradiance: DVec3::splat(500.0),
+        diameter: 0.0,
+    });
+    let materials = vec![material("grey", 0.5, 0.0)];
+    let scene = Scene::new_lit(positions, faces, materials, vec![sun.clone()])
+        .unwrap()
+        .0;
+    let mesh = Mesh::build(&scene, Subdivision::MaxEdge(0.1)).unwrap();
+    let patches = mesh.patches().len() as u64;
+    let bvh = common::bvh(&mesh);
+    let config = ScheduleConfig {
+        rays: patches,
+        seed: 3,
+        lights: vec![sun],
+        ..Default::default()
+    };
+    let solution = run(Method::Shoot, &mesh, &bvh, &config, &mut |_| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    // the direct light's 4 shadow rays a patch, then at least a ray a patch
+    assert!(
+        solution.estimate.rays() >= 5 * patches,
+        "{} rays for {patches} patches",
+        solution.estimate.rays()
+    );
+}
