@@ -278,6 +278,15 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     p
 }
 
+/// `plane.obj` in `dir`: the unit square at y = 0, facing up (+Y), without a material.
+fn upward_plane(dir: &Path) -> PathBuf {
+    write(
+        dir,
+        "plane.obj",
+        "v 0 0 0\nv 0 0 1\nv 1 0 1\nv 1 0 0\nf 1 2 3 4\n",
+    )
+}
+
 #[test]
 fn bad_input_gets_one_clear_error_line() {
     let dir = tempfile::tempdir().unwrap();
@@ -736,11 +745,7 @@ fn a_small_budget_still_solves_an_adaptive_mesh() {
 #[test]
 fn a_budget_the_direct_light_takes_is_warned() {
     let dir = tempfile::tempdir().unwrap();
-    let plane = write(
-        dir.path(),
-        "plane.obj",
-        "v 0 0 0\nv 0 0 1\nv 1 0 1\nv 1 0 0\nf 1 2 3 4\n",
-    );
+    let plane = upward_plane(dir.path());
     let plane = plane.to_str().unwrap();
     let run = |rays: &str| {
         let lit = ["--sun", "0.3,1,0.2,500", "--sky", "10,10,10", "-q"];
@@ -853,11 +858,7 @@ fn a_sky_map_lights_the_face_that_looks_at_its_bright_pixel() {
 #[test]
 fn sky_maps_are_read_from_hdr_files_and_bad_ones_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let plane = write(
-        dir.path(),
-        "plane.obj",
-        "v 0 0 0\nv 0 0 1\nv 1 0 1\nv 1 0 0\nf 1 2 3 4\n",
-    );
+    let plane = upward_plane(dir.path());
     let plane = plane.to_str().unwrap();
     // RGBE 1.0 = mantissa 128, exponent 129; 4 x 2 pixels, flat (no run-length encoding)
     let mut hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n".to_vec();
