@@ -423,11 +423,12 @@ pub fn write_error_image(
     Ok(())
 }
 
-/// The seconds `--image` will take (0 without one): the render of an image an eighth of the
-/// size each way (at least 16 pixels a side) at the same samples per pixel, of a dark
-/// solution with the sky and the lights drawn as they will be, timed and scaled by the
-/// pixels; plus the reconstruction at the corners, timed once and counted as often as
-/// [`write()`] makes it.
+/// The seconds `--image` will take (0 without one): a render's fixed part (checking the
+/// shading, setting up the lights: at 10^7 patches most of a small render's time) and its part
+/// per pixel, told apart by rendering a dark solution with the sky and the lights drawn as they
+/// will be at 1 x 1 and at an eighth of the size each way (at least 16 pixels a side) at the
+/// same samples per pixel ([`predicted_render_seconds`]); plus the reconstruction at the
+/// corners, timed once and counted as often as [`write()`] makes it.
 pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) -> f64 {
     if args.image.is_none() {
         return 0.0;
@@ -455,25 +456,47 @@ pub fn image_seconds(args: &Solve, scenery: &Scenery, mesh: &Mesh, bvh: &Bvh) ->
         Some(c) if smooth => Shading::Smooth(c),
         _ => Shading::Flat(&zeros),
     };
-    let settings = RenderSettings {
-        width: small.0,
-        height: small.1,
-        samples_per_pixel: args.spp,
-        sky: scenery.sky.clone(),
-        lights: if per_sample {
-            scenery.lights.clone()
-        } else {
-            Vec::new()
-        },
-        sky_rays: if per_sample { args.sky_rays } else { 0 },
+    let seconds = |(width, height): (u32, u32)| {
+        let settings = RenderSettings {
+            width,
+            height,
+            samples_per_pixel: args.spp,
+            sky: scenery.sky.clone(),
+            lights: if per_sample {
+                scenery.lights.clone()
+            } else {
+                Vec::new()
+            },
+            sky_rays: if per_sample { args.sky_rays } else { 0 },
+        };
+        let clock = Instant::now();
+        render(mesh, bvh, &camera, shading, &settings, &|_| {})
+            .ok()
+            .map(|_| clock.elapsed().as_secs_f64())
     };
-    let clock = Instant::now();
-    if render(mesh, bvh, &camera, shading, &settings, &|_| {}).is_err() {
+    let (Some(one), Some(eighth)) = (seconds((1, 1)), seconds(small)) else {
         return 0.0;
-    }
+    };
     let pixels = |(w, h): (u32, u32)| f64::from(w) * f64::from(h);
     f64::from(corner_passes) * corner_seconds
-        + clock.elapsed().as_secs_f64() * pixels(args.size) / pixels(small)
+        + predicted_render_seconds((1.0, one), (pixels(small), eighth), pixels(args.size))
+}
+
+/// The seconds a render of `pixels` pixels takes, from two renders of `a.0` and `b.0` pixels
+/// (`a.0 < b.0`) that took `a.1` and `b.1` seconds: `t = c + k p`, a fixed part `c` and `k`
+/// a pixel, both at least 0 (when timing noise makes the larger render the faster, all of it
+/// counts per pixel).
+fn predicted_render_seconds(a: (f64, f64), b: (f64, f64), pixels: f64) -> f64 {
+    let all_per_pixel = b.1 / b.0 * pixels;
+    if b.0 <= a.0 {
+        return all_per_pixel;
+    }
+    let per_pixel = (b.1 - a.1) / (b.0 - a.0);
+    if per_pixel.is_nan() || per_pixel <= 0.0 {
+        return all_per_pixel;
+    }
+    let fixed = (b.1 - per_pixel * b.0).max(0.0);
+    fixed + per_pixel * pixels
 }
 
 /// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image
@@ -546,4 +569,24 @@ pub fn write(
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::predicted_render_seconds;
+
+    #[test]
+    fn a_renders_fixed_part_is_not_scaled_by_the_pixels() {
+        // 0.4 s fixed and 1e-5 s a pixel (the 10M atrium's timing: a 64 x 64 render of 0.44 s
+        // had predicted 28 s for 512 x 512, which took 2.6 s)
+        let t = |p: f64| 0.4 + 1e-5 * p;
+        let (small, full) = (64.0 * 64.0, 512.0 * 512.0);
+        let got = predicted_render_seconds((1.0, t(1.0)), (small, t(small)), full);
+        assert!((got - t(full)).abs() < 1e-9, "{got}");
+        // timing noise that makes the larger render the faster: all of it per pixel
+        let noisy = predicted_render_seconds((1.0, 0.5), (small, 0.45), full);
+        assert!((noisy - 0.45 / small * full).abs() < 1e-9, "{noisy}");
+        // one size only (a 1 x 1 image): its time per pixel
+        assert_eq!(predicted_render_seconds((1.0, 0.3), (1.0, 0.3), 1.0), 0.3);
+    }
 }
