@@ -108,9 +108,14 @@ impl ScheduleConfig {
     /// does not pay for it and a ray a patch after it, the method is given a ray a patch beyond
     /// the budget.
     pub fn fewest_light_rays(&self, patches: usize) -> u64 {
+        u64::from(FIRST_POINTS) * patches as u64 * self.shadow_rays_per_point() as u64
+    }
+
+    /// The shadow rays a point of the direct light's pass casts: one per light and the sky's
+    /// own ([`crate::sky::rays_per_point`]; none for a dark sky).
+    fn shadow_rays_per_point(&self) -> usize {
         let sky = self.sky.as_ref().filter(|s| !s.is_dark());
-        let per_point = self.lights.len() as u64 + u64::from(crate::sky::rays_per_point(sky));
-        u64::from(FIRST_POINTS) * patches as u64 * per_point
+        self.lights.len() + crate::sky::rays_per_point(sky) as usize
     }
 }
 
@@ -144,9 +149,8 @@ pub(crate) fn light_mesh<C: RayCaster>(
         .map(|l| l.translated(-mesh.origin()))
         .collect();
     let sky = config.sky.as_ref().filter(|s| !s.is_dark());
-    let sky_rays = crate::sky::rays_per_point(sky) as usize;
     let patches = mesh.patches();
-    let per_point = lights.len() + sky_rays;
+    let per_point = config.shadow_rays_per_point();
     let sampler = SurfaceSampler::new(mesh);
     let far = mesh.escape_distance();
     let seed = config.seed;

@@ -61,6 +61,15 @@ impl CornerValues {
     pub fn iter(&self) -> impl ExactSizeIterator<Item = DVec3> + '_ {
         self.of_corner.iter().map(|&i| self.values[i as usize])
     }
+
+    /// The first corner whose value is not finite, with its value (read in storage order
+    /// first: every value is finite in a sound solution).
+    pub fn first_not_finite(&self) -> Option<(usize, DVec3)> {
+        if self.values.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        self.iter().enumerate().find(|(_, v)| !v.is_finite())
+    }
 }
 
 /// Equal when every corner's value is (however they are shared).
@@ -97,5 +106,9 @@ mod tests {
         let own = CornerValues::per_corner(want.to_vec());
         assert_eq!(own.iter().collect::<Vec<_>>(), want);
         assert_eq!(own.get(1), Some(DVec3::ONE));
+        assert_eq!(shared.first_not_finite(), None);
+        let nan = CornerValues::shared(vec![DVec3::ONE, DVec3::NAN], vec![0, 1, 1]);
+        let (corner, value) = nan.first_not_finite().unwrap();
+        assert!(corner == 1 && value.is_nan());
     }
 }

@@ -75,11 +75,8 @@ impl<'a> Shader<'a> {
                         got: b.len(),
                     });
                 }
-                match b.iter().position(|b| !b.is_finite()) {
-                    Some(index) => Err(RenderError::NonFiniteRadiosity {
-                        index,
-                        value: b[index],
-                    }),
+                match b.first_not_finite() {
+                    Some((index, value)) => Err(RenderError::NonFiniteRadiosity { index, value }),
                     None => Ok(Shader::Smooth(b)),
                 }
             }
