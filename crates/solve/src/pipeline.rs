@@ -807,10 +807,12 @@ fn carried(
 fn carried_solution(
     transport: &ClusteredMesh,
     fine: &Mesh,
-    solution: Solution,
+    mut solution: Solution,
 ) -> Result<Solution, Error> {
     let coarse = &transport.mesh;
-    let face_correlation = solution.face_correlation.as_ref().map(|k| {
+    // The coarse factors are numbered by face, as many as the fine mesh's: each table is
+    // dropped once read, before the next is made (at 10M faces, 240 MB each).
+    let face_correlation = solution.face_correlation.take().map(|k| {
         let (fine_offset, coarse_offset) = (fine.back_face_offset(), coarse.back_face_offset());
         let key = |p: &mcrad_meshing::Patch, offset: u32| {
             (p.face + if p.back { offset } else { 0 }) as usize
@@ -830,10 +832,17 @@ fn carried_solution(
         }
         out
     });
+    let estimate = carried(
+        Some(transport),
+        fine,
+        std::mem::take(&mut solution.estimate),
+    )?;
+    let direct = solution.direct.take().map(|d| transport.shared(&d));
+    let sky_direct = solution.sky_direct.take().map(|d| transport.shared(&d));
     Ok(Solution {
-        estimate: carried(Some(transport), fine, solution.estimate)?,
-        direct: solution.direct.as_deref().map(|d| transport.shared(d)),
-        sky_direct: solution.sky_direct.as_deref().map(|d| transport.shared(d)),
+        estimate,
+        direct,
+        sky_direct,
         face_correlation,
         ..solution
     })
