@@ -477,6 +477,7 @@ mod tests {
             "image-error A.exr B.exr",
             "image-error A.exr B.exr diff.png",
             "image-error IMAGE.exr R.exr --reference-error R.error.exr",
+            "image-error IMAGE.exr R.exr --reference-error R.error.exr --second IMAGE2.exr",
             "path-trace scenes/cornell-box.obj --camera eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3 \
              --size 256x256 --spp 16 --out R.exr",
             "path-trace s.obj --camera eye=0,0,1,look=0,0,0,fov=40 --size 32x24 --spp 4 --seed 3 \

@@ -337,13 +337,13 @@ pub const EMITTER_FRACTION: f32 = 0.5;
 
 /// The pixels the image error scores: those that see no emitter and neighbour none (see
 /// [`image_error`]), in pixel order.
-fn scored_pixels(reference: &Image, emitter_fraction: f32) -> Vec<usize> {
+pub(crate) fn scored_pixels(reference: &Image, emitter_fraction: f32) -> Vec<usize> {
     let left_out = near_emitters(reference, emitter_fraction);
     (0..left_out.len()).filter(|&i| !left_out[i]).collect()
 }
 
 /// `Ok` when `a` and `b` have the same size, else [`CompareError::SizeMismatch`].
-fn same_size(a: &Image, b: &Image) -> Result<(), CompareError> {
+pub(crate) fn same_size(a: &Image, b: &Image) -> Result<(), CompareError> {
     if (a.width, a.height) == (b.width, b.height) {
         Ok(())
     } else {

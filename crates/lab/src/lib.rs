@@ -19,4 +19,5 @@ pub mod pathtrace;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod recipe;
+pub mod split;
 pub mod trace;
