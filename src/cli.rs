@@ -153,8 +153,10 @@ pub struct Solve {
     pub min_edge: Option<f32>,
     /// Adaptive meshes: at most N elements, or one per input face plus N/2 when that is more
     /// (a scene of many small faces keeps each whole and still refines its large ones).
-    #[arg(long, value_name = "N", default_value_t = mcrad_meshing::DEFAULT_MAX_PATCHES)]
-    pub max_patches: usize,
+    /// Default: 40000, raised as the refinement goes to one element per 1000 rays of the run
+    /// (its rays, or those its time fits), at most 640000
+    #[arg(long, value_name = "N")]
+    pub max_patches: Option<usize>,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's
     /// bounding-box diagonal × `DEFAULT_MAX_EDGE_FRACTION`.
     #[arg(long, value_name = "L", allow_negative_numbers = true, value_parser = parse_length, help = max_edge_help())]
@@ -444,7 +446,7 @@ impl Solve {
         if !self.adaptive() && self.min_edge.is_some() {
             warnings.push("--min-edge applies to --mesh adaptive only; ignored".into());
         }
-        if !self.adaptive() && self.max_patches != mcrad_meshing::DEFAULT_MAX_PATCHES {
+        if !self.adaptive() && self.max_patches.is_some() {
             warnings.push("--max-patches applies to --mesh adaptive only; ignored".into());
         }
         if self.split && !matches!(method, Method::TwoPassSplit) {
@@ -602,7 +604,7 @@ impl Solve {
                     "--method reference solves a fixed mesh; use it with --mesh uniform".into(),
                 );
             }
-            if self.max_patches == 0 {
+            if self.max_patches == Some(0) {
                 return Err("--max-patches must be at least 1".into());
             }
         }
@@ -815,7 +817,7 @@ mod tests {
         // one mesh bound given again keeps the other saved ones
         let saved = Settings {
             mesh: MeshPlan::Adaptive {
-                max_patches: 8000,
+                max_patches: Some(8000),
                 min_edge: Some(0.01),
             },
             method: Method::TwoPass,

@@ -85,6 +85,13 @@ pub struct AdaptiveConfig {
     /// places the marks only and is not pooled ([`Refined::pooled_valid`]: its members share one
     /// error). `None`: the pilot runs on every element.
     pub pilot_clusters: Option<mcrad_meshing::ClusterBounds>,
+    /// The patch budget's growth with the rays: `Some((r, most))` raises the mesh's
+    /// `max_patches`, before each round, to one element per `r` rays of the whole run (four
+    /// times the refinement's ray budget: its quarter of the run's rays, or of its time at the
+    /// speed measured so far), at most `most`, or to one element per input face plus half of
+    /// that when this is more ([`mcrad_meshing::AdaptiveBounds::for_faces`]); never lowers it.
+    /// `None`: the mesh's bounds as they are.
+    pub patch_growth: Option<(u64, usize)>,
 }
 
 impl Default for AdaptiveConfig {
@@ -105,6 +112,7 @@ impl Default for AdaptiveConfig {
             lights: Vec::new(),
             sky: None,
             pilot_clusters: None,
+            patch_growth: None,
         }
     }
 }
@@ -121,6 +129,22 @@ pub enum AdaptiveError {
     /// The pilot's clusters could not be made into elements.
     #[error("could not make the pilot's clusters elements: {0}")]
     Clusters(#[from] mcrad_meshing::MeshError),
+}
+
+/// Raises `mesh`'s patch budget to `patches` (at most `most`), or to one element per input
+/// face plus half of that when this is more; never lowers it.
+fn grow_budget(mesh: &mut AdaptiveMesh, patches: u64, most: usize) {
+    let bounds = mesh.bounds();
+    let patches = usize::try_from(patches).unwrap_or(usize::MAX).min(most);
+    let grown = mcrad_meshing::AdaptiveBounds {
+        max_patches: patches,
+        ..bounds
+    }
+    .for_faces(mesh.mesh().face_count());
+    if grown.max_patches > bounds.max_patches {
+        // a larger budget of valid bounds is valid: this cannot fail
+        let _ = mesh.set_bounds(grown);
+    }
 }
 
 /// What one round of [`refine`] did.
@@ -330,6 +354,11 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
                 .min(rays.saturating_add(rays_that_fit(seconds, start, rays))),
             None => config.rays,
         };
+        if let Some((per, most)) = config.patch_growth
+            && budget != u64::MAX
+        {
+            grow_budget(mesh, budget.saturating_mul(4) / per.max(1), most);
+        }
         // A round costs its shadow and proximity rays and at least 8 gathering rays and 4
         // emitter samples (two rays each) per element: stop when the budget cannot pay for it.
         let tests = u64::from(config.shadow_rays) + u64::from(config.proximity_rays);

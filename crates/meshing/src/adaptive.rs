@@ -292,18 +292,25 @@ impl AdaptiveMesh {
     }
 
     /// The adaptive mesh that `history` records, made anew from `scene` within `bounds`: the
-    /// same leaves in the same order as the mesh that recorded it, when scene and bounds are
-    /// the same. Errors: as [`AdaptiveMesh::new`], and [`MeshError::BadHistory`] when a
-    /// recorded split does not apply (another scene or bounds).
+    /// same leaves in the same order as the mesh that recorded it, when scene and minimum edge
+    /// are the same. The recorded splits, not `bounds.max_patches`, decide the count (a
+    /// refinement may have raised its budget with the rays); the mesh keeps the larger of the
+    /// two as its budget. Errors: as [`AdaptiveMesh::new`], and [`MeshError::BadHistory`] when
+    /// a recorded split does not apply (another scene or minimum edge).
     pub fn replay(
         scene: &Scene,
         history: &History,
         bounds: AdaptiveBounds,
     ) -> Result<AdaptiveMesh, MeshError> {
+        bounds.check()?;
         let start = history
             .start
             .map_or(Subdivision::None, Subdivision::MaxEdge);
-        let mut mesh = AdaptiveMesh::new(scene, start, bounds)?;
+        let unbounded = AdaptiveBounds {
+            max_patches: usize::MAX,
+            ..bounds
+        };
+        let mut mesh = AdaptiveMesh::new(scene, start, unbounded)?;
         for (round, split) in history.splits.iter().enumerate() {
             let done = mesh.refine(split);
             if done.split != split.len() {
@@ -314,6 +321,7 @@ impl AdaptiveMesh {
                 });
             }
         }
+        mesh.bounds.max_patches = bounds.max_patches.max(mesh.len());
         Ok(mesh)
     }
 

@@ -158,6 +158,12 @@ fn a_replayed_history_gives_the_same_mesh_and_another_scene_is_refused() {
     assert_eq!(again.mesh().positions(), m.mesh().positions());
     assert_eq!(again.mesh().triangles(), m.mesh().triangles());
     assert_eq!(again.history(), m.history());
+    // within a smaller patch budget (one the refinement raised as it went): the recorded
+    // splits decide, and the mesh keeps its count as its budget
+    let small = AdaptiveMesh::replay(&s, m.history(), bounds(0.01, 5)).unwrap();
+    assert!(m.len() > 5);
+    assert_eq!(small.mesh().triangles(), m.mesh().triangles());
+    assert_eq!(small.bounds().max_patches, m.len());
     // the same history within a larger minimum edge: splits that cannot be made
     let tight = AdaptiveMesh::replay(&s, m.history(), bounds(0.9, 100));
     assert!(

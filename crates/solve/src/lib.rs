@@ -60,6 +60,9 @@ pub use memory::{
     gather_rays_per_element, peak_bytes,
 };
 pub use pipeline::{Answer, Observer, Progress, solve};
-pub use problem::{AfterSolve, Budget, Clustering, Input, MeshPlan, Problem, Settings};
+pub use problem::{
+    AfterSolve, Budget, Clustering, Input, MAX_GROWN_PATCHES, MeshPlan, PATCH_RAYS, Problem,
+    Settings,
+};
 pub use state::{RunState, piece_seed};
 pub use stats::{ClusterStats, RefinementRound, RunStats, SetupPhases};

@@ -5,7 +5,7 @@
 use crate::problem::Input;
 use crate::{MeshPlan, Problem};
 use mcrad_mc_radiosity::Method;
-use mcrad_meshing::{Mesh, Subdivision};
+use mcrad_meshing::{DEFAULT_MAX_PATCHES, Mesh, Subdivision};
 use mcrad_scene_io::Scene;
 
 /// Bytes per element (patch) a solve holds whatever its rays: the patch and its triangles,
@@ -65,7 +65,8 @@ pub fn peak_bytes(elements: u64, rays: u64, method: Method, scene_bytes: u64) ->
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MemoryEstimate {
     /// The most elements (patches) the plan can make: the adaptive budget (one per input face
-    /// plus half of `max_patches` when that is more, back sides included), an upper estimate of
+    /// plus half of `max_patches` when that is more, back sides included; the default budget
+    /// as far as the rays grow it, [`crate::PATCH_RAYS`]), an upper estimate of
     /// a uniform cut, or one per face and side; for the reference solver at most one past its
     /// patch limit (it refuses a larger mesh itself, as it builds it).
     pub elements: u64,
@@ -99,11 +100,47 @@ impl Problem<'_> {
     /// ([`Error::Memory`](crate::Error::Memory)). Linear in the faces; no allocation beyond
     /// the scene's.
     pub fn memory_estimate(&self) -> MemoryEstimate {
+        self.estimate_within(self.grown_patches())
+    }
+
+    /// The most patches the default adaptive budget ([`MeshPlan::Adaptive`] without
+    /// `max_patches`) may grow to in this problem: one per [`crate::PATCH_RAYS`] rays of the
+    /// budget (all of [`crate::MAX_GROWN_PATCHES`] under a time budget alone), and no more than
+    /// [`Budget::memory`](crate::Budget::memory) leaves room for by [`Problem::memory_estimate`]
+    /// (never below [`DEFAULT_MAX_PATCHES`]: a limit the default budget exceeds refuses the
+    /// problem as before).
+    pub fn grown_patches(&self) -> usize {
+        let rays = self.budget.total_rays() / crate::PATCH_RAYS;
+        let want = usize::try_from(rays)
+            .unwrap_or(usize::MAX)
+            .clamp(DEFAULT_MAX_PATCHES, crate::MAX_GROWN_PATCHES);
+        let Some(limit) = self.budget.memory else {
+            return want;
+        };
+        let fits = |n: usize| self.estimate_within(n).bytes <= limit;
+        if fits(want) {
+            return want;
+        }
+        // the estimate grows with the budget: the largest that fits, by bisection
+        let (mut low, mut high) = (DEFAULT_MAX_PATCHES, want);
+        while high - low > 1 {
+            let mid = low + (high - low) / 2;
+            if fits(mid) {
+                low = mid;
+            } else {
+                high = mid;
+            }
+        }
+        low
+    }
+
+    /// [`Problem::memory_estimate`] with the default adaptive budget grown to `grown` patches.
+    fn estimate_within(&self, grown: usize) -> MemoryEstimate {
         let (elements, scene_bytes) = match self.input {
             Input::Mesh(mesh) => (mesh.patches().len() as u64, 0),
-            Input::Scene(scene) => (plan_elements(scene, self), scene_bytes(scene)),
+            Input::Scene(scene) => (plan_elements(scene, self, grown), scene_bytes(scene)),
             Input::SceneOnce(held) => match held.lock().ok().as_deref().and_then(Option::as_ref) {
-                Some(scene) => (plan_elements(scene, self), scene_bytes(scene)),
+                Some(scene) => (plan_elements(scene, self, grown), scene_bytes(scene)),
                 None => (0, 0),
             },
         };
@@ -117,8 +154,9 @@ impl Problem<'_> {
     }
 }
 
-/// The most elements the plan of `problem` makes on `scene`.
-fn plan_elements(scene: &Scene, problem: &Problem) -> u64 {
+/// The most elements the plan of `problem` makes on `scene`, the default adaptive budget grown
+/// to `grown` patches.
+fn plan_elements(scene: &Scene, problem: &Problem, grown: usize) -> u64 {
     let faces = scene.faces().len() as u64;
     let two_sided = scene
         .faces()
@@ -146,7 +184,9 @@ fn plan_elements(scene: &Scene, problem: &Problem) -> u64 {
                 .saturating_mul(if two_sided > 0 { 2 } else { 1 })
         }
         MeshPlan::Adaptive { max_patches, .. } => {
-            let budget = (max_patches as u64).max(faces.saturating_add(max_patches as u64 / 2));
+            // the default budget grows with the rays (all the way under a time budget)
+            let max_patches = max_patches.unwrap_or(grown) as u64;
+            let budget = max_patches.max(faces.saturating_add(max_patches / 2));
             budget.max(per_face)
         }
     };

@@ -6,7 +6,8 @@ use crate::state::Identity;
 use crate::stats::ClusterStats;
 use crate::stats::{RefinementRound, SetupPhases};
 use crate::{
-    Budget, Clustering, Error, MeshPlan, Problem, RunState, RunStats, Settings, piece_seed,
+    Budget, Clustering, Error, MeshPlan, PATCH_RAYS, Problem, RunState, RunStats, Settings,
+    piece_seed,
 };
 use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
@@ -262,6 +263,13 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         state.settings().agree(settings)?;
     }
     let budget = problem.budget;
+    // the default adaptive budget's growth, before the scene is taken
+    let patch_growth = match settings.mesh {
+        MeshPlan::Adaptive {
+            max_patches: None, ..
+        } => Some((PATCH_RAYS, problem.grown_patches())),
+        _ => None,
+    };
     if let Some(limit) = budget.memory {
         let estimate = problem.memory_estimate();
         if estimate.bytes > limit {
@@ -333,7 +341,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             let (mesh, refined, history) = adaptive_refine(
                 start,
                 settings,
-                (refine_seconds, pilot),
+                (refine_seconds, pilot, patch_growth),
                 &config,
                 &mut warnings,
             )?;
@@ -969,7 +977,9 @@ fn plan_bounds(scene: &Scene, settings: &Settings) -> AdaptiveBounds {
         min_edge,
     } = settings.mesh
     {
-        bounds.max_patches = max_patches;
+        if let Some(n) = max_patches {
+            bounds.max_patches = n;
+        }
         if let Some(l) = min_edge {
             bounds.min_edge = l;
         }
@@ -1030,12 +1040,13 @@ fn cluster_bounds(diagonal: f64) -> ClusterBounds {
 
 /// The adaptive mesh `mesh` ([`adaptive_start`]) refined with a quarter of the ray budget and
 /// `seconds` of the time ([`refine_share`]; `config`: the run's schedule, with the scene's
-/// lights and sky; `pilot`: [`AdaptiveConfig::pilot_clusters`]), as a mesh, the refinement and
+/// lights and sky; `pilot`: [`AdaptiveConfig::pilot_clusters`]; `patch_growth`:
+/// [`AdaptiveConfig::patch_growth`]), as a mesh, the refinement and
 /// its history.
 fn adaptive_refine(
     mut mesh: AdaptiveMesh,
     settings: &Settings,
-    (seconds, pilot): (Option<f64>, Option<ClusterBounds>),
+    (seconds, pilot, patch_growth): (Option<f64>, Option<ClusterBounds>, Option<(u64, usize)>),
     config: &ScheduleConfig,
     warnings: &mut Vec<String>,
 ) -> Result<(Mesh, Refined, History), Error> {
@@ -1051,6 +1062,7 @@ fn adaptive_refine(
         lights: config.lights.clone(),
         sky: config.sky.clone(),
         pilot_clusters: pilot,
+        patch_growth,
         ..Default::default()
     };
     let mut refined = refine(&mut mesh, &config)?;

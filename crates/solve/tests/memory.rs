@@ -5,7 +5,8 @@
 use mcrad_mc_radiosity::Method;
 use mcrad_scene_io::Scene;
 use mcrad_solve::{
-    BYTES_FIXED, BYTES_PER_ELEMENT, Budget, Error, MeshPlan, Problem, Settings, peak_bytes, solve,
+    BYTES_FIXED, BYTES_PER_ELEMENT, Budget, Error, MAX_GROWN_PATCHES, MeshPlan, PATCH_RAYS,
+    Problem, Settings, peak_bytes, solve,
 };
 use std::ops::ControlFlow;
 
@@ -234,4 +235,55 @@ fn a_scene_handed_over_gives_the_same_answer_and_is_dropped() {
             assert_eq!(once_again.estimate.radiosity(), again.estimate.radiosity());
         }
     }
+}
+
+/// The default patch budget grows with the rays (one element per [`PATCH_RAYS`]), all the way
+/// ([`MAX_GROWN_PATCHES`]) under a time budget alone, and no further than a memory limit
+/// leaves room for: such a limit caps the growth instead of refusing a problem the default
+/// budget fits. A budget the caller set does not grow.
+#[test]
+fn the_default_patch_budget_grows_with_the_rays_within_the_memory_limit() {
+    let scene = scene("cornell-box.obj");
+    let mut problem = Problem::new(&scene);
+    problem.budget.rays = Some(100_000);
+    assert_eq!(problem.grown_patches(), mcrad_meshing::DEFAULT_MAX_PATCHES);
+    problem.budget.rays = Some(200 * PATCH_RAYS * 1000);
+    assert_eq!(problem.grown_patches(), 200_000);
+    assert_eq!(problem.memory_estimate().elements, 200_000);
+    problem.budget = Budget {
+        seconds: Some(10.0),
+        ..Budget::default()
+    };
+    assert_eq!(problem.grown_patches(), MAX_GROWN_PATCHES);
+    let full = problem.memory_estimate();
+    assert_eq!(full.elements, MAX_GROWN_PATCHES as u64);
+    // a limit between the default budget's estimate and the grown one's: the largest budget
+    // that fits, which the problem is then not refused for
+    let mut small = Problem::new(&scene);
+    small.budget = Budget {
+        rays: Some(1_000_000_000),
+        ..Budget::default()
+    };
+    small.settings.mesh = MeshPlan::Adaptive {
+        max_patches: Some(mcrad_meshing::DEFAULT_MAX_PATCHES),
+        min_edge: None,
+    };
+    let default_bytes = small.memory_estimate().bytes;
+    assert!(default_bytes < full.bytes);
+    let limit = (default_bytes + full.bytes) / 2;
+    problem.budget.memory = Some(limit);
+    let capped = problem.grown_patches();
+    assert!(
+        capped > mcrad_meshing::DEFAULT_MAX_PATCHES && capped < MAX_GROWN_PATCHES,
+        "{capped}"
+    );
+    let estimate = problem.memory_estimate();
+    assert!(estimate.bytes <= limit, "{estimate:?} over {limit}");
+    assert_eq!(estimate.elements, capped as u64);
+    // a budget the caller set stays as it is
+    problem.settings.mesh = MeshPlan::Adaptive {
+        max_patches: Some(5_000),
+        min_edge: None,
+    };
+    assert_eq!(problem.memory_estimate().elements, 5_000);
 }

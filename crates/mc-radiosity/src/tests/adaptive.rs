@@ -215,6 +215,42 @@ fn a_round_adds_at_most_half_of_what_the_budget_has_left() {
 }
 
 #[test]
+fn a_budget_that_grows_with_the_rays_lets_the_rounds_split_past_the_mesh_bounds() {
+    // The same start and room for 40 more elements as above; the growth raises the budget to
+    // one element per 1000 rays of the run (4 x 360k: 1440), at most `most`. The rounds split
+    // past the bounds the mesh was made with, never past the grown budget; without growth they
+    // hold at the bounds.
+    let start = |max_patches| {
+        let bounds = bounds(0.05, max_patches);
+        AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
+    };
+    let budget = start(100_000).len() + 40;
+    for seed in 1..=3 {
+        let fixed = |growth| {
+            let mut mesh = start(budget);
+            let config = AdaptiveConfig {
+                patch_growth: growth,
+                ..config(seed)
+            };
+            let r = refine(&mut mesh, &config).unwrap();
+            (mesh, r)
+        };
+        let (held, _) = fixed(None);
+        assert!(held.len() <= budget, "seed {seed}: {}", held.len());
+        let most = budget + 200;
+        let (grown, r) = fixed(Some((1000, most)));
+        assert!(
+            grown.len() > budget + 40 && grown.len() <= most,
+            "seed {seed}: {} of {most}: {:?}",
+            grown.len(),
+            r.rounds
+        );
+        assert_eq!(grown.bounds().max_patches, most);
+        grown.mesh().validate().unwrap();
+    }
+}
+
+#[test]
 fn an_evenly_lit_furnace_is_not_refined() {
     for seed in 1..=3 {
         let scene = furnace(0.5);
