@@ -154,7 +154,7 @@ pub struct Solve {
     /// Adaptive meshes: at most N elements, or one per input face plus N/2 when that is more
     /// (a scene of many small faces keeps each whole and still refines its large ones).
     /// Default: 40000, raised as the refinement goes to one element per 1000 rays of the run
-    /// (its rays, or those its time fits), at most 640000
+    /// (its rays, or those its time fits), at most 640000 and what --max-memory leaves room for
     #[arg(long, value_name = "N")]
     pub max_patches: Option<usize>,
     /// Subdivide until no patch edge is longer than L (scene units). Default: the scene's
