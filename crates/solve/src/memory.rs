@@ -114,7 +114,15 @@ impl Problem<'_> {
         let want = usize::try_from(rays)
             .unwrap_or(usize::MAX)
             .clamp(DEFAULT_MAX_PATCHES, crate::MAX_GROWN_PATCHES);
-        let Some(limit) = self.budget.memory else {
+        // only the default adaptive plan grows: others are estimated without the growth
+        let grows = matches!(
+            self.settings.mesh,
+            MeshPlan::Adaptive {
+                max_patches: None,
+                ..
+            }
+        ) && !self.settings.deterministic();
+        let Some(limit) = self.budget.memory.filter(|_| grows) else {
             return want;
         };
         let fits = |n: usize| self.estimate_within(n).bytes <= limit;
@@ -135,7 +143,7 @@ impl Problem<'_> {
     }
 
     /// [`Problem::memory_estimate`] with the default adaptive budget grown to `grown` patches.
-    fn estimate_within(&self, grown: usize) -> MemoryEstimate {
+    pub(crate) fn estimate_within(&self, grown: usize) -> MemoryEstimate {
         let (elements, scene_bytes) = match self.input {
             Input::Mesh(mesh) => (mesh.patches().len() as u64, 0),
             Input::Scene(scene) => (plan_elements(scene, self, grown), scene_bytes(scene)),

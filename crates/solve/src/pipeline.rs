@@ -263,15 +263,17 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         state.settings().agree(settings)?;
     }
     let budget = problem.budget;
-    // the default adaptive budget's growth, before the scene is taken
+    // the default adaptive budget's growth, before the scene is taken; the memory check
+    // estimates the run with it
+    let grown = problem.grown_patches();
     let patch_growth = match settings.mesh {
         MeshPlan::Adaptive {
             max_patches: None, ..
-        } => Some((PATCH_RAYS, problem.grown_patches())),
+        } => Some((PATCH_RAYS, grown)),
         _ => None,
     };
     if let Some(limit) = budget.memory {
-        let estimate = problem.memory_estimate();
+        let estimate = problem.estimate_within(grown);
         if estimate.bytes > limit {
             return Err(Error::Memory {
                 estimate: estimate.bytes,

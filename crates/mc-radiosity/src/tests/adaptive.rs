@@ -191,14 +191,17 @@ fn the_floor_along_a_lit_wall_is_refined_by_the_proximity_test() {
     }
 }
 
+/// The shadow scene's start cut at 0.5, within a budget of `max_patches` leaves.
+fn shadow_start(max_patches: usize) -> AdaptiveMesh {
+    let bounds = bounds(0.05, max_patches);
+    AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
+}
+
 #[test]
 fn a_round_adds_at_most_half_of_what_the_budget_has_left() {
     // Room for 40 more elements than the start, where the first round marks some 25 elements
     // (75 more): it adds at most 20, the later ones fill the rest within the budget.
-    let start = |max_patches| {
-        let bounds = bounds(0.05, max_patches);
-        AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
-    };
+    let start = shadow_start;
     let budget = start(100_000).len() + 40;
     for seed in 1..=3 {
         let mut mesh = start(budget);
@@ -220,10 +223,7 @@ fn a_budget_that_grows_with_the_rays_lets_the_rounds_split_past_the_mesh_bounds(
     // one element per 1000 rays of the run (4 x 360k: 1440), at most `most`. The rounds split
     // past the bounds the mesh was made with, never past the grown budget; without growth they
     // hold at the bounds.
-    let start = |max_patches| {
-        let bounds = bounds(0.05, max_patches);
-        AdaptiveMesh::new(&shadow_scene(), Subdivision::MaxEdge(0.5), bounds).unwrap()
-    };
+    let start = shadow_start;
     let budget = start(100_000).len() + 40;
     for seed in 1..=3 {
         let fixed = |growth| {
