@@ -117,9 +117,11 @@ fn solve(args: &Solve, threads: usize) -> Result<Outcome> {
         sky: loaded.scene.sky().cloned(),
         lights: loaded.scene.lights().to_vec(),
         camera: loaded.camera,
+        gather: std::sync::OnceLock::new(),
     };
     let image_seconds = |mesh: &mcrad_meshing::Mesh, bvh: &mcrad_raycast::Bvh| {
-        crate::output::image_seconds(args, &scenery, mesh, bvh)
+        let left = args.time.map(|t| t - clock.elapsed().as_secs_f64());
+        crate::output::image_seconds(args, &scenery, mesh, bvh, left)
     };
     // A solve hands the scene over, to be dropped once meshed; a bake keeps it to write into.
     let (handed, kept) = match args.bake {
@@ -368,15 +370,21 @@ fn finish(
         crate::output::take_drawn_direct(args, answer)
     };
     let render = Instant::now();
+    let gather_rays = crate::output::gather_rays(args, scenery, answer.stats.rays);
     let lighting = |direct| crate::output::Lighting {
         sky: scenery.sky.clone(),
         lights: &scenery.lights,
         direct,
+        gather_rays,
     };
     // A render alone (no GLB, error image or bake) reads the radiosity less the direct light
     // it draws per sample, and nothing else: made in place of the answer's, whose variances go
     // (the answer's estimate is not read past here).
-    let alone = args.gltf.is_none() && args.error_image.is_none() && args.bake.is_none();
+    // (A final gather reads the whole solution.)
+    let alone = args.gltf.is_none()
+        && args.error_image.is_none()
+        && args.bake.is_none()
+        && gather_rays == 0;
     match direct {
         Some(h) if alone => {
             let (mut drawn, variance, _) = std::mem::take(&mut answer.estimate).into_parts();
@@ -434,6 +442,7 @@ fn finish(
         let mut json = serde_json::to_value(run).context("the run statistics")?;
         json["load_seconds"] = load_seconds.into();
         json["render_seconds"] = render_seconds.into();
+        json["gather_rays"] = gather_rays.into();
         if let Some(bytes) = peak_resident_bytes() {
             json["peak_rss_bytes"] = bytes.into();
         }
@@ -463,6 +472,19 @@ fn finish(
             run.sampler,
             run.threads
         );
+        if let Some(path) = &args.image {
+            println!(
+                "{}: {}x{}, {} samples a pixel, {}, {render_seconds:.1} s",
+                path.display(),
+                args.size.0,
+                args.size.1,
+                args.spp,
+                match gather_rays {
+                    0 => "the solution shown where a camera ray lands".to_string(),
+                    n => format!("a final gather of {n} rays a sample"),
+                }
+            );
+        }
         if let Some(summary) = &baked {
             println!("{}", crate::output::bake_line(summary));
         }

@@ -152,7 +152,7 @@ fn emitting_faces_render_as_before() {
         args.extend_from_slice(extra);
         rendered(&args, &path(dir.path(), name))
     };
-    let with = render("a.exr", &[]);
+    let with = render("a.exr", &["--gather-rays", "0"]);
     let without = render("b.exr", &["--no-direct-rays"]);
     assert_eq!(with.pixels, without.pixels);
 }
@@ -294,19 +294,26 @@ fn the_sky_at_a_contact_line_is_exact_per_pixel_in_renders() {
             })
             .collect()
     };
-    let drawn = render(&["--sky-rays", "16"]);
-    assert!(drawn.len() > 1500, "{} pixels", drawn.len());
-    for &(x, r) in &drawn {
-        assert!((r - 1.0).abs() < 0.2, "x = {x}: {r} of the exact radiance");
+    // the sky drawn per pixel, and a final gather (which reads the sky where its rays leave
+    // and the black wall's nothing where they land)
+    for drawn_by in [["--sky-rays", "16"], ["--gather-rays", "16"]] {
+        let drawn = render(&drawn_by);
+        assert!(drawn.len() > 1500, "{} pixels", drawn.len());
+        for &(x, r) in &drawn {
+            assert!(
+                (r - 1.0).abs() < 0.2,
+                "{drawn_by:?}: x = {x}: {r} of the exact radiance"
+            );
+        }
+        for (b, &(mean, se, n)) in bands(&drawn).iter().enumerate() {
+            assert!(n > 50, "band {b}: {n} pixels");
+            assert!(
+                (mean - 1.0).abs() <= (4.0 * se).max(0.01),
+                "{drawn_by:?}: band {b}: mean {mean} ± {se} of the exact radiance"
+            );
+        }
     }
-    for (b, &(mean, se, n)) in bands(&drawn).iter().enumerate() {
-        assert!(n > 50, "band {b}: {n} pixels");
-        assert!(
-            (mean - 1.0).abs() <= (4.0 * se).max(0.01),
-            "band {b}: mean {mean} ± {se} of the exact radiance"
-        );
-    }
-    let interpolated = bands(&render(&[]));
+    let interpolated = bands(&render(&["--gather-rays", "0"]));
     let (near, _, _) = interpolated[0];
     assert!(
         near > 1.05,
@@ -338,4 +345,37 @@ fn the_sky_per_pixel_is_the_same_on_any_thread_count_and_absent_without_a_sky() 
     // and with the sky, the rays do change the picture
     let zero = render("z.exr", &["--sky", "10,10,10", "--sun=-1,1,0,1000"]);
     assert_ne!(one, zero);
+}
+
+/// `--gather-rays auto` under a ray budget: half the solve's rays spread over the image's
+/// samples, at most 1024 a pixel, and none when a pixel would get fewer than 512 (the run's
+/// statistics say what was used); a count given is used as it is.
+#[test]
+fn the_final_gather_by_default_gathers_what_the_rays_afford() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = floor_wall_scene(dir.path());
+    let gathered = |size: &str, extra: &[&str]| -> u64 {
+        let (image, stats) = (path(dir.path(), "g.exr"), path(dir.path(), "g.json"));
+        let mut args = vec![
+            "solve", &*scene, "-q", "--rays", "2e5", "--camera", CAMERA, "--size", size, "--sky",
+            "10,10,10", "--image", &*image, "--stats", &*stats,
+        ];
+        args.extend_from_slice(extra);
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        json["gather_rays"].as_u64().unwrap()
+    };
+    // 2e5 rays over 8 x 8 pixels of 16 samples: 1e5 / 1024 = 97 a sample, 1024 a pixel at most
+    assert_eq!(gathered("8x8", &[]), 64);
+    // over 32 x 32: 6 a sample, 96 a pixel: too few, none
+    assert_eq!(gathered("32x32", &[]), 0);
+    // with 256 samples a pixel over 16 x 16: 1e5 / 65536 = 1.5, 1 a sample, 256 a pixel: none;
+    // over 8 x 8: 6 a sample, 4 at most
+    assert_eq!(gathered("16x16", &["--spp", "256"]), 0);
+    assert_eq!(gathered("8x8", &["--spp", "256"]), 4);
+    // as given
+    assert_eq!(gathered("32x32", &["--gather-rays", "3"]), 3);
+    assert_eq!(gathered("8x8", &["--gather-rays", "0"]), 0);
 }

@@ -42,6 +42,7 @@ fn bench(c: &mut Criterion) {
             sky: None,
             lights: Vec::new(),
             sky_rays: 0,
+            gather_rays: 0,
         };
         group.bench_function(format!("flat_{spp}spp"), |bench| {
             bench.iter(|| {

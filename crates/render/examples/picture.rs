@@ -36,6 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         sky: None,
         lights: Vec::new(),
         sky_rays: 0,
+        gather_rays: 0,
     };
     let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_| {})?;
     println!(

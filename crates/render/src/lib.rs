@@ -30,7 +30,7 @@
 //! let bvh = Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())?;
 //! let camera = Camera::look_at(Vec3::new(0.5, 0.5, 2.0), Vec3::new(0.5, 0.5, 0.0), Vec3::Y, 20.0)?;
 //! let b = [DVec3::splat(std::f64::consts::PI)]; // B = π W/m², so L = 1 W/(m² sr)
-//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None, lights: vec![], sky_rays: 0 };
+//! let settings = RenderSettings { width: 8, height: 8, samples_per_pixel: 4, sky: None, lights: vec![], sky_rays: 0, gather_rays: 0 };
 //! let image = render(&mesh, &bvh, &camera, Shading::Flat(&b), &settings, &|_rows| {})?;
 //! assert!((image.get(4, 4).unwrap() - Vec3::ONE).length() < 1e-6);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
@@ -39,6 +39,7 @@
 mod camera;
 mod camera_spec;
 mod frame;
+mod gather;
 mod image;
 mod jitter;
 mod shade;
@@ -102,6 +103,17 @@ pub struct RenderSettings {
     /// the pixel of its own. The shading must then hold the radiosity without the sky's direct
     /// light too. 0 (the default, and without a sky): the shading alone.
     pub sky_rays: u32,
+    /// Rays per sample of the final gather: when above 0, a front hit `x` of a patch of
+    /// emission `E` and reflectance `rho` shows `E / π + rho H(x) / π` (plus the
+    /// [`lights`](Self::lights)' direct light), `H(x)` gathered at `x` itself by
+    /// cosine-distributed rays that read the shading (then the whole solution, `B` per patch
+    /// or corner) where they land and the [`sky`](Self::sky) where they leave
+    /// the scene. The shading is then never shown directly, only through one bounce: the
+    /// mesh's discretization is blurred over the hemisphere instead of drawn at its edges.
+    /// The pixel's `samples_per_pixel × gather_rays` directions are stratified together, from
+    /// a stream of the pixel's own; [`sky_rays`](Self::sky_rays) is not used. 0 (the default):
+    /// the shading is shown where a ray lands.
+    pub gather_rays: u32,
 }
 
 impl Default for RenderSettings {
@@ -114,6 +126,7 @@ impl Default for RenderSettings {
             sky: None,
             lights: Vec::new(),
             sky_rays: 0,
+            gather_rays: 0,
         }
     }
 }
@@ -179,12 +192,18 @@ pub fn render<C: RayCaster + ?Sized>(
     let shader = shade::Shader::new(mesh, shading)?;
     let direct = shade::Direct::new(mesh, &settings.lights);
     // the sky's direct light per sample: `sky_rays` rays each
+    let gather_rays = settings.gather_rays as usize;
     let sky_direct = settings
         .sky
         .as_ref()
-        .filter(|s| settings.sky_rays > 0 && !s.is_dark());
+        .filter(|s| gather_rays == 0 && settings.sky_rays > 0 && !s.is_dark());
     let sky_rays = settings.sky_rays as usize;
     let far = mesh.escape_distance();
+    let emitters = if gather_rays > 0 {
+        gather::Emitters::new(mesh)
+    } else {
+        gather::Emitters::empty()
+    };
     let mut pixels = vec![Vec3::ZERO; width as usize * height as usize];
     let rows_done = AtomicUsize::new(0);
     pixels
@@ -207,12 +226,32 @@ pub fn render<C: RayCaster + ?Sized>(
                     };
                     (u, v)
                 });
+                // the pixel's gather directions, stratified
+                let gathered = (gather_rays > 0).then(|| {
+                    let mut gather_rng = Stream::new(0, DIRECT_PASS, pixel_index, 2);
+                    sky::stratified(spp as usize * gather_rays, &mut gather_rng)
+                });
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
                     let ray = camera.ray(pixel, width, height);
                     sum += match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
+                        (hit, _) if gather_rays > 0 => {
+                            let u = gathered.as_deref().unwrap_or_default();
+                            let range = s as usize * gather_rays..(s as usize + 1) * gather_rays;
+                            shade::emitted_radiance(mesh, hit)
+                                + gather::gathered_radiance(
+                                    mesh,
+                                    caster,
+                                    &shader,
+                                    settings.sky.as_ref(),
+                                    hit,
+                                    &u[range],
+                                )
+                                + emitters.radiance(mesh, caster, hit, gather_rays, &mut rng)
+                                + direct.radiance(mesh, caster, hit, &mut rng)
+                        }
                         (hit, _) => {
                             let mut l = shader.radiance(mesh, hit).as_dvec3()
                                 + direct.radiance(mesh, caster, hit, &mut rng);

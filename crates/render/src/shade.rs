@@ -104,6 +104,14 @@ impl<'a> Shader<'a> {
     }
 }
 
+/// The radiance `E / π` (W/(m² sr)) a front hit's patch emits of its own; 0 for a miss, a back
+/// face or an id that is no patch of `mesh`.
+pub(crate) fn emitted_radiance(mesh: &Mesh, hit: Option<Hit>) -> DVec3 {
+    hit.filter(|h| h.front)
+        .and_then(|h| mesh.patches().get(h.id as usize))
+        .map_or(DVec3::ZERO, |p| p.emission.as_dvec3() / PI)
+}
+
 /// The direct light of lights without a surface, drawn per sample with shadow rays.
 pub(crate) struct Direct {
     /// The lights in the mesh's frame.

@@ -62,7 +62,7 @@ pub fn sky_irradiance_sample<C: RayCaster + ?Sized>(
 }
 
 /// A cosine-distributed unit direction about unit normal `n` from `u` in `[0, 1)²`.
-fn cosine_direction(n: DVec3, u: [f64; 2]) -> DVec3 {
+pub(crate) fn cosine_direction(n: DVec3, u: [f64; 2]) -> DVec3 {
     let (t, b) = n.any_orthonormal_pair();
     let r = u[0].sqrt();
     let phi = TAU * u[1];

@@ -65,6 +65,7 @@ fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
         sky: None,
         lights: Vec::new(),
         sky_rays: 0,
+        gather_rays: 0,
     }
 }
 
@@ -131,7 +132,11 @@ fn render_is_the_same_on_one_and_two_threads() {
         .map(|i| DVec3::new(i as f64, (i * 7 % 13) as f64, 1.0 / (1.0 + i as f64)))
         .collect();
     let corners = per_corner(&mesh, |p| p.as_dvec3() * 10.0);
-    for (shading, spp) in [(Shading::Flat(&b), 4), (Shading::Smooth(&corners), 3)] {
+    for (shading, spp, gather) in [
+        (Shading::Flat(&b), 4, 0),
+        (Shading::Smooth(&corners), 3, 0),
+        (Shading::Flat(&b), 2, 3),
+    ] {
         let run = |threads| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -143,7 +148,10 @@ fn render_is_the_same_on_one_and_two_threads() {
                     &bvh,
                     &camera,
                     shading,
-                    &settings(61, 47, spp),
+                    &RenderSettings {
+                        gather_rays: gather,
+                        ..settings(61, 47, spp)
+                    },
                     &no_progress,
                 )
             })
@@ -519,4 +527,89 @@ fn rays_that_leave_the_scene_see_the_sky() {
     )
     .unwrap();
     assert_eq!(black.get(0, 0).unwrap(), Vec3::ZERO);
+}
+
+/// The mean and standard error of the mean of the luminance-free channel sum over an image's
+/// pixels (each pixel an independent estimate).
+fn mean_and_error(image: &Image) -> (f64, f64) {
+    let values: Vec<f64> = image
+        .pixels
+        .iter()
+        .map(|p| f64::from(p.x + p.y + p.z) / 3.0)
+        .collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+#[test]
+fn a_final_gather_in_a_closed_furnace_reads_the_shading_one_bounce_away() {
+    // Every wall emits E = 1 and reflects rho = 0.5. Shaded with a constant c, a pixel shows
+    // E / π (its own), rho (c - E) / π (gathered from walls whose emission is drawn apart) and
+    // rho E / π (the walls' emission, drawn by area: H_e = E in a closed room):
+    // (E + rho c) / π. With c = B = E / (1 - rho) = 2 that is B / π, the exact answer; with
+    // c = 5 it is 3.5 / π (the shading is read, not shown: shown it would be 5 / π).
+    let (mesh, bvh) = scene("furnace.obj", Subdivision::MaxEdge(0.3));
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    for (c, expected) in [(2.0, 2.0 / PI), (5.0, 3.5 / PI)] {
+        let b = vec![DVec3::splat(c); mesh.patches().len()];
+        let gathered = RenderSettings {
+            gather_rays: 2,
+            ..settings(24, 24, 4)
+        };
+        let image = render(
+            &mesh,
+            &bvh,
+            &camera,
+            Shading::Flat(&b),
+            &gathered,
+            &no_progress,
+        )
+        .unwrap();
+        let (mean, error) = mean_and_error(&image);
+        assert!(error > 0.0 && error < 0.05 * expected, "{error}");
+        assert!(
+            (mean - expected).abs() < 4.0 * error,
+            "c {c}: mean {mean}, expected {expected} +- {error}"
+        );
+    }
+}
+
+#[test]
+fn a_final_gather_under_a_uniform_sky_sees_the_sky_from_an_open_plane() {
+    // The lamp alone under a uniform sky L: every gather ray leaves the scene, so a pixel shows
+    // E / π + rho L exactly, whatever the shading holds (it is never shown, and nothing is
+    // there to read it from); the lamp's own emission lights no point of its plane.
+    let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.5));
+    let camera = Camera::look_at(
+        Vec3::new(1.0, 0.5, 2.0),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        20.0,
+    )
+    .unwrap();
+    let junk = vec![DVec3::new(100.0, 50.0, 7.0); mesh.patches().len()];
+    let l = DVec3::new(1.0, 2.0, 3.0);
+    let gathered = RenderSettings {
+        sky: Some(mcrad_scene_io::Sky::Uniform(l)),
+        gather_rays: 3,
+        ..settings(8, 8, 2)
+    };
+    let image = render(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&junk),
+        &gathered,
+        &no_progress,
+    )
+    .unwrap();
+    let expected = (DVec3::new(3.0, 2.0, 1.0) / PI + 0.5 * l).as_vec3();
+    for p in &image.pixels {
+        assert!(
+            (*p - expected).abs().max_element() < 1e-5,
+            "{p} against {expected}"
+        );
+    }
 }
