@@ -141,7 +141,7 @@ pub struct Solve {
     /// How faces become patches: `adaptive` (the default: a mesh of half the uniform default's
     /// edge refined where the solution needs it, within --min-edge and --max-patches;
     /// a quarter of the ray budget or of --time goes to the refinement, then the method solves
-    /// the refined mesh and the answer pools its solution with the refinement's estimates) or
+    /// the refined mesh, whose solution is the answer) or
     /// `uniform` (every face cut to --max-edge, or the default size). The options that need a
     /// fixed mesh, --max-edge, --no-subdivide, --reference and --method reference, imply
     /// uniform; --save keeps the adaptive mesh in the state and --resume continues on it.

@@ -1,4 +1,4 @@
-//! [`solve`]: mesh, refine, run, pool, under one budget.
+//! [`solve`]: mesh, refine, run, under one budget.
 
 use crate::clusters::{ALONE, Groups, PoolCounts, pool_clusters};
 use crate::problem::Input;
@@ -13,7 +13,7 @@ use glam::DVec3;
 use mcrad_combine::{Estimate, relative_error, weighted_quantile};
 use mcrad_mc_radiosity::{
     AdaptiveConfig, Error as MethodError, Refined, ScheduleConfig, ShadowSplit, Solution, Step,
-    StopReason, pool, pool_correlation, refine, run_cancellable, split_shadowed,
+    StopReason, refine, run_cancellable, split_shadowed,
 };
 use mcrad_meshing::{
     AdaptiveBounds, AdaptiveMesh, AdaptiveStart, ClusterBounds, ClusteredMesh, Clusters,
@@ -77,9 +77,8 @@ pub struct Answer {
     /// back side), per channel: the factor `k_f` by which the variance of the face's
     /// area-weighted mean exceeds `sum_i (A_i / A_f)² V_i` over its patches (taken as
     /// independent) through the correlation between their errors; dimensionless, 1 for a face
-    /// of one patch ([`Solution::face_correlation`](mcrad_mc_radiosity::Solution)). The
-    /// refinement's pool enters its earlier estimate as independent between patches
-    /// ([`pool_correlation`](mcrad_mc_radiosity::pool_correlation)); a continued run's pieces
+    /// of one patch ([`Solution::face_correlation`](mcrad_mc_radiosity::Solution)). A
+    /// continued run's pieces
     /// (the same method on the same mesh, merged alike over a face) share this piece's
     /// factors. `None` where the method keeps no error samples, or the run was cancelled
     /// within a step: the patches are then taken as independent.
@@ -113,8 +112,8 @@ impl Progress<'_> {
         self.step_estimate.radiosity()
     }
 
-    /// The answer the run would give if it stopped now: the step pooled with the adaptive
-    /// refinement's estimates, or merged with the saved pieces of a continued run.
+    /// The answer the run would give if it stopped now: the step (pooled over the run's
+    /// clusters), or merged with the saved pieces of a continued run.
     pub fn answer(&self) -> Result<Estimate, Error> {
         self.run.answer(Cow::Borrowed(self.step_estimate))
     }
@@ -142,7 +141,6 @@ struct Run<'a> {
     history: Option<&'a History>,
     settings: &'a Settings,
     patch: &'a [u32],
-    refinement: Option<&'a Refined>,
     resumed: Option<&'a RunState>,
     lighting: u64,
     /// Small faces that share one estimate of irradiance where the light allows
@@ -158,19 +156,17 @@ struct Run<'a> {
 }
 
 impl Run<'_> {
-    /// The answer from this piece's `estimate` (see [`Progress::answer`]).
+    /// The answer from this piece's `estimate` (see [`Progress::answer`]). An adaptive
+    /// refinement's estimates are not pooled into it: they estimate the solutions of the
+    /// coarser meshes the refinement went through (each round gathers from values its new
+    /// elements inherited), not the refined mesh's, and pooled they biased the answer (see
+    /// [`solve`]).
     fn answer(&self, estimate: Cow<'_, Estimate>) -> Result<Estimate, Error> {
-        if let Some(state) = self.resumed {
-            return state
+        match self.resumed {
+            Some(state) => state
                 .continued(&self.clustered(estimate)?, 0, 0)?
-                .estimate();
-        }
-        match self.refinement {
-            Some(r) if r.pooled_valid => {
-                let all = vec![true; self.mesh.patches().len()];
-                self.clustered(Cow::Owned(pool(self.mesh, &estimate, &r.pooled, &all)?))
-            }
-            _ => self.clustered(estimate),
+                .estimate(),
+            None => self.clustered(estimate),
         }
     }
 
@@ -237,6 +233,19 @@ impl Run<'_> {
 /// Solves `problem`, handing each step to `observer` (which may stop the run with `Break`; the
 /// answer is then that step's). Deterministic for a seed on any thread count,
 /// except where a time budget decides how many rays are cast.
+///
+/// On an adaptive mesh the answer is the method's solution of the refined mesh alone: the
+/// refinement's estimates place the elements and test the clusters but are not pooled into
+/// it. They are estimates of the coarser meshes' solutions, not the refined mesh's: the pilot
+/// solves the starting mesh, and each round gathers once from values the new elements
+/// inherited from their parents, so where a split separates parts of an element that send
+/// their light differently (the floor under a bottomless box, whose light ends on its back
+/// faces, from the floor around it) the light the refined mesh keeps in play is still
+/// missing, a lag that only further Jacobi steps on the refined mesh take away. Pooled, that
+/// lag and weights read from each face's own values left the boxes room's answer short of
+/// 2.3-3.5% of its light under `gather` (8 to 17 standard errors of its balance, seeds 0-3,
+/// 1e7 rays) and 0.25-0.29% under `shoot` (7-8); unpooled, within 2.2 and 0.4. Extra Jacobi
+/// steps on the refined mesh took the refinement's own lag (+1% red) to within its noise.
 pub fn solve(problem: &Problem, observer: &mut Observer) -> Result<Answer, Error> {
     match problem.threads {
         Some(n) if n != rayon::current_num_threads() => {
@@ -431,7 +440,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     // Groups of them that are evenly lit are one element each of the transport: the method
     // runs on that coarser mesh, its answers come back per patch, and the answer's pooling
     // leaves those groups alone.
-    let transport = match (refinement.as_mut(), problem.clustering) {
+    let transport = match (refinement.as_ref(), problem.clustering) {
         (Some(r), Clustering::Transport) if !clusters.is_empty() && problem.resume.is_none() => {
             let seed = derive_seed(settings.seed, SHADOW_SPLIT_STREAM);
             let sky = config.sky.as_ref();
@@ -458,8 +467,9 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         Some((c, members, counts)) => (Some(c), members, counts),
         None => (None, Clusters::default(), PoolCounts::default()),
     };
-    // a refinement's estimate that the answer does not pool is not kept (48 bytes a patch)
-    if let Some(r) = refinement.as_mut().filter(|r| !r.pooled_valid) {
+    // the refinement's estimate has placed the elements and tested the clusters; the answer
+    // does not pool it (see `Run::answer`), so it is not kept (48 bytes a patch)
+    if let Some(r) = refinement.as_mut() {
         r.pooled = Estimate::default();
     }
     phases.clusters_seconds = clustering.elapsed().as_secs_f64();
@@ -486,7 +496,6 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         history: history.as_ref(),
         settings,
         patch: &patch,
-        refinement: refinement.as_ref(),
         resumed: problem.resume,
         lighting,
         clusters: &clusters,
@@ -633,25 +642,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         ));
     }
     let (direct, sky_direct) = (solution.direct.take(), solution.sky_direct.take());
-    // The refinement's pool adds its earlier estimate's part, taken as independent between
-    // patches; a continued run's pieces (the same method on the same mesh) share the factors.
-    let face_correlation = match (
-        solution.face_correlation.take(),
-        &refinement,
-        problem.resume,
-    ) {
-        (Some(k), Some(r), None) if r.pooled_valid => {
-            let all = vec![true; mesh.patches().len()];
-            Some(pool_correlation(
-                &mesh,
-                &solution.estimate,
-                &r.pooled,
-                &all,
-                &k,
-            )?)
-        }
-        (k, ..) => k,
-    };
+    // a continued run's pieces (the same method on the same mesh) share the factors
+    let face_correlation = solution.face_correlation.take();
     // the solution's estimate goes into the answer (pooled in place)
     let solved = std::mem::take(&mut solution.estimate);
     let (estimate, state) = run.settle(
@@ -752,13 +744,12 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
 /// [`solve`]): the `clusters` of `mesh` tested against the refinement's estimate
 /// ([`pool_clusters`]) and split where the shadow of a light or of the sky crosses them
 /// ([`split_shadowed`] by `split`, shadow rays through `bvh`), its groups as [`Clusters`] and what forming
-/// them did; `None` when no group is left. The refinement's estimate is pooled over the same
-/// groups (its faces' estimates are independent, the transport's one per group).
+/// them did; `None` when no group is left.
 fn transport_groups(
     mesh: &Mesh,
     bvh: &Bvh,
     clusters: &Clusters,
-    refined: &mut Refined,
+    refined: &Refined,
     (lights, sky): (&[mcrad_scene_io::Light], Option<&mcrad_scene_io::Sky>),
     split: ShadowSplit,
 ) -> Result<Option<(ClusteredMesh, Clusters, PoolCounts)>, Error> {
@@ -782,10 +773,6 @@ fn transport_groups(
         return Ok(None);
     }
     let members = coarse.clusters();
-    if refined.pooled_valid {
-        let own = std::mem::take(&mut refined.pooled);
-        refined.pooled = pool_clusters(mesh, &members, Cow::Owned(own), None)?.0;
-    }
     let counts = PoolCounts {
         groups: members.len(),
         faces: members.patches(),
@@ -1068,8 +1055,8 @@ fn adaptive_refine(
         ..Default::default()
     };
     let mut refined = refine(&mut mesh, &config)?;
-    // The answer pools the refinement's `pooled` estimate only: its last estimate would hold
-    // 48 bytes per element through the whole run.
+    // The clusters' test reads the refinement's `pooled` estimate only: its last estimate
+    // would hold 48 bytes per element through the whole run.
     refined.estimate = Estimate::default();
     let unrefinable = refined.unrefinable();
     if unrefinable > 0 {
