@@ -227,7 +227,7 @@ pub struct Solve {
     /// elements; direct light from lights and the sun is drawn per sample as well. Costs N
     /// rays per sample; 0 shows the solution where a camera ray lands. `auto` (the default)
     /// gathers when the budget affords every pixel 512 rays or more: up to 1024 a pixel, in at
-    /// most a third of the time left once the mesh is built (`--time`) or half as many rays
+    /// most half the time left once the mesh is built (`--time`) or half as many rays
     /// as the solve cast (`--rays`); otherwise 0.
     #[arg(long, value_name = "N|auto", default_value = "auto", value_parser = parse_gather, conflicts_with = "no_direct_rays")]
     pub gather_rays: GatherRays,

@@ -310,7 +310,7 @@ pub const AUTO_GATHER_PIXEL_MAX: u64 = 1024;
 
 /// The share of the time left once the mesh is built that `--gather-rays auto` may spend on
 /// the final gather under `--time` (and, in rays, half the solve's under `--rays`).
-const AUTO_GATHER_TIME_SHARE: f64 = 1.0 / 3.0;
+const AUTO_GATHER_TIME_SHARE: f64 = 0.5;
 
 /// `--gather-rays auto`: the whole rays per sample a budget of `affordable` (rays per sample,
 /// may be fractional) allows, at most [`AUTO_GATHER_PIXEL_MAX`] a pixel of `spp` samples (and
@@ -482,9 +482,10 @@ pub fn write_error_image(
 /// same samples per pixel ([`predicted_render_seconds`]); plus the reconstruction at the
 /// corners, timed once and counted as often as [`write()`] makes it.
 ///
-/// Under `--gather-rays auto` with `seconds_left` (the `--time` left), the small render is timed
-/// again with one gather ray a sample, and the final gather gets the rays a sample that fit in
-/// a third of the time left ([`auto_gather`]); the choice is kept in `scenery`.
+/// Under `--gather-rays auto` with `seconds_left` (the `--time` left), a render of a quarter of
+/// the size each way is timed with and without one gather ray a sample, and the final gather
+/// gets the rays a sample that fit in half the time left ([`auto_gather`]); the choice is kept
+/// in `scenery`.
 pub fn image_seconds(
     args: &Solve,
     scenery: &Scenery,
@@ -554,11 +555,13 @@ pub fn image_seconds(
     let gather_rays = match (args.gather_rays.0, seconds_left) {
         (Some(n), _) => n,
         (None, Some(left)) => {
-            // the full render's seconds per gather ray a sample, from the small one's
-            let (Some(without), Some(with)) = (seconds(small, 0), seconds(small, 1)) else {
+            // the full render's seconds per gather ray a sample, from a quarter's each way
+            // (an eighth's takes too short a time to tell one ray a sample apart)
+            let quarter = ((w / 4).max(16).min(w), (h / 4).max(16).min(h));
+            let (Some(without), Some(with)) = (seconds(quarter, 0), seconds(quarter, 1)) else {
                 return 0.0;
             };
-            let per_ray = (with - without).max(1e-9) * pixels(args.size) / pixels(small);
+            let per_ray = (with - without).max(1e-9) * pixels(args.size) / pixels(quarter);
             let g = auto_gather(args.spp, AUTO_GATHER_TIME_SHARE * left.max(0.0) / per_ray);
             *scenery.gather.get_or_init(|| g)
         }
