@@ -225,11 +225,12 @@ pub struct Solve {
     /// point with N cosine-distributed rays that read the solution where they land (and the
     /// sky where they leave), so the picture shows the mesh's light one bounce away, not its
     /// elements; direct light from lights and the sun is drawn per sample as well. Costs N
-    /// rays per sample; 0 shows the solution where a camera ray lands. `auto` (the default)
+    /// rays per sample; 0 shows the solution where a camera ray lands. Not with
+    /// `--no-direct-rays` (which `auto` follows with 0). `auto` (the default)
     /// gathers when the budget affords every pixel 512 rays or more: up to 1024 a pixel, in at
     /// most half the time left once the mesh is built (`--time`) or half as many rays
     /// as the solve cast (`--rays`); otherwise 0.
-    #[arg(long, value_name = "N|auto", default_value = "auto", value_parser = parse_gather, conflicts_with = "no_direct_rays")]
+    #[arg(long, value_name = "N|auto", default_value = "auto", value_parser = parse_gather)]
     pub gather_rays: GatherRays,
     /// Vertex radiosity averages only across patches whose normals differ by less than this
     /// (degrees), and never across materials.
@@ -617,6 +618,13 @@ impl Solve {
             if self.max_patches == Some(0) {
                 return Err("--max-patches must be at least 1".into());
             }
+        }
+        if self.no_direct_rays && self.gather_rays.0.is_some_and(|n| n > 0) {
+            return Err(
+                "--gather-rays draws the lights' direct light per sample; it cannot be \
+                 combined with --no-direct-rays"
+                    .into(),
+            );
         }
         Ok(())
     }

@@ -280,6 +280,16 @@ pub fn without_direct(mesh: &Mesh, radiosity: &[DVec3], direct: Option<&[DVec3]>
     b
 }
 
+/// `B_i - E_i` per patch (W/m², clamped at 0): the reflected part of `radiosity`, which a final
+/// gather reads (the emitting faces' own light it draws by area).
+pub fn reflected(mesh: &Mesh, radiosity: &[DVec3]) -> Vec<DVec3> {
+    radiosity
+        .iter()
+        .zip(mesh.patches())
+        .map(|(&b, p)| (b - p.emission.as_dvec3()).max(DVec3::ZERO))
+        .collect()
+}
+
 /// [`without_direct`] in place: `radiosity` becomes `B_i - rho_i H_d,i`, clamped at 0.
 pub fn take_out_direct(mesh: &Mesh, radiosity: &mut [DVec3], direct: &[DVec3]) {
     for ((b, p), &h) in radiosity.iter_mut().zip(mesh.patches()).zip(direct) {
@@ -329,21 +339,33 @@ pub fn auto_gather(spp: u32, affordable: f64) -> u32 {
     }
 }
 
-/// The final gather's rays per sample for `--image`: `--gather-rays N` as given; `auto`'s
-/// choice under `--time` (made when the render was timed); otherwise half the solve's
-/// `rays_cast` spread over the image's samples ([`auto_gather`]). 0 without an image.
-pub fn gather_rays(args: &Solve, scenery: &Scenery, rays_cast: u64) -> u32 {
+/// The final gather's rays per sample for `--image` of a solution on `mesh`: `--gather-rays
+/// N` as given; `auto`'s choice under `--time` (made when the render was timed); otherwise
+/// as many rays (the gather's, and with emitting faces as many shadow rays towards them) as
+/// half the solve's `rays_cast`, spread over the image's samples ([`auto_gather`]). 0 without
+/// an image, and for `auto` under `--no-direct-rays`.
+pub fn gather_rays(args: &Solve, scenery: &Scenery, mesh: &Mesh, rays_cast: u64) -> u32 {
     if args.image.is_none() {
         return 0;
     }
-    if let Some(n) = args.gather_rays.0 {
-        return n;
+    match args.gather_rays.0 {
+        Some(n) => return n,
+        None if args.no_direct_rays => return 0,
+        None => {}
     }
     if let Some(&g) = scenery.gather.get() {
         return g;
     }
     let samples = f64::from(args.size.0) * f64::from(args.size.1) * f64::from(args.spp);
-    auto_gather(args.spp, rays_cast as f64 / 2.0 / samples)
+    let emitters = mesh
+        .patches()
+        .iter()
+        .any(|p| p.emission.max_element() > 0.0);
+    let rays_a_gather_ray = if emitters { 2.0 } else { 1.0 };
+    auto_gather(
+        args.spp,
+        rays_cast as f64 / 2.0 / samples / rays_a_gather_ray,
+    )
 }
 
 /// What lights a render besides the radiosity: the sky rays that leave the scene see, and
@@ -483,7 +505,7 @@ pub fn write_error_image(
 /// corners, timed once and counted as often as [`write()`] makes it.
 ///
 /// Under `--gather-rays auto` with `seconds_left` (the `--time` left), a render of a quarter of
-/// the size each way is timed with and without one gather ray a sample, and the final gather
+/// the size each way is timed with one and two gather rays a sample, and the final gather
 /// gets the rays a sample that fit in half the time left ([`auto_gather`]); the choice is kept
 /// in `scenery`.
 pub fn image_seconds(
@@ -507,12 +529,6 @@ pub fn image_seconds(
     let corners = (smooth || args.gltf.is_some())
         .then(|| mesh.seamless_corner_radiosity(&zeros, args.crease));
     let corner_seconds = clock.elapsed().as_secs_f64();
-    // as `write`: the solution's for the GLB or a smooth image without drawn direct light,
-    // the drawn part's for a smooth image with it
-    // (a final gather reads the solution's)
-    let drawn_apart = per_sample && args.gather_rays.0.unwrap_or(0) == 0;
-    let corner_passes = u32::from(args.gltf.is_some() || (smooth && !drawn_apart))
-        + u32::from(smooth && drawn_apart);
     let Ok(camera) = camera(args, scenery.camera, mesh, bvh) else {
         // the render proper will say what is wrong
         return 0.0;
@@ -527,7 +543,7 @@ pub fn image_seconds(
             height,
             samples_per_pixel: args.spp,
             sky: scenery.sky.clone(),
-            lights: if per_sample {
+            lights: if per_sample || gather_rays > 0 {
                 scenery.lights.clone()
             } else {
                 Vec::new()
@@ -554,15 +570,20 @@ pub fn image_seconds(
     };
     let gather_rays = match (args.gather_rays.0, seconds_left) {
         (Some(n), _) => n,
+        (None, _) if args.no_direct_rays => 0,
         (None, Some(left)) => {
             // the full render's seconds per gather ray a sample, from a quarter's each way
-            // (an eighth's takes too short a time to tell one ray a sample apart)
+            // (an eighth's takes too short a time to tell one ray a sample apart) at one and
+            // two rays a sample (so that what a gathering render sets up once cancels); none
+            // when timing noise hides the difference
             let quarter = ((w / 4).max(16).min(w), (h / 4).max(16).min(h));
-            let (Some(without), Some(with)) = (seconds(quarter, 0), seconds(quarter, 1)) else {
-                return 0.0;
+            let g = match (seconds(quarter, 1), seconds(quarter, 2)) {
+                (Some(one), Some(two)) if two > one => {
+                    let per_ray = (two - one) * pixels(args.size) / pixels(quarter);
+                    auto_gather(args.spp, AUTO_GATHER_TIME_SHARE * left.max(0.0) / per_ray)
+                }
+                _ => 0,
             };
-            let per_ray = (with - without).max(1e-9) * pixels(args.size) / pixels(quarter);
-            let g = auto_gather(args.spp, AUTO_GATHER_TIME_SHARE * left.max(0.0) / per_ray);
             *scenery.gather.get_or_init(|| g)
         }
         (None, None) => 0,
@@ -570,6 +591,11 @@ pub fn image_seconds(
     let Some(render_seconds) = predict(gather_rays) else {
         return 0.0;
     };
+    // as `write`: the solution's for the GLB or a smooth image without drawn direct light, the
+    // drawn part's for a smooth image with it (the reflected part's, for a final gather)
+    let drawn_apart = per_sample || gather_rays > 0;
+    let corner_passes = u32::from(args.gltf.is_some() || (smooth && !drawn_apart))
+        + u32::from(smooth && drawn_apart);
     f64::from(corner_passes) * corner_seconds + render_seconds
 }
 
@@ -605,17 +631,19 @@ pub fn write(
 ) -> Result<()> {
     let smooth = args.image.is_some() && args.shading == ShadingArg::Smooth;
     // the solution's corners: for the GLB, and for a smooth image that draws no direct light
-    // a final gather reads the whole solution, and draws the lights per sample
+    // a final gather reads the solution's reflected part, and draws the lights per sample
     let gather_rays = lighting.gather_rays;
     let gather = gather_rays > 0;
     let per_sample = lighting.direct.per_sample() && !gather;
-    let corners = (args.gltf.is_some() || (smooth && !per_sample))
+    // the image reads the radiosity less what it draws per sample
+    let apart = per_sample || gather;
+    let corners = (args.gltf.is_some() || (smooth && !apart))
         .then(|| mesh.seamless_corner_radiosity(radiosity, args.crease));
     if let Some(path) = &args.image {
         let drawn = match lighting.direct {
-            Direct::PerSample(direct) if !gather => {
-                Cow::Owned(without_direct(mesh, radiosity, Some(direct)))
-            }
+            // a final gather reads the reflected part, `B - E`
+            _ if gather => Cow::Owned(reflected(mesh, radiosity)),
+            Direct::PerSample(direct) => Cow::Owned(without_direct(mesh, radiosity, Some(direct))),
             _ => Cow::Borrowed(radiosity),
         };
         let lights = if per_sample || gather {
@@ -624,7 +652,7 @@ pub fn write(
             Vec::new()
         };
         let drawn_corners =
-            (smooth && per_sample).then(|| mesh.seamless_corner_radiosity(&drawn, args.crease));
+            (smooth && apart).then(|| mesh.seamless_corner_radiosity(&drawn, args.crease));
         let corners = drawn_corners.as_ref().or(corners.as_ref());
         let radiosity: &[DVec3] = &drawn;
         let format = image_format(path)?;

@@ -370,7 +370,7 @@ fn finish(
         crate::output::take_drawn_direct(args, answer)
     };
     let render = Instant::now();
-    let gather_rays = crate::output::gather_rays(args, scenery, answer.stats.rays);
+    let gather_rays = crate::output::gather_rays(args, scenery, &answer.mesh, answer.stats.rays);
     let lighting = |direct| crate::output::Lighting {
         sky: scenery.sky.clone(),
         lights: &scenery.lights,

@@ -378,4 +378,21 @@ fn the_final_gather_by_default_gathers_what_the_rays_afford() {
     // as given
     assert_eq!(gathered("32x32", &["--gather-rays", "3"]), 3);
     assert_eq!(gathered("8x8", &["--gather-rays", "0"]), 0);
+    // the solution's own direct light: auto does not gather, a count is refused
+    assert_eq!(gathered("8x8", &["--no-direct-rays"]), 0);
+    let o = mcrad(&[
+        "solve",
+        &*scene,
+        "-q",
+        "--rays",
+        "1e4",
+        "--no-direct-rays",
+        "--gather-rays",
+        "4",
+        "--image",
+        &*path(dir.path(), "x.exr"),
+    ]);
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("--no-direct-rays"), "{stderr}");
 }

@@ -9,15 +9,16 @@ use mcrad_meshing::Mesh;
 use mcrad_raycast::{Hit, Ray, RayCaster, SurfacePoint};
 use mcrad_scene_io::Sky;
 
-use crate::shade::{Shader, emitted_radiance};
+use crate::shade::Shader;
 use crate::sky::cosine_direction;
 
 /// The reflected radiance `rho H(x) / π` (W/(m² sr)) of the light arriving at the front hit
 /// `hit` from the rest of the scene and the sky, `H(x)` estimated by cosine-distributed rays
 /// drawn from the points `u` of `[0, 1)²`: `H ≈ π mean_k L(w_k)`, where `L(w)` is the radiance
-/// the ray along `w` meets first: the solution's `(B - E) / π` at a front hit (`shader`, as a
-/// camera ray sees it, less the patch's own emission, which [`Emitters`] draw), 0 at a back
-/// face, the sky's radiance (0 without a sky) where it leaves the scene. Lights without a
+/// the ray along `w` meets first: the shading's radiance at a front hit (`shader`, as a camera
+/// ray would see it: the solution's reflected part `(B - E) / π`, since [`Emitters`] draw the
+/// emitting faces' own light), 0 at a back face, the sky's radiance (0 without a sky) where it
+/// leaves the scene. Lights without a
 /// surface are not in it ([`Direct`](crate::shade::Direct) draws them). 0 for a miss, a back face or no points.
 pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
     mesh: &Mesh,
@@ -44,9 +45,7 @@ pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
         sum += match (caster.closest_hit(&ray), sky) {
             (None, Some(sky)) => sky.radiance(w),
             (None, None) => DVec3::ZERO,
-            // an emitter's own light is drawn apart ([`Emitters`])
-            (seen, _) => (shader.radiance(mesh, seen).as_dvec3() - emitted_radiance(mesh, seen))
-                .max(DVec3::ZERO),
+            (seen, _) => shader.radiance(mesh, seen).as_dvec3(),
         };
     }
     // rho H / π with H = π mean L
@@ -61,6 +60,8 @@ pub(crate) struct Emitters {
     ids: Vec<u32>,
     /// `cdf[k] = sum_{j <= k} P_j` over `ids` (the last is 1).
     cdf: Vec<f64>,
+    /// `P_k` itself (a difference of the sums would lose a small emitter's digits).
+    probability: Vec<f64>,
 }
 
 impl Emitters {
@@ -68,7 +69,7 @@ impl Emitters {
     pub(crate) fn new(mesh: &Mesh) -> Emitters {
         let power =
             |p: &mcrad_meshing::Patch| f64::from(crate::luminance(p.emission)).max(0.0) * p.area;
-        let (mut ids, mut cdf) = (Vec::new(), Vec::new());
+        let (mut ids, mut cdf, mut probability) = (Vec::new(), Vec::new(), Vec::new());
         let mut total = 0.0;
         for (i, p) in mesh.patches().iter().enumerate() {
             let w = power(p);
@@ -76,12 +77,18 @@ impl Emitters {
                 total += w;
                 ids.push(i as u32);
                 cdf.push(total);
+                probability.push(w);
             }
         }
-        for c in &mut cdf {
+        for (c, p) in cdf.iter_mut().zip(&mut probability) {
             *c /= total;
+            *p /= total;
         }
-        Emitters { ids, cdf }
+        Emitters {
+            ids,
+            cdf,
+            probability,
+        }
     }
 
     /// No emitters.
@@ -89,6 +96,7 @@ impl Emitters {
         Emitters {
             ids: Vec::new(),
             cdf: Vec::new(),
+            probability: Vec::new(),
         }
     }
 
@@ -127,7 +135,7 @@ impl Emitters {
                 .cdf
                 .partition_point(|&c| c <= pick)
                 .min(self.ids.len() - 1);
-            let probability = self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] };
+            let probability = self.probability[k];
             let id = self.ids[k];
             let light = &mesh.patches()[id as usize];
             let y = point_on(mesh, light, [rng.uniform_f64(), rng.uniform_f64()]);
@@ -153,7 +161,7 @@ impl Emitters {
 
 /// A point of patch `patch` (a convex polygon) drawn uniformly by area from `u` in `[0, 1)²`:
 /// a fan triangle `(0, j, j + 1)` by its area, then a point on it.
-fn point_on(mesh: &Mesh, patch: &mcrad_meshing::Patch, u: [f64; 2]) -> DVec3 {
+pub(crate) fn point_on(mesh: &Mesh, patch: &mcrad_meshing::Patch, u: [f64; 2]) -> DVec3 {
     let positions = mesh.positions();
     let corners = mesh.corners(patch);
     let at = |k: usize| positions[corners[k] as usize].as_dvec3();

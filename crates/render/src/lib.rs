@@ -91,7 +91,8 @@ pub struct RenderSettings {
     /// `rho` and normal `n`, one shadow ray per light ([`Light::arrival`](mcrad_scene_io::Light::arrival),
     /// a sun's direction drawn in its disc) adds radiance `rho E_l(x) max(0, n · w_l) V / π`
     /// (W/(m² sr)) to the shading's. The shading must then hold the radiosity without that
-    /// direct light (`B - rho H_d` per patch, W/m²), or it is counted twice. Empty (the
+    /// direct light (`B - rho H_d` per patch, W/m²), or it is counted twice (with a final
+    /// gather, [`gather_rays`](Self::gather_rays), the reflected part `B - E` instead). Empty (the
     /// default): the shading alone. Shadow rays pass alpha cut-outs as the caster's any-hit
     /// filter says; their random numbers come from a stream keyed by the pixel.
     pub lights: Vec<mcrad_scene_io::Light>,
@@ -104,15 +105,17 @@ pub struct RenderSettings {
     /// light too. 0 (the default, and without a sky): the shading alone.
     pub sky_rays: u32,
     /// Rays per sample of the final gather: when above 0, a front hit `x` of a patch of
-    /// emission `E` and reflectance `rho` shows `E / π + rho H(x) / π` (plus the
-    /// [`lights`](Self::lights)' direct light), `H(x)` gathered at `x` itself by
-    /// cosine-distributed rays that read the shading (then the whole solution, `B` per patch
-    /// or corner) where they land and the [`sky`](Self::sky) where they leave
-    /// the scene. The shading is then never shown directly, only through one bounce: the
-    /// mesh's discretization is blurred over the hemisphere instead of drawn at its edges.
-    /// The pixel's `samples_per_pixel × gather_rays` directions are stratified together, from
-    /// a stream of the pixel's own; [`sky_rays`](Self::sky_rays) is not used. 0 (the default):
-    /// the shading is shown where a ray lands.
+    /// emission `E` and reflectance `rho` shows `E / π + rho H(x) / π` (W/(m² sr)), `H(x)`
+    /// (W/m²) the irradiance at `x` itself: the [`lights`](Self::lights)' by their shadow rays,
+    /// the emitting patches' by `gather_rays` points drawn on them by power with a shadow ray
+    /// each, and the rest by `gather_rays` cosine-distributed rays that read the shading where
+    /// they land and the [`sky`](Self::sky) where they leave the scene. The shading must then
+    /// hold the solution's reflected part, `B - E` per patch or corner (W/m²), and is never
+    /// shown directly, only one bounce away: the mesh's discretization is blurred over the
+    /// hemisphere instead of drawn at its edges. The pixel's `samples_per_pixel × gather_rays`
+    /// directions are stratified together, from a stream of the pixel's own;
+    /// [`sky_rays`](Self::sky_rays) is not used (a sky map is sampled by cosine only). 0 (the
+    /// default): the shading is shown where a ray lands.
     pub gather_rays: u32,
 }
 
@@ -167,7 +170,7 @@ pub enum RenderError {
 
 /// Renders `mesh` as seen by `camera`: for each pixel, the mean radiance `B / π`
 /// (W/(m² sr)) of what its sample rays hit first (see [`RenderSettings`] for the samples, the
-/// module docs for misses and back faces). `caster` holds the mesh's triangles tagged with
+/// lights drawn per sample and the final gather, the module docs for misses and back faces). `caster` holds the mesh's triangles tagged with
 /// their patch indices (`Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())`).
 ///
 /// Rows run in parallel on the current rayon pool; `progress` is called (from worker threads)

@@ -545,14 +545,14 @@ fn mean_and_error(image: &Image) -> (f64, f64) {
 
 #[test]
 fn a_final_gather_in_a_closed_furnace_reads_the_shading_one_bounce_away() {
-    // Every wall emits E = 1 and reflects rho = 0.5. Shaded with a constant c, a pixel shows
-    // E / π (its own), rho (c - E) / π (gathered from walls whose emission is drawn apart) and
-    // rho E / π (the walls' emission, drawn by area: H_e = E in a closed room):
-    // (E + rho c) / π. With c = B = E / (1 - rho) = 2 that is B / π, the exact answer; with
-    // c = 5 it is 3.5 / π (the shading is read, not shown: shown it would be 5 / π).
+    // Every wall emits E = 1 and reflects rho = 0.5. Shaded with a constant reflected part c,
+    // a pixel shows E / π (its own), rho c / π (gathered) and rho E / π (the walls' emission,
+    // drawn by area: H_e = E in a closed room): (E + rho c + rho E) / π. With c = B - E = 1
+    // (B = E / (1 - rho) = 2) that is B / π, the exact answer; with c = 4 it is 3.5 / π (the
+    // shading is read, not shown: shown it would be 4 / π).
     let (mesh, bvh) = scene("furnace.obj", Subdivision::MaxEdge(0.3));
     let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
-    for (c, expected) in [(2.0, 2.0 / PI), (5.0, 3.5 / PI)] {
+    for (c, expected) in [(1.0, 2.0 / PI), (4.0, 3.5 / PI)] {
         let b = vec![DVec3::splat(c); mesh.patches().len()];
         let gathered = RenderSettings {
             gather_rays: 2,
@@ -612,4 +612,71 @@ fn a_final_gather_under_a_uniform_sky_sees_the_sky_from_an_open_plane() {
             "{p} against {expected}"
         );
     }
+}
+
+#[test]
+fn points_on_an_emitter_are_uniform_by_area() {
+    // A convex pentagon, one patch: the points' share in each fan triangle is its share of
+    // the area (within 4 binomial standard errors), and their mean is the area centroid.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("p.mtl"),
+        "newmtl m\nKd 0.5 0.5 0.5\nKe 1 1 1\n",
+    )
+    .unwrap();
+    let obj = "mtllib p.mtl\nv 0 0 0\nv 2 0 0\nv 2.5 1.5 0\nv 1 2.5 0\nv -0.5 1.5 0\nusemtl m\nf 1 2 3 4 5\n";
+    std::fs::write(dir.path().join("p.obj"), obj).unwrap();
+    let (mesh, _) = load(&dir.path().join("p.obj"), Subdivision::None);
+    assert_eq!(mesh.patches().len(), 1);
+    let patch = &mesh.patches()[0];
+    let corners: Vec<DVec3> = mesh
+        .corners(patch)
+        .iter()
+        .map(|&v| mesh.positions()[v as usize].as_dvec3())
+        .collect();
+    assert_eq!(corners.len(), 5);
+    let a = corners[0];
+    let triangles: Vec<(DVec3, DVec3, f64)> = (1..4)
+        .map(|j| {
+            let (b, c) = (corners[j], corners[j + 1]);
+            (b, c, (b - a).cross(c - a).length() / 2.0)
+        })
+        .collect();
+    let area: f64 = triangles.iter().map(|t| t.2).sum();
+    let centroid = triangles
+        .iter()
+        .map(|&(b, c, s)| (a + b + c) / 3.0 * s)
+        .sum::<DVec3>()
+        / area;
+    // which fan triangle holds p (by the signs of its edges' cross products)
+    let inside = |p: DVec3, (b, c, _): (DVec3, DVec3, f64)| {
+        let z = |u: DVec3, v: DVec3| (v - u).cross(p - u).z;
+        z(a, b) >= -1e-9 && z(b, c) >= -1e-9 && z(c, a) >= -1e-9
+    };
+    let n = 40_000;
+    let mut rng = mcrad_random::Stream::new(9, 0, 0, 0);
+    let mut counts = [0usize; 3];
+    let mut mean = DVec3::ZERO;
+    for _ in 0..n {
+        let p = gather::point_on(&mesh, patch, [rng.uniform_f64(), rng.uniform_f64()]);
+        let k = (0..3)
+            .find(|&k| inside(p, triangles[k]))
+            .expect("inside the pentagon");
+        counts[k] += 1;
+        mean += p / n as f64;
+    }
+    for k in 0..3 {
+        let share = triangles[k].2 / area;
+        let se = (share * (1.0 - share) / n as f64).sqrt();
+        let got = counts[k] as f64 / n as f64;
+        assert!(
+            (got - share).abs() < 4.0 * se,
+            "triangle {k}: {got} against {share}"
+        );
+    }
+    // the spread of a coordinate over the pentagon is below 1, so 4 / sqrt(n) bounds 4 SE
+    assert!(
+        (mean - centroid).length() < 4.0 / (n as f64).sqrt(),
+        "{mean} against {centroid}"
+    );
 }
