@@ -228,7 +228,7 @@ pub struct Solve {
     /// rays per sample; 0 shows the solution where a camera ray lands. Not with
     /// `--no-direct-rays` (which `auto` follows with 0). `auto` (the default)
     /// gathers when the budget affords every pixel 512 rays or more: up to 1024 a pixel, in at
-    /// most half the time left once the mesh is built (`--time`) or half as many rays
+    /// most two thirds of the time left once the mesh is built (`--time`) or half as many rays
     /// as the solve cast (`--rays`); otherwise 0.
     #[arg(long, value_name = "N|auto", default_value = "auto", value_parser = parse_gather)]
     pub gather_rays: GatherRays,
