@@ -7,7 +7,9 @@ use indicatif::ProgressBar;
 use mcrad_export::{GltfOptions, write_glb};
 use mcrad_meshing::Mesh;
 use mcrad_raycast::Bvh;
-use mcrad_render::{Camera, RenderSettings, Shading, render, write_exr, write_png};
+use mcrad_render::{
+    Camera, Image, RenderSettings, Shading, render, render_with_error, write_exr, write_png,
+};
 use std::borrow::Cow;
 use std::fs::File;
 use std::io::BufWriter;
@@ -461,6 +463,7 @@ pub fn write_error_image(
     variance: Option<&[DVec3]>,
     direct: Option<&[DVec3]>,
     file_camera: Option<mcrad_scene_io::Camera>,
+    gathered: Option<&(Image, Image)>,
 ) -> Result<()> {
     let (Some(path), Some(variance)) = (&args.error_image, variance) else {
         return Ok(());
@@ -489,7 +492,7 @@ pub fn write_error_image(
         sky_rays: 0,
         gather_rays: 0,
     };
-    let image = render(
+    let mut image = render(
         mesh,
         bvh,
         &camera,
@@ -497,6 +500,26 @@ pub fn write_error_image(
         &settings,
         &|_| {},
     )?;
+    // A final gather's picture: its noise is its own samples' spread (the solution's, read
+    // one bounce away over many patches, is left out); the mesh's part stays the solution's
+    // as shown without the gather, which the gather only lessens.
+    if let Some((picture, error)) = gathered {
+        let lum = |p: glam::Vec3| f64::from(mcrad_render::luminance(p));
+        for ((e, &l), &s) in image
+            .pixels
+            .iter_mut()
+            .zip(&picture.pixels)
+            .zip(&error.pixels)
+        {
+            let noise = if lum(l) > 0.0 {
+                (lum(s) / lum(l)).min(1e30)
+            } else {
+                0.0
+            };
+            let mesh_part = f64::from(e.z);
+            *e = DVec3::new(noise.hypot(mesh_part), noise, mesh_part).as_vec3();
+        }
+    }
     write_exr(&image, path)?;
     Ok(())
 }
@@ -623,7 +646,9 @@ fn predicted_render_seconds(a: (f64, f64), b: (f64, f64), pixels: f64) -> f64 {
 /// Writes `--image` and `--gltf` for the per-patch radiosity `radiosity` (W/m²); the image
 /// with `lighting`'s sky and, as `lighting.direct` says, its lights' direct light drawn per
 /// sample in place of the solution's (the GLB's vertex colours keep the solution's: with
-/// [`Direct::PerSampleTakenOut`] there is none).
+/// [`Direct::PerSampleTakenOut`] there is none). Returns, for a final gather and
+/// `--error-image`, the image and each pixel's standard error ([`render_with_error`]): what
+/// [`write_error_image`] reports as the render's noise.
 pub fn write(
     args: &Solve,
     mesh: &Mesh,
@@ -632,7 +657,8 @@ pub fn write(
     lighting: Lighting<'_>,
     file_camera: Option<mcrad_scene_io::Camera>,
     bar: &ProgressBar,
-) -> Result<()> {
+) -> Result<Option<(Image, Image)>> {
+    let mut gathered = None;
     let smooth = args.image.is_some() && args.shading == ShadingArg::Smooth;
     // the solution's corners: for the GLB, and for a smooth image that draws no direct light
     // a final gather reads the solution's reflected part, and draws the lights per sample
@@ -680,12 +706,19 @@ pub fn write(
         bar.set_length(u64::from(settings.height));
         bar.set_message("rendering rows");
         let done = AtomicU64::new(0);
-        let image = render(mesh, bvh, &camera, shading, &settings, &|rows| {
+        let progress = |rows: usize| {
             let rows = done
                 .fetch_max(rows as u64, Ordering::Relaxed)
                 .max(rows as u64);
             bar.set_position(rows);
-        })?;
+        };
+        let image = if gather && args.error_image.is_some() {
+            let (image, error) =
+                render_with_error(mesh, bvh, &camera, shading, &settings, &progress)?;
+            gathered.insert((image, error)).0.clone()
+        } else {
+            render(mesh, bvh, &camera, shading, &settings, &progress)?
+        };
         match format {
             ImageFormat::Png => write_png(&image, path, args.exposure)?,
             ImageFormat::Exr => write_exr(&image, path)?,
@@ -697,7 +730,7 @@ pub fn write(
         write_glb(BufWriter::new(file), mesh, corners, &GltfOptions::default())
             .with_context(|| format!("could not write {}", path.display()))?;
     }
-    Ok(())
+    Ok(gathered)
 }
 
 #[cfg(test)]

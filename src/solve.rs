@@ -407,7 +407,7 @@ fn finish(
                 Some(h) => Direct::PerSample(h),
                 None => Direct::InSolution,
             };
-            crate::output::write(
+            let gathered = crate::output::write(
                 args,
                 mesh,
                 &answer.bvh,
@@ -424,6 +424,7 @@ fn finish(
                 estimate.variance(),
                 direct.as_deref(),
                 scenery.camera,
+                gathered.as_ref(),
             )?;
         }
     }

@@ -1011,6 +1011,46 @@ fn an_error_image_reports_noise_and_mesh_per_pixel() {
         seen > 32 * 32 * 9 / 10 && mesh_seen > 32,
         "{seen} {mesh_seen}"
     );
+    // With a final gather in --image, the noise is the render's own (its samples' spread):
+    // another noise than the solution's, positive wherever a surface is seen, and the total
+    // still the two parts' root sum of squares.
+    let gathered_exr = path(dir.path(), "g.exr");
+    let o = mcrad(&[
+        "solve",
+        "scenes/cornell-box.obj",
+        "--rays",
+        "3e5",
+        "--mesh",
+        "uniform",
+        "--threads",
+        "2",
+        "--size",
+        "32x32",
+        "--spp",
+        "4",
+        "--camera",
+        "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
+        "--error-image",
+        &gathered_exr,
+        "--image",
+        &path(dir.path(), "g-image.exr"),
+        "--gather-rays",
+        "4",
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let gathered = mcrad_render::read_exr(Path::new(&gathered_exr)).unwrap();
+    let mut differ = 0;
+    for (g, p) in gathered.pixels.iter().zip(&image.pixels) {
+        assert!(g.is_finite() && g.min_element() >= 0.0, "{g}");
+        assert!((g.x - g.y.hypot(g.z)).abs() <= 1e-3 * g.x, "{g}");
+        assert_eq!(g.z, p.z, "the mesh's part is the solution's");
+        if p.x > 0.0 {
+            assert!(g.y > 0.0, "{g}");
+        }
+        differ += usize::from((g.y - p.y).abs() > 1e-3 * p.y);
+    }
+    assert!(differ > 32 * 32 / 2, "{differ}");
     let o = mcrad(&[
         "solve",
         "scenes/cornell-box.obj",

@@ -185,6 +185,23 @@ pub fn render<C: RayCaster + ?Sized>(
     settings: &RenderSettings,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Image, RenderError> {
+    render_with_error(mesh, caster, camera, shading, settings, progress).map(|(image, _)| image)
+}
+
+/// [`render`], and each pixel's standard error: per channel `sqrt(s² / n)` (W/(m² sr)), `s²`
+/// the sample variance of the radiance over the pixel's `n` samples. It counts what varies
+/// from sample to sample (where the samples land in the pixel, the lights' shadow rays, a
+/// final gather's rays), not the shading's own error. The samples' rays are stratified
+/// together, so it overstates the error of their mean rather than understates it. Infinite
+/// with one sample a pixel (no spread to tell).
+pub fn render_with_error<C: RayCaster + ?Sized>(
+    mesh: &Mesh,
+    caster: &C,
+    camera: &Camera,
+    shading: Shading<'_>,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<(Image, Image), RenderError> {
     let (width, height, spp) = (settings.width, settings.height, settings.samples_per_pixel);
     if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
         return Err(RenderError::BadSize { width, height });
@@ -207,7 +224,8 @@ pub fn render<C: RayCaster + ?Sized>(
     } else {
         gather::Emitters::empty()
     };
-    let mut pixels = vec![Vec3::ZERO; width as usize * height as usize];
+    // per pixel: (mean radiance, its standard error)
+    let mut pixels = vec![(Vec3::ZERO, Vec3::ZERO); width as usize * height as usize];
     let rows_done = AtomicUsize::new(0);
     pixels
         .par_chunks_mut(width as usize)
@@ -215,7 +233,7 @@ pub fn render<C: RayCaster + ?Sized>(
         .for_each(|(y, row)| {
             let y = y as u32;
             for (x, out) in (0u32..).zip(row.iter_mut()) {
-                let mut sum = DVec3::ZERO;
+                let (mut sum, mut squares) = (DVec3::ZERO, DVec3::ZERO);
                 let pixel_index = u64::from(y) * u64::from(width) + u64::from(x);
                 let mut rng = Stream::new(0, DIRECT_PASS, pixel_index, 0);
                 // the pixel's sky directions (and, for a map, its map draws), stratified
@@ -238,7 +256,7 @@ pub fn render<C: RayCaster + ?Sized>(
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
                     let ray = camera.ray(pixel, width, height);
-                    sum += match (caster.closest_hit(&ray), &settings.sky) {
+                    let l = match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
                         (hit, _) if gather_rays > 0 => {
                             let u = gathered.as_deref().unwrap_or_default();
@@ -265,14 +283,25 @@ pub fn render<C: RayCaster + ?Sized>(
                             l
                         }
                     };
+                    sum += l;
+                    squares += l * l;
                 }
-                *out = (sum / f64::from(spp)).as_vec3();
+                let n = f64::from(spp);
+                let mean = sum / n;
+                let error = if spp > 1 {
+                    ((squares - mean * sum).max(DVec3::ZERO) / (n - 1.0) / n).sqrt()
+                } else {
+                    DVec3::INFINITY
+                };
+                *out = (mean.as_vec3(), error.as_vec3());
             }
             progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1);
         });
-    Ok(Image {
+    let (pixels, errors) = pixels.into_iter().unzip();
+    let image = |pixels| Image {
         width,
         height,
         pixels,
-    })
+    };
+    Ok((image(pixels), image(errors)))
 }

@@ -680,3 +680,52 @@ fn points_on_an_emitter_are_uniform_by_area() {
         "{mean} against {centroid}"
     );
 }
+
+#[test]
+fn a_gathered_pixels_standard_error_matches_the_spread_between_pixels() {
+    // In the furnace every pixel estimates the same B / π = 2 / π (the gathered part is exact,
+    // the emitters' drawn light is not): the standard error each pixel reports from its own
+    // samples must match the spread of the pixels' values about their mean, and a render of
+    // a constant shading without lights or gather must report 0.
+    let (mesh, bvh) = scene("furnace.obj", Subdivision::MaxEdge(0.3));
+    let camera = Camera::frame_scene(&mesh, &bvh).unwrap();
+    let b = vec![DVec3::ONE; mesh.patches().len()];
+    let gathered = RenderSettings {
+        gather_rays: 2,
+        ..settings(32, 32, 8)
+    };
+    let (image, error) = render_with_error(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&b),
+        &gathered,
+        &no_progress,
+    )
+    .unwrap();
+    let n = image.pixels.len() as f64;
+    let values: Vec<f64> = image.pixels.iter().map(|p| f64::from(p.y)).collect();
+    let mean = values.iter().sum::<f64>() / n;
+    let spread = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let reported = error
+        .pixels
+        .iter()
+        .map(|e| f64::from(e.y).powi(2))
+        .sum::<f64>()
+        / n;
+    let ratio = reported / spread;
+    assert!(
+        (0.7..1.4).contains(&ratio),
+        "reported {reported} against {spread}: {ratio}"
+    );
+    let (_, none) = render_with_error(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&b),
+        &settings(8, 8, 4),
+        &no_progress,
+    )
+    .unwrap();
+    assert!(none.pixels.iter().all(|e| *e == Vec3::ZERO));
+}
