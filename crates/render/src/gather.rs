@@ -18,15 +18,21 @@ use crate::sky::cosine_direction;
 /// the ray along `w` meets first: the shading's radiance at a front hit (`shader`, as a camera
 /// ray would see it: the solution's reflected part `(B - E) / π`, since [`Emitters`] draw the
 /// emitting faces' own light), 0 at a back face, the sky's radiance (0 without a sky) where it
-/// leaves the scene. Lights without a
-/// surface are not in it ([`Direct`](crate::shade::Direct) draws them). 0 for a miss, a back face or no points.
+/// leaves the scene; a sky map is drawn by its luminance as well (from the points `v`, one
+/// each: one more ray towards the sky, reaching `far`), the two draws combined by the balance
+/// heuristic as in [`sky_irradiance_sample`](crate::sky_irradiance_sample). Lights without a
+/// surface are not in it ([`Direct`](crate::shade::Direct) draws them). 0 for a miss, a back
+/// face or no points.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
     mesh: &Mesh,
     caster: &C,
     shader: &Shader<'_>,
     sky: Option<&Sky>,
+    far: f64,
     hit: Option<Hit>,
     u: &[[f64; 2]],
+    v: &[[f64; 2]],
 ) -> DVec3 {
     let Some(hit) = hit.filter(|h| h.front) else {
         return DVec3::ZERO;
@@ -38,15 +44,32 @@ pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
         return DVec3::ZERO;
     }
     let n = patch.normal.as_dvec3();
+    let from = SurfacePoint::new(hit.point, patch.normal, hit.id);
     let mut sum = DVec3::ZERO;
-    for &uk in u {
+    for (k, &uk) in u.iter().enumerate() {
         let w = cosine_direction(n, uk);
         let ray = Ray::from_surface(hit.point, patch.normal, w.as_vec3(), hit.id);
         sum += match (caster.closest_hit(&ray), sky) {
+            // a map's bright spots are drawn by the map too: the balance heuristic's weight
+            // on the cosine draw, `L cos / (p_cos + p_map)` as irradiance, over π as radiance
+            (None, Some(Sky::Map(map))) => {
+                let cos = n.dot(w);
+                map.radiance(w) * (cos / (cos / PI + map.pdf(w))) / PI
+            }
             (None, Some(sky)) => sky.radiance(w),
             (None, None) => DVec3::ZERO,
             (seen, _) => shader.radiance(mesh, seen).as_dvec3(),
         };
+        // the map's own draw, weighted alike, where it reaches the sky
+        if let (Some(Sky::Map(map)), Some(&vk)) = (sky, v.get(k))
+            && let Some(s) = map.sample(vk)
+        {
+            let cos = n.dot(s.direction);
+            let target = (hit.point.as_dvec3() + s.direction * far).as_vec3();
+            if cos > 0.0 && !caster.occluded(&from, &SurfacePoint::free(target)) {
+                sum += map.radiance(s.direction) * (cos / (cos / PI + s.pdf)) / PI;
+            }
+        }
     }
     // rho H / π with H = π mean L
     patch.reflectance.as_dvec3() * sum / u.len() as f64

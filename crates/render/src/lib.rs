@@ -114,7 +114,8 @@ pub struct RenderSettings {
     /// shown directly, only one bounce away: the mesh's discretization is blurred over the
     /// hemisphere instead of drawn at its edges. The pixel's `samples_per_pixel × gather_rays`
     /// directions are stratified together, from a stream of the pixel's own;
-    /// [`sky_rays`](Self::sky_rays) is not used (a sky map is sampled by cosine only). 0 (the
+    /// [`sky_rays`](Self::sky_rays) is not used (a sky map is drawn by its luminance too, one
+    /// more ray a gather ray, by the balance heuristic). 0 (the
     /// default): the shading is shown where a ray lands.
     pub gather_rays: u32,
 }
@@ -250,7 +251,13 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                 // the pixel's gather directions, stratified
                 let gathered = (gather_rays > 0).then(|| {
                     let mut gather_rng = Stream::new(0, DIRECT_PASS, pixel_index, 2);
-                    sky::stratified(spp as usize * gather_rays, &mut gather_rng)
+                    let n = spp as usize * gather_rays;
+                    let u = sky::stratified(n, &mut gather_rng);
+                    let v = match &settings.sky {
+                        Some(mcrad_scene_io::Sky::Map(_)) => sky::stratified(n, &mut gather_rng),
+                        _ => Vec::new(),
+                    };
+                    (u, v)
                 });
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
@@ -259,16 +266,21 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                     let l = match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
                         (hit, _) if gather_rays > 0 => {
-                            let u = gathered.as_deref().unwrap_or_default();
+                            let (u, v) = gathered
+                                .as_ref()
+                                .map_or((&[][..], &[][..]), |(u, v)| (u.as_slice(), v.as_slice()));
                             let range = s as usize * gather_rays..(s as usize + 1) * gather_rays;
+                            let v = v.get(range.clone()).unwrap_or_default();
                             shade::emitted_radiance(mesh, hit)
                                 + gather::gathered_radiance(
                                     mesh,
                                     caster,
                                     &shader,
                                     settings.sky.as_ref(),
+                                    far,
                                     hit,
                                     &u[range],
+                                    v,
                                 )
                                 + emitters.radiance(mesh, caster, hit, gather_rays, &mut rng)
                                 + direct.radiance(mesh, caster, hit, &mut rng)

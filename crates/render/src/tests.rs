@@ -729,3 +729,62 @@ fn a_gathered_pixels_standard_error_matches_the_spread_between_pixels() {
     .unwrap();
     assert!(none.pixels.iter().all(|e| *e == Vec3::ZERO));
 }
+
+#[test]
+fn a_final_gather_under_a_sky_map_sees_its_mean() {
+    // The lamp under a map bright above the horizon (4, 5, 6) and dim below (0.5): its
+    // hemisphere about +z takes half of each, H = π ((4, 5, 6) + 0.5) / 2, and a pixel shows
+    // E / π + rho H / π. The gather draws the map by cosine and by luminance (balance
+    // heuristic): the image's mean is within 4 of its standard errors of that, per channel.
+    let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.5));
+    let camera = Camera::look_at(
+        Vec3::new(1.0, 0.5, 2.0),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        20.0,
+    )
+    .unwrap();
+    let (w, h) = (8u32, 4u32);
+    let texels = (0..w * h)
+        .map(|k| {
+            if k / w < h / 2 {
+                [4.0, 5.0, 6.0]
+            } else {
+                [0.5, 0.5, 0.5]
+            }
+        })
+        .collect();
+    let map = mcrad_scene_io::SkyMap::new(w, h, texels, 0.0).unwrap();
+    let zeros = vec![DVec3::ZERO; mesh.patches().len()];
+    let gathered = RenderSettings {
+        sky: Some(mcrad_scene_io::Sky::Map(std::sync::Arc::new(map))),
+        gather_rays: 2,
+        ..settings(16, 16, 4)
+    };
+    let (image, error) = render_with_error(
+        &mesh,
+        &bvh,
+        &camera,
+        Shading::Flat(&zeros),
+        &gathered,
+        &no_progress,
+    )
+    .unwrap();
+    let expected = DVec3::new(3.0, 2.0, 1.0) / PI + 0.5 * DVec3::new(4.5, 5.5, 6.5) / 2.0;
+    let n = image.pixels.len() as f64;
+    let mean = image.pixels.iter().map(|p| p.as_dvec3()).sum::<DVec3>() / n;
+    let se = (error
+        .pixels
+        .iter()
+        .map(|e| e.as_dvec3() * e.as_dvec3())
+        .sum::<DVec3>())
+    .powf(0.5)
+        / n;
+    for c in 0..3 {
+        assert!(se[c] > 0.0 && se[c] < 0.02 * expected[c], "{se}");
+        assert!(
+            (mean[c] - expected[c]).abs() < 4.0 * se[c],
+            "channel {c}: {mean} against {expected} +- {se}"
+        );
+    }
+}
