@@ -396,3 +396,37 @@ fn the_final_gather_by_default_gathers_what_the_rays_afford() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(stderr.contains("--no-direct-rays"), "{stderr}");
 }
+
+/// A final gather changes the picture only: the GLB's vertex radiosity (the solution's, with
+/// the sun's direct light in it) is the same byte for byte with and without it.
+#[test]
+fn a_final_gather_leaves_the_glb_as_it_was() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = floor_wall_scene(dir.path());
+    let glb = |name: &str, gather: &str| {
+        let out = path(dir.path(), name);
+        let o = mcrad(&[
+            "solve",
+            &*scene,
+            "-q",
+            "--rays",
+            "5e4",
+            "--size",
+            "16x16",
+            "--camera",
+            CAMERA,
+            "--sun=-1,1,0,1000,0",
+            "--sky",
+            "10,10,10",
+            "--image",
+            &*path(dir.path(), "i.exr"),
+            "--gltf",
+            &*out,
+            "--gather-rays",
+            gather,
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(&out).unwrap()
+    };
+    assert_eq!(glb("a.glb", "0"), glb("b.glb", "4"));
+}
