@@ -977,28 +977,34 @@ fn max_memory_refuses_a_scene_that_would_not_fit() {
 #[test]
 fn an_error_image_reports_noise_and_mesh_per_pixel() {
     let dir = tempfile::tempdir().unwrap();
+    // the box solved and its error image written to `exr`, with `extra` options
+    let error_image = |exr: &str, extra: &[&str]| {
+        let mut args = vec![
+            "solve",
+            "scenes/cornell-box.obj",
+            "--rays",
+            "3e5",
+            "--mesh",
+            "uniform",
+            "--threads",
+            "2",
+            "--size",
+            "32x32",
+            "--spp",
+            "4",
+            "--camera",
+            "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
+            "--error-image",
+            exr,
+            "-q",
+        ];
+        args.extend_from_slice(extra);
+        let o = mcrad(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        mcrad_render::read_exr(Path::new(exr)).unwrap()
+    };
     let exr = path(dir.path(), "e.exr");
-    let o = mcrad(&[
-        "solve",
-        "scenes/cornell-box.obj",
-        "--rays",
-        "3e5",
-        "--mesh",
-        "uniform",
-        "--threads",
-        "2",
-        "--size",
-        "32x32",
-        "--spp",
-        "4",
-        "--camera",
-        "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
-        "--error-image",
-        &exr,
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let image = mcrad_render::read_exr(Path::new(&exr)).unwrap();
+    let image = error_image(&exr, &[]);
     assert_eq!((image.width, image.height), (32, 32));
     let (mut seen, mut mesh_seen) = (0, 0);
     for p in &image.pixels {
@@ -1014,32 +1020,11 @@ fn an_error_image_reports_noise_and_mesh_per_pixel() {
     // With a final gather in --image, the noise is the render's own (its samples' spread):
     // another noise than the solution's, positive wherever a surface is seen, and the total
     // still the two parts' root sum of squares.
-    let gathered_exr = path(dir.path(), "g.exr");
-    let o = mcrad(&[
-        "solve",
-        "scenes/cornell-box.obj",
-        "--rays",
-        "3e5",
-        "--mesh",
-        "uniform",
-        "--threads",
-        "2",
-        "--size",
-        "32x32",
-        "--spp",
-        "4",
-        "--camera",
-        "eye=0.278,0.273,-0.8,look=0.278,0.273,0,fov=39.3",
-        "--error-image",
-        &gathered_exr,
-        "--image",
-        &path(dir.path(), "g-image.exr"),
-        "--gather-rays",
-        "4",
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let gathered = mcrad_render::read_exr(Path::new(&gathered_exr)).unwrap();
+    let gathered_image = path(dir.path(), "g-image.exr");
+    let gathered = error_image(
+        &path(dir.path(), "g.exr"),
+        &["--image", &gathered_image, "--gather-rays", "4"],
+    );
     let mut differ = 0;
     for (g, p) in gathered.pixels.iter().zip(&image.pixels) {
         assert!(g.is_finite() && g.min_element() >= 0.0, "{g}");

@@ -7,7 +7,9 @@
 //! (W/m²) has radiance `L = B / π` (W/(m² sr)) in every direction, so a pixel averages `B / π`
 //! of the front faces its sample rays hit first. A back face is black (patches reflect and
 //! emit on their front only); a miss sees the sky's radiance along the ray
-//! ([`RenderSettings::sky`]), black without a sky.
+//! ([`RenderSettings::sky`]), black without a sky. Lights without a surface can be drawn per
+//! sample with shadow rays, and a final gather ([`RenderSettings::gather_rays`]) shows instead
+//! the light gathered at each sample's own point, the solution read one bounce away.
 //!
 //! The render is deterministic: each pixel depends only on its own samples, whose positions
 //! are a hash of (pixel, sample), and rows are written in place, so it is the same on any
@@ -171,8 +173,9 @@ pub enum RenderError {
 
 /// Renders `mesh` as seen by `camera`: for each pixel, the mean radiance `B / π`
 /// (W/(m² sr)) of what its sample rays hit first (see [`RenderSettings`] for the samples, the
-/// lights drawn per sample and the final gather, the module docs for misses and back faces). `caster` holds the mesh's triangles tagged with
-/// their patch indices (`Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())`).
+/// lights drawn per sample and the final gather, the module docs for misses and back faces).
+/// `caster` holds the mesh's triangles tagged with their patch indices
+/// (`Bvh::build(&mesh.triangle_positions(), mesh.triangle_patch())`).
 ///
 /// Rows run in parallel on the current rayon pool; `progress` is called (from worker threads)
 /// with the number of rows finished so far after each row (1 to `height`, each once; calls
@@ -237,28 +240,21 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                 let (mut sum, mut squares) = (DVec3::ZERO, DVec3::ZERO);
                 let pixel_index = u64::from(y) * u64::from(width) + u64::from(x);
                 let mut rng = Stream::new(0, DIRECT_PASS, pixel_index, 0);
-                // the pixel's sky directions (and, for a map, its map draws), stratified
-                let strata = sky_direct.map(|sky| {
-                    let mut sky_rng = Stream::new(0, DIRECT_PASS, pixel_index, 1);
-                    let n = spp as usize * sky_rays;
-                    let u = sky::stratified(n, &mut sky_rng);
+                // the pixel's directions (and, for a map, its map draws), stratified: towards
+                // the sky, and of the gather
+                let strata = |sub: u64, rays: usize, sky: Option<&mcrad_scene_io::Sky>| {
+                    let mut rng = Stream::new(0, DIRECT_PASS, pixel_index, sub);
+                    let n = spp as usize * rays;
+                    let u = sky::stratified(n, &mut rng);
                     let v = match sky {
-                        mcrad_scene_io::Sky::Map(_) => sky::stratified(n, &mut sky_rng),
-                        mcrad_scene_io::Sky::Uniform(_) => Vec::new(),
-                    };
-                    (u, v)
-                });
-                // the pixel's gather directions, stratified
-                let gathered = (gather_rays > 0).then(|| {
-                    let mut gather_rng = Stream::new(0, DIRECT_PASS, pixel_index, 2);
-                    let n = spp as usize * gather_rays;
-                    let u = sky::stratified(n, &mut gather_rng);
-                    let v = match &settings.sky {
-                        Some(mcrad_scene_io::Sky::Map(_)) => sky::stratified(n, &mut gather_rng),
+                        Some(mcrad_scene_io::Sky::Map(_)) => sky::stratified(n, &mut rng),
                         _ => Vec::new(),
                     };
                     (u, v)
-                });
+                };
+                let strata_sky = sky_direct.map(|sky| strata(1, sky_rays, Some(sky)));
+                let gathered =
+                    (gather_rays > 0).then(|| strata(2, gather_rays, settings.sky.as_ref()));
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
@@ -288,7 +284,7 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                         (hit, _) => {
                             let mut l = shader.radiance(mesh, hit).as_dvec3()
                                 + direct.radiance(mesh, caster, hit, &mut rng);
-                            if let (Some(sky), Some((u, v))) = (sky_direct, &strata) {
+                            if let (Some(sky), Some((u, v))) = (sky_direct, &strata_sky) {
                                 let range = s as usize * sky_rays..(s as usize + 1) * sky_rays;
                                 l += shade::sky_radiance(mesh, caster, sky, far, hit, u, v, range);
                             }

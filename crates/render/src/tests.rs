@@ -71,6 +71,21 @@ fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
 
 fn no_progress(_: usize) {}
 
+/// An 8 x 4 sky map bright above the horizon, (4, 5, 6) W/(m² sr), and dim below, 0.5.
+fn half_bright_map() -> mcrad_scene_io::SkyMap {
+    let (w, h) = (8u32, 4u32);
+    let texels = (0..w * h)
+        .map(|k| {
+            if k / w < h / 2 {
+                [4.0, 5.0, 6.0]
+            } else {
+                [0.5, 0.5, 0.5]
+            }
+        })
+        .collect();
+    mcrad_scene_io::SkyMap::new(w, h, texels, 0.0).unwrap()
+}
+
 #[test]
 fn cornell_box_is_framed_from_its_open_side() {
     let (mesh, bvh) = scene("cornell-box.obj", Subdivision::None);
@@ -489,17 +504,7 @@ fn rays_that_leave_the_scene_see_the_sky() {
     )
     .unwrap();
     // a map bright above the horizon, dim below
-    let (w, h) = (8u32, 4u32);
-    let texels = (0..w * h)
-        .map(|k| {
-            if k / w < h / 2 {
-                [4.0, 5.0, 6.0]
-            } else {
-                [0.5, 0.5, 0.5]
-            }
-        })
-        .collect();
-    let map = mcrad_scene_io::SkyMap::new(w, h, texels, 0.0).unwrap();
+    let map = half_bright_map();
     let mut with_sky = settings(9, 9, 1);
     with_sky.sky = Some(mcrad_scene_io::Sky::Map(std::sync::Arc::new(map)));
     let image = render(
@@ -744,17 +749,7 @@ fn a_final_gather_under_a_sky_map_sees_its_mean() {
         20.0,
     )
     .unwrap();
-    let (w, h) = (8u32, 4u32);
-    let texels = (0..w * h)
-        .map(|k| {
-            if k / w < h / 2 {
-                [4.0, 5.0, 6.0]
-            } else {
-                [0.5, 0.5, 0.5]
-            }
-        })
-        .collect();
-    let map = mcrad_scene_io::SkyMap::new(w, h, texels, 0.0).unwrap();
+    let map = half_bright_map();
     let zeros = vec![DVec3::ZERO; mesh.patches().len()];
     let gathered = RenderSettings {
         sky: Some(mcrad_scene_io::Sky::Map(std::sync::Arc::new(map))),
