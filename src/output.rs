@@ -532,9 +532,9 @@ pub fn write_error_image(
 /// corners, timed once and counted as often as [`write()`] makes it.
 ///
 /// Under `--gather-rays auto` with `seconds_left` (the `--time` left), a render of a quarter of
-/// the size each way is timed with one and two gather rays a sample, and the final gather
-/// gets the rays a sample that fit in two thirds of the time left ([`auto_gather`]); the choice is kept
-/// in `scenery`.
+/// the size each way is timed with one and two gather rays a sample, and the final gather gets
+/// the rays a sample that fit in two thirds of the time left ([`auto_gather`]); the choice is
+/// kept in `scenery`.
 pub fn image_seconds(
     args: &Solve,
     scenery: &Scenery,

@@ -117,8 +117,8 @@ pub struct RenderSettings {
     /// hemisphere instead of drawn at its edges. The pixel's `samples_per_pixel × gather_rays`
     /// directions are stratified together, from a stream of the pixel's own;
     /// [`sky_rays`](Self::sky_rays) is not used (a sky map is drawn by its luminance too, one
-    /// more ray a gather ray, by the balance heuristic). 0 (the
-    /// default): the shading is shown where a ray lands.
+    /// more ray a gather ray, by the balance heuristic). 0 (the default): the shading is shown
+    /// where a ray lands.
     pub gather_rays: u32,
 }
 
