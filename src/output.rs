@@ -721,17 +721,21 @@ pub fn write(
                 .max(rows as u64);
             bar.set_position(rows);
         };
-        let image = if gather && args.error_image.is_some() {
+        let (image, error) = if gather && args.error_image.is_some() {
             let (image, error) =
                 render_with_error(mesh, bvh, &camera, shading, &settings, &progress)?;
-            gathered.insert((image, error)).0.clone()
+            (image, Some(error))
         } else {
-            render(mesh, bvh, &camera, shading, &settings, &progress)?
+            (
+                render(mesh, bvh, &camera, shading, &settings, &progress)?,
+                None,
+            )
         };
         match format {
             ImageFormat::Png => write_png(&image, path, args.exposure)?,
             ImageFormat::Exr => write_exr(&image, path)?,
         }
+        gathered = error.map(|e| (image, e));
     }
     if let (Some(path), Some(corners)) = (&args.gltf, &corners) {
         let file =

@@ -10,16 +10,16 @@ use mcrad_raycast::{Hit, Ray, RayCaster, SurfacePoint};
 use mcrad_scene_io::Sky;
 
 use crate::shade::Shader;
-use crate::sky::cosine_direction;
+use crate::sky::{cosine_direction, cosine_draw_weighted, map_draw_weighted};
 
 /// The reflected radiance `rho H(x) / π` (W/(m² sr)) of the light arriving at the front hit
 /// `hit` from the rest of the scene and the sky, `H(x)` estimated by cosine-distributed rays
-/// drawn from the points `u` of `[0, 1)²`: `H ≈ π mean_k L(w_k)`, where `L(w)` is the radiance
+/// drawn from the points `u[range]` of `[0, 1)²`: `H ≈ π mean_k L(w_k)`, where `L(w)` is the radiance
 /// the ray along `w` meets first: the shading's radiance at a front hit (`shader`, as a camera
 /// ray would see it: the solution's reflected part `(B - E) / π`, since [`Emitters`] draw the
 /// emitting faces' own light), 0 at a back face, the sky's radiance (0 without a sky) where it
-/// leaves the scene; a sky map is drawn by its luminance as well (from the points `v`, one
-/// each: one more ray towards the sky, reaching `far`), the two draws combined by the balance
+/// leaves the scene; a sky map is drawn by its luminance as well (from the points `v[range]`
+/// one each: one more ray towards the sky, reaching `far`), the two draws combined by the balance
 /// heuristic as in [`sky_irradiance_sample`](crate::sky_irradiance_sample). Lights without a
 /// surface are not in it ([`Direct`](crate::shade::Direct) draws them). 0 for a miss, a back
 /// face or no points.
@@ -31,8 +31,8 @@ pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
     sky: Option<&Sky>,
     far: f64,
     hit: Option<Hit>,
-    u: &[[f64; 2]],
-    v: &[[f64; 2]],
+    (u, v): (&[[f64; 2]], &[[f64; 2]]),
+    range: std::ops::Range<usize>,
 ) -> DVec3 {
     let Some(hit) = hit.filter(|h| h.front) else {
         return DVec3::ZERO;
@@ -40,39 +40,31 @@ pub(crate) fn gathered_radiance<C: RayCaster + ?Sized>(
     let Some(patch) = mesh.patches().get(hit.id as usize) else {
         return DVec3::ZERO;
     };
-    if u.is_empty() {
+    if range.is_empty() {
         return DVec3::ZERO;
     }
+    let count = range.len() as f64;
     let n = patch.normal.as_dvec3();
     let from = SurfacePoint::new(hit.point, patch.normal, hit.id);
     let mut sum = DVec3::ZERO;
-    for (k, &uk) in u.iter().enumerate() {
-        let w = cosine_direction(n, uk);
+    for k in range {
+        let w = cosine_direction(n, u[k]);
         let ray = Ray::from_surface(hit.point, patch.normal, w.as_vec3(), hit.id);
         sum += match (caster.closest_hit(&ray), sky) {
             // a map's bright spots are drawn by the map too: the balance heuristic's weight
             // on the cosine draw, `L cos / (p_cos + p_map)` as irradiance, over π as radiance
-            (None, Some(Sky::Map(map))) => {
-                let cos = n.dot(w);
-                map.radiance(w) * (cos / (cos / PI + map.pdf(w))) / PI
-            }
+            (None, Some(Sky::Map(map))) => cosine_draw_weighted(map, n, w) / PI,
             (None, Some(sky)) => sky.radiance(w),
             (None, None) => DVec3::ZERO,
             (seen, _) => shader.radiance(mesh, seen).as_dvec3(),
         };
         // the map's own draw, weighted alike, where it reaches the sky
-        if let (Some(Sky::Map(map)), Some(&vk)) = (sky, v.get(k))
-            && let Some(s) = map.sample(vk)
-        {
-            let cos = n.dot(s.direction);
-            let target = (hit.point.as_dvec3() + s.direction * far).as_vec3();
-            if cos > 0.0 && !caster.occluded(&from, &SurfacePoint::free(target)) {
-                sum += map.radiance(s.direction) * (cos / (cos / PI + s.pdf)) / PI;
-            }
+        if let (Some(Sky::Map(map)), Some(&vk)) = (sky, v.get(k)) {
+            sum += map_draw_weighted(caster, map, far, &from, n, vk) / PI;
         }
     }
     // rho H / π with H = π mean L
-    patch.reflectance.as_dvec3() * sum / u.len() as f64
+    patch.reflectance.as_dvec3() * sum / count
 }
 
 /// The patches that emit, drawn for the final gather's direct light by their power: patch `i`

@@ -253,8 +253,11 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                     (u, v)
                 };
                 let strata_sky = sky_direct.map(|sky| strata(1, sky_rays, Some(sky)));
-                let gathered =
-                    (gather_rays > 0).then(|| strata(2, gather_rays, settings.sky.as_ref()));
+                let (gather_u, gather_v) = if gather_rays > 0 {
+                    strata(2, gather_rays, settings.sky.as_ref())
+                } else {
+                    (Vec::new(), Vec::new())
+                };
                 for s in 0..spp {
                     let offset = jitter::sample_offset(x, y, s, spp);
                     let pixel = Vec2::new(x as f32, y as f32) + offset;
@@ -262,11 +265,7 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                     let l = match (caster.closest_hit(&ray), &settings.sky) {
                         (None, Some(sky)) => sky.radiance(ray.dir.as_dvec3().normalize()),
                         (hit, _) if gather_rays > 0 => {
-                            let (u, v) = gathered
-                                .as_ref()
-                                .map_or((&[][..], &[][..]), |(u, v)| (u.as_slice(), v.as_slice()));
                             let range = s as usize * gather_rays..(s as usize + 1) * gather_rays;
-                            let v = v.get(range.clone()).unwrap_or_default();
                             shade::emitted_radiance(mesh, hit)
                                 + gather::gathered_radiance(
                                     mesh,
@@ -275,8 +274,8 @@ pub fn render_with_error<C: RayCaster + ?Sized>(
                                     settings.sky.as_ref(),
                                     far,
                                     hit,
-                                    &u[range],
-                                    v,
+                                    (&gather_u, &gather_v),
+                                    range,
                                 )
                                 + emitters.radiance(mesh, caster, hit, gather_rays, &mut rng)
                                 + direct.radiance(mesh, caster, hit, &mut rng)

@@ -5,7 +5,7 @@
 use glam::{DVec3, Vec3};
 use mcrad_random::Stream;
 use mcrad_raycast::{RayCaster, SurfacePoint};
-use mcrad_scene_io::Sky;
+use mcrad_scene_io::{Sky, SkyMap};
 use std::f64::consts::{PI, TAU};
 
 /// One unbiased estimate of the sky's direct irradiance `H_sky = ∫ L(w) V(x, w) max(0, n · w) dw`
@@ -45,19 +45,44 @@ pub fn sky_irradiance_sample<C: RayCaster + ?Sized>(
             }
         }
         Sky::Map(map) => {
-            let mut h = DVec3::ZERO;
             let cos = n.dot(w);
-            if cos > 0.0 && open(w) {
-                h += map.radiance(w) * (cos / (cos / PI + map.pdf(w)));
-            }
-            if let Some(s) = map.sample(v) {
-                let cos = n.dot(s.direction);
-                if cos > 0.0 && open(s.direction) {
-                    h += map.radiance(s.direction) * (cos / (cos / PI + s.pdf));
-                }
-            }
-            h
+            let by_cosine = if cos > 0.0 && open(w) {
+                cosine_draw_weighted(map, n, w)
+            } else {
+                DVec3::ZERO
+            };
+            by_cosine + map_draw_weighted(caster, map, far, &from, n, v)
         }
+    }
+}
+
+/// The balance heuristic's score `L(w) cos / (p_cos + p_map)` (W/m²) of a cosine-drawn
+/// direction `w` about unit normal `n` that reaches the sky of `map`.
+pub(crate) fn cosine_draw_weighted(map: &SkyMap, n: DVec3, w: DVec3) -> DVec3 {
+    let cos = n.dot(w);
+    map.radiance(w) * (cos / (cos / PI + map.pdf(w)))
+}
+
+/// The balance heuristic's score `L V cos / (p_cos + p_map)` (W/m²) of a direction drawn from
+/// `map` by its luminance (from `v` in `[0, 1)²`) at the surface point `from` of unit normal
+/// `n`: 0 below the surface or where the ray is blocked within `far`.
+pub(crate) fn map_draw_weighted<C: RayCaster + ?Sized>(
+    caster: &C,
+    map: &SkyMap,
+    far: f64,
+    from: &SurfacePoint,
+    n: DVec3,
+    v: [f64; 2],
+) -> DVec3 {
+    let Some(s) = map.sample(v) else {
+        return DVec3::ZERO;
+    };
+    let cos = n.dot(s.direction);
+    let target = (from.point.as_dvec3() + s.direction * far).as_vec3();
+    if cos > 0.0 && !caster.occluded(from, &SurfacePoint::free(target)) {
+        map.radiance(s.direction) * (cos / (cos / PI + s.pdf))
+    } else {
+        DVec3::ZERO
     }
 }
 
