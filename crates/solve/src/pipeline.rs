@@ -98,7 +98,7 @@ pub struct Progress<'a> {
     /// Whether the step is a complete solution (it carries a variance).
     pub complete: bool,
     run: &'a Run<'a>,
-    step_estimate: &'a Estimate,
+    step_estimate: &'a StepEstimate<'a>,
 }
 
 impl Progress<'_> {
@@ -108,14 +108,14 @@ impl Progress<'_> {
     }
 
     /// This piece's solution after the step (W/m², mesh order).
-    pub fn radiosity(&self) -> &[DVec3] {
-        self.step_estimate.radiosity()
+    pub fn radiosity(&self) -> Result<&[DVec3], Error> {
+        Ok(self.step_estimate.get()?.radiosity())
     }
 
     /// The answer the run would give if it stopped now: the step (pooled over the run's
     /// clusters), or merged with the saved pieces of a continued run.
     pub fn answer(&self) -> Result<Estimate, Error> {
-        self.run.answer(Cow::Borrowed(self.step_estimate))
+        self.run.answer(Cow::Borrowed(self.step_estimate.get()?))
     }
 
     /// The run's state after the step, to save and continue; `None` for steps that are not
@@ -124,9 +124,9 @@ impl Progress<'_> {
         if !self.complete {
             return Ok(None);
         }
-        let (_, state) = self
-            .run
-            .settle(Cow::Borrowed(self.step_estimate), self.step, 0, true)?;
+        let (_, state) =
+            self.run
+                .settle(Cow::Borrowed(self.step_estimate.get()?), self.step, 0, true)?;
         Ok(state)
     }
 }
@@ -134,6 +134,40 @@ impl Progress<'_> {
 /// The observer of [`solve`]: called after each step (a complete solution or not:
 /// [`Progress::complete`]); `Break` stops the run there.
 pub type Observer<'o> = dyn FnMut(&Progress) -> ControlFlow<()> + Send + 'o;
+
+/// A step's estimate, on the elements the method ran on, and per patch of the mesh solved
+/// when read: carried from the transport's elements on first read
+/// ([`ClusteredMesh::refine`]), so that a step nobody reads costs no array per patch.
+struct StepEstimate<'a> {
+    /// On the method's elements (the transport's, or the mesh's patches).
+    own: Estimate,
+    transport: Option<&'a ClusteredMesh>,
+    fine: &'a Mesh,
+    carried: std::sync::OnceLock<Estimate>,
+}
+
+impl<'a> StepEstimate<'a> {
+    fn new(own: Estimate, transport: Option<&'a ClusteredMesh>, fine: &'a Mesh) -> Self {
+        Self {
+            own,
+            transport,
+            fine,
+            carried: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// The estimate per patch of the mesh solved.
+    fn get(&self) -> Result<&Estimate, Error> {
+        let Some(c) = self.transport else {
+            return Ok(&self.own);
+        };
+        if let Some(e) = self.carried.get() {
+            return Ok(e);
+        }
+        let e = carried_from(c, self.fine, &self.own)?;
+        Ok(self.carried.get_or_init(|| e))
+    }
+}
 
 /// What a run knows while it runs.
 struct Run<'a> {
@@ -536,9 +570,10 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         complete_steps = step.variance.is_some();
         // the last step's copy goes before this one's is made (one copy at a time)
         last_step = None;
-        let estimate = match step_estimate(step).and_then(|e| carried(transport.as_ref(), &mesh, e))
-        {
-            Ok(e) => e,
+        // the step on the method's elements; per patch only where read (a step of a
+        // transport's elements carried to a fine mesh's patches is 48 bytes a patch)
+        let estimate = match step_estimate(step) {
+            Ok(e) => StepEstimate::new(e, transport.as_ref(), &mesh),
             Err(e) => {
                 failure = Some(e);
                 return ControlFlow::Break(());
@@ -555,7 +590,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         };
         let flow = observer(&progress);
         let target = match (budget.target_error, step.variance.is_some()) {
-            (Some(target), true) => match run.answer(Cow::Borrowed(&estimate)) {
+            (Some(target), true) => match estimate.get().and_then(|e| run.answer(Cow::Borrowed(e)))
+            {
                 Ok(answer) => error_p95(&mesh, &answer, groups.as_ref()) <= target,
                 Err(e) => {
                     failure = Some(e);
@@ -565,7 +601,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
             _ => false,
         };
         last_step = Some(Solution {
-            estimate,
+            estimate: estimate.own,
             steps: step.index,
             escaped_rays: 0,
             unshot_fraction: f64::NAN,
@@ -607,18 +643,19 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
     }
     // A cancelled step: the answer is the last complete one.
     let cancelled = matches!(result, Err(MethodError::Cancelled));
-    let mut solution = match result {
+    let solution = match result {
         Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
         Ok(solution) => {
-            // the last step's copy, kept for a cancelled step, goes before the solution is
-            // carried to the patches (each 48 bytes a patch or more)
+            // the last step's copy, kept for a cancelled step, goes first
             last_step = None;
-            match &transport {
-                Some(c) => carried_solution(c, &mesh, solution)?,
-                None => solution,
-            }
+            solution
         }
         Err(e) => return Err(e.into()),
+    };
+    // on the method's elements, carried to the patches
+    let mut solution = match &transport {
+        Some(c) => carried_solution(c, &mesh, solution)?,
+        None => solution,
     };
     drop(last_step);
     let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
@@ -782,24 +819,23 @@ fn transport_groups(
 }
 
 /// `estimate`, per element of `transport`'s coarser mesh, carried back to the patches of
-/// `fine` ([`ClusteredMesh::refine`]); as it is without clusters.
-fn carried(
-    transport: Option<&ClusteredMesh>,
+/// `fine` ([`ClusteredMesh::refine`]).
+fn carried_from(
+    transport: &ClusteredMesh,
     fine: &Mesh,
-    estimate: Estimate,
+    estimate: &Estimate,
 ) -> Result<Estimate, Error> {
-    let Some(c) = transport else {
-        return Ok(estimate);
-    };
     Ok(Estimate::new(
-        c.refine(fine, estimate.radiosity(), true),
-        estimate.variance().map(|v| c.refine_variance(fine, v)),
+        transport.refine(fine, estimate.radiosity(), true),
+        estimate
+            .variance()
+            .map(|v| transport.refine_variance(fine, v)),
         estimate.rays(),
     )?)
 }
 
 /// `solution`, solved on the elements of `transport`, carried back to the patches of `fine`:
-/// the estimate as [`carried`], the direct irradiances shared by each element's members, the
+/// the estimate as [`carried_from`], the direct irradiances shared by each element's members, the
 /// faces' correlation factors by face (1 for a cluster's members, each a face of one patch).
 fn carried_solution(
     transport: &ClusteredMesh,
@@ -809,7 +845,7 @@ fn carried_solution(
     let coarse = &transport.mesh;
     // The coarse factors are numbered by face, as many as the fine mesh's: each table is
     // dropped once read, before the next is made (at 10M faces, 240 MB each).
-    let face_correlation = solution.face_correlation.take().map(|k| {
+    let face_correlation = solution.face_correlation.take().map(|mut k| {
         let (fine_offset, coarse_offset) = (fine.back_face_offset(), coarse.back_face_offset());
         let key = |p: &mcrad_meshing::Patch, offset: u32| {
             (p.face + if p.back { offset } else { 0 }) as usize
@@ -820,6 +856,22 @@ fn carried_solution(
             .map(|p| key(p, fine_offset) + 1)
             .max()
             .unwrap_or(0);
+        if fine_offset == coarse_offset {
+            // The same numbering (an element that is no cluster is a fine patch, of the same
+            // face and side): the table is made in place, its rows read by no such element
+            // set to 1 (at 10M faces, 240 MB less at the run's end).
+            let mut read = vec![false; faces];
+            for (p, &e) in fine.patches().iter().zip(&transport.element) {
+                if !coarse.patches()[e as usize].is_cluster() {
+                    read[key(p, fine_offset)] = true;
+                }
+            }
+            k.resize(faces, DVec3::ONE);
+            for (v, _) in k.iter_mut().zip(&read).filter(|(_, read)| !**read) {
+                *v = DVec3::ONE;
+            }
+            return k;
+        }
         let mut out = vec![DVec3::ONE; faces];
         for (p, &e) in fine.patches().iter().zip(&transport.element) {
             let q = &coarse.patches()[e as usize];
@@ -829,11 +881,8 @@ fn carried_solution(
         }
         out
     });
-    let estimate = carried(
-        Some(transport),
-        fine,
-        std::mem::take(&mut solution.estimate),
-    )?;
+    let estimate = carried_from(transport, fine, &solution.estimate)?;
+    solution.estimate = Estimate::default();
     let direct = solution.direct.take().map(|d| transport.shared(&d));
     let sky_direct = solution.sky_direct.take().map(|d| transport.shared(&d));
     Ok(Solution {

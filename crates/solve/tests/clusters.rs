@@ -465,3 +465,31 @@ fn shooting_pooled_after_the_transport_keeps_the_light_of_tiles_it_did_not_reach
         }
     }
 }
+
+#[test]
+fn an_observer_sees_each_step_per_patch_and_a_stop_keeps_the_answer_it_saw() {
+    // The method runs on the coarser mesh of clusters; the observer reads a step per patch
+    // of the mesh solved (carried from the elements when read), and a run stopped there
+    // answers what the observer was shown.
+    let scene = scene(|i, j| 2 + ((i + j) % 2) as u32, false);
+    let mut problem = Problem::new(&scene);
+    problem.settings.method = mcrad_mc_radiosity::Method::Prr;
+    problem.budget.rays = Some(400_000);
+    problem.threads = Some(2);
+    let (mut steps, mut seen) = (0, None);
+    let answer = solve(&problem, &mut |p| {
+        steps += 1;
+        assert_eq!(p.radiosity().unwrap().len(), p.mesh().patches().len());
+        if steps < 3 {
+            return ControlFlow::Continue(());
+        }
+        seen = Some(p.answer().unwrap());
+        ControlFlow::Break(())
+    })
+    .unwrap();
+    let transport = answer.stats.clusters.and_then(|c| c.transport_elements);
+    assert!(transport.is_some_and(|t| t * 2 < answer.mesh.patches().len()));
+    let seen = seen.expect("a third step");
+    assert_eq!(answer.estimate.radiosity(), seen.radiosity());
+    assert_eq!(answer.estimate.variance(), seen.variance());
+}

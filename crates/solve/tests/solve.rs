@@ -119,7 +119,7 @@ fn an_observer_stops_the_run_and_a_cancel_before_the_first_step_has_no_answer() 
     let answer = solve(&problem, &mut |p| {
         steps += 1;
         assert_eq!(p.step, steps);
-        assert_eq!(p.mesh().patches().len(), p.radiosity().len());
+        assert_eq!(p.mesh().patches().len(), p.radiosity().unwrap().len());
         ControlFlow::Break(())
     })
     .unwrap();
