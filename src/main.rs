@@ -1,5 +1,6 @@
 //! `mcrad`: stochastic radiosity from the command line. See `mcrad --help` and README.md.
 
+mod allocator;
 mod cli;
 mod interrupt;
 mod merge;
@@ -12,6 +13,7 @@ use clap::{CommandFactory, FromArgMatches};
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    allocator::give_back_large_arrays();
     let matches = cli::Args::command().get_matches();
     let args = match cli::Args::from_arg_matches(&matches) {
         Ok(args) => args,

@@ -254,17 +254,21 @@ fn camera(
 pub fn drawn_direct(args: &Solve, answer: &mcrad_solve::Answer) -> Option<Vec<DVec3>> {
     let direct = answer.direct.as_ref().filter(|_| !args.no_direct_rays)?;
     match (&answer.sky_direct, args.sky_rays) {
-        (Some(sky), 0) => Some(direct.iter().zip(sky).map(|(&d, &s)| d - s).collect()),
-        _ => Some(direct.clone()),
+        (Some(sky), 0) => Some(direct.iter().zip(sky.iter()).map(|(d, s)| d - s).collect()),
+        _ => Some(direct.iter().collect()),
     }
 }
 
 /// [`drawn_direct`] taken out of `answer`, whose direct irradiances go (no copy of them).
 pub fn take_drawn_direct(args: &Solve, answer: &mut mcrad_solve::Answer) -> Option<Vec<DVec3>> {
     let sky = answer.sky_direct.take();
-    let mut direct = answer.direct.take().filter(|_| !args.no_direct_rays)?;
+    let mut direct = answer
+        .direct
+        .take()
+        .filter(|_| !args.no_direct_rays)?
+        .into_vec();
     if let (Some(sky), 0) = (sky, args.sky_rays) {
-        for (d, s) in direct.iter_mut().zip(sky) {
+        for (d, s) in direct.iter_mut().zip(sky.iter()) {
             *d -= s;
         }
     }

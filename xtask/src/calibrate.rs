@@ -919,7 +919,7 @@ fn run_once(method: Method, target: Target, config: &ScheduleConfig, limit: f64)
                 }
             };
             let direct = match target {
-                Target::Lit(..) => a.direct.clone(),
+                Target::Lit(..) => a.direct.clone().map(mcrad_solve::PerPatch::into_vec),
                 _ => None,
             };
             (radiosity, variance, a.stats.rays, stop, direct)

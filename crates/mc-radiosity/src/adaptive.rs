@@ -81,7 +81,7 @@ pub struct AdaptiveConfig {
     /// when its rays are too few to reach most leaves ([`refine`]), on the mesh with each
     /// cluster of small faces within `bounds`
     /// ([`mcrad_meshing::Clusters::build`]) one element ([`Mesh::clustered`]), its answer
-    /// carried back to the faces ([`mcrad_meshing::ClusteredMesh::refine`]); the pilot then
+    /// carried back to the faces ([`mcrad_meshing::Carry::refine`]); the pilot then
     /// places the marks only and is not pooled ([`Refined::pooled_valid`]: its members share one
     /// error). `None`: the pilot runs on every element.
     pub pilot_clusters: Option<mcrad_meshing::ClusterBounds>,
@@ -325,8 +325,10 @@ pub fn refine(mesh: &mut AdaptiveMesh, config: &AdaptiveConfig) -> Result<Refine
         // carried back to the leaves; the clusters' mesh goes
         let fine = mesh.mesh();
         estimate = Estimate::new(
-            c.refine(fine, estimate.radiosity(), true),
-            estimate.variance().map(|v| c.refine_variance(fine, v)),
+            c.carry().refine(fine, estimate.radiosity(), true),
+            estimate
+                .variance()
+                .map(|v| c.carry().refine_variance(fine, v)),
             estimate.rays(),
         )
         .map_err(Error::from)?;

@@ -195,14 +195,21 @@ pub(crate) fn with_independent(
     added: impl Fn(usize) -> DVec3,
 ) {
     let back = mesh.back_face_offset();
-    let mut sums = vec![(DVec3::ZERO, DVec3::ZERO); factors.len()];
-    for (i, p) in mesh.patches().iter().enumerate() {
-        let a2 = p.area * p.area;
-        let s = &mut sums[face_key(mesh, i, back)];
-        s.0 += a2 * before(i);
-        s.1 += a2 * added(i);
-    }
-    for (k, (v, d)) in factors.iter_mut().zip(sums) {
+    // the patches by face, each face's in patch order (a table of sums per face would be as
+    // long as `factors`, whose faces a coarser mesh's patches may be far fewer than)
+    let patches = mesh.patches();
+    let mut order: Vec<(usize, usize)> = (0..patches.len())
+        .map(|i| (face_key(mesh, i, back), i))
+        .collect();
+    order.sort_unstable();
+    for face in order.chunk_by(|a, b| a.0 == b.0) {
+        let (mut v, mut d) = (DVec3::ZERO, DVec3::ZERO);
+        for &(_, i) in face {
+            let a2 = patches[i].area * patches[i].area;
+            v += a2 * before(i);
+            d += a2 * added(i);
+        }
+        let k = &mut factors[face[0].0];
         for c in 0..3 {
             let total = v[c] + d[c];
             if total > 0.0 {

@@ -1079,6 +1079,17 @@ where
     items.map(|m| face_gain[m.face as usize]).collect()
 }
 
+/// Face numbers (one per patch) renumbered `0..F` in their order, `F` the faces present, so
+/// that tables per face are as long as the faces present: what [`Waves`] groups by is the
+/// same, and its sums over faces run in the same order.
+pub(crate) fn dense_faces(face: impl Iterator<Item = u32> + Clone) -> Vec<u32> {
+    let mut present: Vec<u32> = face.clone().collect();
+    present.sort_unstable();
+    present.dedup();
+    face.map(|f| present.partition_point(|&g| g < f) as u32)
+        .collect()
+}
+
 /// `v * gain` per patch: the variances scaled by their gains.
 pub(crate) fn scale(variance: &mut [DVec3], gains: &[f64]) {
     for (v, g) in variance.iter_mut().zip(gains) {
@@ -1089,6 +1100,13 @@ pub(crate) fn scale(variance: &mut [DVec3], gains: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn faces_renumbered_densely_keep_their_order_and_groups() {
+        let face = [7u32, 3, 900, 7, 3];
+        assert_eq!(dense_faces(face.iter().copied()), vec![1, 0, 2, 1, 0]);
+        assert!(dense_faces(std::iter::empty()).is_empty());
+    }
 
     /// The bytes `v` holds on the heap.
     fn b<T>(v: &Vec<T>) -> usize {

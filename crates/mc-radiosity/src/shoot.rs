@@ -330,7 +330,10 @@ pub fn shoot<C: RayCaster>(
     // hold, for the patches a deposit reaches only, the sum of the squares of the deposits
     // and the part of it the error samples do not hold (deposits of rays alone in their
     // replicate, `replicate_scale`), made dense once the waves end (`Waves::deposits`).
-    let mut waves = Waves::new(patches.iter().map(|p| p.face).collect());
+    // (their tables per face take the faces numbered densely: a coarser mesh's few elements
+    // carry face numbers up to the finer mesh's face count)
+    let face = replicates::dense_faces(patches.iter().map(|p| p.face));
+    let mut waves = Waves::new(face.clone());
     // The reflected power per patch, dense: every wave reads it in patch order.
     let mut reflected = vec![DVec3::ZERO; patches.len()];
     // The radiosity the observer sees, made after every wave (held, not made anew: a fresh
@@ -520,8 +523,7 @@ pub fn shoot<C: RayCaster>(
     // measure, wave by wave (crate::replicates). Measured before the dense sums are made
     // (its per-face sums, 36 bytes a face, go first, as do the face scale's, 28).
     let face_scale = waves.face_scale();
-    let gains =
-        (ctx.sampling() == Sampler::Qmc).then(|| waves.gains(patches.iter().map(|p| p.face)));
+    let gains = (ctx.sampling() == Sampler::Qmc).then(|| waves.gains(face.iter().copied()));
     let (mut squares, mut unsampled) = waves.deposits();
     for (j, kept) in lone.unpaired(|j| patches[j as usize].reflectance.as_dvec3()) {
         unsampled[j as usize] += kept * kept;

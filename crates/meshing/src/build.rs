@@ -592,6 +592,11 @@ impl Mesh {
         &self.patches
     }
 
+    /// Its patches, the rest of it dropped.
+    pub fn into_patches(self) -> Vec<Patch> {
+        self.patches
+    }
+
     /// The length of a table indexed by input face ([`Patch::face`]): one more than the
     /// largest face number of a patch (0 without patches). Faces that no patch comes from
     /// get a row too.

@@ -6,7 +6,7 @@
 //! `rho_c = sum rho_f A_f / A_c` (so its reflected power `rho_c H_c A_c` is exactly its
 //! members' `sum rho_f H_c A_f`), its emission zero (members emit nothing). Rays leave and
 //! arrive on its members' own triangles, each with its own normal
-//! ([`Mesh::triangle_normal`]). Back on the finer mesh ([`ClusteredMesh::refine`]), member `f`
+//! ([`Mesh::triangle_normal`]). Back on the finer mesh ([`Carry::refine`]), member `f`
 //! gets `B_f = E_f + rho_f H_c` with `H_c = (B_c - E_c) / rho_c`, its variance scaled by
 //! `(rho_f / rho_c)²`; a patch outside every cluster gets its element's values as they are.
 
@@ -176,14 +176,72 @@ fn merged(
 }
 
 impl ClusteredMesh {
+    /// What carries per-element values back to the finer mesh.
+    pub fn carry(&self) -> Carry<'_> {
+        Carry {
+            elements: self.mesh.patches(),
+            element: &self.element,
+        }
+    }
+
+    /// The cluster elements' members (patches of the finer mesh, in its order), cluster by
+    /// cluster in element order.
+    pub fn clusters(&self) -> crate::Clusters {
+        let elements = self.mesh.patches();
+        crate::Clusters::from_groups(&self.element, |i| {
+            elements[self.element[i] as usize].is_cluster()
+        })
+    }
+
+    /// What carries values back to the finer mesh, without the elements' geometry (their
+    /// corners and triangles are as many as the finer mesh's).
+    pub fn into_carrier(self) -> Carrier {
+        Carrier {
+            elements: self.mesh.into_patches(),
+            element: self.element,
+        }
+    }
+}
+
+/// The elements of a [`ClusteredMesh`] without their geometry, and each finer patch's element:
+/// what carries per-element values back to the finer mesh ([`Carrier::carry`]).
+#[derive(Debug, Clone, Default)]
+pub struct Carrier {
+    /// The coarser mesh's patches, in its order.
+    pub elements: Vec<Patch>,
+    /// For each patch of the finer mesh, the index of its element in `elements`.
+    pub element: Vec<u32>,
+}
+
+impl Carrier {
+    /// What carries per-element values back to the finer mesh.
+    pub fn carry(&self) -> Carry<'_> {
+        Carry {
+            elements: &self.elements,
+            element: &self.element,
+        }
+    }
+}
+
+/// Per-element values of a [`ClusteredMesh`] carried back to the patches of its finer mesh:
+/// the elements (the coarser mesh's patches) and each finer patch's element.
+#[derive(Debug, Clone, Copy)]
+pub struct Carry<'a> {
+    /// The coarser mesh's patches, in its order.
+    pub elements: &'a [Patch],
+    /// For each patch of the finer mesh, the index of its element in `elements`.
+    pub element: &'a [u32],
+}
+
+impl Carry<'_> {
     /// Per-element values `coarse` (W/m² per channel: radiosity `B`, or a part of it that
-    /// reflects, such as its direct light) carried back to the finer mesh `fine` (the mesh this
-    /// was made from): an element's reflected part `B_c - E_c` becomes each member's incident
-    /// irradiance `H_c = (B_c - E_c) / rho_c`, and the member gets `E_f + rho_f H_c` (`E_f`
-    /// only where `with_emission`), per channel, or `E_f` where `rho_c = 0`. A patch outside
-    /// every cluster gets its element's value as it is.
+    /// reflects, such as its direct light) carried back to the finer mesh `fine` (the mesh the
+    /// elements were made from): an element's reflected part `B_c - E_c` becomes each member's
+    /// incident irradiance `H_c = (B_c - E_c) / rho_c`, and the member gets `E_f + rho_f H_c`
+    /// (`E_f` only where `with_emission`), per channel, or `E_f` where `rho_c = 0`. A patch
+    /// outside every cluster gets its element's value as it is.
     pub fn refine(&self, fine: &Mesh, coarse: &[DVec3], with_emission: bool) -> Vec<DVec3> {
-        self.carry(fine, coarse, |f, c, v| {
+        self.map(fine, coarse, |f, c, v| {
             let (rho_f, rho_c) = (f.reflectance.as_dvec3(), c.reflectance.as_dvec3());
             let (e_f, e_c) = if with_emission {
                 (f.emission.as_dvec3(), c.emission.as_dvec3())
@@ -198,23 +256,14 @@ impl ClusteredMesh {
         })
     }
 
-    /// Per-element variances (of values [`ClusteredMesh::refine`] carries back) carried back to
-    /// the finer mesh `fine`: each member's is its element's times `(rho_f / rho_c)²` per
-    /// channel (0 where `rho_c = 0`); a patch outside every cluster keeps its element's.
+    /// Per-element variances (of values [`Carry::refine`] carries back) carried back to the
+    /// finer mesh `fine`: each member's is its element's times `(rho_f / rho_c)²` per channel
+    /// (0 where `rho_c = 0`); a patch outside every cluster keeps its element's.
     pub fn refine_variance(&self, fine: &Mesh, coarse: &[DVec3]) -> Vec<DVec3> {
-        self.carry(fine, coarse, |f, c, v| {
+        self.map(fine, coarse, |f, c, v| {
             let (rho_f, rho_c) = (f.reflectance.as_dvec3(), c.reflectance.as_dvec3());
             let k = DVec3::select(rho_c.cmpgt(DVec3::ZERO), rho_f / rho_c, DVec3::ZERO);
             v * k * k
-        })
-    }
-
-    /// The cluster elements' members (patches of the finer mesh, in its order), cluster by
-    /// cluster in element order.
-    pub fn clusters(&self) -> crate::Clusters {
-        let elements = self.mesh.patches();
-        crate::Clusters::from_groups(&self.element, |i| {
-            elements[self.element[i] as usize].is_cluster()
         })
     }
 
@@ -226,18 +275,17 @@ impl ClusteredMesh {
 
     /// `coarse` per patch of `fine` through `member(fine patch, its element, element's value)`
     /// for members of clusters, as it is for the rest.
-    fn carry(
+    fn map(
         &self,
         fine: &Mesh,
         coarse: &[DVec3],
         member: impl Fn(&Patch, &Patch, DVec3) -> DVec3,
     ) -> Vec<DVec3> {
-        let elements = self.mesh.patches();
         fine.patches()
             .iter()
-            .zip(&self.element)
+            .zip(self.element)
             .map(|(f, &e)| {
-                let (c, v) = (&elements[e as usize], coarse[e as usize]);
+                let (c, v) = (&self.elements[e as usize], coarse[e as usize]);
                 if c.is_cluster() { member(f, c, v) } else { v }
             })
             .collect()
@@ -393,7 +441,10 @@ mod tests {
             .map(|(e, p)| p.emission.as_dvec3() + p.reflectance.as_dvec3() * (2.0 + e as f64))
             .collect();
         let var: Vec<DVec3> = (0..b.len()).map(|e| DVec3::splat(e as f64)).collect();
-        let (back, back_var) = (c.refine(&mesh, &b, true), c.refine_variance(&mesh, &var));
+        let (back, back_var) = (
+            c.carry().refine(&mesh, &b, true),
+            c.carry().refine_variance(&mesh, &var),
+        );
         for (i, p) in mesh.patches().iter().enumerate() {
             let e = c.element[i] as usize;
             let want = p.emission.as_dvec3() + p.reflectance.as_dvec3() * (2.0 + e as f64);

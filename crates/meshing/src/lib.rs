@@ -35,7 +35,7 @@ pub use build::{
     Subdivision,
 };
 pub use cluster::{ClusterBounds, Clusters, DEFAULT_CLUSTER_CONE_DEGREES};
-pub use coarse::{ClusteredMesh, MAX_CLUSTER_MEMBERS, UNGROUPED};
+pub use coarse::{Carrier, Carry, ClusteredMesh, MAX_CLUSTER_MEMBERS, UNGROUPED};
 pub use corner_values::CornerValues;
 pub use seams::EdgePoints;
 pub use smooth::{CornerGroups, DEFAULT_CREASE_ANGLE_DEGREES};

@@ -30,8 +30,11 @@ use std::path::{Path, PathBuf};
 pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, SceneError> {
     let bytes = files::read_file(path, options)?;
     let text = String::from_utf8_lossy(&bytes);
-    let obj = obj_text::scan_obj_parallel(&text)
+    let mut obj = obj_text::scan_obj_parallel(&text)
         .map_err(|(line, e)| e.in_file(path, Location::Line(line)))?;
+    // the parse owns what it read: the file's bytes go (as large as the file)
+    drop(text);
+    drop(bytes);
 
     // The faces grouped as `tobj` groups them (one group per object, group and material run),
     // with the MTL files read by `tobj` as their `mtllib` statements come.
@@ -83,6 +86,10 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
 
     let (positions, faces, defaulted) = collect_faces(&obj, &groups, materials.len())
         .map_err(|e| e.in_file(path, Location::File))?;
+    // the faces are made: of the parse only the faces' lines are read again (in errors)
+    drop(groups);
+    let face_lines = std::mem::take(&mut obj.face_lines);
+    drop(obj);
     if defaulted > 0 {
         materials.push(Material::builtin_default());
         warnings.push(Warning::DefaultMaterial { faces: defaulted });
@@ -96,7 +103,15 @@ pub(crate) fn load_obj(path: &Path, options: &LoadOptions) -> Result<Loaded, Sce
         options.lights.clone(),
         options.sky.clone(),
     )
-    .map_err(|e| locate(e, path, &obj, &libs.material_sources, &tobj_materials))?;
+    .map_err(|e| {
+        locate(
+            e,
+            path,
+            &face_lines,
+            &libs.material_sources,
+            &tobj_materials,
+        )
+    })?;
     let scene = scene.with_two_sided(two_sided);
     warnings.extend(more);
     Ok(Loaded {
@@ -298,11 +313,11 @@ fn collect_faces(
 fn locate(
     e: SceneError,
     obj_path: &Path,
-    obj: &ObjText,
+    face_lines: &[usize],
     material_sources: &[(PathBuf, usize)],
     tobj_materials: &[tobj::Material],
 ) -> SceneError {
-    let face_line = |face: u32| obj.face_lines.get(face as usize).copied();
+    let face_line = |face: u32| face_lines.get(face as usize).copied();
     match &e {
         SceneError::BadReflectance { material, .. } | SceneError::BadEmission { material, .. } => {
             let at = tobj_materials

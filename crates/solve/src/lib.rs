@@ -47,6 +47,7 @@ mod closure;
 mod clusters;
 mod error;
 mod memory;
+mod per_patch;
 mod pipeline;
 mod problem;
 mod state;
@@ -59,6 +60,7 @@ pub use memory::{
     BYTES_FIXED, BYTES_PER_ELEMENT, BYTES_PER_GATHERED, BYTES_PER_REACHED, MemoryEstimate,
     gather_rays_per_element, peak_bytes,
 };
+pub use per_patch::PerPatch;
 pub use pipeline::{Answer, Observer, Progress, solve};
 pub use problem::{
     AfterSolve, Budget, Clustering, Input, MAX_GROWN_PATCHES, MeshPlan, PATCH_RAYS, Problem,

@@ -1,6 +1,7 @@
 //! [`solve`]: mesh, refine, run, under one budget.
 
 use crate::clusters::{ALONE, Groups, PoolCounts, pool_clusters};
+use crate::per_patch::PerPatch;
 use crate::problem::Input;
 use crate::state::Identity;
 use crate::stats::ClusterStats;
@@ -16,7 +17,7 @@ use mcrad_mc_radiosity::{
     StopReason, refine, run_cancellable, split_shadowed,
 };
 use mcrad_meshing::{
-    AdaptiveBounds, AdaptiveMesh, AdaptiveStart, ClusterBounds, ClusteredMesh, Clusters,
+    AdaptiveBounds, AdaptiveMesh, AdaptiveStart, Carry, ClusterBounds, ClusteredMesh, Clusters,
     CornerGroups, DEFAULT_CLUSTER_CONE_DEGREES, DEFAULT_COARSE_EDGE_FRACTION, History, Mesh,
     Subdivision,
 };
@@ -69,10 +70,11 @@ pub struct Answer {
     /// own shadow rays takes the rest, `B_i - rho_i H_d,i` (clamped at 0), from the solution.
     /// For a continued or pooled answer the pieces' own estimates of `H_d` differ by their
     /// noise. `None` without lights or sky, or when the run was cancelled within a step.
-    pub direct: Option<Vec<DVec3>>,
+    /// With clusters as elements of transport, the members of an element share its value.
+    pub direct: Option<PerPatch>,
     /// The sky's part of `direct` (W/m² per channel, mesh order; 0 without a sky); `None` when
     /// `direct` is.
-    pub sky_direct: Option<Vec<DVec3>>,
+    pub sky_direct: Option<PerPatch>,
     /// Per face as outputs number them (its input face, plus [`Mesh::back_face_offset`] for a
     /// back side), per channel: the factor `k_f` by which the variance of the face's
     /// area-weighted mean exceeds `sum_i (A_i / A_f)² V_i` over its patches (taken as
@@ -137,7 +139,7 @@ pub type Observer<'o> = dyn FnMut(&Progress) -> ControlFlow<()> + Send + 'o;
 
 /// A step's estimate, on the elements the method ran on, and per patch of the mesh solved
 /// when read: carried from the transport's elements on first read
-/// ([`ClusteredMesh::refine`]), so that a step nobody reads costs no array per patch.
+/// ([`Carry::refine`]), so that a step nobody reads costs no array per patch.
 struct StepEstimate<'a> {
     /// On the method's elements (the transport's, or the mesh's patches).
     own: Estimate,
@@ -164,7 +166,7 @@ impl<'a> StepEstimate<'a> {
         if let Some(e) = self.carried.get() {
             return Ok(e);
         }
-        let e = carried_from(c, self.fine, &self.own)?;
+        let e = carried_from(c.carry(), self.fine, &self.own)?;
         Ok(self.carried.get_or_init(|| e))
     }
 }
@@ -653,13 +655,15 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         Err(e) => return Err(e.into()),
     };
     // on the method's elements, carried to the patches
-    let mut solution = match &transport {
-        Some(c) => carried_solution(c, &mesh, solution)?,
-        None => solution,
+    let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
+    let (mut solution, of_patch) = match transport {
+        Some(c) => {
+            let (solution, of_patch) = carried_solution(c, &mesh, solution)?;
+            (solution, Some(of_patch))
+        }
+        None => (solution, None),
     };
     drop(last_step);
-    let transport_elements = transport.as_ref().map(|c| c.mesh.patches().len());
-    drop(transport);
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     // the method's share of the budget below its direct light and a ray an element: the
@@ -760,6 +764,13 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }),
     };
     let no_direct = config.lights.is_empty() && config.sky.as_ref().is_none_or(|s| s.is_dark());
+    let per_patch = |values: Option<Vec<DVec3>>| {
+        let values = values.filter(|_| !no_direct)?;
+        match &of_patch {
+            Some(map) => PerPatch::shared(values, Arc::clone(map)),
+            None => Some(PerPatch::new(values)),
+        }
+    };
     Ok(Answer {
         mesh,
         bvh,
@@ -771,8 +782,8 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         cancelled,
         complete_steps,
         warnings,
-        direct: if no_direct { None } else { direct },
-        sky_direct: if no_direct { None } else { sky_direct },
+        direct: per_patch(direct),
+        sky_direct: per_patch(sky_direct),
         face_correlation: if cancelled { None } else { face_correlation },
     })
 }
@@ -818,13 +829,9 @@ fn transport_groups(
     Ok(Some((coarse, members, counts)))
 }
 
-/// `estimate`, per element of `transport`'s coarser mesh, carried back to the patches of
-/// `fine` ([`ClusteredMesh::refine`]).
-fn carried_from(
-    transport: &ClusteredMesh,
-    fine: &Mesh,
-    estimate: &Estimate,
-) -> Result<Estimate, Error> {
+/// `estimate`, per element of a coarser mesh, carried back to the patches of `fine`
+/// ([`Carry::refine`]).
+fn carried_from(transport: Carry<'_>, fine: &Mesh, estimate: &Estimate) -> Result<Estimate, Error> {
     Ok(Estimate::new(
         transport.refine(fine, estimate.radiosity(), true),
         estimate
@@ -835,18 +842,23 @@ fn carried_from(
 }
 
 /// `solution`, solved on the elements of `transport`, carried back to the patches of `fine`:
-/// the estimate as [`carried_from`], the direct irradiances shared by each element's members, the
-/// faces' correlation factors by face (1 for a cluster's members, each a face of one patch).
+/// the estimate as [`carried_from`], the faces' correlation factors by face (1 for a
+/// cluster's members, each a face of one patch); the direct irradiances stay per element,
+/// shared by its members through the map returned (each fine patch's element).
 fn carried_solution(
-    transport: &ClusteredMesh,
+    transport: ClusteredMesh,
     fine: &Mesh,
     mut solution: Solution,
-) -> Result<Solution, Error> {
-    let coarse = &transport.mesh;
+) -> Result<(Solution, Arc<Vec<u32>>), Error> {
+    let coarse_offset = transport.mesh.back_face_offset();
+    // the coarser mesh's geometry goes first: its corners and triangles are as many as the
+    // fine mesh's (29 MB at the 1M atrium)
+    let carrier = transport.into_carrier();
+    let transport = carrier.carry();
     // The coarse factors are numbered by face, as many as the fine mesh's: each table is
     // dropped once read, before the next is made (at 10M faces, 240 MB each).
     let face_correlation = solution.face_correlation.take().map(|mut k| {
-        let (fine_offset, coarse_offset) = (fine.back_face_offset(), coarse.back_face_offset());
+        let fine_offset = fine.back_face_offset();
         let key = |p: &mcrad_meshing::Patch, offset: u32| {
             (p.face + if p.back { offset } else { 0 }) as usize
         };
@@ -861,8 +873,8 @@ fn carried_solution(
             // face and side): the table is made in place, its rows read by no such element
             // set to 1 (at 10M faces, 240 MB less at the run's end).
             let mut read = vec![false; faces];
-            for (p, &e) in fine.patches().iter().zip(&transport.element) {
-                if !coarse.patches()[e as usize].is_cluster() {
+            for (p, &e) in fine.patches().iter().zip(transport.element) {
+                if !transport.elements[e as usize].is_cluster() {
                     read[key(p, fine_offset)] = true;
                 }
             }
@@ -873,8 +885,8 @@ fn carried_solution(
             return k;
         }
         let mut out = vec![DVec3::ONE; faces];
-        for (p, &e) in fine.patches().iter().zip(&transport.element) {
-            let q = &coarse.patches()[e as usize];
+        for (p, &e) in fine.patches().iter().zip(transport.element) {
+            let q = &transport.elements[e as usize];
             if let (false, Some(v)) = (q.is_cluster(), k.get(key(q, coarse_offset))) {
                 out[key(p, fine_offset)] = *v;
             }
@@ -883,15 +895,16 @@ fn carried_solution(
     });
     let estimate = carried_from(transport, fine, &solution.estimate)?;
     solution.estimate = Estimate::default();
-    let direct = solution.direct.take().map(|d| transport.shared(&d));
-    let sky_direct = solution.sky_direct.take().map(|d| transport.shared(&d));
-    Ok(Solution {
-        estimate,
-        direct,
-        sky_direct,
-        face_correlation,
-        ..solution
-    })
+    // the direct irradiances stay per element, shared by its members
+    let of_patch = Arc::new(carrier.element);
+    Ok((
+        Solution {
+            estimate,
+            face_correlation,
+            ..solution
+        },
+        of_patch,
+    ))
 }
 
 /// The stream tag of the shadow rays that split the transport's groups
