@@ -614,7 +614,13 @@ pub fn image_seconds(
             // two rays a sample (so that what a gathering render sets up once cancels); none
             // when timing noise hides the difference
             let quarter = ((w / 4).max(16).min(w), (h / 4).max(16).min(h));
-            let g = match (seconds(quarter, 1), seconds(quarter, 2)) {
+            // After an untimed one, and two rays a sample first: the first render over a
+            // large scene faults in its mesh's and BVH's pages, and timed first at one ray a
+            // sample it made a ray look nearly free (at 10M triangles 64 rays a sample were
+            // chosen where fewer than 10 fit); any warming left now counts against the gather.
+            let _ = seconds(quarter, 1);
+            let two = seconds(quarter, 2);
+            let g = match (seconds(quarter, 1), two) {
                 (Some(one), Some(two)) if two > one => {
                     let per_ray = (two - one) * pixels(args.size) / pixels(quarter);
                     auto_gather(args.spp, AUTO_GATHER_TIME_SHARE * left.max(0.0) / per_ray)
