@@ -1,7 +1,11 @@
 //! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
 //! mcrad's 16-wide layout ([`crate::wide`]).
 
-use std::{cell::Cell, ops::Range, sync::Arc};
+use std::{
+    cell::{Cell, RefCell},
+    ops::Range,
+    sync::Arc,
+};
 
 use glam::{Vec3, Vec3A};
 use obvhs::{
@@ -441,26 +445,31 @@ impl Bvh {
     }
 
     /// Runs `task` with the fastest node test this processor runs, on a traversal stack of at
-    /// least `self.wide.stack` entries: an array on the call stack when one of up to 128
-    /// entries is enough (zeroing it is the cost, so the smallest that is; arrays index
-    /// without bounds checks, see [`traverse::Stack`]), otherwise a per-thread buffer, reused,
-    /// so that no query allocates.
+    /// least `self.wide.stack` entries: this thread's array of [`SMALL_STACK`] entries when
+    /// that is enough (arrays index without bounds checks, see [`traverse::Stack`]), otherwise
+    /// a per-thread buffer, reused, so that no query allocates.
+    ///
+    /// The array is not cleared between queries: a traversal reads only the entries it has
+    /// pushed. (Zeroing a fresh array on the call stack for every query, 1 KiB on the rooms,
+    /// was a `memset` call per query.) A query that runs inside another on the same thread
+    /// (an [`AnyHit`] test that casts rays) finds the array taken and zeroes one of its own.
     #[inline(always)]
     fn run<T: Task>(&self, task: T) -> T::Out {
-        match self.wide.stack {
-            0..=32 => self.run_on(task, &mut [(0.0, 0); 32]),
-            33..=64 => self.run_on(task, &mut [(0.0, 0); 64]),
-            65..=128 => self.run_on(task, &mut [(0.0, 0); 128]),
-            _ => STACK.with(|cell| {
-                let mut buffer = cell.take();
-                if buffer.len() < self.wide.stack {
-                    buffer.resize(self.wide.stack, (0.0, 0));
-                }
-                let result = self.run_on(task, &mut buffer[..]);
-                cell.set(buffer);
-                result
-            }),
+        if self.wide.stack <= SMALL_STACK {
+            return ARRAY.with(|cell| match cell.try_borrow_mut() {
+                Ok(mut stack) => self.run_on(task, &mut *stack),
+                Err(_) => self.run_on(task, &mut [(0.0, 0); SMALL_STACK]),
+            });
         }
+        STACK.with(|cell| {
+            let mut buffer = cell.take();
+            if buffer.len() < self.wide.stack {
+                buffer.resize(self.wide.stack, (0.0, 0));
+            }
+            let result = self.run_on(task, &mut buffer[..]);
+            cell.set(buffer);
+            result
+        })
     }
 
     /// [`Bvh::run`] on `stack`.
@@ -534,7 +543,7 @@ impl Task for Closest<'_> {
         let shift = 2.0 * window;
         let r = NodeRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let Wide { nodes, packets, .. } = &bvh.wide;
+        let (nodes, packets) = bvh.wide.slices();
         let mut leaves = Leaves {
             packets,
             q: &q,
@@ -592,7 +601,7 @@ impl Task for Blocked<'_> {
     #[inline(always)]
     fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
         let (q, r, shift) = self.segment.traversal();
-        let Wide { nodes, packets, .. } = &bvh.wide;
+        let (nodes, packets) = bvh.wide.slices();
         let mut leaves = Leaves {
             packets,
             q: &q,
@@ -606,7 +615,14 @@ impl Task for Blocked<'_> {
     }
 }
 
+/// Entries of the traversal stack array of each thread (see [`Bvh::run`]): the exact bound of
+/// the rooms of the Embree comparison is 91 (100k triangles) and 121 (1M).
+const SMALL_STACK: usize = 128;
+
 thread_local! {
+    /// The traversal stack of this thread's queries (see [`Bvh::run`]).
+    static ARRAY: RefCell<[traverse::Entry; SMALL_STACK]> =
+        const { RefCell::new([(0.0, 0); SMALL_STACK]) };
     /// The traversal stack of this thread's queries on deep hierarchies (see [`Bvh::run`]).
     static STACK: Cell<Vec<traverse::Entry>> = const { Cell::new(Vec::new()) };
 }
@@ -925,7 +941,7 @@ mod tests {
 
         fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
             let (q, r, shift) = self.segment.traversal();
-            let Wide { nodes, packets, .. } = &bvh.wide;
+            let (nodes, packets) = bvh.wide.slices();
             let mut blockers = Blockers(Leaves {
                 packets,
                 q: &q,
