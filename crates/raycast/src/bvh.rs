@@ -726,9 +726,6 @@ impl Bvh {
     }
 }
 
-/// Every lane of a packet (unused lanes never pass the test, see [`wide::Packet`]).
-const ALL_LANES: u32 = (1 << LANES) - 1;
-
 /// Most packets (of 4 triangles) a BVH may have for an occlusion query to remember which it
 /// has tested: on so small a scene the few nodes have many leaves, which share packets (see
 /// `wide::Part::pack`), and a segment that passes several of them would test a shared packet
@@ -790,11 +787,10 @@ impl Leaves<'_> {
     /// [`LeafTest::closest`] for one packet.
     #[inline(always)]
     fn closest_in(&self, packet: &wide::Packet, best: &mut traverse::Best) {
-        let Some(c) = crossings::<false>(packet, self.q, ALL_LANES) else {
+        let Some(c) = crossings::<false>(packet, self.q, self.ids) else {
             return;
         };
-        let keep = !excluded(packet, self.ids.0, self.ids.1);
-        let mut hot = c.hot & keep;
+        let mut hot = c.hot;
         while hot != 0 {
             let j = hot.trailing_zeros() as usize;
             hot &= hot - 1;
@@ -804,7 +800,7 @@ impl Leaves<'_> {
             }
             best.offer(t, packet.ids[j], c.front >> j & 1 != 0);
         }
-        let mut cold = c.cold & keep;
+        let mut cold = c.cold;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
@@ -822,12 +818,11 @@ impl Leaves<'_> {
     /// [`LeafTest::any`] for one packet.
     #[inline(always)]
     fn any_in(&self, packet: &wide::Packet) -> bool {
-        let Some(c) = crossings::<true>(packet, self.q, ALL_LANES) else {
+        let Some(c) = crossings::<true>(packet, self.q, self.ids) else {
             return false;
         };
-        let keep = !excluded(packet, self.ids.0, self.ids.1);
         let blocks = |j: usize| self.any_hit.is_none() || !self.passes(packet.ids[j], c.t[j]);
-        let mut hot = c.hot & keep;
+        let mut hot = c.hot;
         if hot != 0 && self.any_hit.is_none() {
             return true;
         }
@@ -838,7 +833,7 @@ impl Leaves<'_> {
                 return true;
             }
         }
-        let mut cold = c.cold & keep;
+        let mut cold = c.cold;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
@@ -860,16 +855,6 @@ impl Leaves<'_> {
         let point = self.q.origin.as_dvec3() + self.q.dir.as_dvec3() * f64::from(t);
         test.passes(id, frame.world(point), Vec3::from(self.q.dir))
     }
-}
-
-/// The lanes of `packet` whose id is `a` or `b`, as a bit mask.
-#[inline(always)]
-fn excluded(packet: &wide::Packet, a: u32, b: u32) -> u32 {
-    let mut mask = 0;
-    for (j, &id) in packet.ids.iter().enumerate() {
-        mask |= (((id == a) | (id == b)) as u32) << j;
-    }
-    mask
 }
 
 // `Bvh` is shared across threads by reference.
@@ -963,15 +948,14 @@ mod tests {
         fn closest(&mut self, run: Range<usize>, best: &mut traverse::Best) {
             let l = &self.0;
             for packet in &l.packets[run] {
-                let Some(c) = crossings::<true>(packet, l.q, ALL_LANES) else {
+                let Some(c) = crossings::<true>(packet, l.q, l.ids) else {
                     continue;
                 };
-                let keep = !excluded(packet, l.ids.0, l.ids.1);
                 for j in 0..LANES {
-                    let blocks = if (c.hot & keep) >> j & 1 != 0 {
+                    let blocks = if c.hot >> j & 1 != 0 {
                         true
                     } else {
-                        (c.cold & keep) >> j & 1 != 0 && refine(&packet.lane(j), l.q).is_some()
+                        c.cold >> j & 1 != 0 && refine(&packet.lane(j), l.q).is_some()
                     };
                     if blocks {
                         // (a cold crossing's `f32` distance may lie past the end: clamped
