@@ -611,7 +611,8 @@ impl Task for Blocked<'_> {
             few: self.once && packets.len() <= FEW_PACKETS,
             tested: 0,
         };
-        traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
+        let mid = shift + 0.5 * self.segment.len;
+        traverse::any(isa, nodes, packets, &r, mid, stack, &mut leaves)
     }
 }
 
