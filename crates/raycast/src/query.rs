@@ -154,12 +154,6 @@ pub(crate) fn crossings<const SEGMENT: bool>(
     if maybe | in_window == 0 {
         return None;
     }
-    // the lanes that count: not the excluded ids (so that a packet whose only crossing near
-    // an end is that end's own triangle, which is in most queries, returns here)
-    let lanes = !excluded(p, exclude.0, exclude.1) & ((1 << LANES) - 1);
-    if lanes & (maybe | in_window) == 0 {
-        return None;
-    }
     let mut near = (plane * plane)
         .cmplt(l.near_start2 * (nx * nx + ny * ny + nz * nz))
         .bitmask();
@@ -168,7 +162,7 @@ pub(crate) fn crossings<const SEGMENT: bool>(
     }
     let zero = Vec4::ZERO;
     let inside = (u.cmpge(zero) & v.cmpge(zero) & w.cmpge(zero)) & (t.cmpgt(zero) & t.cmplt(len));
-    let mut cold = lanes & ((!maybe & in_window) | (maybe & near));
+    let mut cold = (!maybe & in_window) | (maybe & near);
     if cold != 0 {
         // what the window rules reject whatever the exact numbers (the `f32` side is wrong
         // only for a ray almost parallel to the plane, the distance by rounding): well behind
@@ -181,11 +175,22 @@ pub(crate) fn crossings<const SEGMENT: bool>(
                 | (t.cmpgt(len - l.window_end_half * d2) & det.cmpgt(zero));
         }
         cold &= !rejected.bitmask();
-        if cold != 0 {
-            cold &= !far_outside(p, q);
+        // (only where the `f32` test finds the crossing outside the triangle by more than
+        // `SLACK`: near or inside it, as the crossings of a near plane within `SLACK` are,
+        // the bound rarely drops a lane, and the Cornell box's re-checks are such)
+        let outside = cold & !maybe;
+        if outside != 0 {
+            cold &= !(far_outside(p, q) & outside);
         }
     }
-    let hot = lanes & maybe & !near & inside.bitmask();
+    let mut hot = maybe & !near & inside.bitmask();
+    if hot | cold == 0 {
+        return None;
+    }
+    // the lanes that count: not the excluded ids
+    let keep = !excluded(p, exclude.0, exclude.1);
+    hot &= keep;
+    cold &= keep;
     (hot | cold != 0).then(|| Crossings {
         t: (plane / det).to_array(),
         front: det.cmpgt(zero).bitmask(),
