@@ -1383,6 +1383,66 @@ mod tests {
         ));
     }
 
+    /// An any-hit test that casts rays on another BVH (on the same thread) while a query on the
+    /// thread's stack array is running: the nested query finds the array taken and uses one of
+    /// its own, and both give the answers they give one after the other.
+    #[test]
+    fn nested_queries_take_a_stack_of_their_own() {
+        /// Lets the upper floor pass where a ray down from the crossing, on `floor`, meets an
+        /// even triangle; records whether the thread's array was taken meanwhile.
+        struct Down {
+            floor: Bvh,
+            taken: std::sync::atomic::AtomicUsize,
+        }
+        impl AnyHit for Down {
+            fn passes(&self, id: u32, point: Vec3, _dir: Vec3) -> bool {
+                if ARRAY.with(|cell| cell.try_borrow_mut().is_err()) {
+                    self.taken
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                id % 4 >= 2
+                    && self
+                        .floor
+                        .closest_hit(&Ray::new(point, -Vec3::Y))
+                        .is_some_and(|h| h.id % 2 == 0)
+            }
+        }
+        let middle = |mut bvh: Bvh| {
+            // a bound that takes the thread's array (the floors' own is below 32)
+            assert!(bvh.wide.stack <= TINY_STACK);
+            bvh.wide.stack = SMALL_STACK;
+            bvh
+        };
+        let (outer, rays) = floor_and_rays(12);
+        let (floor, _) = floor_and_rays(12);
+        let (reference, _) = floor_and_rays(12);
+        let down = Arc::new(Down {
+            floor: middle(floor),
+            taken: Default::default(),
+        });
+        let outer = middle(outer).with_any_hit(down.clone());
+        let (plain, _) = floor_and_rays(12);
+        let reference = reference.with_any_hit(Arc::new(Down {
+            floor: plain,
+            taken: Default::default(),
+        }));
+        let mut passed = 0;
+        for r in &rays {
+            let (a, b) = (outer.closest_hit(r), reference.closest_hit(r));
+            assert_eq!(a, b, "{r:?}");
+            // (a ray that passes the upper floor escapes)
+            passed += usize::from(a.is_none());
+            let p = SurfacePoint::new(r.origin, Vec3::Y, r.exclude);
+            let q = SurfacePoint::free(r.origin + r.dir * 3.0);
+            assert_eq!(outer.occluded(&p, &q), reference.occluded(&p, &q), "{r:?}");
+        }
+        let taken = down.taken.load(std::sync::atomic::Ordering::Relaxed);
+        assert!(
+            passed > 100 && taken > 1000,
+            "{passed} passed, {taken} nested"
+        );
+    }
+
     #[test]
     fn deep_hierarchies_take_the_thread_local_stack_with_the_same_answers() {
         let (bvh, rays) = floor_and_rays(12);

@@ -86,9 +86,10 @@ fn cut_out_cells_let_rays_and_segments_pass() {
 
 /// An any-hit test that casts rays itself (on another BVH, on the same thread): the card's
 /// cells pass where a ray straight down from the crossing, on a BVH of the floor alone, would
-/// find the floor's odd cells (the floor of `inner`, ids 5 and 6, cut like the checker). The
-/// nested query takes a traversal stack of its own (the thread's array is in use), and both
-/// give the answers of the checker.
+/// find the floor's odd cells (the floor of `inner`, ids 5 and 6, cut like the checker): the
+/// answers of the checker. (On deeper hierarchies the nested query finds the thread's stack
+/// array in use and takes one of its own: `nested_queries_take_a_stack_of_their_own` in
+/// `bvh.rs`.)
 struct Nested(Bvh);
 
 impl AnyHit for Nested {
