@@ -1,7 +1,11 @@
 //! The fast caster: obvhs's binary BVH over the canonical-frame triangles, collapsed into
 //! mcrad's 16-wide layout ([`crate::wide`]).
 
-use std::{cell::Cell, ops::Range, sync::Arc};
+use std::{
+    cell::{Cell, RefCell},
+    ops::Range,
+    sync::Arc,
+};
 
 use glam::{Vec3, Vec3A};
 use obvhs::{
@@ -441,26 +445,37 @@ impl Bvh {
     }
 
     /// Runs `task` with the fastest node test this processor runs, on a traversal stack of at
-    /// least `self.wide.stack` entries: an array on the call stack when one of up to 128
-    /// entries is enough (zeroing it is the cost, so the smallest that is; arrays index
+    /// least `self.wide.stack` entries: an array of [`TINY_STACK`] entries on the call stack,
+    /// or this thread's array of [`SMALL_STACK`] entries when that is enough (arrays index
     /// without bounds checks, see [`traverse::Stack`]), otherwise a per-thread buffer, reused,
     /// so that no query allocates.
+    ///
+    /// The thread's array is not cleared between queries: a traversal reads only the entries
+    /// it has pushed. (Zeroing a fresh array of 128 entries on the call stack for every query,
+    /// 1 KiB on the rooms, was a `memset` call per query; on small scenes zeroing 32 entries
+    /// costs less than the thread-local array's borrow, 2-3% of a Cornell box query.) A query
+    /// that runs inside another on the same thread (an [`AnyHit`] test that casts rays) finds
+    /// the array taken and zeroes one of its own.
     #[inline(always)]
     fn run<T: Task>(&self, task: T) -> T::Out {
-        match self.wide.stack {
-            0..=32 => self.run_on(task, &mut [(0.0, 0); 32]),
-            33..=64 => self.run_on(task, &mut [(0.0, 0); 64]),
-            65..=128 => self.run_on(task, &mut [(0.0, 0); 128]),
-            _ => STACK.with(|cell| {
-                let mut buffer = cell.take();
-                if buffer.len() < self.wide.stack {
-                    buffer.resize(self.wide.stack, (0.0, 0));
-                }
-                let result = self.run_on(task, &mut buffer[..]);
-                cell.set(buffer);
-                result
-            }),
+        if self.wide.stack <= TINY_STACK {
+            return self.run_on(task, &mut [(0.0, 0); TINY_STACK]);
         }
+        if self.wide.stack <= SMALL_STACK {
+            return ARRAY.with(|cell| match cell.try_borrow_mut() {
+                Ok(mut stack) => self.run_on(task, &mut *stack),
+                Err(_) => self.run_on(task, &mut [(0.0, 0); SMALL_STACK]),
+            });
+        }
+        STACK.with(|cell| {
+            let mut buffer = cell.take();
+            if buffer.len() < self.wide.stack {
+                buffer.resize(self.wide.stack, (0.0, 0));
+            }
+            let result = self.run_on(task, &mut buffer[..]);
+            cell.set(buffer);
+            result
+        })
     }
 
     /// [`Bvh::run`] on `stack`.
@@ -534,7 +549,7 @@ impl Task for Closest<'_> {
         let shift = 2.0 * window;
         let r = NodeRay::new(origin - dir * shift, dir, 0.0, f32::INFINITY);
         let q = Query::new(origin, dir, f32::INFINITY, window, 0.0);
-        let Wide { nodes, packets, .. } = &bvh.wide;
+        let (nodes, packets) = bvh.wide.slices();
         let mut leaves = Leaves {
             packets,
             q: &q,
@@ -592,7 +607,7 @@ impl Task for Blocked<'_> {
     #[inline(always)]
     fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
         let (q, r, shift) = self.segment.traversal();
-        let Wide { nodes, packets, .. } = &bvh.wide;
+        let (nodes, packets) = bvh.wide.slices();
         let mut leaves = Leaves {
             packets,
             q: &q,
@@ -602,11 +617,23 @@ impl Task for Blocked<'_> {
             few: self.once && packets.len() <= FEW_PACKETS,
             tested: 0,
         };
-        traverse::any(isa, nodes, packets, &r, stack, &mut leaves)
+        let mid = shift + 0.5 * self.segment.len;
+        traverse::any(isa, nodes, packets, &r, mid, stack, &mut leaves)
     }
 }
 
+/// Entries of the traversal stack array on the call stack (see [`Bvh::run`]): the exact bound
+/// of the Cornell box is 15.
+const TINY_STACK: usize = 32;
+
+/// Entries of the traversal stack array of each thread (see [`Bvh::run`]): the exact bound of
+/// the rooms of the Embree comparison is 91 (100k triangles) and 121 (1M).
+const SMALL_STACK: usize = 128;
+
 thread_local! {
+    /// The traversal stack of this thread's queries (see [`Bvh::run`]).
+    static ARRAY: RefCell<[traverse::Entry; SMALL_STACK]> =
+        const { RefCell::new([(0.0, 0); SMALL_STACK]) };
     /// The traversal stack of this thread's queries on deep hierarchies (see [`Bvh::run`]).
     static STACK: Cell<Vec<traverse::Entry>> = const { Cell::new(Vec::new()) };
 }
@@ -710,9 +737,6 @@ impl Bvh {
     }
 }
 
-/// Every lane of a packet (unused lanes never pass the test, see [`wide::Packet`]).
-const ALL_LANES: u32 = (1 << LANES) - 1;
-
 /// Most packets (of 4 triangles) a BVH may have for an occlusion query to remember which it
 /// has tested: on so small a scene the few nodes have many leaves, which share packets (see
 /// `wide::Part::pack`), and a segment that passes several of them would test a shared packet
@@ -774,11 +798,10 @@ impl Leaves<'_> {
     /// [`LeafTest::closest`] for one packet.
     #[inline(always)]
     fn closest_in(&self, packet: &wide::Packet, best: &mut traverse::Best) {
-        let Some(c) = crossings::<false>(packet, self.q, ALL_LANES) else {
+        let Some(c) = crossings::<false>(packet, self.q, self.ids) else {
             return;
         };
-        let keep = !excluded(packet, self.ids.0, self.ids.1);
-        let mut hot = c.hot & keep;
+        let mut hot = c.hot;
         while hot != 0 {
             let j = hot.trailing_zeros() as usize;
             hot &= hot - 1;
@@ -788,7 +811,7 @@ impl Leaves<'_> {
             }
             best.offer(t, packet.ids[j], c.front >> j & 1 != 0);
         }
-        let mut cold = c.cold & keep;
+        let mut cold = c.cold;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
@@ -806,12 +829,11 @@ impl Leaves<'_> {
     /// [`LeafTest::any`] for one packet.
     #[inline(always)]
     fn any_in(&self, packet: &wide::Packet) -> bool {
-        let Some(c) = crossings::<true>(packet, self.q, ALL_LANES) else {
+        let Some(c) = crossings::<true>(packet, self.q, self.ids) else {
             return false;
         };
-        let keep = !excluded(packet, self.ids.0, self.ids.1);
         let blocks = |j: usize| self.any_hit.is_none() || !self.passes(packet.ids[j], c.t[j]);
-        let mut hot = c.hot & keep;
+        let mut hot = c.hot;
         if hot != 0 && self.any_hit.is_none() {
             return true;
         }
@@ -822,7 +844,7 @@ impl Leaves<'_> {
                 return true;
             }
         }
-        let mut cold = c.cold & keep;
+        let mut cold = c.cold;
         while cold != 0 {
             let j = cold.trailing_zeros() as usize;
             cold &= cold - 1;
@@ -844,16 +866,6 @@ impl Leaves<'_> {
         let point = self.q.origin.as_dvec3() + self.q.dir.as_dvec3() * f64::from(t);
         test.passes(id, frame.world(point), Vec3::from(self.q.dir))
     }
-}
-
-/// The lanes of `packet` whose id is `a` or `b`, as a bit mask.
-#[inline(always)]
-fn excluded(packet: &wide::Packet, a: u32, b: u32) -> u32 {
-    let mut mask = 0;
-    for (j, &id) in packet.ids.iter().enumerate() {
-        mask |= (((id == a) | (id == b)) as u32) << j;
-    }
-    mask
 }
 
 // `Bvh` is shared across threads by reference.
@@ -925,7 +937,7 @@ mod tests {
 
         fn run(self, bvh: &Bvh, isa: impl NodeTest, stack: &mut (impl Stack + ?Sized)) -> bool {
             let (q, r, shift) = self.segment.traversal();
-            let Wide { nodes, packets, .. } = &bvh.wide;
+            let (nodes, packets) = bvh.wide.slices();
             let mut blockers = Blockers(Leaves {
                 packets,
                 q: &q,
@@ -947,15 +959,14 @@ mod tests {
         fn closest(&mut self, run: Range<usize>, best: &mut traverse::Best) {
             let l = &self.0;
             for packet in &l.packets[run] {
-                let Some(c) = crossings::<true>(packet, l.q, ALL_LANES) else {
+                let Some(c) = crossings::<true>(packet, l.q, l.ids) else {
                     continue;
                 };
-                let keep = !excluded(packet, l.ids.0, l.ids.1);
                 for j in 0..LANES {
-                    let blocks = if (c.hot & keep) >> j & 1 != 0 {
+                    let blocks = if c.hot >> j & 1 != 0 {
                         true
                     } else {
-                        (c.cold & keep) >> j & 1 != 0 && refine(&packet.lane(j), l.q).is_some()
+                        c.cold >> j & 1 != 0 && refine(&packet.lane(j), l.q).is_some()
                     };
                     if blocks {
                         // (a cold crossing's `f32` distance may lie past the end: clamped
@@ -1370,6 +1381,66 @@ mod tests {
             bad(&[(7, 1 << 20)]),
             Err(BuildError::BadBackSide { .. })
         ));
+    }
+
+    /// An any-hit test that casts rays on another BVH (on the same thread) while a query on the
+    /// thread's stack array is running: the nested query finds the array taken and uses one of
+    /// its own, and both give the answers they give one after the other.
+    #[test]
+    fn nested_queries_take_a_stack_of_their_own() {
+        /// Lets the upper floor pass where a ray down from the crossing, on `floor`, meets an
+        /// even triangle; records whether the thread's array was taken meanwhile.
+        struct Down {
+            floor: Bvh,
+            taken: std::sync::atomic::AtomicUsize,
+        }
+        impl AnyHit for Down {
+            fn passes(&self, id: u32, point: Vec3, _dir: Vec3) -> bool {
+                if ARRAY.with(|cell| cell.try_borrow_mut().is_err()) {
+                    self.taken
+                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
+                id % 4 >= 2
+                    && self
+                        .floor
+                        .closest_hit(&Ray::new(point, -Vec3::Y))
+                        .is_some_and(|h| h.id % 2 == 0)
+            }
+        }
+        let middle = |mut bvh: Bvh| {
+            // a bound that takes the thread's array (the floors' own is below 32)
+            assert!(bvh.wide.stack <= TINY_STACK);
+            bvh.wide.stack = SMALL_STACK;
+            bvh
+        };
+        let (outer, rays) = floor_and_rays(12);
+        let (floor, _) = floor_and_rays(12);
+        let (reference, _) = floor_and_rays(12);
+        let down = Arc::new(Down {
+            floor: middle(floor),
+            taken: Default::default(),
+        });
+        let outer = middle(outer).with_any_hit(down.clone());
+        let (plain, _) = floor_and_rays(12);
+        let reference = reference.with_any_hit(Arc::new(Down {
+            floor: plain,
+            taken: Default::default(),
+        }));
+        let mut passed = 0;
+        for r in &rays {
+            let (a, b) = (outer.closest_hit(r), reference.closest_hit(r));
+            assert_eq!(a, b, "{r:?}");
+            // (a ray that passes the upper floor escapes)
+            passed += usize::from(a.is_none());
+            let p = SurfacePoint::new(r.origin, Vec3::Y, r.exclude);
+            let q = SurfacePoint::free(r.origin + r.dir * 3.0);
+            assert_eq!(outer.occluded(&p, &q), reference.occluded(&p, &q), "{r:?}");
+        }
+        let taken = down.taken.load(std::sync::atomic::Ordering::Relaxed);
+        assert!(
+            passed > 100 && taken > 1000,
+            "{passed} passed, {taken} nested"
+        );
     }
 
     #[test]

@@ -96,6 +96,11 @@ pub(crate) trait NodeTest: Copy {
     /// The test of `node`.
     fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32);
 
+    /// The test of `node` without the entry distances: the mask of the hit children, and the
+    /// mask of those among them whose stretch of the ray (from entering the box to leaving it)
+    /// holds `t`.
+    fn holding(self, node: &Node, ray: &NodeRay, tmax: f32, t: f32) -> (u32, u32);
+
     /// The children of `node` that are inner nodes (not leaves, not empty), as a mask (bit `i`
     /// for child `i`): those whose item has the [`LEAF`] bit clear.
     #[inline(always)]
@@ -119,32 +124,47 @@ pub(crate) trait NodeTest: Copy {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sse;
 
+impl Sse {
+    /// Entry and exit distances of the four children of quarter `h` (children `4h..4h + 4`).
+    #[inline(always)]
+    fn quarter(node: &Node, ray: &NodeRay, tmax: f32, h: usize) -> (Vec4, Vec4) {
+        let p = &node.planes;
+        let at = |plane: usize, k: usize| {
+            p[plane][h] * Vec4::splat(ray.inv[k]) + Vec4::splat(ray.offset[k])
+        };
+        let enter = at(ray.near[0], 0)
+            .max(at(ray.near[1], 1))
+            .max(at(ray.near[2], 2).max(Vec4::splat(ray.tmin)));
+        let leave = at(ray.far[0], 0)
+            .min(at(ray.far[1], 1))
+            .min(at(ray.far[2], 2).min(Vec4::splat(tmax)));
+        (enter, leave)
+    }
+}
+
 impl NodeTest for Sse {
     #[inline(always)]
     fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
-        let t0 = Vec4::splat(ray.tmin);
-        let t1 = Vec4::splat(tmax);
-        let p = &node.planes;
-        let quarter = |h: usize| {
-            let at = |plane: usize, k: usize| {
-                p[plane][h] * Vec4::splat(ray.inv[k]) + Vec4::splat(ray.offset[k])
-            };
-            let enter = at(ray.near[0], 0)
-                .max(at(ray.near[1], 1))
-                .max(at(ray.near[2], 2).max(t0));
-            let leave = at(ray.far[0], 0)
-                .min(at(ray.far[1], 1))
-                .min(at(ray.far[2], 2).min(t1));
-            (enter.to_array(), enter.cmple(leave).bitmask())
-        };
         let mut enter = [0.0; WIDTH];
         let mut mask = 0;
         for h in 0..WIDTH / 4 {
-            let (a, m) = quarter(h);
-            enter[4 * h..4 * h + 4].copy_from_slice(&a);
-            mask |= m << (4 * h);
+            let (a, b) = Sse::quarter(node, ray, tmax, h);
+            enter[4 * h..4 * h + 4].copy_from_slice(&a.to_array());
+            mask |= a.cmple(b).bitmask() << (4 * h);
         }
         (enter, mask)
+    }
+
+    #[inline(always)]
+    fn holding(self, node: &Node, ray: &NodeRay, tmax: f32, t: f32) -> (u32, u32) {
+        let t = Vec4::splat(t);
+        let (mut mask, mut hold) = (0, 0);
+        for h in 0..WIDTH / 4 {
+            let (a, b) = Sse::quarter(node, ray, tmax, h);
+            mask |= a.cmple(b).bitmask() << (4 * h);
+            hold |= (a.cmple(t) & b.cmpge(t)).bitmask() << (4 * h);
+        }
+        (mask, hold & mask)
     }
 }
 
@@ -163,6 +183,55 @@ impl Avx2 {
 }
 
 #[cfg(target_arch = "x86_64")]
+impl Avx2 {
+    /// Entry and exit distances of the eight children of half `h` (children `8h..8h + 8`).
+    ///
+    /// # Safety
+    /// The processor must have AVX2 and FMA (and the caller be compiled for them, or this is
+    /// slow).
+    #[inline(always)]
+    #[allow(unsafe_code)]
+    unsafe fn half(
+        node: &Node,
+        ray: &NodeRay,
+        tmax: f32,
+        h: usize,
+    ) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256) {
+        use std::arch::x86_64::*;
+        // SAFETY: the caller guarantees the features; `plane_times` reads 8 floats of a plane
+        // row of `node` (in bounds, any alignment accepted by `loadu`).
+        // (no closures here: they would not inherit the target features)
+        unsafe {
+            let ix = _mm256_set1_ps(ray.inv[0]);
+            let iy = _mm256_set1_ps(ray.inv[1]);
+            let iz = _mm256_set1_ps(ray.inv[2]);
+            let ox = _mm256_set1_ps(ray.offset[0]);
+            let oy = _mm256_set1_ps(ray.offset[1]);
+            let oz = _mm256_set1_ps(ray.offset[2]);
+            let p = &node.planes;
+            let enter = _mm256_max_ps(
+                _mm256_max_ps(
+                    plane_times(&p[ray.near[0]], h, ix, ox),
+                    plane_times(&p[ray.near[1]], h, iy, oy),
+                ),
+                _mm256_max_ps(
+                    plane_times(&p[ray.near[2]], h, iz, oz),
+                    _mm256_set1_ps(ray.tmin),
+                ),
+            );
+            let leave = _mm256_min_ps(
+                _mm256_min_ps(
+                    plane_times(&p[ray.far[0]], h, ix, ox),
+                    plane_times(&p[ray.far[1]], h, iy, oy),
+                ),
+                _mm256_min_ps(plane_times(&p[ray.far[2]], h, iz, oz), _mm256_set1_ps(tmax)),
+            );
+            (enter, leave)
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
 impl NodeTest for Avx2 {
     /// Meant to be inlined into a function compiled with `#[target_feature(enable =
     /// "avx2,fma")]` (see `Bvh::trace`); elsewhere each intrinsic is a call.
@@ -171,38 +240,13 @@ impl NodeTest for Avx2 {
         use std::arch::x86_64::*;
         let mut enter_out = [0.0f32; WIDTH];
         // SAFETY: `self` exists only if `Avx2::detect` found AVX2 and FMA on this processor, so
-        // the intrinsics' target features are present. `plane_times` reads 8 floats of a plane
-        // row of `node` (in bounds, any alignment accepted by `loadu`), and each store writes
+        // the intrinsics' target features are present (and `Avx2::half`'s). Each store writes
         // 8 floats of `enter_out` (a bounds-checked slice).
         #[allow(unsafe_code)]
         let mask = unsafe {
-            // (no closures here: they would not inherit the target features)
-            let ix = _mm256_set1_ps(ray.inv[0]);
-            let iy = _mm256_set1_ps(ray.inv[1]);
-            let iz = _mm256_set1_ps(ray.inv[2]);
-            let ox = _mm256_set1_ps(ray.offset[0]);
-            let oy = _mm256_set1_ps(ray.offset[1]);
-            let oz = _mm256_set1_ps(ray.offset[2]);
-            let p = &node.planes;
             let mut mask = 0;
             for h in 0..WIDTH / 8 {
-                let enter = _mm256_max_ps(
-                    _mm256_max_ps(
-                        plane_times(&p[ray.near[0]], h, ix, ox),
-                        plane_times(&p[ray.near[1]], h, iy, oy),
-                    ),
-                    _mm256_max_ps(
-                        plane_times(&p[ray.near[2]], h, iz, oz),
-                        _mm256_set1_ps(ray.tmin),
-                    ),
-                );
-                let leave = _mm256_min_ps(
-                    _mm256_min_ps(
-                        plane_times(&p[ray.far[0]], h, ix, ox),
-                        plane_times(&p[ray.far[1]], h, iy, oy),
-                    ),
-                    _mm256_min_ps(plane_times(&p[ray.far[2]], h, iz, oz), _mm256_set1_ps(tmax)),
-                );
+                let (enter, leave) = Avx2::half(node, ray, tmax, h);
                 _mm256_storeu_ps(enter_out[8 * h..8 * h + 8].as_mut_ptr(), enter);
                 let hits = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u32;
                 mask |= hits << (8 * h);
@@ -210,6 +254,29 @@ impl NodeTest for Avx2 {
             mask
         };
         (enter_out, mask)
+    }
+
+    /// As [`Avx2::intersect`].
+    #[inline(always)]
+    fn holding(self, node: &Node, ray: &NodeRay, tmax: f32, t: f32) -> (u32, u32) {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect`.
+        #[allow(unsafe_code)]
+        unsafe {
+            let t = _mm256_set1_ps(t);
+            let (mut mask, mut hold) = (0, 0);
+            for h in 0..WIDTH / 8 {
+                let (enter, leave) = Avx2::half(node, ray, tmax, h);
+                let hits = _mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave);
+                let holds = _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(enter, t),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(leave, t),
+                );
+                mask |= (_mm256_movemask_ps(hits) as u32) << (8 * h);
+                hold |= (_mm256_movemask_ps(holds) as u32) << (8 * h);
+            }
+            (mask, hold & mask)
+        }
     }
 
     #[inline(always)]
@@ -246,20 +313,23 @@ impl Avx512 {
 }
 
 #[cfg(target_arch = "x86_64")]
-impl NodeTest for Avx512 {
-    /// Meant to be inlined into a function compiled with `#[target_feature(enable =
-    /// "avx2,fma,avx512f,avx512vl")]` (see `Bvh::trace`); elsewhere each intrinsic is a call.
+impl Avx512 {
+    /// Entry and exit distances of the sixteen children.
+    ///
+    /// # Safety
+    /// The processor must have AVX-512F (and the caller be compiled for it, or this is slow).
     #[inline(always)]
-    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
+    #[allow(unsafe_code)]
+    unsafe fn whole(
+        node: &Node,
+        ray: &NodeRay,
+        tmax: f32,
+    ) -> (std::arch::x86_64::__m512, std::arch::x86_64::__m512) {
         use std::arch::x86_64::*;
-        let mut enter_out = [0.0f32; WIDTH];
-        // SAFETY: `self` exists only if `Avx512::detect` found AVX-512F on this processor, so
-        // the intrinsics' target features are present. `plane_times16` reads the 16 floats of
-        // one plane row of `node` (64 bytes, in bounds, any alignment accepted by `loadu`),
-        // and the store writes the 16 floats of `enter_out`.
-        #[allow(unsafe_code)]
-        let mask = unsafe {
-            // (no closures here: they would not inherit the target features)
+        // SAFETY: the caller guarantees the feature; `plane_times16` reads the 16 floats of one
+        // plane row of `node` (64 bytes, in bounds, any alignment accepted by `loadu`).
+        // (no closures here: they would not inherit the target features)
+        unsafe {
             let ix = _mm512_set1_ps(ray.inv[0]);
             let iy = _mm512_set1_ps(ray.inv[1]);
             let iz = _mm512_set1_ps(ray.inv[2]);
@@ -284,10 +354,45 @@ impl NodeTest for Avx512 {
                 ),
                 _mm512_min_ps(plane_times16(&p[ray.far[2]], iz, oz), _mm512_set1_ps(tmax)),
             );
+            (enter, leave)
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for Avx512 {
+    /// Meant to be inlined into a function compiled with `#[target_feature(enable =
+    /// "avx2,fma,avx512f,avx512vl")]` (see `Bvh::trace`); elsewhere each intrinsic is a call.
+    #[inline(always)]
+    fn intersect(self, node: &Node, ray: &NodeRay, tmax: f32) -> ([f32; WIDTH], u32) {
+        use std::arch::x86_64::*;
+        let mut enter_out = [0.0f32; WIDTH];
+        // SAFETY: `self` exists only if `Avx512::detect` found AVX-512F on this processor, so
+        // the intrinsics' target features are present (and `Avx512::whole`'s). The store
+        // writes the 16 floats of `enter_out`.
+        #[allow(unsafe_code)]
+        let mask = unsafe {
+            let (enter, leave) = Avx512::whole(node, ray, tmax);
             _mm512_storeu_ps(enter_out.as_mut_ptr(), enter);
             _mm512_cmp_ps_mask::<_CMP_LE_OQ>(enter, leave) as u32
         };
         (enter_out, mask)
+    }
+
+    /// As [`Avx512::intersect`].
+    #[inline(always)]
+    fn holding(self, node: &Node, ray: &NodeRay, tmax: f32, t: f32) -> (u32, u32) {
+        use std::arch::x86_64::*;
+        // SAFETY: as in `intersect`.
+        #[allow(unsafe_code)]
+        unsafe {
+            let t = _mm512_set1_ps(t);
+            let (enter, leave) = Avx512::whole(node, ray, tmax);
+            let mask = _mm512_cmp_ps_mask::<_CMP_LE_OQ>(enter, leave) as u32;
+            let hold = (_mm512_cmp_ps_mask::<_CMP_LE_OQ>(enter, t)
+                & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(leave, t)) as u32;
+            (mask, hold & mask)
+        }
     }
 
     #[inline(always)]
@@ -562,30 +667,37 @@ impl Walk {
     }
 }
 
-/// Any hit: `true` as soon as `leaves.any` is for a packet reached. `stack` as for
-/// [`closest`].
+/// Any hit: `true` as soon as `leaves.any` is for a packet reached. `mid` is the node ray's
+/// distance to the middle of the segment. `stack` as for [`closest`].
 ///
-/// Children are not sorted by distance: any blocker will do. The child visited next is the
-/// first inner node the ray enters (in slot order), or the first leaf when it enters no inner
-/// node; the others are pushed in slot order (popped last slot first). Every one of them is
-/// prefetched at once, the one visited next first, so that its lines do not queue behind the
-/// others'. Going down an inner node first gives the packets of the leaves met on the way
-/// time to arrive before they are tested.
+/// Children are not sorted by distance: any blocker will do, and a blocker is likeliest
+/// where the segment is farthest from its ends, which sit on surfaces facing the segment's
+/// free space (or, for a segment that leaves an end below its surface, at the far side of
+/// the solid it enters, which the segment's other children reach as well). The child visited
+/// next is the first inner node (in slot order) whose stretch of the segment holds its middle,
+/// else the first leaf that holds it, else the first inner node, else the first leaf; the
+/// others are pushed in slot order, those that hold the middle last (so popped first). Every
+/// one of them is prefetched at once, the one visited next first, so that its lines do not
+/// queue behind the others'. Going down an inner node first gives the packets of the leaves
+/// met on the way time to arrive before they are tested.
 ///
-/// Measured against other orders in one process, alternating chunks of 5k segment pairs of the
-/// Embree comparison's rooms (median ratio over chunks): the first leaf or node in slot order
-/// instead is 2% slower on the 100k room; the nearest child first (the closest-hit order)
-/// visits 16% fewer nodes and 6% fewer packets and is 23% slower; the children that hold an
-/// end point of the segment first, 15% fewer nodes, 8-14% slower; the last child first
-/// (Embree's order) and the pushed children popped first slot first, 6-7% more packets, 1-3%
-/// slower; prefetching only the two or four children popped first (and the next one at each
-/// pop), 3-7% slower.
+/// Measured in one process against the version before, which went down the first inner node
+/// in slot order (alternating chunks of 30k segment pairs of the Embree comparison's rooms,
+/// median ratio over chunks): 1.20-1.30 times as fast on mcrad's own pairs and the facing
+/// ones, 1.08-1.16 on Embree's segments (see `PERFORMANCE.md`, *Occlusion*). Orders tried
+/// before that one: the first leaf or node in slot order, 2% slower; the nearest child first
+/// (the closest-hit order) visits 16% fewer nodes and 6% fewer packets and is 23% slower; the
+/// children that hold an end point of the segment first, 15% fewer nodes, 8-14% slower; the
+/// last child first (Embree's order) and the pushed children popped first slot first, 6-7%
+/// more packets, 1-3% slower; prefetching only the two or four children popped first (and the
+/// next one at each pop), 3-7% slower.
 #[inline(always)]
 pub(crate) fn any(
     isa: impl NodeTest,
     nodes: &[Node],
     packs: &[Packet],
     ray: &NodeRay,
+    mid: f32,
     stack: &mut (impl Stack + ?Sized),
     leaves: &mut impl LeafTest,
 ) -> bool {
@@ -609,23 +721,34 @@ pub(crate) fn any(
             continue;
         }
         let node = &nodes[item as usize];
-        let (_, mut mask) = isa.intersect(node, ray, ray.tmax);
+        let (mut mask, hold) = isa.holding(node, ray, ray.tmax, mid);
         if mask == 0 {
             continue;
         }
         let inner = mask & isa.inner(node);
-        let pick = if inner != 0 { inner } else { mask };
+        let pick = if inner & hold != 0 {
+            inner & hold
+        } else if hold != 0 {
+            hold
+        } else if inner != 0 {
+            inner
+        } else {
+            mask
+        };
         let i = pick.trailing_zeros() as usize & (WIDTH - 1);
         mask &= !(1 << i);
         let first = node.items[i];
         prefetch_item(nodes, packs, first);
-        while mask != 0 {
-            let i = mask.trailing_zeros() as usize & (WIDTH - 1);
-            mask &= mask - 1;
-            let item = node.items[i];
-            prefetch_item(nodes, packs, item);
-            *stack.at(sp) = (0.0, item);
-            sp += 1;
+        // those that do not hold the midpoint first, so that those that do are popped first
+        for mut part in [mask & !hold, mask & hold] {
+            while part != 0 {
+                let i = part.trailing_zeros() as usize & (WIDTH - 1);
+                part &= part - 1;
+                let item = node.items[i];
+                prefetch_item(nodes, packs, item);
+                *stack.at(sp) = (0.0, item);
+                sp += 1;
+            }
         }
         next = Some(first);
     }
@@ -668,11 +791,12 @@ mod tests {
 
     /// Every node test finds the children that an `f64` slab test finds (where that is not
     /// within rounding of a box's edge), and the fused ones (AVX2, AVX-512) the very same
-    /// children at the very same distances.
+    /// children at the very same distances; all three find the same children holding a given
+    /// distance, whose boxes hold the ray's point there.
     #[test]
     fn node_tests_agree_with_each_other_and_with_f64() {
         let mut next = crate::testing::uniforms(7);
-        let (mut checked, mut hits) = (0, 0);
+        let (mut checked, mut hits, mut holds) = (0, 0, 0);
         for round in 0..1000 {
             let mut node = Node::empty();
             let mut boxes = [None; WIDTH];
@@ -719,8 +843,33 @@ mod tests {
                     assert!((enter[i] as f64 - t0).abs() < 1e-3, "{} {t0}", enter[i]);
                 }
             }
+            // the children whose stretch holds `t`: the same on every instruction set, and
+            // those of the `f64` test away from rounding
+            let t = next() * 200.0;
+            let (hit, hold) = Sse.holding(&node, &ray, tmax, t);
+            assert_eq!(hit, mask, "round {round}: holding");
+            assert_eq!(hold & !mask, 0);
+            for (i, slot) in boxes.iter().enumerate() {
+                let Some(aabb) = slot else { continue };
+                if hold >> i & 1 == 1 {
+                    let p = (origin + dir * t).as_dvec3();
+                    let outside = (aabb.min.as_dvec3() - p)
+                        .max(p - aabb.max.as_dvec3())
+                        .max_element();
+                    assert!(outside < 1e-3, "round {round} child {i}: {outside}");
+                    holds += 1;
+                }
+            }
             #[cfg(target_arch = "x86_64")]
             if let Some(avx2) = Avx2::detect() {
+                assert_eq!(
+                    avx2.holding(&node, &ray, tmax, t),
+                    (hit, hold),
+                    "round {round}"
+                );
+                if let Some(avx512) = Avx512::detect() {
+                    assert_eq!(avx512.holding(&node, &ray, tmax, t), (hit, hold));
+                }
                 let fused = avx2.intersect(&node, &ray, tmax);
                 assert_eq!(fused.1, mask, "round {round}: AVX2 and SSE");
                 if let Some(avx512) = Avx512::detect() {
@@ -735,8 +884,8 @@ mod tests {
             }
         }
         assert!(
-            checked > 10000 && hits > 800,
-            "{checked} checked, {hits} hits"
+            checked > 10000 && hits > 800 && holds > 80,
+            "{checked} checked, {hits} hits, {holds} holding"
         );
     }
 }

@@ -480,6 +480,13 @@ fn spread(bvh2: &Bvh2, plans: &[Plan], b: usize, k: usize, i: usize, out: &mut [
 }
 
 impl Wide {
+    /// The nodes and packets as slices, for a query to take once (each look through
+    /// [`Pages`] checks the bounds and alignment of its map).
+    #[inline(always)]
+    pub(crate) fn slices(&self) -> (&[Node], &[Packet]) {
+        (&self.nodes, &self.packets)
+    }
+
     /// The 16-wide BVH of `bvh2`, whose leaves index `tris` (and `ids`) through
     /// `bvh2.primitive_indices`, built on the current rayon pool: the top nodes in breadth-
     /// first order until there is work for every thread, then the subtrees below them in

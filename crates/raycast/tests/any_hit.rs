@@ -83,3 +83,58 @@ fn cut_out_cells_let_rays_and_segments_pass() {
     }
     assert!(passed > 500, "{passed} segments through cut-out cells");
 }
+
+/// An any-hit test that casts rays itself (on another BVH, on the same thread): the card's
+/// cells pass where a ray straight down from the crossing, on a BVH of the floor alone, would
+/// find the floor's odd cells (the floor of `inner`, ids 5 and 6, cut like the checker): the
+/// answers of the checker. (On deeper hierarchies the nested query finds the thread's stack
+/// array in use and takes one of its own: `nested_queries_take_a_stack_of_their_own` in
+/// `bvh.rs`.)
+struct Nested(Bvh);
+
+impl AnyHit for Nested {
+    fn passes(&self, id: u32, point: Vec3, _dir: Vec3) -> bool {
+        id == 1
+            && self
+                .0
+                .closest_hit(&Ray::new(point, -Vec3::Y))
+                .is_some_and(|h| odd(h.point))
+    }
+}
+
+#[test]
+fn an_any_hit_test_may_cast_rays() {
+    let mut triangles = square(0.0).to_vec();
+    triangles.extend(square(1.0));
+    let ids = [0, 0, 1, 1];
+    let checker = Bvh::build(&triangles, &ids)
+        .unwrap()
+        .with_any_hit(Arc::new(Checker));
+    let inner = Bvh::build(&square(0.0), &[5, 6]).unwrap();
+    let nested = Bvh::build(&triangles, &ids)
+        .unwrap()
+        .with_any_hit(Arc::new(Nested(inner)));
+    let mut rng = Pcg32::new(9, 13);
+    let mut uniform = || (rng.next_u32() >> 8) as f32 / (1u32 << 24) as f32;
+    let (mut passed, mut blocked) = (0, 0);
+    for _ in 0..2000 {
+        let origin = Vec3::new(uniform(), 2.0, uniform());
+        let target = Vec3::new(uniform(), 0.0, uniform());
+        let dir = (target - origin).normalize();
+        let ray = Ray::new(origin, dir);
+        let hit = nested.closest_hit(&ray).map(|h| h.id);
+        assert_eq!(hit, checker.closest_hit(&ray).map(|h| h.id), "{ray:?}");
+        let (a, b) = (
+            SurfacePoint::free(origin),
+            SurfacePoint::new(target, Vec3::Y, 0),
+        );
+        let occluded = nested.occluded(&a, &b);
+        assert_eq!(occluded, checker.occluded(&a, &b), "{a:?} {b:?}");
+        passed += usize::from(hit == Some(0));
+        blocked += usize::from(occluded);
+    }
+    assert!(
+        passed > 500 && blocked > 500,
+        "{passed} passed, {blocked} blocked"
+    );
+}

@@ -7,6 +7,9 @@
 #   OUT=raw.txt ./run.sh                          # where the raw output goes (default results-<time>.txt)
 #   CORNELL="5 10000000" ROOM100K="3 3000000" ROOM1M="3 2000000" ./run.sh   # "rounds rays" per scene
 #   TABLE_ONLY=file ./run.sh                      # just print the table of an earlier raw output
+#   MAIN_REV=main ./run.sh                         # occlusion and closest hits of this checkout
+#       against a copy of the repository at MAIN_REV and Embree, alternating in one process
+#       (rbench's `occl` command; OCCL_ROOMS / OCCL_CORNELL: "rounds pairs chunk")
 #
 # Never writes to the checkout: the build goes to $B/target (B: a scratch directory, required).
 # The first run sets up $B: Debian's Embree 3 (libembree-dev), a copy of the stand-alone benchmark
@@ -81,13 +84,39 @@ read -r -a ROOM1M_A <<< "${ROOM1M:-3 1000000}"
 
 cd $B/src
 sed -i "s|^mcrad-raycast = .*|mcrad-raycast = { path = \"$MCRAD_RAYCAST\" }|" Cargo.toml
-echo "building against $MCRAD_RAYCAST" >&2
-if ! cargo build --release --features embree > $B/build.log 2>&1; then
+sed -i '/^mcrad-raycast-main = /d' Cargo.toml
+FEATURES=embree
+if [ -n "${MAIN_REV:-}" ]; then
+  # a copy of the repository at MAIN_REV, its ray caster renamed so that both link into rbench
+  REPO=$(cd "$MCRAD_RAYCAST/../.." && pwd)
+  rm -rf "$B/mcrad-main" && mkdir -p "$B/mcrad-main"
+  git -C "$REPO" archive "$MAIN_REV" | tar -x -C "$B/mcrad-main"
+  sed -i 's/^name = "mcrad-raycast"$/name = "mcrad-raycast-main"/' "$B/mcrad-main/crates/raycast/Cargo.toml"
+  sed -i "s|^mcrad-raycast = .*|&\nmcrad-raycast-main = { path = \"$B/mcrad-main/crates/raycast\" }|" Cargo.toml
+  FEATURES=main-copy
+fi
+echo "building against $MCRAD_RAYCAST${MAIN_REV:+ and $MAIN_REV}" >&2
+if ! cargo build --release --features $FEATURES > $B/build.log 2>&1; then
   tail -40 $B/build.log >&2; echo "build FAILED (full log: $B/build.log)" >&2; exit 1
 fi
 grep -E 'Compiling mcrad|Finished' $B/build.log >&2 || true
 [ -f $B/data/room1m.vis.rays ] || $CARGO_TARGET_DIR/release/rbench gen $B/data 10000000
 
+if [ -n "${MAIN_REV:-}" ]; then
+  read -r -a OCCL_ROOMS_A <<< "${OCCL_ROOMS:-40 1000000 50000}"
+  read -r -a OCCL_CORNELL_A <<< "${OCCL_CORNELL:-30 1000000 100000}"
+  {
+    echo "# $(date -u +%FT%TZ) mcrad-raycast=$MCRAD_RAYCAST against $MAIN_REV ($(git -C "$REPO" rev-parse --short "$MAIN_REV"))"
+    echo "# loadavg before: $(cat /proc/loadavg)"
+    CLOSEST=1 $CARGO_TARGET_DIR/release/rbench occl $B/data room100k "${OCCL_ROOMS_A[@]}" 1,2
+    CLOSEST=1 $CARGO_TARGET_DIR/release/rbench occl $B/data room1m "${OCCL_ROOMS_A[@]}" 1,2
+    CLOSEST=1 $CARGO_TARGET_DIR/release/rbench occl $B/data cornell "${OCCL_CORNELL_A[@]}" 1,2
+    echo "# loadavg after: $(cat /proc/loadavg)"
+  } > "$OUT"
+  echo "raw output: $OUT"
+  grep -E '^(OCCL|ANSWERS)' "$OUT" | tee "$OUT.table"
+  exit 0
+fi
 {
   echo "# $(date -u +%FT%TZ) mcrad-raycast=$MCRAD_RAYCAST $( (cd "$MCRAD_RAYCAST" && git rev-parse --short HEAD 2>/dev/null && git status --short . 2>/dev/null | wc -l | sed 's/$/ uncommitted files/') | tr '\n' ' ') $(cat "$MCRAD_RAYCAST/../../HEAD_COMMIT" 2>/dev/null | sed 's/^/snapshot of commit /')"
   echo "# loadavg before: $(cat /proc/loadavg)"
