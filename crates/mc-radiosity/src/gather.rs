@@ -56,7 +56,7 @@ use crate::sampling::{Frame, cosine_hemisphere_concentric, cosine_hemisphere_rej
 use crate::surface::Rays;
 use glam::{DVec3, Vec3};
 use mcrad_combine::Estimate;
-use mcrad_meshing::{CornerGroups, Mesh, Patch};
+use mcrad_meshing::{CornerGroups, Mesh};
 use mcrad_random::StreamKey;
 use mcrad_raycast::{NO_ID, Ray, RayCaster};
 use std::ops::ControlFlow;
@@ -364,7 +364,10 @@ fn round_parts<C: RayCaster>(
     let mut image: Vec<crate::replicates::Row> =
         Vec::with_capacity(if sketch.is_some() { n } else { 0 });
     let mut image_variance: Vec<DVec3> = Vec::with_capacity(if sketch.is_some() { n } else { 0 });
-    let mut faces = FaceSums::new(mesh.face_count());
+    // (its input faces numbered densely: a coarser mesh's elements carry face numbers up to
+    // the finer mesh's face count, and the sums are per face)
+    let face = crate::replicates::dense_faces(patches.iter().map(|p| p.face));
+    let mut faces = FaceSums::new(face.iter().max().map_or(0, |&f| f as usize + 1));
     let mut own: Vec<Own> = Vec::with_capacity(n);
     let coverage = ctx.coverage();
     let mut learned: Vec<(u64, u64, DVec3)> =
@@ -430,7 +433,7 @@ fn round_parts<C: RayCaster>(
         let rho = p.reflectance.as_dvec3();
         inherited.push(rho * rho * (t.inherited_mean + c.offset_variance));
         out.push((p.reflectance, p.emission), &t, c, emission);
-        faces.push(p.face, &t);
+        faces.push(face[i], &t);
         own.push(Own::of(&t));
     });
     ctx.check_cancelled()?;
@@ -441,7 +444,7 @@ fn round_parts<C: RayCaster>(
     round.sketch = image;
     round.sketch_variance = image_variance;
     let qmc = ctx.sampling() == Sampler::Qmc;
-    round.estimate = with_face_pooled(mesh, &own, faces, round.estimate, pool, qmc)?;
+    round.estimate = with_face_pooled(mesh, &face, &own, faces, round.estimate, pool, qmc)?;
     Ok((round, inherited))
 }
 
@@ -467,7 +470,8 @@ impl Own {
     }
 }
 
-/// Per input face the sums [`with_face_pooled`] pools: the patches' sums of squared
+/// Per input face (numbered densely, [`crate::replicates::dense_faces`]) the sums
+/// [`with_face_pooled`] pools: the patches' sums of squared
 /// deviations ((W/m²)²), their degrees of freedom, the emission's part of them, added patch
 /// by patch in mesh order; and whether every ray recorded the emission ([`Tally::tracked`]).
 struct FaceSums {
@@ -497,7 +501,8 @@ impl FaceSums {
     }
 }
 
-/// A patch's sampling variance from all the patches of its input face:
+/// A patch's sampling variance from all the patches of its input face (`face[i]`, patch
+/// `i`'s, numbered as [`FaceSums`] numbers them):
 /// `rho_i² s_f²/n_i`, with `s_f²` the sample variance of the values seen by the rays of the
 /// face's patches, pooled within patches (`sum m2 / sum (n - 1)` over the face's patches).
 /// Unbiased for the variance where the face's patches see nearly the same scene, and nearly
@@ -522,6 +527,7 @@ impl FaceSums {
 /// below their true variance (the median column of `cargo xtask calibrate`).
 fn with_face_pooled(
     mesh: &Mesh,
+    face: &[u32],
     own: &[Own],
     faces: FaceSums,
     estimate: Estimate,
@@ -566,8 +572,8 @@ fn with_face_pooled(
     let mut variance = variance.unwrap_or_default();
     // The sampling variance each patch reports (before `rho²`): the face's, or its own
     // (made where read, twice, rather than held).
-    let model = |p: &Patch, o: &Own| {
-        let f = p.face as usize;
+    let model = |f: u32, o: &Own| {
+        let f = f as usize;
         if dof[f] <= o.n.saturating_sub(1) || o.n == 0 {
             o.own
         } else {
@@ -576,10 +582,10 @@ fn with_face_pooled(
     };
     let gains = if qmc {
         replicates::gains(
-            patches.iter().zip(own).map(|(p, o)| Measure {
-                face: p.face,
+            face.iter().zip(own).map(|(&f, o)| Measure {
+                face: f,
                 replicate: o.replicate,
-                model: model(p, o).element_sum(),
+                model: model(f, o).element_sum(),
                 dof: 1.0,
                 deposits: 0.0,
             }),
@@ -589,9 +595,15 @@ fn with_face_pooled(
         vec![1.0; patches.len()]
     };
     // (Each patch's variance made over its own.)
-    for (((p, o), v), g) in patches.iter().zip(own).zip(variance.iter_mut()).zip(&gains) {
+    for ((((p, &f), o), v), g) in patches
+        .iter()
+        .zip(face)
+        .zip(own)
+        .zip(variance.iter_mut())
+        .zip(&gains)
+    {
         let rho = p.reflectance.as_dvec3();
-        *v = (*v + rho * rho * (model(p, o) * *g - o.own)).max(DVec3::ZERO);
+        *v = (*v + rho * rho * (model(f, o) * *g - o.own)).max(DVec3::ZERO);
     }
     Ok(Estimate::new(radiosity, Some(variance), rays)?)
 }

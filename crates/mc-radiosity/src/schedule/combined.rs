@@ -285,23 +285,23 @@ fn gathering_variance(
 ) -> Result<Vec<DVec3>, Error> {
     let v = gathered.variance().ok_or(EstimateError::MissingVariance)?;
     let patches = mesh.patches();
-    let faces = patches
-        .iter()
-        .map(|p| p.face as usize + 1)
-        .max()
-        .unwrap_or(0);
+    // (the faces numbered densely: a coarser mesh's elements carry face numbers up to the
+    // finer mesh's face count)
+    let face = crate::replicates::dense_faces(patches.iter().map(|p| p.face));
+    let faces = face.iter().max().map_or(0, |&f| f as usize + 1);
     let k = pooled_relative_of(
         faces,
         patches
             .iter()
+            .zip(&face)
             .zip(v)
             .zip(gathered.radiosity())
-            .map(|((p, v), g)| (p.face as usize, *v, *g - p.emission.as_dvec3())),
+            .map(|(((p, &f), v), g)| (f as usize, *v, *g - p.emission.as_dvec3())),
     );
     Ok((0..patches.len())
         .map(|i| {
             let r = reflected(mesh, proxy, i);
-            k[patches[i].face as usize] * r * r
+            k[face[i] as usize] * r * r
         })
         .collect())
 }
