@@ -1079,10 +1079,17 @@ where
     items.map(|m| face_gain[m.face as usize]).collect()
 }
 
-/// Face numbers (one per patch) renumbered `0..F` in their order, `F` the faces present, so
-/// that tables per face are as long as the faces present: what [`Waves`] groups by is the
-/// same, and its sums over faces run in the same order.
+/// Face numbers (one per patch) for tables per face no longer than the patches: as they are
+/// when they are below the patch count, else renumbered `0..F` in their order, `F` the faces
+/// present. What [`Waves`] groups by is the same, and its sums over faces run in the same
+/// order.
 pub(crate) fn dense_faces(face: impl Iterator<Item = u32> + Clone) -> Vec<u32> {
+    let (patches, largest) = face
+        .clone()
+        .fold((0usize, 0u32), |(n, m), f| (n + 1, m.max(f)));
+    if (largest as usize) < patches {
+        return face.collect();
+    }
     let mut present: Vec<u32> = face.clone().collect();
     present.sort_unstable();
     present.dedup();
@@ -1105,6 +1112,9 @@ mod tests {
     fn faces_renumbered_densely_keep_their_order_and_groups() {
         let face = [7u32, 3, 900, 7, 3];
         assert_eq!(dense_faces(face.iter().copied()), vec![1, 0, 2, 1, 0]);
+        // numbers below the patch count stay as they are
+        let small = [2u32, 0, 2, 1];
+        assert_eq!(dense_faces(small.iter().copied()), small.to_vec());
         assert!(dense_faces(std::iter::empty()).is_empty());
     }
 

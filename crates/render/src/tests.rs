@@ -71,6 +71,18 @@ fn settings(width: u32, height: u32, samples_per_pixel: u32) -> RenderSettings {
 
 fn no_progress(_: usize) {}
 
+/// A camera on the lamp's axis at `z` (in front of it for `z > 0`), looking at its centre
+/// `(1, 0.5, 0)`, with a vertical field of view of `fov` degrees.
+fn facing_lamp(z: f32, fov: f32) -> Camera {
+    Camera::look_at(
+        Vec3::new(1.0, 0.5, z),
+        Vec3::new(1.0, 0.5, 0.0),
+        Vec3::Y,
+        fov,
+    )
+    .unwrap()
+}
+
 /// An 8 x 4 sky map bright above the horizon, (4, 5, 6) W/(m² sr), and dim below, 0.5.
 fn half_bright_map() -> mcrad_scene_io::SkyMap {
     let (w, h) = (8u32, 4u32);
@@ -224,13 +236,7 @@ fn constant_radiosity_renders_the_same_with_flat_and_smooth_shading() {
 #[test]
 fn a_uniformly_lit_wall_shows_e_over_pi() {
     let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.3));
-    let camera = Camera::look_at(
-        Vec3::new(1.0, 0.5, 3.0),
-        Vec3::new(1.0, 0.5, 0.0),
-        Vec3::Y,
-        15.0,
-    )
-    .unwrap();
+    let camera = facing_lamp(3.0, 15.0);
     let e: Vec<DVec3> = mesh
         .patches()
         .iter()
@@ -333,13 +339,7 @@ fn smooth_shading_interpolates_a_linear_field_exactly() {
 #[test]
 fn back_faces_are_black() {
     let (mesh, bvh) = lamp(Subdivision::None);
-    let camera = Camera::look_at(
-        Vec3::new(1.0, 0.5, -3.0),
-        Vec3::new(1.0, 0.5, 0.0),
-        Vec3::Y,
-        15.0,
-    )
-    .unwrap();
+    let camera = facing_lamp(-3.0, 15.0);
     let b = vec![DVec3::ONE; mesh.patches().len()];
     let image = render(
         &mesh,
@@ -393,13 +393,7 @@ fn a_camera_behind_a_two_sided_face_sees_its_back_side() {
         .collect();
     let corners = mesh.corner_radiosity(&b, mcrad_meshing::DEFAULT_CREASE_ANGLE_DEGREES);
     for (z, expected) in [(3.0, front), (-3.0, back)] {
-        let camera = Camera::look_at(
-            Vec3::new(1.0, 0.5, z),
-            Vec3::new(1.0, 0.5, 0.0),
-            Vec3::Y,
-            15.0,
-        )
-        .unwrap();
+        let camera = facing_lamp(z, 15.0);
         let expected = (expected / PI).as_vec3();
         for shading in [Shading::Flat(&b), Shading::Smooth(&corners)] {
             let image = render(
@@ -496,13 +490,7 @@ fn rays_that_leave_the_scene_see_the_sky() {
         .map(|p| p.emission.as_dvec3())
         .collect();
     // Looking at the lamp's middle with a wide view: the lamp in the centre, sky around it.
-    let camera = Camera::look_at(
-        Vec3::new(1.0, 0.5, 1.0),
-        Vec3::new(1.0, 0.5, 0.0),
-        Vec3::Y,
-        150.0,
-    )
-    .unwrap();
+    let camera = facing_lamp(1.0, 150.0);
     // a map bright above the horizon, dim below
     let map = half_bright_map();
     let mut with_sky = settings(9, 9, 1);
@@ -587,13 +575,7 @@ fn a_final_gather_under_a_uniform_sky_sees_the_sky_from_an_open_plane() {
     // E / π + rho L exactly, whatever the shading holds (it is never shown, and nothing is
     // there to read it from); the lamp's own emission lights no point of its plane.
     let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.5));
-    let camera = Camera::look_at(
-        Vec3::new(1.0, 0.5, 2.0),
-        Vec3::new(1.0, 0.5, 0.0),
-        Vec3::Y,
-        20.0,
-    )
-    .unwrap();
+    let camera = facing_lamp(2.0, 20.0);
     let junk = vec![DVec3::new(100.0, 50.0, 7.0); mesh.patches().len()];
     let l = DVec3::new(1.0, 2.0, 3.0);
     let gathered = RenderSettings {
@@ -742,13 +724,7 @@ fn a_final_gather_under_a_sky_map_sees_its_mean() {
     // E / π + rho H / π. The gather draws the map by cosine and by luminance (balance
     // heuristic): the image's mean is within 4 of its standard errors of that, per channel.
     let (mesh, bvh) = lamp(Subdivision::MaxEdge(0.5));
-    let camera = Camera::look_at(
-        Vec3::new(1.0, 0.5, 2.0),
-        Vec3::new(1.0, 0.5, 0.0),
-        Vec3::Y,
-        20.0,
-    )
-    .unwrap();
+    let camera = facing_lamp(2.0, 20.0);
     let map = half_bright_map();
     let zeros = vec![DVec3::ZERO; mesh.patches().len()];
     let gathered = RenderSettings {

@@ -649,7 +649,7 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         Err(MethodError::Cancelled) => last_step.take().ok_or(Error::CancelledEarly)?,
         Ok(solution) => {
             // the last step's copy, kept for a cancelled step, goes first
-            last_step = None;
+            drop(last_step.take());
             solution
         }
         Err(e) => return Err(e.into()),
@@ -663,7 +663,6 @@ fn solve_here(problem: &Problem, observer: &mut Observer) -> Result<Answer, Erro
         }
         None => (solution, None),
     };
-    drop(last_step);
     let seconds = start.elapsed().as_secs_f64();
     let piece_rays = solution.estimate.rays();
     // the method's share of the budget below its direct light and a ray an element: the
